@@ -1,0 +1,50 @@
+"""drqn_jax: a JAX-native urban-pedestrian simulator and DRQN trainer.
+
+Reproduces Deshpande, Vaufreydaz and Spalanzani, *Behavioral decision-making
+for urban autonomous driving in the presence of pedestrians using Deep
+Recurrent Q-Network* as pure ``jit``/``vmap``-able JAX functions.
+
+    >>> import jax, drqn_jax
+    >>> env, params = drqn_jax.make("UrbanPedestrians-v0")
+    >>> obs, state = env.reset(jax.random.key(0), params)
+"""
+
+from drqn_jax.agents import (
+    Agent,
+    RuleBasedParams,
+    constant_agent,
+    random_agent,
+    rule_based_agent,
+)
+from drqn_jax.env import (
+    ACTIONS,
+    EnvParams,
+    EnvState,
+    Observation,
+    StaticEnvParams,
+    UrbanPedestrians,
+)
+from drqn_jax.evaluation import EpisodeMetrics, evaluate, run_episodes, summarize
+from drqn_jax.registry import make, registered_envs
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ACTIONS",
+    "Agent",
+    "EnvParams",
+    "EnvState",
+    "EpisodeMetrics",
+    "Observation",
+    "RuleBasedParams",
+    "StaticEnvParams",
+    "UrbanPedestrians",
+    "constant_agent",
+    "evaluate",
+    "make",
+    "random_agent",
+    "registered_envs",
+    "rule_based_agent",
+    "run_episodes",
+    "summarize",
+]

@@ -1,0 +1,14 @@
+"""Policies behind one interface: rule-based (paper §V-E), random, constant."""
+
+from drqn_jax.agents.base import Agent
+from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action, rule_based_agent
+from drqn_jax.agents.simple import constant_agent, random_agent
+
+__all__ = [
+    "Agent",
+    "RuleBasedParams",
+    "constant_agent",
+    "random_agent",
+    "rule_based_action",
+    "rule_based_agent",
+]

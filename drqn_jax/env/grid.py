@@ -1,0 +1,128 @@
+"""The ego-centred multi-channel grid (paper §IV-B "State space", §V-A; SPEC §4).
+
+``rows × cols × 4`` float32 (45 × 30 × 4), 1 m cells, rows along the ego's
+forward axis (row 0 at ``x_rel = grid_x_min = −5 m``), columns lateral
+(column 0 at ``y_rel = grid_y_min = −15 m``, i.e. the ego's right). Channels:
+
+0. occupancy: 1 where a pedestrian's centre lies in the cell, else 0;
+1. relative heading: ``wrap(heading − ego heading) / π`` in [−1, 1);
+2. speed: pedestrian speed / ``speed_norm_pedestrian`` (``speed_channel =
+   "pedestrian"``), or the norm of its velocity relative to the ego /
+   ``speed_norm_relative`` (``"relative"``); ≥ 0;
+3. semantics: class / 3 (walkway 1/3, crossing 2/3, road 1, off-road 0) at the
+   pedestrian's position (``semantic_channel = "pedestrian"``), or the dense
+   class map of every cell centre (``"map"``).
+
+Pedestrians outside the window are dropped: indices are pushed out of range
+*before* the scatter (a negative index would wrap around), and the scatter
+uses ``mode="drop"``. When several pedestrians share a cell the one nearest
+to the ego wins (ties: lower index), so the grid is a deterministic function
+of the state whatever order XLA applies scatter updates in.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from drqn_jax.env.params import (
+    SEMANTIC_MAP,
+    SPEED_RELATIVE,
+    EnvParams,
+    StaticEnvParams,
+)
+from drqn_jax.env.road_map import lane_centre_y, semantic_class
+from drqn_jax.env.state import EgoState, PedestrianState
+
+NUM_CHANNELS = 4
+# Per-channel bounds of the grid values (occupancy, heading, speed, semantics).
+GRID_LOW = (0.0, -1.0, 0.0, 0.0)
+GRID_HIGH = (1.0, 1.0, float("inf"), 1.0)
+
+__all__ = [
+    "GRID_HIGH",
+    "GRID_LOW",
+    "NUM_CHANNELS",
+    "cell_centres",
+    "grid_cell_index",
+    "rasterize_grid",
+]
+
+
+def cell_centres(ego: EgoState, params: EnvParams, static: StaticEnvParams) -> jax.Array:
+    """(rows, cols, 2) float32 world coordinates of every cell centre."""
+    rows = jnp.arange(static.grid_rows, dtype=jnp.float32)
+    cols = jnp.arange(static.grid_cols, dtype=jnp.float32)
+    x = ego.s + static.grid_x_min + (rows + 0.5) * static.cell_size
+    y = lane_centre_y(params) + static.grid_y_min + (cols + 0.5) * static.cell_size
+    return jnp.stack(jnp.broadcast_arrays(x[:, None], y[None, :]), axis=-1)
+
+
+def grid_cell_index(
+    position: jax.Array, ego: EgoState, params: EnvParams, static: StaticEnvParams
+) -> tuple[jax.Array, jax.Array]:
+    """Flat cell index of each position, and whether it lies inside the window.
+
+    Args:
+        position: (P, 2) world coordinates.
+    Returns:
+        (P,) int32 flat index ``row * cols + col`` (``rows * cols`` when outside,
+        which a ``mode="drop"`` scatter ignores); (P,) bool inside.
+    """
+    rel_x = position[:, 0] - ego.s - static.grid_x_min
+    rel_y = position[:, 1] - lane_centre_y(params) - static.grid_y_min
+    row = jnp.floor(rel_x / static.cell_size)
+    col = jnp.floor(rel_y / static.cell_size)
+    inside = (row >= 0) & (row < static.grid_rows) & (col >= 0) & (col < static.grid_cols)
+    size = static.grid_rows * static.grid_cols
+    flat = jnp.where(inside, row * static.grid_cols + col, size)  # out of range, never negative
+    return flat.astype(jnp.int32), inside
+
+
+def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
+    """Push every pedestrian that loses its cell to a nearer one out of range."""
+    num = flat.shape[0]
+    order = jnp.arange(num)
+    same = flat[:, None] == flat[None, :]
+    nearer = (dist2[None, :] < dist2[:, None]) | (
+        (dist2[None, :] == dist2[:, None]) & (order[None, :] < order[:, None])
+    )
+    loses = jnp.any(same & nearer, axis=1)
+    return jnp.where(loses, size, flat)
+
+
+def rasterize_grid(
+    ego: EgoState, peds: PedestrianState, params: EnvParams, static: StaticEnvParams
+) -> jax.Array:
+    """Rasterise the pedestrians around the ego into the observation grid.
+
+    Returns:
+        (rows, cols, 4) float32; channel ranges as in the module docstring.
+    """
+    size = static.grid_rows * static.grid_cols
+    flat, _ = grid_cell_index(peds.position, ego, params, static)
+    rel = peds.position - jnp.stack([ego.s, lane_centre_y(params)])
+    flat = _nearest_wins(flat, jnp.sum(rel * rel, axis=-1), size)
+
+    heading = jnp.mod(peds.heading + jnp.pi, 2.0 * jnp.pi) - jnp.pi  # ego heading is 0
+    speed_ped = jnp.sqrt(jnp.sum(peds.velocity**2, axis=-1)) / params.speed_norm_pedestrian
+    rel_v = peds.velocity - jnp.stack([ego.v, jnp.zeros_like(ego.v)])
+    speed_rel = jnp.sqrt(jnp.sum(rel_v**2, axis=-1)) / params.speed_norm_relative
+    speed = jnp.where(params.speed_channel == SPEED_RELATIVE, speed_rel, speed_ped)
+    use_map = params.semantic_channel == SEMANTIC_MAP
+    semantic = semantic_class(peds.position, params, static).astype(jnp.float32) / 3.0
+    values = jnp.stack([jnp.ones_like(heading), heading / jnp.pi, speed, semantic], axis=-1)
+
+    def with_map(values):
+        dense = semantic_class(cell_centres(ego, params, static), params, static) / 3.0
+        dense = dense.reshape(size).astype(jnp.float32)
+        cell = dense.at[jnp.minimum(flat, size - 1)].get()
+        base = jnp.zeros((size, NUM_CHANNELS), jnp.float32).at[:, 3].set(dense)
+        return base, values.at[:, 3].set(cell)
+
+    def without_map(values):
+        return jnp.zeros((size, NUM_CHANNELS), jnp.float32), values
+
+    base, values = jax.lax.cond(use_map, with_map, without_map, values)
+    grid = base.at[flat].set(values.astype(jnp.float32), mode="drop", unique_indices=False)
+    return grid.reshape(static.grid_rows, static.grid_cols, NUM_CHANNELS)

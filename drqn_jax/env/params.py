@@ -1,0 +1,198 @@
+"""Environment parameters: static (shape-setting) and traced (everything else).
+
+``StaticEnvParams`` fixes array shapes and loop lengths: grid size, pedestrian
+count, number of intersections, episode length, TTC sampling. It is a frozen,
+hashable dataclass passed to ``jit`` as a static argument.
+
+``EnvParams`` holds every other number of ``SPEC.md`` §1–6 (speeds, PID gains,
+plant constants, behaviour probabilities, reward terms, ``v_ref``, the spec's
+switches). It is a pytree of scalars, so ``vmap`` over a batch of
+``EnvParams`` sweeps them inside one compiled program. Both validate on
+construction and name the offending field. Units are SI (m, s, m/s, rad);
+the PID works on an error in km/h as CARLA's local planner does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from drqn_jax.pytree import (
+    check_order,
+    check_sums_to_one,
+    is_concrete,
+    param,
+    pytree_dataclass,
+    validate,
+)
+
+KMH = 1.0 / 3.6  # one km/h in m/s
+
+# Switch codes (the values stored in EnvParams' switch fields).
+SETPOINT_MODES = ("measured", "setpoint")
+SPEED_CHANNELS = ("pedestrian", "relative")
+SEMANTIC_CHANNELS = ("pedestrian", "map")
+SETPOINT_MEASURED, SETPOINT_PREVIOUS = 0, 1
+SPEED_PEDESTRIAN, SPEED_RELATIVE = 0, 1
+SEMANTIC_PEDESTRIAN, SEMANTIC_MAP = 0, 1
+
+__all__ = ["KMH", "EnvParams", "StaticEnvParams"]
+
+
+@dataclasses.dataclass(frozen=True)
+class StaticEnvParams:
+    """Shape-setting settings (hashable; a change recompiles).
+
+    Attributes:
+        num_pedestrians: P, pedestrians alive at all times (paper §V-D: 10).
+        num_intersections: unsignalized intersections along the route (SPEC §1: 3).
+        grid_rows: cells along the ego's forward axis (paper §V-A: 45).
+        grid_cols: cells along the lateral axis (paper §V-A: 30).
+        cell_size: metres per cell (paper §IV-B: 1 m).
+        grid_x_min: forward offset of row 0's near edge from the ego centre (m).
+        grid_y_min: lateral offset of column 0's right edge from the ego centre (m).
+        max_steps: decision steps before truncation (paper's S = 1000).
+        ttc_horizon: TTC look-ahead (s); samples at ``0, ttc_step, …, ttc_horizon``.
+        ttc_step: TTC sampling interval (s).
+        pid_window: number of past errors in the PID integral (CARLA: 10).
+    """
+
+    num_pedestrians: int = 10
+    num_intersections: int = 3
+    grid_rows: int = 45
+    grid_cols: int = 30
+    cell_size: float = 1.0
+    grid_x_min: float = -5.0
+    grid_y_min: float = -15.0
+    max_steps: int = 1000
+    ttc_horizon: float = 3.0
+    ttc_step: float = 0.1
+    pid_window: int = 10
+
+    def __post_init__(self) -> None:
+        positive_ints = ("num_pedestrians", "num_intersections", "grid_rows", "grid_cols")
+        for name in (*positive_ints, "max_steps", "pid_window"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"StaticEnvParams.{name} = {value!r}: must be an integer >= 1")
+        for name in ("cell_size", "ttc_horizon", "ttc_step"):
+            value = getattr(self, name)
+            if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"StaticEnvParams.{name} = {value!r}: must be a number > 0")
+        for name in ("grid_x_min", "grid_y_min"):
+            value = getattr(self, name)
+            if not isinstance(value, int | float) or not math.isfinite(value):
+                raise ValueError(f"StaticEnvParams.{name} = {value!r}: must be a finite number")
+        if self.ttc_step > self.ttc_horizon:
+            raise ValueError(
+                f"StaticEnvParams.ttc_step = {self.ttc_step!r}: must be <= ttc_horizon "
+                f"({self.ttc_horizon!r})"
+            )
+
+    @property
+    def ttc_samples(self) -> int:
+        """Number of TTC sample times, ``0 … ttc_horizon`` inclusive (31 by default)."""
+        return round(self.ttc_horizon / self.ttc_step) + 1
+
+    @property
+    def grid_shape(self) -> tuple[int, int, int]:
+        """``(rows, cols, 4)``: the observation grid's shape."""
+        return (self.grid_rows, self.grid_cols, 4)
+
+
+@pytree_dataclass
+class EnvParams:
+    """Traced parameters of the urban-pedestrian environment (SPEC §1–6).
+
+    Every field is a scalar (or, for a sweep, an array with a leading batch
+    axis). Switches (``setpoint_mode``, ``speed_channel``,
+    ``semantic_channel``) accept their names and are stored as ``int`` codes.
+    """
+
+    # --- Map (SPEC §1) -------------------------------------------------
+    lane_width: float = param(3.5, low=0.0, low_open=True, doc="m; the main road has two lanes")
+    sidewalk_width: float = param(3.0, low=0.0, low_open=True, doc="m")
+    first_intersection_x: float = param(50.0, doc="m; centre of the first cross street")
+    intersection_spacing: float = param(50.0, low=0.0, low_open=True, doc="m")
+    cross_street_width: float = param(7.0, low=0.0, low_open=True, doc="m")
+    crosswalk_width: float = param(3.0, low=0.0, low_open=True, doc="m")
+    goal_x: float = param(200.0, low=0.0, low_open=True, doc="m; route end (ego centre)")
+    # --- Ego vehicle (SPEC §2) -----------------------------------------
+    dt: float = param(0.1, low=0.0, low_open=True, doc="s; one decision step (paper §V-D)")
+    ego_length: float = param(4.5, low=0.0, low_open=True, doc="m")
+    ego_width: float = param(1.8, low=0.0, low_open=True, doc="m")
+    ego_start_s: float = param(5.0, doc="m; arc length of the box centre at reset")
+    setpoint_step: float = param(1.0 * KMH, low=0.0, doc="m/s; +-1 km/h per action")
+    setpoint_mode: int = param("measured", choices=SETPOINT_MODES)
+    pid_kp: float = param(1.0, low=0.0, doc="per km/h of error")
+    pid_ki: float = param(0.05, low=0.0, doc="per km/h·s")
+    pid_kd: float = param(0.0, low=0.0, doc="per km/h/s")
+    throttle_max: float = param(0.75, low=0.0, high=1.0)
+    brake_max: float = param(0.3, low=0.0, high=1.0, doc="PID braking limit (emergency: 1)")
+    accel_throttle: float = param(4.0, low=0.0, doc="m/s^2 at full throttle (A_thr)")
+    accel_brake: float = param(8.0, low=0.0, doc="m/s^2 at full brake (A_brk)")
+    rolling_resistance: float = param(0.1, low=0.0, doc="m/s^2, only while moving")
+    accel_lag: float = param(0.3, low=0.0, low_open=True, doc="s; first-order lag tau")
+    max_vehicle_speed: float = param(50.0 * KMH, low=0.0, low_open=True, doc="m/s")
+    # --- Pedestrians (SPEC §3) -----------------------------------------
+    ped_radius: float = param(0.3, low=0.0, low_open=True, doc="m")
+    ped_speed_min: float = param(0.5 * KMH, low=0.0, doc="m/s (paper: 0.5 km/h)")
+    ped_speed_max: float = param(1.5 * KMH, low=0.0, doc="m/s (paper: 1.5 km/h)")
+    prob_crossing: float = param(0.6, low=0.0, high=1.0)
+    prob_jaywalking: float = param(0.2, low=0.0, high=1.0)
+    prob_sidewalk: float = param(0.2, low=0.0, high=1.0)
+    jaywalk_angle_min: float = param(
+        math.radians(60.0), low=0.0, high=math.pi, low_open=True, high_open=True, doc="rad"
+    )
+    jaywalk_angle_max: float = param(
+        math.radians(120.0), low=0.0, high=math.pi, low_open=True, high_open=True, doc="rad"
+    )
+    sidewalk_walk_min: float = param(10.0, low=0.0, doc="m")
+    sidewalk_walk_max: float = param(30.0, low=0.0, doc="m")
+    walk_on_min: float = param(2.0, low=0.0, doc="m walked on after crossing")
+    walk_on_max: float = param(6.0, low=0.0, doc="m walked on after crossing")
+    spawn_initial_min: float = param(-5.0, doc="m ahead of the ego centre")
+    spawn_initial_max: float = param(40.0, doc="m ahead of the ego centre")
+    spawn_min: float = param(10.0, doc="m ahead of the ego centre")
+    spawn_max: float = param(40.0, doc="m ahead of the ego centre")
+    despawn_behind: float = param(5.0, low=0.0, doc="m behind the ego's rear")
+    despawn_ahead: float = param(45.0, low=0.0, doc="m ahead of the ego centre")
+    ped_clearance: float = param(0.2, low=0.0, doc="m; footprint inflation pedestrians respect")
+    gap_acceptance: int = param(0, low=0, high=1, doc="1: wait at the kerb for the ego")
+    wait_distance: float = param(10.0, low=0.0, doc="m; gap acceptance distance")
+    wait_time: float = param(3.0, low=0.0, doc="s; gap acceptance time to arrive")
+    # --- Observation (SPEC §4) -----------------------------------------
+    speed_channel: int = param("pedestrian", choices=SPEED_CHANNELS)
+    semantic_channel: int = param("pedestrian", choices=SEMANTIC_CHANNELS)
+    speed_norm_pedestrian: float = param(2.0, low=0.0, low_open=True, doc="m/s")
+    speed_norm_relative: float = param(6.0, low=0.0, low_open=True, doc="m/s")
+    # --- Reward and TTC (SPEC §5) --------------------------------------
+    v_ref: float = param(15.0 * KMH, low=0.0, low_open=True, doc="m/s; speed limit")
+    stopped_speed: float = param(0.1, low=0.0, doc="m/s; below it the ego counts as stopped")
+    ttc_threshold: float = param(3.0, low=0.0, doc="s; near-collision when TTC <= it")
+    reward_collision: float = param(-10.0, high=0.0, doc="r_c")
+    reward_stopped: float = param(-1.0, low=-10.0, high=1.0)
+    reward_overspeed: float = param(-0.5, low=-10.0, high=1.0)
+
+    def __post_init__(self) -> None:
+        validate(self)
+        check_order(self, "ped_speed_min", "ped_speed_max")
+        check_order(self, "jaywalk_angle_min", "jaywalk_angle_max")
+        check_order(self, "sidewalk_walk_min", "sidewalk_walk_max")
+        check_order(self, "walk_on_min", "walk_on_max")
+        check_order(self, "spawn_initial_min", "spawn_initial_max")
+        check_order(self, "spawn_min", "spawn_max")
+        check_order(self, "ped_speed_max", "max_vehicle_speed")
+        check_sums_to_one(self, ("prob_crossing", "prob_jaywalking", "prob_sidewalk"))
+
+
+def check_compatible(static: StaticEnvParams, params: EnvParams) -> None:
+    """Cross-checks between static and traced parameters (concrete values only)."""
+    threshold = params.ttc_threshold
+    if is_concrete(threshold) and np.any(np.asarray(threshold) > static.ttc_horizon + 1e-9):
+        raise ValueError(
+            f"EnvParams.ttc_threshold = {params.ttc_threshold!r}: must be <= "
+            f"StaticEnvParams.ttc_horizon ({static.ttc_horizon!r})"
+        )

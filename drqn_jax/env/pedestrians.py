@@ -1,0 +1,238 @@
+"""Pedestrians: spawn, paths, walking, despawn (paper §V-D; SPEC §3).
+
+A pedestrian is spawned on a main sidewalk (never inside a cross street) with
+a behaviour drawn from (crossing, jaywalking, sidewalk) and a path of
+``NUM_WAYPOINTS`` waypoints computed at spawn:
+
+* crossing: along the sidewalk to the nearest crosswalk, across it
+  perpendicular to the road to the far sidewalk, then a few metres on;
+* jaywalking: across the road from where it stands at an angle drawn from
+  ``[jaywalk_angle_min, jaywalk_angle_max]`` to the road axis, then on;
+* sidewalk: along its sidewalk segment for ``U(sidewalk_walk_min, max)``
+  metres in a random direction, stopping before a cross street, so it never
+  enters the road or a crossing.
+
+Each step a pedestrian walks straight to its next waypoint at its desired
+speed, unless its next position would overlap the ego's footprint inflated
+by ``ped_clearance`` (then it stands still), or gap acceptance makes it wait
+at the kerb. Pedestrians far behind, far ahead or done are replaced by new
+ones spawned ahead of the ego.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from drqn_jax.env.collision import box_disc_overlap, ego_box
+from drqn_jax.env.params import EnvParams, StaticEnvParams
+from drqn_jax.env.road_map import crosswalk_centres, intersection_centres
+from drqn_jax.env.state import (
+    CROSSING,
+    JAYWALKING,
+    NUM_WAYPOINTS,
+    SIDEWALK,
+    EgoState,
+    PedestrianState,
+)
+
+_FAR = 1e6  # stands in for ±infinity in segment bounds
+_EDGE = 1e-3  # m kept between a sidewalk pedestrian's end point and a cross street
+
+__all__ = ["despawn_mask", "sidewalk_x", "spawn_pedestrians", "step_pedestrians"]
+
+
+def sidewalk_x(
+    u: jax.Array, x_lo: jax.Array, x_hi: jax.Array, params: EnvParams, static: StaticEnvParams
+) -> jax.Array:
+    """Map uniforms in [0, 1) to x uniform over main-sidewalk stretches in [x_lo, x_hi).
+
+    The stretches inside cross streets (crossings) are cut out: x is drawn
+    uniformly in "compressed" coordinates that skip them, then mapped back.
+
+    Args:
+        u: (...,) float32 uniforms.
+    Returns:
+        (...,) float32 x outside every ``|x - x_c| < cross_street_width / 2``.
+    """
+    starts = intersection_centres(params, static) - 0.5 * params.cross_street_width  # (I,)
+    width = params.cross_street_width
+
+    def compress(x):
+        return x - jnp.sum(jnp.clip(x[..., None] - starts, 0.0, width), axis=-1)
+
+    lo, hi = compress(jnp.asarray(x_lo)), compress(jnp.asarray(x_hi))
+    x = lo + u * (hi - lo)
+    for k in range(static.num_intersections):  # intersections are sorted along x
+        x = jnp.where(x >= starts[k], x + width, x)
+    return x
+
+
+def _segment_bounds(
+    x: jax.Array, params: EnvParams, static: StaticEnvParams
+) -> tuple[jax.Array, jax.Array]:
+    """Ends of the sidewalk segment (between cross streets) that contains ``x``."""
+    xc = intersection_centres(params, static)
+    half = 0.5 * params.cross_street_width
+    ends = xc + half  # a segment may start where a street ends
+    starts = xc - half
+    lo = jnp.max(jnp.where(ends <= x[..., None], ends, -_FAR), axis=-1)
+    hi = jnp.min(jnp.where(starts >= x[..., None], starts, _FAR), axis=-1)
+    return lo + _EDGE, hi - _EDGE
+
+
+def spawn_pedestrians(
+    key: jax.Array,
+    x_lo: jax.Array,
+    x_hi: jax.Array,
+    params: EnvParams,
+    static: StaticEnvParams,
+) -> PedestrianState:
+    """Draw P new pedestrians on the main sidewalks with x in [x_lo, x_hi) (SPEC §3).
+
+    Args:
+        key: PRNG key; x_lo, x_hi: () float32 bounds (m).
+    Returns:
+        PedestrianState with leaves of leading size P, standing still.
+    """
+    num = static.num_pedestrians
+    u = jax.random.uniform(key, (8, num), dtype=jnp.float32)
+    u_x, u_side, u_y, u_speed, u_behaviour, u_angle, u_len, u_dir = u
+
+    x = sidewalk_x(u_x, x_lo, x_hi, params, static)
+    side = jnp.where(u_side < 0.5, 1.0, -1.0)  # +1: left sidewalk, -1: right sidewalk
+    r = params.ped_radius
+    inner = jnp.minimum(params.lane_width + r, params.lane_width + 0.5 * params.sidewalk_width)
+    outer = jnp.maximum(
+        params.lane_width + params.sidewalk_width - r,
+        params.lane_width + 0.5 * params.sidewalk_width,
+    )
+    y = side * (inner + u_y * (outer - inner))
+    speed = params.ped_speed_min + u_speed * (params.ped_speed_max - params.ped_speed_min)
+    behaviour = jnp.where(
+        u_behaviour < params.prob_crossing,
+        CROSSING,
+        jnp.where(
+            u_behaviour < params.prob_crossing + params.prob_jaywalking, JAYWALKING, SIDEWALK
+        ),
+    ).astype(jnp.int32)
+    direction = jnp.where(u_dir < 0.5, 1.0, -1.0)
+    walk_on = params.walk_on_min + u_len * (params.walk_on_max - params.walk_on_min)
+
+    # crossing: nearest crosswalk, across, walk on.
+    cw = crosswalk_centres(params, static)  # (2I,)
+    x_cw = cw[jnp.argmin(jnp.abs(x[:, None] - cw), axis=1)]
+    crossing_path = jnp.stack(
+        [
+            jnp.stack([x_cw, y], -1),
+            jnp.stack([x_cw, -y], -1),
+            jnp.stack([x_cw + direction * walk_on, -y], -1),
+        ],
+        axis=1,
+    )
+    # jaywalking: across at an angle, walk on.
+    angle = params.jaywalk_angle_min + u_angle * (
+        params.jaywalk_angle_max - params.jaywalk_angle_min
+    )
+    x_far = x + 2.0 * jnp.abs(y) * jnp.cos(angle) / jnp.sin(angle)
+    jay_end = jnp.stack([x_far + direction * walk_on, -y], -1)
+    jay_path = jnp.stack([jnp.stack([x_far, -y], -1), jay_end, jay_end], axis=1)
+    # sidewalk: along the sidewalk segment, never past a cross street.
+    length = params.sidewalk_walk_min + u_len * (
+        params.sidewalk_walk_max - params.sidewalk_walk_min
+    )
+    seg_lo, seg_hi = _segment_bounds(x, params, static)
+    x_end = jnp.clip(x + direction * length, seg_lo, seg_hi)
+    side_end = jnp.stack([x_end, y], -1)
+    side_path = jnp.stack([side_end] * NUM_WAYPOINTS, axis=1)
+
+    b = behaviour[:, None, None]
+    waypoints = jnp.where(
+        b == CROSSING, crossing_path, jnp.where(b == JAYWALKING, jay_path, side_path)
+    )
+    position = jnp.stack([x, y], -1)
+    first = waypoints[:, 0] - position
+    heading = jnp.arctan2(first[:, 1], first[:, 0])
+    return PedestrianState(
+        position=position.astype(jnp.float32),
+        velocity=jnp.zeros((num, 2), jnp.float32),
+        heading=heading.astype(jnp.float32),
+        desired_speed=speed.astype(jnp.float32),
+        behaviour=behaviour,
+        waypoints=waypoints.astype(jnp.float32),
+        waypoint_index=jnp.zeros((num,), jnp.int32),
+    )
+
+
+def _waits_at_kerb(
+    peds: PedestrianState, new_position: jax.Array, ego: EgoState, params: EnvParams
+) -> jax.Array:
+    """(P,) bool: gap acceptance (off by default) holds a pedestrian at the kerb.
+
+    A pedestrian about to step from the sidewalk onto the main road waits
+    while the ego has not passed it and is within ``wait_distance`` or will
+    arrive within ``wait_time``.
+    """
+    stepping_on = (jnp.abs(peds.position[:, 1]) >= params.lane_width) & (
+        jnp.abs(new_position[:, 1]) < params.lane_width
+    )
+    gap = peds.position[:, 0] - (ego.s + 0.5 * params.ego_length)  # ahead of the front bumper
+    not_passed = gap > -params.ego_length
+    arrive = gap / jnp.maximum(ego.v, 1e-3)
+    close = (gap < params.wait_distance) | (arrive < params.wait_time)
+    return (params.gap_acceptance == 1) & stepping_on & not_passed & close
+
+
+def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) -> PedestrianState:
+    """Walk every pedestrian one step towards its next waypoint (SPEC §3).
+
+    ``ego`` is the ego after its own step: a pedestrian whose next position
+    would overlap the ego's footprint inflated by ``ped_clearance`` stays put,
+    so any overlap comes from the ego's motion.
+    """
+    num_wp = peds.waypoints.shape[-2]
+    done = peds.done
+    idx = jnp.minimum(peds.waypoint_index, num_wp - 1)
+    target = jnp.take_along_axis(peds.waypoints, idx[:, None, None], axis=1)[:, 0]  # (P, 2)
+    delta = target - peds.position
+    dist = jnp.sqrt(jnp.sum(delta * delta, axis=-1))
+    step = peds.desired_speed * params.dt
+    reach = dist <= step
+    unit = delta / jnp.where(dist > 0.0, dist, 1.0)[:, None]
+    new_position = jnp.where(reach[:, None], target, peds.position + unit * step[:, None])
+
+    centre, half = ego_box(ego.s, params, inflate=params.ped_clearance)
+    blocked = box_disc_overlap(centre, half, new_position, params.ped_radius)
+    moves = ~done & ~blocked & ~_waits_at_kerb(peds, new_position, ego, params)
+    position = jnp.where(moves[:, None], new_position, peds.position)
+    heading = jnp.where(moves & (dist > 0.0), jnp.arctan2(delta[:, 1], delta[:, 0]), peds.heading)
+    return peds.replace(
+        position=position,
+        velocity=(position - peds.position) / params.dt,
+        heading=heading.astype(jnp.float32),
+        waypoint_index=peds.waypoint_index + (moves & reach).astype(jnp.int32),
+    )
+
+
+def despawn_mask(peds: PedestrianState, ego: EgoState, params: EnvParams) -> jax.Array:
+    """(P,) bool: pedestrians to replace: far behind the ego's rear, far ahead, or done."""
+    x = peds.position[:, 0]
+    rear = ego.s - 0.5 * params.ego_length
+    behind = x < rear - params.despawn_behind
+    ahead = x > ego.s + params.despawn_ahead
+    return behind | ahead | peds.done
+
+
+def respawn_pedestrians(
+    key: jax.Array, peds: PedestrianState, ego: EgoState, params: EnvParams, static: StaticEnvParams
+) -> PedestrianState:
+    """Replace despawned pedestrians by new ones in ``[s + spawn_min, s + spawn_max)``."""
+    fresh = spawn_pedestrians(
+        key, ego.s + params.spawn_min, ego.s + params.spawn_max, params, static
+    )
+    gone = despawn_mask(peds, ego, params)
+
+    def pick(new, old):
+        return jnp.where(gone.reshape(gone.shape + (1,) * (old.ndim - 1)), new, old)
+
+    return jax.tree.map(pick, fresh, peds)

@@ -1,0 +1,71 @@
+"""The map: main road, sidewalks, unsignalized intersections, crosswalks (SPEC §1).
+
+The map is a pure function of its parameters: :func:`semantic_class` gives
+the class of any point (0 off-road/building, 1 walkway, 2 crossing, 3 road),
+so a point query and a dense raster share one definition. Conventions for
+boundaries: the main road is ``|y| < lane_width``; a cross street is
+``|x - x_c| < cross_street_width / 2``; a point exactly on a boundary belongs
+to the outer (walkway) side. x runs along the ego's road, y to its left.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from drqn_jax.env.params import EnvParams, StaticEnvParams
+
+OFF_ROAD, WALKWAY, CROSSING_AREA, ROAD = 0, 1, 2, 3
+SEMANTIC_CLASSES = ("off_road", "walkway", "crossing", "road")
+
+__all__ = ["intersection_centres", "lane_centre_y", "semantic_class"]
+
+
+def intersection_centres(params: EnvParams, static: StaticEnvParams) -> jax.Array:
+    """(I,) float32 x of each cross street's centre line (SPEC §1: 50, 100, 150 m)."""
+    k = jnp.arange(static.num_intersections, dtype=jnp.float32)
+    return params.first_intersection_x + k * params.intersection_spacing
+
+
+def lane_centre_y(params: EnvParams) -> jax.Array:
+    """() float32, y of the ego's (right) lane centre: ``-lane_width / 2``."""
+    return -0.5 * jnp.asarray(params.lane_width, jnp.float32)
+
+
+def crosswalk_centres(params: EnvParams, static: StaticEnvParams) -> jax.Array:
+    """(2I,) float32 x of the crosswalks across the main road, both sides of each street."""
+    xc = intersection_centres(params, static)
+    off = 0.5 * params.cross_street_width + 0.5 * params.crosswalk_width
+    return jnp.concatenate([xc - off, xc + off])
+
+
+def semantic_class(xy: jax.Array, params: EnvParams, static: StaticEnvParams) -> jax.Array:
+    """Semantic class of points (SPEC §1).
+
+    Args:
+        xy: (..., 2) float32 world coordinates.
+    Returns:
+        (...,) int32 in {0 off-road, 1 walkway, 2 crossing, 3 road}.
+    """
+    x, y = xy[..., 0], xy[..., 1]
+    ay = jnp.abs(y)
+    dx = jnp.abs(x[..., None] - intersection_centres(params, static))  # (..., I)
+    half_street = 0.5 * params.cross_street_width
+    # Distance along x to the nearest cross street's centre line.
+    dx_min = jnp.min(dx, axis=-1)
+    in_street = dx_min < half_street
+    on_main = ay < params.lane_width
+    on_side = (ay >= params.lane_width) & (ay <= params.lane_width + params.sidewalk_width)
+    main_crosswalk = (
+        on_main & (dx_min >= half_street) & (dx_min <= half_street + params.crosswalk_width)
+    )
+    street_crosswalk = in_street & on_side
+    street_sidewalk = (
+        (ay > params.lane_width + params.sidewalk_width)
+        & (dx_min >= half_street)
+        & (dx_min <= half_street + params.sidewalk_width)
+    )
+    cls = jnp.where(on_main | in_street, ROAD, OFF_ROAD)
+    cls = jnp.where(on_side | street_sidewalk, WALKWAY, cls)
+    cls = jnp.where(main_crosswalk | street_crosswalk, CROSSING_AREA, cls)
+    return cls.astype(jnp.int32)

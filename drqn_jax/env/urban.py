@@ -1,0 +1,192 @@
+"""``UrbanPedestrians``: the environment, wiring the pure modules (SPEC §1–5).
+
+The gymnax 1.0 contract: the env object holds no mutable state, only its
+:class:`StaticEnvParams` (hashable, so the env can be a static ``jit``
+argument).
+
+* ``reset(key, params) -> (obs, state)``;
+* ``step(key, state, action, params) -> (obs, state, reward, terminated,
+  truncated, info)`` with same-step auto-reset: the stepped and the reset
+  states are selected leaf by leaf and the observation is computed once from
+  the result; the pre-reset observation rides in ``info["final_observation"]``
+  (XLA drops it when the caller does not use it);
+* ``step_env`` is the same step without the reset.
+
+One step (0.1 s): the ego acts (setpoint, PID, plant), pedestrians walk (never
+into the car), collision and TTC are measured, the reward is computed, and
+pedestrians far away or done are replaced.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from drqn_jax.env import spaces
+from drqn_jax.env.collision import collision, time_to_collision
+from drqn_jax.env.ego import ego_step, initial_ego
+from drqn_jax.env.grid import GRID_HIGH, GRID_LOW, rasterize_grid
+from drqn_jax.env.params import EnvParams, StaticEnvParams, check_compatible
+from drqn_jax.env.pedestrians import respawn_pedestrians, spawn_pedestrians, step_pedestrians
+from drqn_jax.env.reward import reward as compute_reward
+from drqn_jax.env.state import NO_ACTION, NUM_ACTIONS, EnvState, Observation
+
+__all__ = ["UrbanPedestrians"]
+
+StepResult = tuple[Observation, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]
+
+
+@dataclasses.dataclass(frozen=True)
+class UrbanPedestrians:
+    """Urban road with unsignalized intersections and pedestrians (paper §V-D).
+
+    Attributes:
+        static: shape-setting settings; everything else is a traced ``EnvParams``.
+    """
+
+    static: StaticEnvParams = StaticEnvParams()
+
+    @property
+    def name(self) -> str:
+        return "UrbanPedestrians-v0"
+
+    @property
+    def num_actions(self) -> int:
+        return NUM_ACTIONS
+
+    @property
+    def default_params(self) -> EnvParams:
+        return EnvParams()
+
+    def check_params(self, params: EnvParams) -> EnvParams:
+        """Cross-check ``params`` against this env's static settings; return them."""
+        if not isinstance(params, EnvParams):
+            raise TypeError(f"params must be an EnvParams, got {type(params).__name__}")
+        check_compatible(self.static, params)
+        return params
+
+    # --- observation ---------------------------------------------------
+    def observation(self, state: EnvState, params: EnvParams) -> Observation:
+        """The agent's observation of ``state`` (SPEC §4)."""
+        grid = rasterize_grid(state.ego, state.pedestrians, params, self.static)
+        return Observation(
+            grid=grid,
+            speed=(state.ego.v / params.v_ref).astype(jnp.float32),
+            last_action=state.last_action,
+        )
+
+    # --- reset -----------------------------------------------------------
+    def reset_state(self, key: jax.Array, params: EnvParams) -> EnvState:
+        """A fresh episode: ego at rest at the start, P pedestrians around it."""
+        ego = initial_ego(params, self.static)
+        peds = spawn_pedestrians(
+            key,
+            ego.s + params.spawn_initial_min,
+            ego.s + params.spawn_initial_max,
+            params,
+            self.static,
+        )
+        return EnvState(
+            ego=ego,
+            pedestrians=peds,
+            last_action=jnp.asarray(NO_ACTION, jnp.int32),
+            time=jnp.zeros((), jnp.int32),
+        )
+
+    def reset_env(self, key: jax.Array, params: EnvParams) -> tuple[Observation, EnvState]:
+        state = self.reset_state(key, params)
+        return self.observation(state, params), state
+
+    def reset(
+        self, key: jax.Array, params: EnvParams | None = None
+    ) -> tuple[Observation, EnvState]:
+        """``(obs, state)`` of a new episode."""
+        params = self.default_params if params is None else params
+        return self.reset_env(key, params)
+
+    # --- step ------------------------------------------------------------
+    def transition(
+        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
+    ) -> tuple[EnvState, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]:
+        """One step of the world without observation or reset.
+
+        Returns:
+            next state, reward () float32, terminated () bool, truncated () bool,
+            info (collision, goal, ttc, distance, speed, time).
+        """
+        action = jnp.asarray(action, jnp.int32)
+        ego = ego_step(state.ego, action, params)
+        peds = step_pedestrians(state.pedestrians, ego, params)
+        collided = collision(ego, peds, params)
+        ttc = time_to_collision(ego, peds, params, self.static)
+        r = compute_reward(collided, ttc, ego.v, params)
+        goal = ego.s >= params.goal_x
+        time = state.time + 1
+        terminated = collided | goal
+        truncated = (time >= self.static.max_steps) & ~terminated
+        peds = respawn_pedestrians(key, peds, ego, params, self.static)
+        next_state = EnvState(ego=ego, pedestrians=peds, last_action=action, time=time)
+        info = {
+            "collision": collided,
+            "goal": goal,
+            "ttc": ttc,
+            "distance": ego.s - params.ego_start_s,
+            "speed": ego.v,
+            "time": time,
+        }
+        return next_state, r, terminated, truncated, info
+
+    def step_env(
+        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
+    ) -> StepResult:
+        """One step without auto-reset: ``(obs, state, reward, terminated, truncated, info)``."""
+        next_state, r, terminated, truncated, info = self.transition(key, state, action, params)
+        return self.observation(next_state, params), next_state, r, terminated, truncated, info
+
+    def step(
+        self,
+        key: jax.Array,
+        state: EnvState,
+        action: jax.Array,
+        params: EnvParams | None = None,
+    ) -> StepResult:
+        """One step with same-step auto-reset.
+
+        When the episode ends (terminated or truncated) the returned state and
+        observation are those of a fresh episode drawn from ``key``; the
+        observation before the reset is ``info["final_observation"]``.
+        """
+        params = self.default_params if params is None else params
+        key_step, key_reset = jax.random.split(key)
+        stepped, r, terminated, truncated, info = self.transition(key_step, state, action, params)
+        fresh = self.reset_state(key_reset, params)
+        done = terminated | truncated
+        next_state = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh, stepped)
+        info = dict(info, final_observation=self.observation(stepped, params))
+        return self.observation(next_state, params), next_state, r, terminated, truncated, info
+
+    # --- spaces ----------------------------------------------------------
+    def action_space(self, params: EnvParams | None = None) -> spaces.Discrete:
+        """``Discrete(4)``: accelerate, slow_down, brake, steer."""
+        return spaces.Discrete(NUM_ACTIONS)
+
+    def observation_space(self, params: EnvParams | None = None) -> spaces.Dict:
+        """``Dict(grid, speed, last_action)`` with the documented bounds (SPEC §4)."""
+        params = self.default_params if params is None else params
+        v_max = params.max_vehicle_speed / params.v_ref
+        return spaces.Dict(
+            {
+                "grid": spaces.Box(
+                    np.array(GRID_LOW, np.float32),
+                    np.array(GRID_HIGH, np.float32),
+                    self.static.grid_shape,
+                    jnp.float32,
+                ),
+                "speed": spaces.Box(0.0, v_max, (), jnp.float32),
+                "last_action": spaces.Discrete(NUM_ACTIONS + 1, start=NO_ACTION),
+            }
+        )

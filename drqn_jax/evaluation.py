@@ -1,0 +1,227 @@
+"""Evaluation of an agent over many episodes (paper §V-E, Table III; SPEC §8).
+
+:func:`run_episodes` plays one episode per key, all in parallel under one
+``jit`` (``vmap`` over episodes of a ``lax.scan`` over ``max_steps``), and
+returns per-episode metrics; :func:`summarize` turns them into the §8
+metrics; :func:`evaluate` does both. Episode *i* of an evaluation uses
+``fold_in(key, i)``, so it is the same episode whatever ``num_episodes`` is
+and whichever episodes run beside it.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from drqn_jax.agents.base import Agent
+from drqn_jax.env.params import EnvParams
+from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.pytree import pytree_dataclass
+
+__all__ = [
+    "EpisodeMetrics",
+    "episode_keys",
+    "evaluate",
+    "rollout_episode",
+    "run_episodes",
+    "summarize",
+    "wilson_interval",
+]
+
+Z_95 = 1.959963984540054  # two-sided 95 % normal quantile
+
+
+@pytree_dataclass
+class EpisodeMetrics:
+    """What one episode produced; every leaf gains a leading axis when batched.
+
+    Attributes:
+        episode_return: () float32, sum of rewards.
+        length: () int32, steps until termination or truncation.
+        collision: () bool; goal: () bool (route end reached).
+        distance: () float32, metres travelled along the route.
+        mean_speed: () float32, distance / duration (m/s).
+        min_ttc: () float32, smallest TTC of the episode (s, inf if never finite).
+        near_collision_steps: () int32, steps with ``TTC <= ttc_threshold``.
+    """
+
+    episode_return: jax.Array
+    length: jax.Array
+    collision: jax.Array
+    goal: jax.Array
+    distance: jax.Array
+    mean_speed: jax.Array
+    min_ttc: jax.Array
+    near_collision_steps: jax.Array
+
+
+def episode_keys(key: jax.Array, num_episodes: int, offset: int = 0) -> jax.Array:
+    """(N,) keys ``fold_in(key, offset + i)``: episode i's key does not depend on N."""
+    idx = jnp.arange(offset, offset + num_episodes, dtype=jnp.uint32)
+    return jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, idx)
+
+
+def rollout_episode(
+    agent: Agent, key: jax.Array, env: UrbanPedestrians, params: EnvParams
+) -> EpisodeMetrics:
+    """Play one episode to its end (at most ``max_steps``) and measure it.
+
+    The scan always runs ``max_steps`` steps (branch-free under ``vmap``);
+    steps after the episode ended are not counted.
+    """
+    key_reset, key_carry, key_run = jax.random.split(key, 3)
+    obs, state = env.reset_env(key_reset, params)
+    carry = agent.init_carry(key_carry)
+    zero_f = jnp.zeros((), jnp.float32)
+    zero_i = jnp.zeros((), jnp.int32)
+    false = jnp.zeros((), bool)
+    metrics = EpisodeMetrics(
+        episode_return=zero_f,
+        length=zero_i,
+        collision=false,
+        goal=false,
+        distance=zero_f,
+        mean_speed=zero_f,
+        min_ttc=jnp.asarray(jnp.inf, jnp.float32),
+        near_collision_steps=zero_i,
+    )
+
+    def step(loop, step_key):
+        obs, state, carry, m, done = loop
+        key_act, key_env = jax.random.split(step_key)
+        action, carry = agent.act(key_act, obs, carry, state, env, params)
+        obs, state, reward, terminated, truncated, info = env.step_env(
+            key_env, state, action, params
+        )
+        live = ~done
+        ttc = info["ttc"]
+        m = EpisodeMetrics(
+            episode_return=m.episode_return + jnp.where(live, reward, 0.0),
+            length=m.length + live.astype(jnp.int32),
+            collision=m.collision | (live & info["collision"]),
+            goal=m.goal | (live & info["goal"]),
+            distance=jnp.where(live, info["distance"], m.distance),
+            mean_speed=m.mean_speed,
+            min_ttc=jnp.where(live, jnp.minimum(m.min_ttc, ttc), m.min_ttc),
+            near_collision_steps=m.near_collision_steps
+            + (live & (ttc <= params.ttc_threshold)).astype(jnp.int32),
+        )
+        return (obs, state, carry, m, done | terminated | truncated), None
+
+    keys = jax.random.split(key_run, env.static.max_steps)
+    (_, _, _, m, _), _ = jax.lax.scan(step, (obs, state, carry, metrics, false), keys)
+    duration = jnp.maximum(m.length, 1).astype(jnp.float32) * params.dt
+    return m.replace(mean_speed=(m.distance / duration).astype(jnp.float32))
+
+
+@partial(jax.jit, static_argnames=("env", "batch_size"))
+def run_episodes(
+    agent: Agent,
+    keys: jax.Array,
+    env: UrbanPedestrians,
+    params: EnvParams,
+    batch_size: int | None = None,
+) -> EpisodeMetrics:
+    """One episode per key, in parallel under one ``jit``.
+
+    Args:
+        keys: (N,) PRNG keys (see :func:`episode_keys`).
+        batch_size: run the episodes ``batch_size`` at a time (``lax.map``) to
+            bound memory; ``None`` runs all N at once. Results do not depend on it.
+    Returns:
+        EpisodeMetrics with leaves of leading size N.
+    """
+
+    def one(key):
+        return rollout_episode(agent, key, env, params)
+
+    if batch_size is None:
+        return jax.vmap(one)(keys)
+    return jax.lax.map(one, keys, batch_size=batch_size)
+
+
+def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float, float]:
+    """Wilson score interval for a binomial proportion (95 % by default)."""
+    if trials <= 0:
+        return (0.0, 1.0)
+    p = successes / trials
+    denom = 1.0 + z * z / trials
+    centre = (p + z * z / (2 * trials)) / denom
+    half = z / denom * math.sqrt(p * (1.0 - p) / trials + z * z / (4.0 * trials * trials))
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def _nearest_quantile(values: np.ndarray, q: float) -> float:
+    return float(np.quantile(values, q, method="nearest")) if values.size else math.nan
+
+
+def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str, Any]:
+    """The §8 metrics from per-episode results (host-side, float64).
+
+    Returns a dict of Python numbers: ``num_episodes``; ``collision_free_rate``
+    and its 95 % Wilson interval ``collision_free_ci`` (low, high);
+    ``goal_rate``; ``avg_speed_kmh`` (mean over episodes of distance/time);
+    ``avg_distance_m`` (all) and ``avg_distance_collision_free_m``;
+    ``collisions_per_km``; ``avg_return``; ``avg_length``; min-TTC statistics:
+    ``min_ttc_p05_s``, ``min_ttc_median_s`` (inf when most episodes never have a
+    finite TTC), ``min_ttc_mean_finite_s``, ``near_collision_episode_rate``
+    (min TTC <= threshold) and ``near_collision_step_share``.
+    """
+    ep = jax.tree.map(np.asarray, episodes)
+    n = int(ep.collision.shape[0])
+    collided = ep.collision.astype(bool)
+    free = ~collided
+    distance = ep.distance.astype(np.float64)
+    total_km = distance.sum() / 1000.0
+    min_ttc = ep.min_ttc.astype(np.float64)
+    finite = min_ttc[np.isfinite(min_ttc)]
+    low, high = wilson_interval(int(free.sum()), n)
+    length = ep.length.astype(np.float64)
+    return {
+        "num_episodes": n,
+        "collision_free_rate": float(free.mean()) if n else math.nan,
+        "collision_free_ci": (low, high),
+        "goal_rate": float(ep.goal.mean()) if n else math.nan,
+        "avg_speed_kmh": float(ep.mean_speed.astype(np.float64).mean() * 3.6) if n else math.nan,
+        "avg_distance_m": float(distance.mean()) if n else math.nan,
+        "avg_distance_collision_free_m": float(distance[free].mean()) if free.any() else math.nan,
+        "collisions_per_km": float(collided.sum() / total_km) if total_km > 0 else math.nan,
+        "avg_return": float(ep.episode_return.astype(np.float64).mean()) if n else math.nan,
+        "avg_length": float(length.mean()) if n else math.nan,
+        "min_ttc_p05_s": _nearest_quantile(min_ttc, 0.05),
+        "min_ttc_median_s": _nearest_quantile(min_ttc, 0.5),
+        "min_ttc_mean_finite_s": float(finite.mean()) if finite.size else math.nan,
+        "near_collision_episode_rate": float((min_ttc <= ttc_threshold).mean()) if n else math.nan,
+        "near_collision_step_share": float(ep.near_collision_steps.sum() / max(length.sum(), 1.0)),
+    }
+
+
+def evaluate(
+    agent: Agent,
+    key: jax.Array,
+    num_episodes: int,
+    env: UrbanPedestrians,
+    params: EnvParams | None = None,
+    *,
+    batch_size: int | None = None,
+) -> dict[str, Any]:
+    """Evaluate ``agent`` on ``num_episodes`` episodes (SPEC §8).
+
+    Episodes run in parallel under one ``jit``; episode *i* uses
+    ``fold_in(key, i)``. Returns :func:`summarize`'s dict plus ``agent``
+    and ``episodes`` (the per-episode :class:`EpisodeMetrics` as NumPy arrays).
+    """
+    if not isinstance(num_episodes, int) or num_episodes < 1:
+        raise ValueError(f"evaluate: num_episodes = {num_episodes!r}, must be an integer >= 1")
+    if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
+        raise ValueError(f"evaluate: batch_size = {batch_size!r}, must be an integer >= 1")
+    params = env.default_params if params is None else env.check_params(params)
+    episodes = run_episodes(agent, episode_keys(key, num_episodes), env, params, batch_size)
+    episodes = jax.tree.map(np.asarray, episodes)
+    result = summarize(episodes, float(np.asarray(params.ttc_threshold)))
+    return {"agent": agent.name, **result, "episodes": episodes}

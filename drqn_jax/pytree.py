@@ -1,0 +1,180 @@
+"""Plain-pytree dataclasses and validated parameter fields.
+
+No flax: a frozen dataclass is registered as a JAX pytree whose children are
+its fields. Unflattening bypasses ``__init__`` so that JAX can rebuild a
+parameter object from tracers, ``None`` or ``in_axes`` integers without
+running the validation that guards user construction.
+
+Parameter fields carry their allowed range in the dataclass field metadata
+(:func:`param`); :func:`validate` checks every concrete value against it and
+raises a :class:`ValueError` that names the class, the field, the value and
+what is allowed. Switch fields (``choices=``) accept their names as strings
+and are stored as ``int`` codes, so a switch is a traced value that can be
+swept under ``vmap`` like any other number.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any, TypeVar
+
+import jax
+import numpy as np
+
+T = TypeVar("T")
+
+__all__ = [
+    "check_order",
+    "check_sums_to_one",
+    "is_concrete",
+    "param",
+    "pytree_dataclass",
+    "validate",
+]
+
+
+def pytree_dataclass(cls: type[T] | None = None, *, meta_fields: Sequence[str] = ()) -> Any:
+    """Make ``cls`` a frozen dataclass registered as a JAX pytree.
+
+    Fields named in ``meta_fields`` are static (hashable, part of the tree
+    structure); every other field is a child. ``__post_init__`` runs on user
+    construction only, never when JAX unflattens the tree.
+    """
+
+    def wrap(cls: type[T]) -> type[T]:
+        cls = dataclasses.dataclass(frozen=True)(cls)
+        names = tuple(f.name for f in dataclasses.fields(cls))
+        data = tuple(n for n in names if n not in meta_fields)
+        meta = tuple(n for n in names if n in meta_fields)
+        keys = tuple(jax.tree_util.GetAttrKey(n) for n in data)
+
+        def flatten_with_keys(obj):
+            children = tuple((k, getattr(obj, n)) for k, n in zip(keys, data, strict=True))
+            return children, tuple(getattr(obj, n) for n in meta)
+
+        def flatten(obj):
+            return tuple(getattr(obj, n) for n in data), tuple(getattr(obj, n) for n in meta)
+
+        def unflatten(aux, children):
+            obj = object.__new__(cls)
+            for n, v in zip(data, children, strict=True):
+                object.__setattr__(obj, n, v)
+            for n, v in zip(meta, aux, strict=True):
+                object.__setattr__(obj, n, v)
+            return obj
+
+        jax.tree_util.register_pytree_with_keys(cls, flatten_with_keys, unflatten, flatten)
+        cls.replace = lambda self, **kw: dataclasses.replace(self, **kw)  # type: ignore[attr-defined]
+        return cls
+
+    return wrap if cls is None else wrap(cls)
+
+
+def param(
+    default: Any,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    high_open: bool = False,
+    choices: Sequence[str] | None = None,
+    doc: str = "",
+) -> Any:
+    """A dataclass field with an allowed range (``[low, high]``, ends optionally open).
+
+    ``choices`` makes the field a switch: the user gives one of the names,
+    the object stores its index (an ``int``), which stays traceable.
+    """
+    meta = {
+        "low": low,
+        "high": high,
+        "low_open": low_open,
+        "high_open": high_open,
+        "choices": tuple(choices) if choices is not None else None,
+        "doc": doc,
+    }
+    if choices is not None and isinstance(default, str):
+        default = meta["choices"].index(default)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def is_concrete(value: Any) -> bool:
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(value))
+
+
+def _allowed(meta: dict) -> str:
+    low, high = meta["low"], meta["high"]
+    lo = "" if low is None else f"{low} {'<' if meta['low_open'] else '<='} "
+    hi = "" if high is None else f" {'<' if meta['high_open'] else '<='} {high}"
+    return f"{lo}value{hi}".strip()
+
+
+def validate(obj: Any) -> None:
+    """Check every concrete field of ``obj`` against its :func:`param` metadata.
+
+    Converts switch names to their codes in place (the object is frozen, so
+    via ``object.__setattr__``; call it from ``__post_init__`` only).
+    Raises ``ValueError("Class.field = value: ...")`` on the first bad field.
+    """
+    cls_name = type(obj).__name__
+    for f in dataclasses.fields(obj):
+        meta = f.metadata
+        if "low" not in meta:
+            continue
+        value = getattr(obj, f.name)
+        where = f"{cls_name}.{f.name} = {value!r}"
+        if not is_concrete(value):
+            continue
+        choices = meta["choices"]
+        if choices is not None:
+            if isinstance(value, str):
+                if value not in choices:
+                    raise ValueError(f"{where}: must be one of {', '.join(map(repr, choices))}")
+                object.__setattr__(obj, f.name, choices.index(value))
+                continue
+            arr = np.asarray(value)
+            if not np.issubdtype(arr.dtype, np.integer) or np.any(
+                (arr < 0) | (arr >= len(choices))
+            ):
+                raise ValueError(f"{where}: must be one of {', '.join(map(repr, choices))}")
+            continue
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{where}: must be a number ({_allowed(meta)})") from None
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{where}: must be finite ({_allowed(meta)})")
+        low, high = meta["low"], meta["high"]
+        bad = np.zeros(arr.shape, bool)
+        if low is not None:
+            bad |= (arr <= low) if meta["low_open"] else (arr < low)
+        if high is not None:
+            bad |= (arr >= high) if meta["high_open"] else (arr > high)
+        if np.any(bad):
+            raise ValueError(f"{where}: out of range, allowed {_allowed(meta)}")
+
+
+def check_order(obj: Any, lower: str, upper: str, *, strict: bool = False) -> None:
+    """Raise unless ``obj.lower <= obj.upper`` (``<`` if ``strict``) for concrete values."""
+    a, b = getattr(obj, lower), getattr(obj, upper)
+    if not (is_concrete(a) and is_concrete(b)):
+        return
+    ok = np.all(np.asarray(a) < np.asarray(b)) if strict else np.all(np.asarray(a) <= np.asarray(b))
+    if not ok:
+        rel = "<" if strict else "<="
+        name = type(obj).__name__
+        raise ValueError(
+            f"{name}.{lower} = {a!r} and {name}.{upper} = {b!r}: must satisfy {lower} {rel} {upper}"
+        )
+
+
+def check_sums_to_one(obj: Any, names: Sequence[str], *, tol: float = 1e-6) -> None:
+    """Raise unless the concrete fields ``names`` of ``obj`` sum to 1 (within ``tol``)."""
+    values = [getattr(obj, n) for n in names]
+    if not all(is_concrete(v) for v in values):
+        return
+    total = np.sum([np.asarray(v, dtype=np.float64) for v in values], axis=0)
+    if not np.all(np.abs(total - 1.0) <= tol):
+        parts = " + ".join(f"{n} ({getattr(obj, n)!r})" for n in names)
+        raise ValueError(f"{type(obj).__name__}: {parts} = {total!r}, must sum to 1")

@@ -1,0 +1,59 @@
+"""``make(env_id)``: the registered environments and their parameter presets."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from drqn_jax.env.params import EnvParams, StaticEnvParams
+from drqn_jax.env.urban import UrbanPedestrians
+
+# Each id maps to (static overrides, traced overrides) on top of the defaults.
+_PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
+    # The paper's settings (SPEC §1–5): pedestrians at 0.5–1.5 km/h.
+    "UrbanPedestrians-v0": ({}, {}),
+    # Pedestrians at realistic walking speeds, 0.5–1.5 m/s.
+    "UrbanPedestriansRealistic-v0": ({}, {"ped_speed_min": 0.5, "ped_speed_max": 1.5}),
+}
+
+__all__ = ["make", "registered_envs"]
+
+
+def registered_envs() -> tuple[str, ...]:
+    """The ids ``make`` accepts."""
+    return tuple(_PRESETS)
+
+
+def make(
+    env_id: str = "UrbanPedestrians-v0", **overrides: Any
+) -> tuple[UrbanPedestrians, EnvParams]:
+    """Build an environment and its default parameters.
+
+    Args:
+        env_id: one of :func:`registered_envs`.
+        **overrides: any ``StaticEnvParams`` field (changes shapes, e.g.
+            ``num_pedestrians=20``) or ``EnvParams`` field (e.g.
+            ``ped_speed_max=0.5``, ``semantic_channel="map"``).
+    Returns:
+        ``(env, params)``: the env (hashable, static) and its ``EnvParams``.
+    Raises:
+        ValueError: unknown id or field, or a value out of its allowed range.
+    """
+    if env_id not in _PRESETS:
+        raise ValueError(f"unknown env id {env_id!r}; registered: {', '.join(_PRESETS)}")
+    static_kw, traced_kw = (dict(d) for d in _PRESETS[env_id])
+    static_names = {f.name for f in dataclasses.fields(StaticEnvParams)}
+    traced_names = {f.name for f in dataclasses.fields(EnvParams)}
+    for name, value in overrides.items():
+        if name in static_names:
+            static_kw[name] = value
+        elif name in traced_names:
+            traced_kw[name] = value
+        else:
+            raise ValueError(
+                f"make({env_id!r}): unknown field {name!r}; fields are those of "
+                "StaticEnvParams and EnvParams"
+            )
+    env = UrbanPedestrians(StaticEnvParams(**static_kw))
+    params = env.check_params(EnvParams(**traced_kw))
+    return env, params
