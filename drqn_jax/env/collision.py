@@ -37,8 +37,10 @@ def box_disc_overlap(
     Returns:
         (...,) bool.
     """
-    d = jnp.maximum(jnp.abs(disc_centre - box_centre) - box_half, 0.0)
-    return jnp.sum(d * d, axis=-1) < radius * radius
+    # Components written out: a reduction over a minor axis of size 2 vectorises poorly.
+    dx = jnp.maximum(jnp.abs(disc_centre[..., 0] - box_centre[..., 0]) - box_half[0], 0.0)
+    dy = jnp.maximum(jnp.abs(disc_centre[..., 1] - box_centre[..., 1]) - box_half[1], 0.0)
+    return dx * dx + dy * dy < radius * radius
 
 
 def collision(ego: EgoState, peds: PedestrianState, params: EnvParams) -> jax.Array:
@@ -60,11 +62,14 @@ def time_to_collision(
     Returns:
         () float32 in ``{0, ttc_step, …, ttc_horizon} ∪ {inf}``.
     """
-    t = jnp.arange(static.ttc_samples, dtype=jnp.float32) * static.ttc_step  # (K,)
-    centre, half = ego_box(ego.s + ego.v * t, params)  # (K, 2)
-    ped = peds.position[None] + peds.velocity[None] * t[:, None, None]  # (K, P, 2)
-    hit = box_disc_overlap(centre[:, None], half, ped, params.ped_radius)  # (K, P)
-    any_hit = jnp.any(hit, axis=1)  # (K,)
-    first = jnp.argmax(any_hit)
-    ttc = jnp.where(jnp.any(any_hit), t[first], jnp.inf)
+    t = jnp.arange(static.ttc_samples, dtype=jnp.float32)[:, None] * static.ttc_step  # (K, 1)
+    # Pedestrians relative to the ego's box centre, in the ego's moving frame: (K, P).
+    _, half = ego_box(ego.s, params)
+    rel_x = peds.position[:, 0] - ego.s + (peds.velocity[:, 0] - ego.v) * t
+    rel_y = peds.position[:, 1] - lane_centre_y(params) + peds.velocity[:, 1] * t
+    hit = box_disc_overlap(
+        jnp.zeros(2, jnp.float32), half, jnp.stack([rel_x, rel_y], -1), params.ped_radius
+    )
+    # The first sample time with any overlap, as one min-reduction (no argmax).
+    ttc = jnp.min(jnp.where(hit, t, jnp.inf))
     return jnp.where(ego.v < params.stopped_speed, jnp.inf, ttc).astype(jnp.float32)

@@ -224,15 +224,18 @@ def despawn_mask(peds: PedestrianState, ego: EgoState, params: EnvParams) -> jax
 
 
 def respawn_pedestrians(
-    key: jax.Array, peds: PedestrianState, ego: EgoState, params: EnvParams, static: StaticEnvParams
+    key: jax.Array,
+    peds: PedestrianState,
+    replace: jax.Array,
+    x_lo: jax.Array,
+    x_hi: jax.Array,
+    params: EnvParams,
+    static: StaticEnvParams,
 ) -> PedestrianState:
-    """Replace despawned pedestrians by new ones in ``[s + spawn_min, s + spawn_max)``."""
-    fresh = spawn_pedestrians(
-        key, ego.s + params.spawn_min, ego.s + params.spawn_max, params, static
-    )
-    gone = despawn_mask(peds, ego, params)
+    """Replace the pedestrians flagged in ``replace`` (P,) by new ones in [x_lo, x_hi)."""
+    fresh = spawn_pedestrians(key, x_lo, x_hi, params, static)
 
     def pick(new, old):
-        return jnp.where(gone.reshape(gone.shape + (1,) * (old.ndim - 1)), new, old)
+        return jnp.where(replace.reshape(replace.shape + (1,) * (old.ndim - 1)), new, old)
 
     return jax.tree.map(pick, fresh, peds)

@@ -31,7 +31,12 @@ from drqn_jax.env.collision import collision, time_to_collision
 from drqn_jax.env.ego import ego_step, initial_ego
 from drqn_jax.env.grid import GRID_HIGH, GRID_LOW, rasterize_grid
 from drqn_jax.env.params import EnvParams, StaticEnvParams, check_compatible
-from drqn_jax.env.pedestrians import respawn_pedestrians, spawn_pedestrians, step_pedestrians
+from drqn_jax.env.pedestrians import (
+    despawn_mask,
+    respawn_pedestrians,
+    spawn_pedestrians,
+    step_pedestrians,
+)
 from drqn_jax.env.reward import reward as compute_reward
 from drqn_jax.env.state import NO_ACTION, NUM_ACTIONS, EnvState, Observation
 
@@ -48,7 +53,7 @@ class UrbanPedestrians:
         static: shape-setting settings; everything else is a traced ``EnvParams``.
     """
 
-    static: StaticEnvParams = StaticEnvParams()
+    static: StaticEnvParams = dataclasses.field(default_factory=StaticEnvParams)
 
     @property
     def name(self) -> str:
@@ -80,19 +85,19 @@ class UrbanPedestrians:
         )
 
     # --- reset -----------------------------------------------------------
+    def _spawn_range(self, s: jax.Array, params: EnvParams, initial: jax.Array):
+        """x range of new pedestrians: around the start at reset, ahead of the ego otherwise."""
+        lo = jnp.where(initial, params.spawn_initial_min, params.spawn_min)
+        hi = jnp.where(initial, params.spawn_initial_max, params.spawn_max)
+        return s + lo, s + hi
+
     def reset_state(self, key: jax.Array, params: EnvParams) -> EnvState:
         """A fresh episode: ego at rest at the start, P pedestrians around it."""
         ego = initial_ego(params, self.static)
-        peds = spawn_pedestrians(
-            key,
-            ego.s + params.spawn_initial_min,
-            ego.s + params.spawn_initial_max,
-            params,
-            self.static,
-        )
+        lo, hi = self._spawn_range(ego.s, params, jnp.asarray(True))
         return EnvState(
             ego=ego,
-            pedestrians=peds,
+            pedestrians=spawn_pedestrians(key, lo, hi, params, self.static),
             last_action=jnp.asarray(NO_ACTION, jnp.int32),
             time=jnp.zeros((), jnp.int32),
         )
@@ -109,13 +114,16 @@ class UrbanPedestrians:
         return self.reset_env(key, params)
 
     # --- step ------------------------------------------------------------
-    def transition(
-        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
+    def advance(
+        self, state: EnvState, action: jax.Array, params: EnvParams
     ) -> tuple[EnvState, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]:
-        """One step of the world without observation or reset.
+        """The deterministic part of a step: everything but replacing pedestrians.
+
+        The ego acts, pedestrians walk, collision and TTC are measured on the
+        result and the reward is computed (SPEC §2–5).
 
         Returns:
-            next state, reward () float32, terminated () bool, truncated () bool,
+            stepped state, reward () float32, terminated () bool, truncated () bool,
             info (collision, goal, ttc, distance, speed, time).
         """
         action = jnp.asarray(action, jnp.int32)
@@ -128,8 +136,7 @@ class UrbanPedestrians:
         time = state.time + 1
         terminated = collided | goal
         truncated = (time >= self.static.max_steps) & ~terminated
-        peds = respawn_pedestrians(key, peds, ego, params, self.static)
-        next_state = EnvState(ego=ego, pedestrians=peds, last_action=action, time=time)
+        stepped = EnvState(ego=ego, pedestrians=peds, last_action=action, time=time)
         info = {
             "collision": collided,
             "goal": goal,
@@ -138,13 +145,24 @@ class UrbanPedestrians:
             "speed": ego.v,
             "time": time,
         }
-        return next_state, r, terminated, truncated, info
+        return stepped, r, terminated, truncated, info
+
+    def _respawn(self, key: jax.Array, state: EnvState, params: EnvParams) -> EnvState:
+        """Replace pedestrians far behind, far ahead or done (SPEC §3)."""
+        gone = despawn_mask(state.pedestrians, state.ego, params)
+        lo, hi = self._spawn_range(state.ego.s, params, jnp.asarray(False))
+        peds = respawn_pedestrians(key, state.pedestrians, gone, lo, hi, params, self.static)
+        return state.replace(pedestrians=peds)
 
     def step_env(
         self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
     ) -> StepResult:
-        """One step without auto-reset: ``(obs, state, reward, terminated, truncated, info)``."""
-        next_state, r, terminated, truncated, info = self.transition(key, state, action, params)
+        """One step without auto-reset: ``(obs, state, reward, terminated, truncated, info)``.
+
+        ``key`` draws the pedestrians that replace those far away or done.
+        """
+        stepped, r, terminated, truncated, info = self.advance(state, action, params)
+        next_state = self._respawn(key, stepped, params)
         return self.observation(next_state, params), next_state, r, terminated, truncated, info
 
     def step(
@@ -156,17 +174,30 @@ class UrbanPedestrians:
     ) -> StepResult:
         """One step with same-step auto-reset.
 
-        When the episode ends (terminated or truncated) the returned state and
-        observation are those of a fresh episode drawn from ``key``; the
-        observation before the reset is ``info["final_observation"]``.
+        While the episode goes on this is exactly ``step_env(key, …)``; when it
+        ends (terminated or truncated) the returned state and observation are
+        exactly ``reset(key, params)``'s, and the observation ``step_env``
+        would have returned is ``info["final_observation"]``. One set of
+        pedestrians is drawn per step (for respawn or for the new episode), and
+        the observation is rasterised once; the final observation costs a
+        second draw and raster only when the caller uses it.
         """
         params = self.default_params if params is None else params
-        key_step, key_reset = jax.random.split(key)
-        stepped, r, terminated, truncated, info = self.transition(key_step, state, action, params)
-        fresh = self.reset_state(key_reset, params)
+        stepped, r, terminated, truncated, info = self.advance(state, action, params)
         done = terminated | truncated
-        next_state = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh, stepped)
-        info = dict(info, final_observation=self.observation(stepped, params))
+        fresh_ego = initial_ego(params, self.static)
+        ego = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh_ego, stepped.ego)
+        gone = done | despawn_mask(stepped.pedestrians, stepped.ego, params)
+        lo, hi = self._spawn_range(ego.s, params, done)
+        peds = respawn_pedestrians(key, stepped.pedestrians, gone, lo, hi, params, self.static)
+        next_state = EnvState(
+            ego=ego,
+            pedestrians=peds,
+            last_action=jnp.where(done, NO_ACTION, stepped.last_action).astype(jnp.int32),
+            time=jnp.where(done, 0, stepped.time).astype(jnp.int32),
+        )
+        final = self._respawn(key, stepped, params)
+        info = dict(info, final_observation=self.observation(final, params))
         return self.observation(next_state, params), next_state, r, terminated, truncated, info
 
     # --- spaces ----------------------------------------------------------
