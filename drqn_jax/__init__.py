@@ -7,16 +7,24 @@ Recurrent Q-Network* as pure ``jit``/``vmap``-able JAX functions.
     >>> import jax, drqn_jax
     >>> env, params = drqn_jax.make("UrbanPedestrians-v0")
     >>> obs, state = env.reset(jax.random.key(0), params)
+
+Importing the package caps XLA:CPU code generation at AVX (no fused
+multiply-add) so that results are bit-identical whatever the batch size;
+see :mod:`drqn_jax.determinism`.
 """
 
-from drqn_jax.agents import (
+from drqn_jax.determinism import configure_xla_flags
+
+configure_xla_flags()
+
+from drqn_jax.agents import (  # noqa: E402
     Agent,
     RuleBasedParams,
     constant_agent,
     random_agent,
     rule_based_agent,
 )
-from drqn_jax.env import (
+from drqn_jax.env import (  # noqa: E402
     ACTIONS,
     EnvParams,
     EnvState,
@@ -24,8 +32,8 @@ from drqn_jax.env import (
     StaticEnvParams,
     UrbanPedestrians,
 )
-from drqn_jax.evaluation import EpisodeMetrics, evaluate, run_episodes, summarize
-from drqn_jax.registry import make, registered_envs
+from drqn_jax.evaluation import EpisodeMetrics, evaluate, run_episodes, summarize  # noqa: E402
+from drqn_jax.registry import make, registered_envs  # noqa: E402
 
 __version__ = "0.1.0"
 

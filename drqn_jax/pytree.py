@@ -113,8 +113,11 @@ def _allowed(meta: dict) -> str:
 def validate(obj: Any) -> None:
     """Check every concrete field of ``obj`` against its :func:`param` metadata.
 
-    Converts switch names to their codes in place (the object is frozen, so
-    via ``object.__setattr__``; call it from ``__post_init__`` only).
+    Stores every concrete value as a float32 (int32 for switches and integer
+    fields) NumPy array, so eager arithmetic on parameters is the same
+    float32 arithmetic as under ``jit``; switch names become their codes.
+    The object is frozen, so this goes through ``object.__setattr__``: call
+    it from ``__post_init__`` only.
     Raises ``ValueError("Class.field = value: ...")`` on the first bad field.
     """
     cls_name = type(obj).__name__
@@ -131,13 +134,13 @@ def validate(obj: Any) -> None:
             if isinstance(value, str):
                 if value not in choices:
                     raise ValueError(f"{where}: must be one of {', '.join(map(repr, choices))}")
-                object.__setattr__(obj, f.name, choices.index(value))
-                continue
+                value = choices.index(value)
             arr = np.asarray(value)
             if not np.issubdtype(arr.dtype, np.integer) or np.any(
                 (arr < 0) | (arr >= len(choices))
             ):
                 raise ValueError(f"{where}: must be one of {', '.join(map(repr, choices))}")
+            object.__setattr__(obj, f.name, arr.astype(np.int32))
             continue
         try:
             arr = np.asarray(value, dtype=np.float64)
@@ -153,6 +156,10 @@ def validate(obj: Any) -> None:
             bad |= (arr >= high) if meta["high_open"] else (arr > high)
         if np.any(bad):
             raise ValueError(f"{where}: out of range, allowed {_allowed(meta)}")
+        integer = isinstance(f.default, int) and not isinstance(f.default, bool)
+        if integer and np.any(arr != np.round(arr)):
+            raise ValueError(f"{where}: must be an integer ({_allowed(meta)})")
+        object.__setattr__(obj, f.name, arr.astype(np.int32 if integer else np.float32))
 
 
 def check_order(obj: Any, lower: str, upper: str, *, strict: bool = False) -> None:

@@ -71,7 +71,7 @@ def pid_step(
     errors = jnp.concatenate([ego.pid_errors[1:], e[None]])
     count = jnp.minimum(ego.pid_count + 1, errors.shape[0])
     enough = count >= 2
-    de = jnp.where(enough, (errors[-1] - errors[-2]) / params.dt, 0.0)
+    de = jnp.where(enough, (errors[-1] - errors[-2]) * (1.0 / params.dt), 0.0)
     ie = jnp.where(enough, jnp.sum(errors) * params.dt, 0.0)
     u = params.pid_kp * e + params.pid_kd * de + params.pid_ki * ie
     return jnp.clip(u, -1.0, 1.0).astype(jnp.float32), errors, count

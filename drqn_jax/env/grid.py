@@ -71,8 +71,8 @@ def grid_cell_index(
     """
     rel_x = position[:, 0] - ego.s - static.grid_x_min
     rel_y = position[:, 1] - lane_centre_y(params) - static.grid_y_min
-    row = jnp.floor(rel_x / static.cell_size)
-    col = jnp.floor(rel_y / static.cell_size)
+    row = jnp.floor(rel_x * (1.0 / static.cell_size))
+    col = jnp.floor(rel_y * (1.0 / static.cell_size))
     inside = (row >= 0) & (row < static.grid_rows) & (col >= 0) & (col < static.grid_cols)
     size = static.grid_rows * static.grid_cols
     flat = jnp.where(inside, row * static.grid_cols + col, size)  # out of range, never negative
@@ -104,10 +104,14 @@ def rasterize_grid(
     rel = peds.position - jnp.stack([ego.s, lane_centre_y(params)])
     flat = _nearest_wins(flat, jnp.sum(rel * rel, axis=-1), size)
 
-    heading = jnp.mod(peds.heading + jnp.pi, 2.0 * jnp.pi) - jnp.pi  # ego heading is 0
-    speed_ped = jnp.sqrt(jnp.sum(peds.velocity**2, axis=-1)) / params.speed_norm_pedestrian
+    # Headings come from atan2, in [-pi, pi]: wrap pi to -pi. The ego heading is 0.
+    # No multiply-add here (nor for the speed): XLA may fuse those into FMAs
+    # differently in differently shaped programs, and the grid must not depend
+    # on the batch size.
+    heading = jnp.where(peds.heading >= jnp.pi, peds.heading - 2.0 * jnp.pi, peds.heading)
+    speed_ped = peds.speed * (1.0 / params.speed_norm_pedestrian)
     rel_v = peds.velocity - jnp.stack([ego.v, jnp.zeros_like(ego.v)])
-    speed_rel = jnp.sqrt(jnp.sum(rel_v**2, axis=-1)) / params.speed_norm_relative
+    speed_rel = jnp.sqrt(jnp.sum(rel_v**2, axis=-1)) * (1.0 / params.speed_norm_relative)
     speed = jnp.where(params.speed_channel == SPEED_RELATIVE, speed_rel, speed_ped)
     use_map = params.semantic_channel == SEMANTIC_MAP
     semantic = semantic_class(peds.position, params, static).astype(jnp.float32) / 3.0

@@ -156,6 +156,7 @@ def spawn_pedestrians(
     return PedestrianState(
         position=position.astype(jnp.float32),
         velocity=jnp.zeros((num, 2), jnp.float32),
+        speed=jnp.zeros((num,), jnp.float32),
         heading=heading.astype(jnp.float32),
         desired_speed=speed.astype(jnp.float32),
         behaviour=behaviour,
@@ -208,7 +209,8 @@ def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) ->
     heading = jnp.where(moves & (dist > 0.0), jnp.arctan2(delta[:, 1], delta[:, 0]), peds.heading)
     return peds.replace(
         position=position,
-        velocity=(position - peds.position) / params.dt,
+        velocity=(position - peds.position) * (1.0 / params.dt),
+        speed=jnp.where(moves, jnp.where(reach, dist, step), 0.0) * (1.0 / params.dt),
         heading=heading.astype(jnp.float32),
         waypoint_index=peds.waypoint_index + (moves & reach).astype(jnp.int32),
     )

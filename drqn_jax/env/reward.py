@@ -18,7 +18,7 @@ __all__ = ["reward", "speed_reward"]
 
 def speed_reward(v: jax.Array, params: EnvParams) -> jax.Array:
     """r_v (paper eq. for r_v): () float32 for speed ``v`` (m/s)."""
-    normal = 1.0 - (params.v_ref - v) / params.v_ref
+    normal = 1.0 - (params.v_ref - v) * (1.0 / params.v_ref)
     r = jnp.where(v > params.v_ref, params.reward_overspeed, normal)
     return jnp.where(v < params.stopped_speed, params.reward_stopped, r).astype(jnp.float32)
 

@@ -62,6 +62,8 @@ class PedestrianState:
     Attributes:
         position: (P, 2) float32, centres (m).
         velocity: (P, 2) float32, displacement of the last step / dt (m/s).
+        speed: (P,) float32, distance walked in the last step / dt (m/s): the
+            norm of ``velocity``, computed once where the step knows it.
         heading: (P,) float32, walking direction (rad), kept while standing.
         desired_speed: (P,) float32 (m/s).
         behaviour: (P,) int32, CROSSING | JAYWALKING | SIDEWALK.
@@ -71,6 +73,7 @@ class PedestrianState:
 
     position: jax.Array
     velocity: jax.Array
+    speed: jax.Array
     heading: jax.Array
     desired_speed: jax.Array
     behaviour: jax.Array

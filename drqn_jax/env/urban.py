@@ -42,6 +42,18 @@ from drqn_jax.env.state import NO_ACTION, NUM_ACTIONS, EnvState, Observation
 
 __all__ = ["UrbanPedestrians"]
 
+
+def _opaque(params: EnvParams) -> EnvParams:
+    """Hide parameter values from XLA's constant folding.
+
+    When a caller closes over ``params`` they become compile-time constants and
+    XLA rewrites, e.g., ``x / v_ref`` as ``x * (1 / v_ref)``, which rounds
+    differently: the same episode would then differ by an ulp from one where
+    ``params`` are passed as arguments. The barrier is free at run time.
+    """
+    return jax.lax.optimization_barrier(params)
+
+
 StepResult = tuple[Observation, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]
 
 
@@ -77,10 +89,11 @@ class UrbanPedestrians:
     # --- observation ---------------------------------------------------
     def observation(self, state: EnvState, params: EnvParams) -> Observation:
         """The agent's observation of ``state`` (SPEC §4)."""
+        params = _opaque(params)
         grid = rasterize_grid(state.ego, state.pedestrians, params, self.static)
         return Observation(
             grid=grid,
-            speed=(state.ego.v / params.v_ref).astype(jnp.float32),
+            speed=(state.ego.v * (1.0 / params.v_ref)).astype(jnp.float32),
             last_action=state.last_action,
         )
 
@@ -93,6 +106,7 @@ class UrbanPedestrians:
 
     def reset_state(self, key: jax.Array, params: EnvParams) -> EnvState:
         """A fresh episode: ego at rest at the start, P pedestrians around it."""
+        params = _opaque(params)
         ego = initial_ego(params, self.static)
         lo, hi = self._spawn_range(ego.s, params, jnp.asarray(True))
         return EnvState(
@@ -126,6 +140,7 @@ class UrbanPedestrians:
             stepped state, reward () float32, terminated () bool, truncated () bool,
             info (collision, goal, ttc, distance, speed, time).
         """
+        params = _opaque(params)
         action = jnp.asarray(action, jnp.int32)
         ego = ego_step(state.ego, action, params)
         peds = step_pedestrians(state.pedestrians, ego, params)
@@ -149,6 +164,7 @@ class UrbanPedestrians:
 
     def _respawn(self, key: jax.Array, state: EnvState, params: EnvParams) -> EnvState:
         """Replace pedestrians far behind, far ahead or done (SPEC §3)."""
+        params = _opaque(params)
         gone = despawn_mask(state.pedestrians, state.ego, params)
         lo, hi = self._spawn_range(state.ego.s, params, jnp.asarray(False))
         peds = respawn_pedestrians(key, state.pedestrians, gone, lo, hi, params, self.static)
@@ -182,7 +198,7 @@ class UrbanPedestrians:
         the observation is rasterised once; the final observation costs a
         second draw and raster only when the caller uses it.
         """
-        params = self.default_params if params is None else params
+        params = _opaque(self.default_params if params is None else params)
         stepped, r, terminated, truncated, info = self.advance(state, action, params)
         done = terminated | truncated
         fresh_ego = initial_ego(params, self.static)

@@ -1,0 +1,354 @@
+"""Environment throughput: env steps per second, full observation, vs parallel envs.
+
+Usage::
+
+    python benchmarks/env_throughput.py [--batch-sizes 1 64 4096] [--steps 200] [--json out.json]
+
+For every batch size N the whole rollout is ONE jitted program: ``lax.scan``
+over T steps of ``jax.vmap(env.step)`` on N ``UrbanPedestrians-v0`` envs with
+uniformly random actions drawn inside the program. The scan carry is
+``(obs, state, key)`` and the final carry is returned, so the (45, 30, 4)
+float32 observation grid is really computed every step (summing rewards alone
+would let XLA drop the grid). ``EnvParams`` is a traced argument, not a
+closed-over constant.
+
+Compile time (``jax.jit(fn).lower(...).compile()``) is measured apart from
+run time. After one warm-up call, ``--repeats`` timed calls follow, each
+continuing the episodes from the previous call's final carry (the carry is
+donated, so one copy of it lives at a time); ``--stat`` picks which repeat
+is reported (``best`` = shortest run time, default, or ``median``). A step
+includes same-step auto-reset.
+
+Prints the machine, a Markdown table (batch size | compile s | run s |
+env steps/s | µs per env-step) and a summary against the targets;
+``--json PATH`` writes the same data as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import jaxlib
+
+import drqn_jax
+
+ENV_ID = "UrbanPedestrians-v0"
+DEFAULT_BATCH_SIZES = (1, 4, 16, 64, 256, 1024, 4096, 16384)
+TARGET_STEPS_PER_S = 200_000
+TARGET_COMPILE_S = 10.0
+# Context from the issue: writing the float32 grid alone bounds this machine near here.
+GRID_BOUND_STEPS_PER_S = 400_000
+
+Carry = tuple[Any, Any, jax.Array]  # (obs, state, key), every leaf with a leading batch axis
+
+
+def grid_bytes(env: drqn_jax.UrbanPedestrians) -> int:
+    """Bytes of one float32 observation grid (45 * 30 * 4 * 4 = 21,600 by default)."""
+    rows, cols, channels = env.static.grid_shape
+    return rows * cols * channels * 4
+
+
+def cpu_model() -> str:
+    """The CPU's "model name" from /proc/cpuinfo, else ``platform.processor()``."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "(unknown)"
+
+
+def machine_info() -> dict[str, Any]:
+    """What the numbers depend on: CPU, cores, JAX versions, devices, XLA flags, date."""
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        usable = None
+    devices = jax.devices()
+    return {
+        "cpu_model": cpu_model(),
+        "logical_cores": os.cpu_count(),
+        "usable_cores": usable,
+        "jax_version": jax.__version__,
+        "jaxlib_version": jaxlib.__version__,
+        "platform": devices[0].platform,
+        "devices": [str(d) for d in devices],
+        "xla_flags": os.environ.get("XLA_FLAGS", "(unset)"),
+        "python_version": platform.python_version(),
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "loadavg_1min_at_start": os.getloadavg()[0],
+    }
+
+
+def machine_lines(info: dict[str, Any]) -> list[str]:
+    """The machine block as Markdown bullet lines."""
+    return [
+        f"- CPU: {info['cpu_model']}",
+        f"- logical cores (os.cpu_count()): {info['logical_cores']}"
+        f" (usable by this process: {info['usable_cores']})",
+        f"- JAX {info['jax_version']}, jaxlib {info['jaxlib_version']}",
+        f"- jax.devices(): platform {info['platform']}, {', '.join(info['devices'])}",
+        f"- XLA_FLAGS: {info['xla_flags']}",
+        f"- Python {info['python_version']}",
+        f"- date (UTC): {info['date']}",
+        f"- load average (1 min) at start: {info['loadavg_1min_at_start']:.2f}",
+    ]
+
+
+def make_init(
+    env: drqn_jax.UrbanPedestrians, num_envs: int
+) -> Callable[[jax.Array, drqn_jax.EnvParams], Carry]:
+    """A jitted ``(key, params) -> (obs, state, key)`` resetting ``num_envs`` envs."""
+
+    def init(key: jax.Array, params: drqn_jax.EnvParams) -> Carry:
+        key, reset_key = jax.random.split(key)
+        obs, state = jax.vmap(env.reset, (0, None))(jax.random.split(reset_key, num_envs), params)
+        return obs, state, key
+
+    return jax.jit(init)
+
+
+def make_rollout(
+    env: drqn_jax.UrbanPedestrians, num_envs: int, num_steps: int
+) -> Callable[[Carry, drqn_jax.EnvParams], Carry]:
+    """``(carry, params) -> carry``: ``num_steps`` vmapped steps with random actions.
+
+    Not jitted here; the caller lowers and compiles it.
+    """
+    vmapped_step = jax.vmap(env.step, (0, 0, 0, None))
+
+    def rollout(carry: Carry, params: drqn_jax.EnvParams) -> Carry:
+        def body(carry: Carry, _: None) -> tuple[Carry, None]:
+            _, state, key = carry
+            key, action_key, step_key = jax.random.split(key, 3)
+            actions = jax.random.randint(
+                action_key, (num_envs,), 0, env.num_actions, dtype=jnp.int32
+            )
+            step_keys = jax.random.split(step_key, num_envs)
+            obs, state, _, _, _, _ = vmapped_step(step_keys, state, actions, params)
+            return (obs, state, key), None
+
+        carry, _ = jax.lax.scan(body, carry, None, length=num_steps)
+        return carry
+
+    return rollout
+
+
+def bench_batch(
+    env: drqn_jax.UrbanPedestrians,
+    params: drqn_jax.EnvParams,
+    num_envs: int,
+    num_steps: int,
+    repeats: int,
+    stat: str,
+    seed: int,
+) -> dict[str, Any]:
+    """Compile and time one batch size; return its row."""
+    carry = jax.block_until_ready(make_init(env, num_envs)(jax.random.key(seed), params))
+
+    t0 = time.perf_counter()
+    lowered = jax.jit(make_rollout(env, num_envs, num_steps), donate_argnums=0).lower(carry, params)
+    t1 = time.perf_counter()
+    compiled = lowered.compile()
+    t2 = time.perf_counter()
+
+    t3 = time.perf_counter()
+    carry = jax.block_until_ready(compiled(carry, params))  # warm-up
+    warmup_s = time.perf_counter() - t3
+
+    run_times, cpu_times = [], []
+    for _ in range(repeats):
+        cpu_start, start = time.process_time(), time.perf_counter()
+        carry = jax.block_until_ready(compiled(carry, params))
+        run_times.append(time.perf_counter() - start)
+        cpu_times.append(time.process_time() - cpu_start)
+    # Sanity: the grid is finite and the episodes are alive.
+    obs, _, _ = carry
+    grid_finite = bool(jnp.all(jnp.isfinite(obs.grid)))
+    occupied = float(jnp.mean(jnp.sum(obs.grid[..., 0], axis=(-2, -1))))
+    del carry, obs
+
+    run_s = min(run_times) if stat == "best" else statistics.median(run_times)
+    env_steps = num_envs * num_steps
+    steps_per_s = env_steps / run_s
+    return {
+        "batch_size": num_envs,
+        "steps": num_steps,
+        "env_steps_per_call": env_steps,
+        "lower_s": t1 - t0,
+        "xla_compile_s": t2 - t1,
+        "compile_s": t2 - t0,
+        "warmup_s": warmup_s,
+        "run_times_s": run_times,
+        "run_s": run_s,
+        "run_s_best": min(run_times),
+        "run_s_median": statistics.median(run_times),
+        # CPU seconds this process used per wall second in each timed call: about the
+        # number of cores it got; lower than usual when other processes compete.
+        "cores_used_per_call": [c / w for c, w in zip(cpu_times, run_times, strict=True)],
+        "loadavg_after": os.getloadavg()[0],
+        "env_steps_per_s": steps_per_s,
+        "us_per_env_step": 1e6 / steps_per_s,
+        "grid_gb_per_s": steps_per_s * grid_bytes(env) / 1e9,
+        "grid_finite": grid_finite,
+        "mean_occupied_cells": occupied,
+    }
+
+
+def table_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """The Markdown results table."""
+    lines = [
+        "| batch size | compile s | run s | env steps/s | µs per env-step |",
+        "|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['batch_size']} | {r['compile_s']:.2f} | {r['run_s']:.4f} "
+            f"| {r['env_steps_per_s']:,.0f} | {r['us_per_env_step']:.3f} |"
+        )
+    return lines
+
+
+def summary(rows: Sequence[dict[str, Any]], env: drqn_jax.UrbanPedestrians) -> dict[str, Any]:
+    """Best throughput, its batch size and compile time, against the targets."""
+    best = max(rows, key=lambda r: r["env_steps_per_s"])
+    bound_gb_per_s = GRID_BOUND_STEPS_PER_S * grid_bytes(env) / 1e9
+    return {
+        "best_env_steps_per_s": best["env_steps_per_s"],
+        "best_batch_size": best["batch_size"],
+        "compile_s_at_best": best["compile_s"],
+        "grid_gb_per_s_at_best": best["grid_gb_per_s"],
+        "grid_bytes_per_step": grid_bytes(env),
+        "grid_bound_steps_per_s": GRID_BOUND_STEPS_PER_S,
+        "grid_bound_gb_per_s": bound_gb_per_s,
+        "fraction_of_grid_bound": best["env_steps_per_s"] / GRID_BOUND_STEPS_PER_S,
+        "target_env_steps_per_s": TARGET_STEPS_PER_S,
+        "target_compile_s": TARGET_COMPILE_S,
+        "meets_steps_target": best["env_steps_per_s"] >= TARGET_STEPS_PER_S,
+        "meets_compile_target": best["compile_s"] <= TARGET_COMPILE_S,
+    }
+
+
+def summary_lines(s: dict[str, Any]) -> list[str]:
+    """The summary after the table, with the targets beside the measurements."""
+
+    def verdict(ok: bool) -> str:
+        return "meets target" if ok else "MISSES target"
+
+    return [
+        f"- best: {s['best_env_steps_per_s']:,.0f} env steps/s at batch size "
+        f"{s['best_batch_size']} (target: >= {s['target_env_steps_per_s']:,} env steps/s "
+        f"at the best batch size on the 2-core CPU; {verdict(s['meets_steps_target'])})",
+        f"- compile time of the env-step rollout at batch size {s['best_batch_size']}: "
+        f"{s['compile_s_at_best']:.2f} s (target: env step compiles in <= "
+        f"{s['target_compile_s']:g} s; {verdict(s['meets_compile_target'])})",
+        f"- grid bytes written at the best: {s['grid_gb_per_s_at_best']:.2f} GB/s "
+        f"({s['grid_bytes_per_step']:,} B per step), "
+        f"{100 * s['fraction_of_grid_bound']:.0f}% of the issue's bound: writing the float32 "
+        f"grid alone (21.6 kB per step) bounds this machine near "
+        f"~{s['grid_bound_steps_per_s']:,} steps/s (~{s['grid_bound_gb_per_s']:.1f} GB/s)",
+    ]
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        description="Env steps/s of UrbanPedestrians-v0 (full observation) vs parallel envs."
+    )
+    parser.add_argument(
+        "--batch-sizes",
+        type=int,
+        nargs="+",
+        default=list(DEFAULT_BATCH_SIZES),
+        metavar="N",
+        help="numbers of parallel envs (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--steps", type=int, default=200, metavar="T", help="scan length (default: 200)"
+    )
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="timed calls per batch size (default: 3)"
+    )
+    parser.add_argument(
+        "--stat",
+        choices=("best", "median"),
+        default="best",
+        help="which repeat the table reports (default: best = shortest run time)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="PRNG seed (default: 0)")
+    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON here")
+    args = parser.parse_args(argv)
+    if args.steps < 1 or args.repeats < 1 or any(n < 1 for n in args.batch_sizes):
+        parser.error("--batch-sizes, --steps and --repeats must be >= 1")
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = parse_args(argv)
+    env, params = drqn_jax.make(ENV_ID)
+    info = machine_info()
+    stat_text = "best (shortest)" if args.stat == "best" else "median"
+
+    print(f"# {ENV_ID} env throughput (full observation)\n")
+    print("\n".join(machine_lines(info)))
+    print(
+        f"\n{args.steps} steps per call (one jitted lax.scan of vmapped env.step, random "
+        f"actions, obs in the carry); run s = {stat_text} of {args.repeats} timed calls "
+        "after 1 warm-up; compile s = lower + compile.\n",
+        flush=True,
+    )
+
+    rows = []
+    for n in args.batch_sizes:
+        row = bench_batch(env, params, n, args.steps, args.repeats, args.stat, args.seed)
+        rows.append(row)
+        print(
+            f"[batch {n}: compile {row['compile_s']:.2f} s, run {row['run_s']:.4f} s, "
+            f"{row['env_steps_per_s']:,.0f} env steps/s, cores used per timed call "
+            f"{', '.join(f'{c:.2f}' for c in row['cores_used_per_call'])}]",
+            file=sys.stderr,
+            flush=True,
+        )
+        if not row["grid_finite"]:
+            print(f"warning: non-finite grid values at batch {n}", file=sys.stderr)
+
+    summ = summary(rows, env)
+    print("\n".join(table_lines(rows)))
+    print()
+    print("\n".join(summary_lines(summ)))
+
+    if args.json:
+        payload = {
+            "env_id": ENV_ID,
+            "machine": info,
+            "config": {
+                "batch_sizes": args.batch_sizes,
+                "steps": args.steps,
+                "repeats": args.repeats,
+                "stat": args.stat,
+                "seed": args.seed,
+                "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
+            },
+            "rows": rows,
+            "summary": summ,
+        }
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump(payload, f, indent=2)
+            f.write("\n")
+        print(f"\nwrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,73 @@
+"""Bit-for-bit reproducibility on CPU: no fused multiply-add in generated code.
+
+XLA:CPU lets LLVM contract ``a + b*c`` into one fused multiply-add (FMA)
+wherever both sit in one generated loop. Whether they do depends on how a
+program was fused and vectorised, i.e. on the shapes: the same episode then
+drifts by an ulp depending on how many environments run beside it, and
+``jit`` differs from eager execution. Capping the code generator at AVX
+(``--xla_cpu_max_isa=AVX``, which has no FMA instructions) removes the
+contraction, so per-episode results are bit-identical whatever the batch,
+at a few per cent of env throughput.
+
+``import drqn_jax`` appends the flag to ``XLA_FLAGS`` unless
+
+* ``XLA_FLAGS`` already sets ``--xla_cpu_max_isa`` (the user's choice wins), or
+* ``DRQN_JAX_ALLOW_FMA=1`` is set (faster, not batch-independent).
+
+Two more habits keep results independent of the program's shape, and the
+simulator follows both: a division by a scalar parameter is written as a
+multiplication by its reciprocal (XLA rewrites ``x / broadcast(c)`` that way
+in batched programs but not for scalars), and the env hides ``EnvParams``
+behind ``lax.optimization_barrier`` so that closing over them (constants)
+and passing them (arguments) compile to the same arithmetic.
+
+XLA reads its flags when the CPU backend starts, so this only takes effect
+if no JAX computation ran before ``import drqn_jax``; otherwise a warning says so.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+DETERMINISM_FLAG = "--xla_cpu_max_isa=AVX"
+OPT_OUT_VARIABLE = "DRQN_JAX_ALLOW_FMA"
+
+__all__ = ["DETERMINISM_FLAG", "configure_xla_flags", "fma_disabled"]
+
+
+def _backend_started() -> bool:
+    try:
+        from jax._src import xla_bridge
+
+        return bool(getattr(xla_bridge, "_backends", {}))
+    except Exception:  # private API moved: assume the worst case cannot be detected
+        return False
+
+
+def fma_disabled() -> bool:
+    """Whether ``XLA_FLAGS`` caps CPU code generation below FMA."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    return any(f"--xla_cpu_max_isa={isa}" in flags for isa in ("AVX", "SSE4_2")) and not any(
+        f"--xla_cpu_max_isa={isa}" in flags for isa in ("AVX2", "AVX512", "AVX512F")
+    )
+
+
+def configure_xla_flags() -> None:
+    """Append :data:`DETERMINISM_FLAG` to ``XLA_FLAGS`` (see the module docstring)."""
+    if os.environ.get(OPT_OUT_VARIABLE) == "1":
+        return
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "--xla_cpu_max_isa" in flags:
+        return
+    started = _backend_started()
+    os.environ["XLA_FLAGS"] = f"{flags} {DETERMINISM_FLAG}".strip()
+    if started:
+        warnings.warn(
+            "drqn_jax was imported after JAX had started its backend, so "
+            f"{DETERMINISM_FLAG} (no FMA contraction) is not in effect: results may differ "
+            "by an ulp with the batch size. Import drqn_jax before running any JAX "
+            f"computation, or set XLA_FLAGS={DETERMINISM_FLAG} yourself.",
+            RuntimeWarning,
+            stacklevel=3,
+        )

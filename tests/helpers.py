@@ -1,0 +1,156 @@
+"""Shared test helpers: jitted rollouts reused across test modules."""
+
+from __future__ import annotations
+
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from drqn_jax.env.road_map import WALKWAY, semantic_class
+from drqn_jax.env.state import SIDEWALK
+
+
+def tree_equal(a, b) -> bool:
+    """Bitwise equality of two pytrees (structure, shapes, dtypes, values incl. NaN/inf)."""
+    la, ta = jax.tree.flatten(a)
+    lb, tb = jax.tree.flatten(b)
+    if ta != tb:
+        return False
+    return all(
+        np.asarray(x).dtype == np.asarray(y).dtype
+        and np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True)
+        for x, y in zip(la, lb, strict=True)
+    )
+
+
+def assert_tree_equal(a, b) -> None:
+    la = jax.tree_util.tree_leaves_with_path(a)
+    lb = jax.tree.leaves(b)
+    assert jax.tree.structure(a) == jax.tree.structure(b)
+    for (path, x), y in zip(la, lb, strict=True):
+        x, y = np.asarray(x), np.asarray(y)
+        assert x.dtype == y.dtype, jax.tree_util.keystr(path)
+        assert np.array_equal(x, y, equal_nan=True), (
+            f"{jax.tree_util.keystr(path)} differs: max |diff| "
+            f"{np.max(np.abs(x.astype(np.float64) - y.astype(np.float64)))}"
+        )
+
+
+def take(tree, i):
+    """Element ``i`` of every leaf's leading axis."""
+    return jax.tree.map(lambda x: x[i], tree)
+
+
+def bit_hash(x: jax.Array, axes: tuple[int, ...]) -> jax.Array:
+    """Exact, order-independent fingerprint of float32 values over ``axes``.
+
+    Sums the bit patterns, weighted by position, in wrapping uint32 arithmetic,
+    so (unlike a float sum) it does not depend on how XLA orders the reduction.
+    """
+    bits = jax.lax.bitcast_convert_type(x.astype(jnp.float32), jnp.uint32)
+    shape = [x.shape[a] for a in axes]
+    weight = (
+        jnp.arange(int(np.prod(shape)), dtype=jnp.uint32) * jnp.uint32(2654435761) + jnp.uint32(1)
+    ).reshape(shape)
+    weight = jnp.expand_dims(weight, [i for i in range(x.ndim) if i not in axes])
+    return jnp.sum(bits * weight, axis=axes, dtype=jnp.uint32)
+
+
+def random_rollout(env, params, key, num_steps: int, keep_final: bool = False):
+    """Single-env rollout with uniform random actions and auto-reset.
+
+    Returns per-step (obs, reward, terminated, truncated, info-without-final-obs)
+    with a leading time axis, and the final state. Vmappable over ``key``.
+    """
+    key_reset, key_run = jax.random.split(key)
+    _obs, state = env.reset(key_reset, params)
+
+    def body(state, k):
+        k_act, k_step = jax.random.split(k)
+        action = jax.random.randint(k_act, (), 0, env.num_actions)
+        obs, state, r, term, trunc, info = env.step(k_step, state, action, params)
+        if not keep_final:
+            info = {k: v for k, v in info.items() if k != "final_observation"}
+        return state, (obs, r, term, trunc, info)
+
+    state, out = jax.lax.scan(body, state, jax.random.split(key_run, num_steps))
+    return out, state
+
+
+@partial(jax.jit, static_argnames=("env", "num_steps"))
+def batched_rollout_summary(env, params, keys, num_steps: int):
+    """Random rollouts of len(keys) envs; per-step compact fingerprints (no grids kept).
+
+    Returns a dict of (B, T) arrays: exact hashes of the observation grid and of
+    the final (pre-reset) observation grid, rewards, flags, speeds, TTC, and
+    the final states.
+    """
+
+    def one(key):
+        out, state = random_rollout(env, params, key, num_steps, keep_final=True)
+        obs, r, term, trunc, info = out
+        final_grid = info["final_observation"].grid
+        return {
+            "grid_hash": bit_hash(obs.grid, (1, 2, 3)),  # (T,)
+            "final_grid_hash": bit_hash(final_grid, (1, 2, 3)),
+            "speed": obs.speed,
+            "last_action": obs.last_action,
+            "reward": r,
+            "terminated": term,
+            "truncated": trunc,
+            "ttc": info["ttc"],
+            "distance": info["distance"],
+        }, state
+
+    return jax.vmap(one)(keys)
+
+
+@partial(jax.jit, static_argnames=("env", "num_steps"))
+def invariant_rollout(env, params, keys, num_steps: int):
+    """Random rollouts checking SPEC invariants at every step, inside the jit.
+
+    Returns a dict of (B, T) bool arrays (True = invariant holds) and the
+    number of pedestrians seen.
+    """
+    static = env.static
+
+    def one(key):
+        key_reset, key_run = jax.random.split(key)
+        _obs, state = env.reset(key_reset, params)
+
+        def body(state, k):
+            k_act, k_step = jax.random.split(k)
+            action = jax.random.randint(k_act, (), 0, env.num_actions)
+            obs, state, r, _term, _trunc, info = env.step(k_step, state, action, params)
+            peds = state.pedestrians
+            cls = semantic_class(peds.position, params, static)
+            g = obs.grid
+            finite = jnp.array(
+                [jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(state) if x.dtype.kind == "f"]
+            )
+            checks = {
+                "sidewalk_on_walkway": jnp.all((peds.behaviour != SIDEWALK) | (cls == WALKWAY)),
+                "occupancy_binary": jnp.all((g[..., 0] == 0) | (g[..., 0] == 1)),
+                "heading_range": jnp.all((g[..., 1] >= -1) & (g[..., 1] <= 1)),
+                "speed_range": jnp.all(
+                    (g[..., 2] >= 0) & (g[..., 2] <= params.ped_speed_max / 2.0 + 1e-6)
+                ),
+                "semantic_range": jnp.all(
+                    jnp.isin(g[..., 3], jnp.array([0.0, 1 / 3, 2 / 3, 1.0], jnp.float32))
+                ),
+                "empty_cells_zero": jnp.all((g[..., 0] == 1) | jnp.all(g == 0, axis=-1)),
+                "reward_range": (r >= -10.0) & (r <= 1.0),
+                "ego_speed_nonneg": (state.ego.v >= 0) & (obs.speed >= 0),
+                "state_finite": jnp.all(finite),
+                "obs_finite": jnp.all(jnp.isfinite(g)) & jnp.isfinite(obs.speed) & jnp.isfinite(r),
+                "ttc_not_nan": ~jnp.isnan(info["ttc"]),
+                "occupied_cells_le_P": jnp.sum(g[..., 0]) <= peds.position.shape[0],
+            }
+            return state, (checks, peds.position.shape[0])
+
+        _, (checks, count) = jax.lax.scan(body, state, jax.random.split(key_run, num_steps))
+        return checks, count
+
+    return jax.vmap(one)(keys)

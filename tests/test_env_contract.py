@@ -1,0 +1,352 @@
+"""The gymnax 1.0 contract: make/reset/step, auto-reset, terminal flags, determinism."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import drqn_jax
+from drqn_jax.env.params import EnvParams, StaticEnvParams
+from drqn_jax.env.state import ACCELERATE, BRAKE, NO_ACTION, NUM_WAYPOINTS, STEER
+from tests.helpers import (
+    assert_tree_equal,
+    batched_rollout_summary,
+    bit_hash,
+    random_rollout,
+    take,
+    tree_equal,
+)
+
+
+@pytest.fixture(scope="module")
+def env_params():
+    return drqn_jax.make("UrbanPedestrians-v0")
+
+
+@pytest.fixture(scope="module")
+def jit_step(env_params):
+    env, _ = env_params
+    return jax.jit(env.step)
+
+
+@pytest.fixture(scope="module")
+def jit_step_env(env_params):
+    env, _ = env_params
+    return jax.jit(env.step_env)
+
+
+def test_make_returns_env_and_params(env_params):
+    env, params = env_params
+    assert isinstance(env, drqn_jax.UrbanPedestrians)
+    assert isinstance(params, EnvParams)
+    assert env.num_actions == 4
+    assert hash(env) == hash(drqn_jax.make()[0])  # static and hashable: jit cache hits
+    obs, state = env.reset(jax.random.key(0), params)
+    assert obs.grid.shape == (45, 30, 4) and obs.grid.dtype == jnp.float32
+    assert obs.speed.shape == () and obs.speed.dtype == jnp.float32
+    assert obs.last_action.shape == () and int(obs.last_action) == NO_ACTION
+    assert state.pedestrians.position.shape == (10, 2)
+    assert env.observation_space(params).contains(obs)
+    assert env.action_space(params).n == 4
+
+
+def test_step_returns_six_tuple_with_info(env_params, jit_step):
+    env, params = env_params
+    _, state = env.reset(jax.random.key(0), params)
+    out = jit_step(jax.random.key(1), state, ACCELERATE, params)
+    assert len(out) == 6
+    obs, state2, reward, terminated, truncated, info = out
+    assert reward.dtype == jnp.float32 and reward.shape == ()
+    assert terminated.dtype == jnp.bool_ and truncated.dtype == jnp.bool_
+    for name in ("collision", "goal", "ttc", "distance", "speed", "time", "final_observation"):
+        assert name in info
+    assert int(info["time"]) == 1 and int(state2.time) == 1
+    assert int(obs.last_action) == ACCELERATE
+    assert float(state2.ego.v) > 0.0
+
+
+def test_registered_ids_and_overrides():
+    assert set(drqn_jax.registered_envs()) >= {
+        "UrbanPedestrians-v0",
+        "UrbanPedestriansRealistic-v0",
+    }
+    _, realistic = drqn_jax.make("UrbanPedestriansRealistic-v0")
+    assert float(realistic.ped_speed_min) == 0.5 and float(realistic.ped_speed_max) == 1.5
+    env, params = drqn_jax.make(num_pedestrians=4, v_ref=5.0, semantic_channel="map")
+    assert env.static.num_pedestrians == 4 and float(params.v_ref) == 5.0
+    obs, state = env.reset(jax.random.key(0), params)
+    assert state.pedestrians.position.shape == (4, 2)
+    assert float(obs.grid[..., 3].max()) == 1.0  # the dense map shows road cells
+    with pytest.raises(ValueError, match="unknown env id"):
+        drqn_jax.make("CartPole-v1")
+    with pytest.raises(ValueError, match="'pedestrian_count'"):
+        drqn_jax.make(pedestrian_count=3)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"ped_speed_min": -0.1}, "ped_speed_min"),
+        ({"v_ref": -1.0}, "v_ref"),
+        ({"v_ref": float("nan")}, "v_ref"),
+        ({"prob_crossing": 0.5}, "prob_crossing"),
+        ({"prob_sidewalk": 1.5}, "prob_sidewalk"),
+        ({"ped_speed_min": 2.0, "ped_speed_max": 1.0}, "ped_speed_min"),
+        ({"setpoint_mode": "magic"}, "setpoint_mode"),
+        ({"semantic_channel": 7}, "semantic_channel"),
+        ({"dt": 0.0}, "dt"),
+        ({"gap_acceptance": 0.5}, "gap_acceptance"),
+        ({"ttc_threshold": 4.0}, "ttc_threshold"),
+    ],
+)
+def test_invalid_params_name_the_field(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        drqn_jax.make(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"num_pedestrians": 0}, "num_pedestrians"),
+        ({"num_intersections": -1}, "num_intersections"),
+        ({"grid_rows": 2.5}, "grid_rows"),
+        ({"max_steps": 0}, "max_steps"),
+        ({"ttc_step": 0.0}, "ttc_step"),
+    ],
+)
+def test_invalid_static_params_name_the_field(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        StaticEnvParams(**kwargs)
+
+
+def test_params_are_float32_pytrees_and_sweepable():
+    params = EnvParams()
+    leaves = jax.tree.leaves(params)
+    assert all(np.asarray(x).dtype in (np.float32, np.int32) for x in leaves)
+    # tree operations build params from tracers/ints without re-validating
+    axes = jax.tree.map(lambda _: None, params)
+    assert isinstance(axes, EnvParams)
+    batched = jax.tree.map(lambda x: jnp.stack([x, x]), params)
+    assert batched.v_ref.shape == (2,)
+
+
+def test_vmap_over_params(env_params):
+    """A batch of EnvParams is swept in one program and equals separate runs."""
+    env, _ = env_params
+    speeds = [0.1, 0.3, 1.0]
+    plist = [EnvParams(ped_speed_min=s, ped_speed_max=s) for s in speeds]
+    batched = jax.tree.map(lambda *xs: jnp.stack(xs), *plist)
+    keys = jax.random.split(jax.random.key(5), len(speeds))
+
+    def run(params, key):
+        out, _ = random_rollout(env, params, key, 20)
+        return out
+
+    together = jax.jit(jax.vmap(run))(batched, keys)
+    for i, p in enumerate(plist):
+        assert_tree_equal(take(together, i), jax.jit(run)(p, keys[i]))
+    speeds_seen = together[4]["speed"]
+    assert speeds_seen.shape == (3, 20)
+
+
+def test_jit_matches_eager(env_params):
+    """Eager (op by op) and jit agree bitwise over a few steps.
+
+    This holds because ``import drqn_jax`` turns off FMA contraction in XLA:CPU
+    (see ``drqn_jax.determinism``); with it, ``jit`` fuses ``a + b*c`` into one
+    rounding and eager does two.
+    """
+    env, params = env_params
+    key = jax.random.key(11)
+    _, state = env.reset(key, params)
+    step_jit = jax.jit(env.step)
+    s_eager, s_jit = state, state
+    for i, action in enumerate([ACCELERATE] * 6 + [STEER, BRAKE]):
+        k = jax.random.fold_in(key, i)
+        out_e = env.step(k, s_eager, action, params)
+        out_j = step_jit(k, s_jit, action, params)
+        assert_tree_equal(out_e, out_j)
+        s_eager, s_jit = out_e[1], out_j[1]
+
+
+def test_reset_jit_matches_eager_bitwise(env_params):
+    env, params = env_params
+    key = jax.random.key(4)
+    assert_tree_equal(env.reset(key, params), jax.jit(env.reset)(key, params))
+
+
+def test_vmap_matches_python_loop(env_params, jit_step):
+    """vmap over 64 envs ≡ a Python loop of single envs, bitwise."""
+    env, params = env_params
+    n, steps = 64, 12
+    keys = jax.random.split(jax.random.key(2), n)
+    _, states = jax.vmap(env.reset, (0, None))(keys, params)
+    actions = jax.random.randint(jax.random.key(3), (steps, n), 0, 4)
+    step_keys = jax.random.split(jax.random.key(4), (steps, n))
+    vstep = jax.jit(jax.vmap(env.step, (0, 0, 0, None)))
+    batched = states
+    outs = []
+    for t in range(steps):
+        out = vstep(step_keys[t], batched, actions[t], params)
+        batched = out[1]
+        outs.append(out)
+    for i in range(n):
+        single = take(states, i)
+        for t in range(steps):
+            out = jit_step(step_keys[t, i], single, actions[t, i], params)
+            single = out[1]
+            assert tree_equal(out, take(outs[t], i)), (i, t)
+
+
+def test_same_key_bit_identical_1000_steps(env_params):
+    env, params = env_params
+    keys = jax.random.split(jax.random.key(7), 8)
+    a = batched_rollout_summary(env, params, keys, 1000)
+    b = batched_rollout_summary(env, params, keys, 1000)
+    assert_tree_equal(a, b)
+    summary, _ = a
+    # the rollout really is 1000 steps of a living world
+    assert summary["reward"].shape == (8, 1000)
+    assert np.any(np.asarray(summary["terminated"]) | np.asarray(summary["truncated"]))
+    other, _ = batched_rollout_summary(env, params, jax.random.split(jax.random.key(8), 8), 1000)
+    assert not np.array_equal(np.asarray(other["reward"]), np.asarray(summary["reward"]))
+
+
+def test_episode_independent_of_batch(env_params):
+    """Episode i is identical alone (unbatched, or a batch of 1) and among 256 others."""
+    env, params = env_params
+    steps = 300
+    keys = jax.random.split(jax.random.key(9), 256)
+    many = batched_rollout_summary(env, params, keys, steps)
+    for i in (0, 77, 255):
+        alone = batched_rollout_summary(env, params, keys[i : i + 1], steps)
+        assert_tree_equal(take(many, i), take(alone, 0))
+    single = jax.jit(lambda k: random_rollout(env, params, k, steps))(keys[77])
+    (obs, r, _term, _trunc, _info), state = single
+    assert np.array_equal(np.asarray(r), np.asarray(many[0]["reward"][77]))
+    assert np.array_equal(np.asarray(bit_hash(obs.grid, (1, 2, 3))), many[0]["grid_hash"][77])
+    assert_tree_equal(state, take(many[1], 77))
+
+
+def test_make_under_jit_vmap_1024(env_params):
+    env, params = env_params
+    n = 1024
+
+    @jax.jit
+    def run(key):
+        keys = jax.random.split(key, n)
+        _obs, state = jax.vmap(env.reset, (0, None))(keys, params)
+        actions = jnp.full((n,), ACCELERATE)
+        return jax.vmap(env.step, (0, 0, 0, None))(keys, state, actions, params)
+
+    obs, state, reward, terminated, truncated, _info = run(jax.random.key(0))
+    assert obs.grid.shape == (n, 45, 30, 4)
+    assert reward.shape == terminated.shape == truncated.shape == (n,)
+    assert state.pedestrians.position.shape == (n, 10, 2)
+    assert_tree_equal(run(jax.random.key(0)), run(jax.random.key(0)))
+
+
+# --- terminal contract ---------------------------------------------------------
+
+
+def _scene_with_pedestrian_at(env, params, x, y, key=0):
+    """A reset state whose pedestrian 0 stands at (x, y) and the rest stand far away."""
+    _, state = env.reset(jax.random.key(key), params)
+    peds = state.pedestrians
+    num = peds.position.shape[0]
+    pos = jnp.tile(jnp.array([[-1000.0, 100.0]]), (num, 1)).at[0].set(jnp.array([x, y]))
+    peds = peds.replace(
+        position=pos,
+        velocity=jnp.zeros_like(peds.velocity),
+        desired_speed=jnp.zeros_like(peds.desired_speed),
+        waypoints=jnp.repeat(pos[:, None], NUM_WAYPOINTS, axis=1),
+        waypoint_index=jnp.zeros((num,), jnp.int32),
+    )
+    return state.replace(pedestrians=peds)
+
+
+def test_collision_terminates_and_auto_resets(env_params, jit_step, jit_step_env):
+    env, params = env_params
+    state = _scene_with_pedestrian_at(env, params, 0.0, -1.75)
+    # ego centre at 5 m moving at 5 m/s: its rear-to-front box reaches a pedestrian
+    # standing 2.25 + 0.3 + 0.2 m ahead of its centre within one step
+    state = state.replace(
+        ego=state.ego.replace(v=jnp.float32(5.0)),
+        pedestrians=state.pedestrians.replace(
+            position=state.pedestrians.position.at[0].set(jnp.array([5.0 + 2.6, -1.75]))
+        ),
+    )
+    key = jax.random.key(21)
+    obs, new_state, reward, terminated, truncated, info = jit_step(key, state, STEER, params)
+    assert bool(info["collision"]) and bool(terminated) and not bool(truncated)
+    assert float(reward) == -10.0
+    # the returned state and observation are exactly reset(key)'s
+    reset_obs, reset_state = env.reset(key, params)
+    assert_tree_equal(new_state, reset_state)
+    assert_tree_equal(obs, reset_obs)
+    # the final observation is exactly what step_env returns
+    obs_env, state_env, *_ = jit_step_env(key, state, STEER, params)
+    assert_tree_equal(info["final_observation"], obs_env)
+    assert int(state_env.time) == 1 and int(new_state.time) == 0
+
+
+def test_goal_terminates(env_params, jit_step):
+    env, params = env_params
+    state = _scene_with_pedestrian_at(env, params, -500.0, 100.0)
+    state = state.replace(ego=state.ego.replace(s=jnp.float32(199.9), v=jnp.float32(4.0)))
+    _, new_state, _reward, terminated, truncated, info = jit_step(
+        jax.random.key(1), state, STEER, params
+    )
+    assert bool(info["goal"]) and bool(terminated) and not bool(truncated)
+    assert not bool(info["collision"])
+    assert float(new_state.ego.s) == float(params.ego_start_s)  # fresh episode
+
+
+def test_truncation_at_max_steps(env_params, jit_step):
+    """Step 1000 truncates (not terminates); every earlier step does neither here."""
+    env, params = env_params
+    state = _scene_with_pedestrian_at(env, params, -500.0, 100.0)
+
+    @jax.jit
+    def run(state):
+        def body(state, k):
+            # stand still (brake): no goal, and pedestrians keep respawning far ahead
+            _, state, _r, term, trunc, info = env.step(k, state, BRAKE, params)
+            return state, (term, trunc, info["time"])
+
+        return jax.lax.scan(body, state, jax.random.split(jax.random.key(3), 1001))
+
+    _, (term, trunc, time) = run(state)
+    term, trunc, time = np.asarray(term), np.asarray(trunc), np.asarray(time)
+    assert not term.any()
+    assert trunc[999] and not trunc[:999].any()
+    assert time[999] == 1000 and time[1000] == 1  # the step after truncation is a new episode
+
+
+def test_truncated_final_observation_and_fresh_state(env_params, jit_step, jit_step_env):
+    env, params = env_params
+    state = _scene_with_pedestrian_at(env, params, -500.0, 100.0)
+    state = state.replace(time=jnp.int32(999))
+    key = jax.random.key(5)
+    obs, new_state, _, terminated, truncated, info = jit_step(key, state, ACCELERATE, params)
+    assert bool(truncated) and not bool(terminated)
+    assert_tree_equal((obs, new_state), env.reset(key, params))
+    obs_env, _, _, _, trunc_env, _ = jit_step_env(key, state, ACCELERATE, params)
+    assert bool(trunc_env)
+    assert_tree_equal(info["final_observation"], obs_env)
+    assert int(info["final_observation"].last_action) == ACCELERATE
+    assert int(obs.last_action) == NO_ACTION
+
+
+def test_step_equals_step_env_while_running(env_params, jit_step, jit_step_env):
+    env, params = env_params
+    _, state = env.reset(jax.random.key(0), params)
+    for t in range(5):
+        key = jax.random.key(100 + t)
+        a = jit_step(key, state, ACCELERATE, params)
+        b = jit_step_env(key, state, ACCELERATE, params)
+        assert not bool(a[3] | a[4])
+        assert_tree_equal(a[:5], b[:5])
+        state = a[1]
