@@ -27,6 +27,7 @@ __all__ = [
     "EpisodeMetrics",
     "episode_keys",
     "evaluate",
+    "metrics_table",
     "rollout_episode",
     "run_episodes",
     "summarize",
@@ -153,7 +154,10 @@ def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float
     denom = 1.0 + z * z / trials
     centre = (p + z * z / (2 * trials)) / denom
     half = z / denom * math.sqrt(p * (1.0 - p) / trials + z * z / (4.0 * trials * trials))
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    # At p = 0 or 1 one end is exactly 0 or 1; keep rounding from moving it.
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == trials else min(1.0, centre + half)
+    return (low, high)
 
 
 def _nearest_quantile(values: np.ndarray, q: float) -> float:
@@ -225,3 +229,24 @@ def evaluate(
     episodes = jax.tree.map(np.asarray, episodes)
     result = summarize(episodes, float(np.asarray(params.ttc_threshold)))
     return {"agent": agent.name, **result, "episodes": episodes}
+
+
+def metrics_table(results: list[dict[str, Any]]) -> str:
+    """A Markdown table of :func:`evaluate` results, one row per agent (SPEC §8)."""
+    header = (
+        "| agent | episodes | collision-free % (95 % CI) | goal % | avg speed (km/h) "
+        "| distance (m) | distance, collision-free (m) | collisions / km "
+        "| min TTC median (s) | steps with TTC ≤ 3 s % |"
+    )
+    rows = [header, "| " + " | ".join(["---"] * (header.count("|") - 1)) + " |"]
+    for r in results:
+        low, high = r["collision_free_ci"]
+        rows.append(
+            f"| {r['agent']} | {r['num_episodes']} "
+            f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
+            f"| {100 * r['goal_rate']:.1f} | {r['avg_speed_kmh']:.2f} "
+            f"| {r['avg_distance_m']:.1f} | {r['avg_distance_collision_free_m']:.1f} "
+            f"| {r['collisions_per_km']:.3f} | {r['min_ttc_median_s']:.1f} "
+            f"| {100 * r['near_collision_step_share']:.2f} |"
+        )
+    return "\n".join(rows)

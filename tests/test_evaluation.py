@@ -1,0 +1,158 @@
+"""Agents behind one interface, and the §8 evaluation metrics."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import drqn_jax
+from drqn_jax.agents import RuleBasedParams
+from drqn_jax.env.state import ACCELERATE, BRAKE
+from drqn_jax.evaluation import EpisodeMetrics, episode_keys, run_episodes, wilson_interval
+from tests.helpers import assert_tree_equal, take
+
+NUM = 48
+
+
+@pytest.fixture(scope="module")
+def env_params():
+    return drqn_jax.make()
+
+
+@pytest.fixture(scope="module")
+def results(env_params):
+    env, params = env_params
+    agents = {
+        "rule": drqn_jax.rule_based_agent(),
+        "random": drqn_jax.random_agent(),
+        "accelerate": drqn_jax.constant_agent(ACCELERATE),
+        "brake": drqn_jax.constant_agent(BRAKE),
+    }
+    return {
+        name: drqn_jax.evaluate(agent, jax.random.key(123), NUM, env, params)
+        for name, agent in agents.items()
+    }
+
+
+def test_wilson_interval_known_values():
+    # Reference values (Wilson score, z = 1.96): 7/10 -> (0.3968, 0.8922)
+    low, high = wilson_interval(7, 10)
+    assert low == pytest.approx(0.39677, abs=1e-4) and high == pytest.approx(0.89222, abs=1e-4)
+    low, high = wilson_interval(0, 20)
+    assert low == 0.0 and high == pytest.approx(0.16113, abs=1e-4)
+    low, high = wilson_interval(20, 20)
+    assert high == 1.0 and low == pytest.approx(0.83887, abs=1e-4)
+
+
+def test_metrics_fields_and_ranges(results):
+    for name, res in results.items():
+        assert res["num_episodes"] == NUM, name
+        assert 0.0 <= res["collision_free_rate"] <= 1.0
+        low, high = res["collision_free_ci"]
+        assert low <= res["collision_free_rate"] <= high
+        assert 0.0 <= res["goal_rate"] <= 1.0
+        assert res["avg_speed_kmh"] >= 0.0
+        ep = res["episodes"]
+        assert ep.length.shape == (NUM,)
+        assert np.all((ep.length >= 1) & (ep.length <= 1000))
+        # an episode ends exactly once: goal/collision end it early, else 1000 steps
+        ended_early = ep.collision | ep.goal
+        assert np.all(ep.length[~ended_early] == 1000)
+        assert np.all(ep.episode_return >= -10.0 * ep.length)
+        assert np.all(ep.episode_return <= 1.0 * ep.length)
+
+
+def test_agents_behave_as_named(results):
+    brake, acc, rule = results["brake"], results["accelerate"], results["rule"]
+    # always-brake never moves: no collision, no distance, stopped reward -1 every step
+    assert brake["collision_free_rate"] == 1.0 and brake["avg_distance_m"] == 0.0
+    assert brake["avg_return"] == -1000.0 and brake["goal_rate"] == 0.0
+    # always-accelerate is fast and reaches the goal unless it hits someone
+    assert acc["avg_speed_kmh"] > 30.0
+    ep = acc["episodes"]
+    assert np.all(ep.goal | ep.collision)
+    # the rule-based agent holds about 15 km/h when it can and never exceeds ~16 km/h
+    assert 3.0 < rule["avg_speed_kmh"] < 16.0
+    assert rule["collision_free_rate"] >= acc["collision_free_rate"]
+
+
+def test_summary_consistent_with_episodes(results):
+    res = results["random"]
+    ep = res["episodes"]
+    free = ~ep.collision
+    assert res["collision_free_rate"] == pytest.approx(free.mean())
+    assert res["avg_distance_m"] == pytest.approx(ep.distance.astype(np.float64).mean())
+    expected_speed = np.mean(ep.distance.astype(np.float64) / (ep.length * 0.1)) * 3.6
+    assert res["avg_speed_kmh"] == pytest.approx(expected_speed, rel=1e-5)
+    km = ep.distance.astype(np.float64).sum() / 1000
+    if km > 0:
+        assert res["collisions_per_km"] == pytest.approx(ep.collision.sum() / km)
+    assert res["collision_free_ci"] == wilson_interval(int(free.sum()), NUM)
+
+
+def test_episode_i_does_not_depend_on_num_episodes(env_params):
+    env, params = env_params
+    agent = drqn_jax.rule_based_agent()
+    key = jax.random.key(5)
+    big = run_episodes(agent, episode_keys(key, 16), env, params)
+    small = run_episodes(agent, episode_keys(key, 3), env, params)
+    assert_tree_equal(take(big, slice(0, 3)), small)
+    chunked = run_episodes(agent, episode_keys(key, 16), env, params, batch_size=4)
+    assert_tree_equal(big, chunked)
+
+
+def test_evaluate_is_deterministic_and_key_dependent(env_params):
+    env, params = env_params
+    agent = drqn_jax.random_agent()
+    a = drqn_jax.evaluate(agent, jax.random.key(1), 8, env, params)
+    b = drqn_jax.evaluate(agent, jax.random.key(1), 8, env, params)
+    c = drqn_jax.evaluate(agent, jax.random.key(2), 8, env, params)
+    assert_tree_equal(a["episodes"], b["episodes"])
+    assert not np.array_equal(a["episodes"].distance, c["episodes"].distance)
+
+
+def test_rule_based_params_change_behaviour(env_params):
+    env, params = env_params
+    slow = drqn_jax.rule_based_agent(RuleBasedParams(v_max=5.0 / 3.6))
+    res = drqn_jax.evaluate(slow, jax.random.key(0), 8, env, params)
+    assert res["avg_speed_kmh"] < 6.5
+    with pytest.raises(ValueError, match="v_max"):
+        RuleBasedParams(v_max=-1.0)
+
+
+def test_invalid_arguments(env_params):
+    env, params = env_params
+    with pytest.raises(ValueError, match="num_episodes"):
+        drqn_jax.evaluate(drqn_jax.random_agent(), jax.random.key(0), 0, env, params)
+    with pytest.raises(ValueError, match="action"):
+        drqn_jax.constant_agent(7)
+    assert drqn_jax.constant_agent("brake").name == "always-brake"
+
+
+def test_agent_is_a_pytree_with_static_functions():
+    agent = drqn_jax.rule_based_agent()
+    leaves, treedef = jax.tree.flatten(agent)
+    assert len(leaves) == 4  # the four thresholds
+    rebuilt = jax.tree.unflatten(treedef, leaves)
+    assert rebuilt.act_fn is agent.act_fn and rebuilt.name == "rule-based"
+
+
+def test_summarize_handles_no_finite_ttc():
+    n = 4
+    ep = EpisodeMetrics(
+        episode_return=jnp.zeros(n),
+        length=jnp.full(n, 10),
+        collision=jnp.zeros(n, bool),
+        goal=jnp.zeros(n, bool),
+        distance=jnp.zeros(n),
+        mean_speed=jnp.zeros(n),
+        min_ttc=jnp.full(n, jnp.inf),
+        near_collision_steps=jnp.zeros(n, jnp.int32),
+    )
+    res = drqn_jax.summarize(ep)
+    assert math.isnan(res["collisions_per_km"]) and math.isnan(res["min_ttc_mean_finite_s"])
+    assert res["min_ttc_median_s"] == math.inf and res["near_collision_episode_rate"] == 0.0

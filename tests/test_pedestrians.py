@@ -1,0 +1,143 @@
+"""Spawning and paths of pedestrians (SPEC §3)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import drqn_jax
+from drqn_jax.env.params import EnvParams
+from drqn_jax.env.pedestrians import despawn_mask, sidewalk_x, spawn_pedestrians
+from drqn_jax.env.road_map import CROSSING_AREA, ROAD, WALKWAY, semantic_class
+from drqn_jax.env.state import CROSSING, JAYWALKING, NUM_WAYPOINTS, SIDEWALK
+
+
+@pytest.fixture(scope="module")
+def env_params():
+    return drqn_jax.make()
+
+
+@pytest.fixture(scope="module")
+def spawned(env_params):
+    env, params = env_params
+    keys = jax.random.split(jax.random.key(0), 4000)
+    spawn = jax.jit(jax.vmap(spawn_pedestrians, (0, None, None, None, None)), static_argnums=4)
+    return spawn(keys, 0.0, 200.0, params, env.static)
+
+
+def test_spawn_on_main_sidewalks_never_in_cross_streets(env_params, spawned):
+    env, params = env_params
+    pos = np.asarray(spawned.position).reshape(-1, 2)
+    cls = np.asarray(semantic_class(jnp.asarray(pos), params, env.static))
+    assert np.all(cls == WALKWAY)
+    assert np.all((np.abs(pos[:, 1]) >= 3.5 + 0.3 - 1e-5) & (np.abs(pos[:, 1]) <= 6.5 - 0.3 + 1e-5))
+    assert np.all((pos[:, 0] >= 0.0) & (pos[:, 0] < 200.0))
+    # uniform over the sidewalk stretches: each 10 m bin outside streets gets its share
+    inside = np.zeros(len(pos), bool)
+    for xc in (50.0, 100.0, 150.0):
+        inside |= np.abs(pos[:, 0] - xc) < 3.5
+    assert not inside.any()
+    counts, _ = np.histogram(pos[:, 0], bins=[0, 40, 60, 90, 110, 140, 160, 200])
+    valid_len = np.array([40, 20 - 7, 30, 20 - 7, 30, 20 - 7, 40])
+    np.testing.assert_allclose(counts / counts.sum(), valid_len / valid_len.sum(), atol=0.01)
+    # both sidewalks
+    assert 0.45 < np.mean(pos[:, 1] > 0) < 0.55
+
+
+def test_sidewalk_x_skips_streets_exactly(env_params):
+    env, params = env_params
+    u = jnp.linspace(0.0, 0.999999, 10001)
+    x = np.asarray(sidewalk_x(u, jnp.float32(40.0), jnp.float32(60.0), params, env.static))
+    assert np.all(np.diff(x) >= 0)
+    assert np.all(np.abs(x - 50.0) >= 3.5) and x.min() >= 40.0 and x.max() < 60.0
+
+
+def test_behaviour_frequencies_follow_probabilities(env_params, spawned):
+    b = np.asarray(spawned.behaviour).ravel()
+    freq = np.bincount(b, minlength=3) / b.size
+    np.testing.assert_allclose(freq, [0.6, 0.2, 0.2], atol=0.01)
+    _, params = env_params
+    speed = np.asarray(spawned.desired_speed).ravel()
+    assert speed.min() >= float(params.ped_speed_min) and speed.max() <= float(params.ped_speed_max)
+
+
+def test_paths_by_behaviour(env_params, spawned):
+    env, params = env_params
+    pos = np.asarray(spawned.position).reshape(-1, 2)
+    wp = np.asarray(spawned.waypoints).reshape(-1, NUM_WAYPOINTS, 2)
+    b = np.asarray(spawned.behaviour).ravel()
+    # crossing: along the sidewalk to a crosswalk centre, across to the mirrored side
+    c = b == CROSSING
+    cw = np.array([50 - 5, 100 - 5, 150 - 5, 50 + 5, 100 + 5, 150 + 5], np.float32)
+    assert np.all(np.min(np.abs(wp[c, 0, 0][:, None] - cw), axis=1) < 1e-4)
+    np.testing.assert_array_equal(wp[c, 0, 1], pos[c, 1])
+    np.testing.assert_array_equal(wp[c, 1, 0], wp[c, 0, 0])  # perpendicular crossing
+    np.testing.assert_array_equal(wp[c, 1, 1], -pos[c, 1])
+    cls_cross = np.asarray(
+        semantic_class(jnp.asarray((wp[c, 0] + wp[c, 1]) / 2), params, env.static)
+    )
+    assert np.all(cls_cross == CROSSING_AREA)  # the crossing's midpoint is on the crosswalk
+    walk_on = np.abs(wp[c, 2, 0] - wp[c, 1, 0])
+    assert walk_on.min() >= 2.0 - 1e-4 and walk_on.max() <= 6.0 + 1e-4
+    # jaywalking: across at 60-120 degrees to the road axis
+    j = b == JAYWALKING
+    d = wp[j, 0] - pos[j]
+    angle = np.degrees(np.arctan2(np.abs(d[:, 1]), d[:, 0]))
+    assert angle.min() >= 60 - 1e-3 and angle.max() <= 120 + 1e-3
+    np.testing.assert_allclose(wp[j, 0, 1], -pos[j, 1])
+    # sidewalk: along the same sidewalk, 10-30 m unless a cross street cuts it short
+    s = b == SIDEWALK
+    assert np.all(wp[s, :, 1] == pos[s, 1][:, None])
+    length = np.abs(wp[s, 0, 0] - pos[s, 0])
+    assert length.max() <= 30.0 + 1e-4
+    assert np.mean(length >= 10.0 - 1e-4) > 0.5
+    path_cls = np.asarray(semantic_class(jnp.asarray(wp[s].reshape(-1, 2)), params, env.static))
+    assert np.all(path_cls == WALKWAY)
+
+
+def test_pedestrians_walk_their_path_and_are_replaced(env_params):
+    env, params = env_params
+    params = EnvParams(ped_speed_min=1.0, ped_speed_max=1.0)  # fast, to finish paths
+    _, state = env.reset(jax.random.key(3), params)
+
+    @jax.jit
+    def run(state):
+        def body(state, k):
+            _, state, *_ = env.step_env(k, state, 2, params)  # ego brakes: stands still
+            return state, (state.pedestrians.behaviour, state.pedestrians.position)
+
+        return jax.lax.scan(body, state, jax.random.split(jax.random.key(4), 400))
+
+    final, (behaviour, position) = run(state)
+    position = np.asarray(position)
+    assert position.shape == (400, 10, 2)
+    step = np.linalg.norm(np.diff(position, axis=0), axis=-1)
+    moved = step[step > 0]
+    # walking steps are at most speed·dt (replacements jump; exclude them by size)
+    walking = moved[moved < 1.0]
+    assert walking.size > 0 and walking.max() <= 0.1 + 1e-5
+    # with fast pedestrians some finish their path and are replaced by new ones
+    assert np.any(np.asarray(behaviour)[0] != np.asarray(behaviour)[-1]) or np.any(step > 1.0)
+    assert not np.any(np.asarray(despawn_mask(final.pedestrians, final.ego, params)))
+
+
+def test_road_is_entered_only_by_crossers_and_jaywalkers(env_params):
+    env, params = env_params
+    _, state = env.reset(jax.random.key(8), params)
+    params_fast = EnvParams(ped_speed_min=1.0, ped_speed_max=1.5)
+
+    @jax.jit
+    def run(state):
+        def body(state, k):
+            _, state, *_ = env.step(k, state, 2, params_fast)
+            peds = state.pedestrians
+            return state, (peds.behaviour, semantic_class(peds.position, params, env.static))
+
+        return jax.lax.scan(body, state, jax.random.split(jax.random.key(9), 1000))[1]
+
+    behaviour, cls = (np.asarray(x) for x in run(state))
+    on_road = (cls == ROAD) | (cls == CROSSING_AREA)
+    assert on_road.any()  # pedestrians do cross
+    assert not np.any(on_road & (behaviour == SIDEWALK))
