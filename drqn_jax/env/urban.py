@@ -162,13 +162,27 @@ class UrbanPedestrians:
         }
         return stepped, r, terminated, truncated, info
 
-    def _respawn(self, key: jax.Array, state: EnvState, params: EnvParams) -> EnvState:
-        """Replace pedestrians far behind, far ahead or done (SPEC §3)."""
+    def _next_state(
+        self, key: jax.Array, stepped: EnvState, params: EnvParams, reset: jax.Array
+    ) -> EnvState:
+        """Finish a step: replace pedestrians far behind, far ahead or done (SPEC §3).
+
+        With ``reset`` (() bool) the episode restarts instead: ego at the start
+        and all P pedestrians drawn from ``key`` exactly as ``reset_state`` does.
+        """
         params = _opaque(params)
-        gone = despawn_mask(state.pedestrians, state.ego, params)
-        lo, hi = self._spawn_range(state.ego.s, params, jnp.asarray(False))
-        peds = respawn_pedestrians(key, state.pedestrians, gone, lo, hi, params, self.static)
-        return state.replace(pedestrians=peds)
+        ego = jax.tree.map(
+            lambda a, b: jnp.where(reset, a, b), initial_ego(params, self.static), stepped.ego
+        )
+        gone = reset | despawn_mask(stepped.pedestrians, stepped.ego, params)
+        lo, hi = self._spawn_range(ego.s, params, reset)
+        peds = respawn_pedestrians(key, stepped.pedestrians, gone, lo, hi, params, self.static)
+        return EnvState(
+            ego=ego,
+            pedestrians=peds,
+            last_action=jnp.where(reset, NO_ACTION, stepped.last_action).astype(jnp.int32),
+            time=jnp.where(reset, 0, stepped.time).astype(jnp.int32),
+        )
 
     def step_env(
         self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
@@ -178,7 +192,7 @@ class UrbanPedestrians:
         ``key`` draws the pedestrians that replace those far away or done.
         """
         stepped, r, terminated, truncated, info = self.advance(state, action, params)
-        next_state = self._respawn(key, stepped, params)
+        next_state = self._next_state(key, stepped, params, jnp.asarray(False))
         return self.observation(next_state, params), next_state, r, terminated, truncated, info
 
     def step(
@@ -200,19 +214,8 @@ class UrbanPedestrians:
         """
         params = _opaque(self.default_params if params is None else params)
         stepped, r, terminated, truncated, info = self.advance(state, action, params)
-        done = terminated | truncated
-        fresh_ego = initial_ego(params, self.static)
-        ego = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh_ego, stepped.ego)
-        gone = done | despawn_mask(stepped.pedestrians, stepped.ego, params)
-        lo, hi = self._spawn_range(ego.s, params, done)
-        peds = respawn_pedestrians(key, stepped.pedestrians, gone, lo, hi, params, self.static)
-        next_state = EnvState(
-            ego=ego,
-            pedestrians=peds,
-            last_action=jnp.where(done, NO_ACTION, stepped.last_action).astype(jnp.int32),
-            time=jnp.where(done, 0, stepped.time).astype(jnp.int32),
-        )
-        final = self._respawn(key, stepped, params)
+        next_state = self._next_state(key, stepped, params, terminated | truncated)
+        final = self._next_state(key, stepped, params, jnp.asarray(False))
         info = dict(info, final_observation=self.observation(final, params))
         return self.observation(next_state, params), next_state, r, terminated, truncated, info
 
