@@ -11,11 +11,10 @@ agent, with the evaluation key, the wall time and the machine.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import time
 
 import jax
+from machine import machine_info, machine_lines  # benchmarks/machine.py
 
 import drqn_jax
 from drqn_jax.evaluation import metrics_table
@@ -48,9 +47,8 @@ def main() -> None:
     print()
     print(metrics_table(results))
     print()
-    flags = os.environ.get("XLA_FLAGS", "")
-    print(f"wall time {wall:.1f} s (compile included), {os.cpu_count()} cores")
-    print(f"{platform.machine()}, JAX {jax.__version__}, XLA_FLAGS={flags!r}")
+    print(f"wall time {wall:.1f} s, compile included")
+    print("\n".join(machine_lines(machine_info())))
 
 
 if __name__ == "__main__":

@@ -27,10 +27,8 @@ env steps/s | µs per env-step) and a summary against the targets;
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -39,7 +37,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import jaxlib
+from machine import machine_info, machine_lines  # benchmarks/machine.py
 
 import drqn_jax
 
@@ -57,55 +55,6 @@ def grid_bytes(env: drqn_jax.UrbanPedestrians) -> int:
     """Bytes of one float32 observation grid (45 * 30 * 4 * 4 = 21,600 by default)."""
     rows, cols, channels = env.static.grid_shape
     return rows * cols * channels * 4
-
-
-def cpu_model() -> str:
-    """The CPU's "model name" from /proc/cpuinfo, else ``platform.processor()``."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "(unknown)"
-
-
-def machine_info() -> dict[str, Any]:
-    """What the numbers depend on: CPU, cores, JAX versions, devices, XLA flags, date."""
-    try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        usable = None
-    devices = jax.devices()
-    return {
-        "cpu_model": cpu_model(),
-        "logical_cores": os.cpu_count(),
-        "usable_cores": usable,
-        "jax_version": jax.__version__,
-        "jaxlib_version": jaxlib.__version__,
-        "platform": devices[0].platform,
-        "devices": [str(d) for d in devices],
-        "xla_flags": os.environ.get("XLA_FLAGS", "(unset)"),
-        "python_version": platform.python_version(),
-        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "loadavg_1min_at_start": os.getloadavg()[0],
-    }
-
-
-def machine_lines(info: dict[str, Any]) -> list[str]:
-    """The machine block as Markdown bullet lines."""
-    return [
-        f"- CPU: {info['cpu_model']}",
-        f"- logical cores (os.cpu_count()): {info['logical_cores']}"
-        f" (usable by this process: {info['usable_cores']})",
-        f"- JAX {info['jax_version']}, jaxlib {info['jaxlib_version']}",
-        f"- jax.devices(): platform {info['platform']}, {', '.join(info['devices'])}",
-        f"- XLA_FLAGS: {info['xla_flags']}",
-        f"- Python {info['python_version']}",
-        f"- date (UTC): {info['date']}",
-        f"- load average (1 min) at start: {info['loadavg_1min_at_start']:.2f}",
-    ]
 
 
 def make_init(
