@@ -1,3 +1,11 @@
-"""Import drqn_jax before any JAX computation so its XLA flags take effect."""
+"""Shared fixtures. drqn_jax is imported first so its XLA flags take effect."""
 
-import drqn_jax  # noqa: F401
+import pytest
+
+import drqn_jax
+
+
+@pytest.fixture(scope="session")
+def env_params():
+    """``drqn_jax.make("UrbanPedestrians-v0")``: one env and its default params."""
+    return drqn_jax.make("UrbanPedestrians-v0")

@@ -21,11 +21,6 @@ from tests.helpers import (
 
 
 @pytest.fixture(scope="module")
-def env_params():
-    return drqn_jax.make("UrbanPedestrians-v0")
-
-
-@pytest.fixture(scope="module")
 def jit_step(env_params):
     env, _ = env_params
     return jax.jit(env.step)

@@ -19,11 +19,6 @@ NUM = 48
 
 
 @pytest.fixture(scope="module")
-def env_params():
-    return drqn_jax.make()
-
-
-@pytest.fixture(scope="module")
 def results(env_params):
     env, params = env_params
     agents = {

@@ -13,7 +13,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import drqn_jax
 from drqn_jax.env.params import EnvParams
 from tests.helpers import invariant_rollout
 
@@ -21,8 +20,8 @@ NUM_ENVS, NUM_STEPS = 8, 1500
 
 
 @pytest.fixture(scope="module")
-def env():
-    return drqn_jax.make()[0]
+def env(env_params):
+    return env_params[0]
 
 
 def _assert_invariants(env, params, seed):

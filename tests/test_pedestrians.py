@@ -7,16 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import drqn_jax
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.pedestrians import despawn_mask, sidewalk_x, spawn_pedestrians
 from drqn_jax.env.road_map import CROSSING_AREA, ROAD, WALKWAY, semantic_class
 from drqn_jax.env.state import CROSSING, JAYWALKING, NUM_WAYPOINTS, SIDEWALK
-
-
-@pytest.fixture(scope="module")
-def env_params():
-    return drqn_jax.make()
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import drqn_jax
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
 from drqn_jax.env.collision import box_disc_overlap, ego_box, time_to_collision
 from drqn_jax.env.ego import initial_ego
@@ -44,11 +43,6 @@ _PED_FIELDS = {f.name for f in dataclasses.fields(PedestrianState)}
 
 
 # --- fixtures and scene builders ---------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def env_params():
-    return drqn_jax.make("UrbanPedestrians-v0")
 
 
 @pytest.fixture(scope="module")

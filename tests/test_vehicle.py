@@ -13,7 +13,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import drqn_jax
 from drqn_jax.env.ego import (
     desired_speed,
     ego_step,
@@ -37,11 +36,6 @@ def _rollout(ego: EgoState, actions: jax.Array, params: EnvParams):
         return e, (e.v, e.s, e.accel)
 
     return jax.lax.scan(body, ego, actions)
-
-
-@pytest.fixture(scope="module")
-def env_params():
-    return drqn_jax.make("UrbanPedestrians-v0")
 
 
 @pytest.fixture(scope="module")
