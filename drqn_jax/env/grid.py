@@ -33,6 +33,7 @@ from drqn_jax.env.params import (
 )
 from drqn_jax.env.road_map import lane_centre_y, semantic_class
 from drqn_jax.env.state import EgoState, PedestrianState
+from drqn_jax.pytree import pytree_dataclass
 
 NUM_CHANNELS = 4
 # Per-channel bounds of the grid values (occupancy, heading, speed, semantics).
@@ -43,14 +44,18 @@ __all__ = [
     "GRID_HIGH",
     "GRID_LOW",
     "NUM_CHANNELS",
+    "GridInputs",
     "cell_centres",
     "grid_cell_index",
+    "rasterize",
     "rasterize_grid",
 ]
 
 
-def cell_centres(ego: EgoState, params: EnvParams, static: StaticEnvParams) -> jax.Array:
-    """(rows, cols, 2) float32 world coordinates of every cell centre."""
+def cell_centres(
+    ego: EgoState | GridInputs, params: EnvParams, static: StaticEnvParams
+) -> jax.Array:
+    """(rows, cols, 2) float32 world coordinates of every cell centre (ego: its ``s`` is used)."""
     rows = jnp.arange(static.grid_rows, dtype=jnp.float32)
     cols = jnp.arange(static.grid_cols, dtype=jnp.float32)
     x = ego.s + static.grid_x_min + (rows + 0.5) * static.cell_size
@@ -59,7 +64,7 @@ def cell_centres(ego: EgoState, params: EnvParams, static: StaticEnvParams) -> j
 
 
 def grid_cell_index(
-    position: jax.Array, ego: EgoState, params: EnvParams, static: StaticEnvParams
+    position: jax.Array, ego: EgoState | GridInputs, params: EnvParams, static: StaticEnvParams
 ) -> tuple[jax.Array, jax.Array]:
     """Flat cell index of each position, and whether it lies inside the window.
 
@@ -91,6 +96,38 @@ def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
     return jnp.where(loses, size, flat)
 
 
+@pytree_dataclass
+class GridInputs:
+    """Everything the grid is rasterised from: a compact record of one step.
+
+    6P + 2 floats (62 for P = 10, against 5400 for the grid), so a replay can
+    store these and rasterise at sample time.
+
+    Attributes:
+        s, v: () float32, the ego's arc length (m) and speed (m/s).
+        position, velocity: (P, 2) float32; heading, speed: (P,) float32 —
+            the pedestrians' fields of the same names.
+    """
+
+    s: jax.Array
+    v: jax.Array
+    position: jax.Array
+    velocity: jax.Array
+    heading: jax.Array
+    speed: jax.Array
+
+    @classmethod
+    def of(cls, ego: EgoState, peds: PedestrianState) -> GridInputs:
+        return cls(
+            s=ego.s,
+            v=ego.v,
+            position=peds.position,
+            velocity=peds.velocity,
+            heading=peds.heading,
+            speed=peds.speed,
+        )
+
+
 def rasterize_grid(
     ego: EgoState, peds: PedestrianState, params: EnvParams, static: StaticEnvParams
 ) -> jax.Array:
@@ -99,26 +136,31 @@ def rasterize_grid(
     Returns:
         (rows, cols, 4) float32; channel ranges as in the module docstring.
     """
+    return rasterize(GridInputs.of(ego, peds), params, static)
+
+
+def rasterize(g: GridInputs, params: EnvParams, static: StaticEnvParams) -> jax.Array:
+    """:func:`rasterize_grid` from a :class:`GridInputs` record: (rows, cols, 4) float32."""
     size = static.grid_rows * static.grid_cols
-    flat, _ = grid_cell_index(peds.position, ego, params, static)
-    rel = peds.position - jnp.stack([ego.s, lane_centre_y(params)])
+    flat, _ = grid_cell_index(g.position, g, params, static)
+    rel = g.position - jnp.stack([g.s, lane_centre_y(params)])
     flat = _nearest_wins(flat, jnp.sum(rel * rel, axis=-1), size)
 
     # Headings come from atan2, in [-pi, pi]: wrap pi to -pi. The ego heading is 0.
     # No multiply-add here (nor for the speed): XLA may fuse those into FMAs
     # differently in differently shaped programs, and the grid must not depend
     # on the batch size.
-    heading = jnp.where(peds.heading >= jnp.pi, peds.heading - 2.0 * jnp.pi, peds.heading)
-    speed_ped = peds.speed * (1.0 / params.speed_norm_pedestrian)
-    rel_v = peds.velocity - jnp.stack([ego.v, jnp.zeros_like(ego.v)])
+    heading = jnp.where(g.heading >= jnp.pi, g.heading - 2.0 * jnp.pi, g.heading)
+    speed_ped = g.speed * (1.0 / params.speed_norm_pedestrian)
+    rel_v = g.velocity - jnp.stack([g.v, jnp.zeros_like(g.v)])
     speed_rel = jnp.sqrt(jnp.sum(rel_v**2, axis=-1)) * (1.0 / params.speed_norm_relative)
     speed = jnp.where(params.speed_channel == SPEED_RELATIVE, speed_rel, speed_ped)
     use_map = params.semantic_channel == SEMANTIC_MAP
-    semantic = semantic_class(peds.position, params, static).astype(jnp.float32) / 3.0
+    semantic = semantic_class(g.position, params, static).astype(jnp.float32) / 3.0
     values = jnp.stack([jnp.ones_like(heading), heading / jnp.pi, speed, semantic], axis=-1)
 
     def with_map(values):
-        dense = semantic_class(cell_centres(ego, params, static), params, static) / 3.0
+        dense = semantic_class(cell_centres(g, params, static), params, static) / 3.0
         dense = dense.reshape(size).astype(jnp.float32)
         cell = dense.at[jnp.minimum(flat, size - 1)].get()
         base = jnp.zeros((size, NUM_CHANNELS), jnp.float32).at[:, 3].set(dense)

@@ -1,0 +1,253 @@
+"""The DRQN of paper §V-A (Table I, Fig. 3) and a DQN ablation, as plain pytrees (SPEC §7).
+
+Layers (default widths, Table I):
+
+* conv 8×6 stride 4, 32 filters, ReLU → conv 4×3 stride 3, 64, ReLU → conv
+  2×2 stride 2, 64, ReLU (VALID; 45×30 → 10×7 → 3×2 → 1×1) → flatten (64);
+* ``drqn``: LSTM1 (256) on the conv features → LSTM2 (256) fed
+  ``[h1, speed, one-hot last action]``; ``dqn``: two dense ReLU layers in
+  their place (same inputs, no memory, empty carry);
+* FC 256 ReLU → linear, 4 Q-values.
+
+The LSTM is the standard one (gates i, f, g, o; ``c' = σ(f)c + σ(i)tanh(g)``,
+``h' = σ(o)tanh(c')``) with the forget-gate bias initialised to 1.
+
+:func:`make_network` returns a :class:`Network` of pure functions:
+``init(key) -> params``; ``initial_carry(batch_shape) -> carry`` (zeros);
+``step(params, obs, carry) -> (q, carry)`` for one time step with any leading
+batch shape (acting); ``unroll(params, obs_seq, carry, resets) -> (q_seq,
+carry)`` over a time-major ``(T, B, …)`` sequence (learning), zeroing the carry
+at the steps where ``resets`` is true (an episode starts there).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from drqn_jax.env.state import NUM_ACTIONS, Observation
+
+Params = dict[str, Any]
+LSTMState = tuple[jax.Array, jax.Array]  # (h, c)
+Carry = Any
+
+NETWORK_KINDS = ("drqn", "dqn")
+
+__all__ = [
+    "NETWORK_KINDS",
+    "Network",
+    "NetworkConfig",
+    "conv_torso",
+    "lstm_cell",
+    "make_network",
+    "param_count",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """Shape-setting settings of the Q-network (hashable: a static argument).
+
+    Attributes:
+        kind: ``"drqn"`` (LSTMs) or ``"dqn"`` (dense layers, the ablation).
+        conv: ``(kernel_h, kernel_w, stride, filters)`` per conv layer (Table I).
+        recurrent: width of LSTM1 and LSTM2 (or of the dense layers for ``dqn``).
+        hidden: width of the FC layer before the Q-values.
+        grid_shape: ``(rows, cols, channels)`` of the observation grid.
+        num_actions: number of Q-values.
+    """
+
+    kind: str = "drqn"
+    conv: tuple[tuple[int, int, int, int], ...] = ((8, 6, 4, 32), (4, 3, 3, 64), (2, 2, 2, 64))
+    recurrent: int = 256
+    hidden: int = 256
+    grid_shape: tuple[int, int, int] = (45, 30, 4)
+    num_actions: int = NUM_ACTIONS
+
+    def __post_init__(self) -> None:
+        if self.kind not in NETWORK_KINDS:
+            raise ValueError(f"NetworkConfig.kind = {self.kind!r}: must be one of {NETWORK_KINDS}")
+        for name in ("recurrent", "hidden", "num_actions"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"NetworkConfig.{name} = {value!r}: must be an integer >= 1")
+        h, w, _ = self.grid_shape
+        for kh, kw, stride, filters in self.conv:
+            if min(kh, kw, stride, filters) < 1:
+                raise ValueError(f"NetworkConfig.conv = {self.conv!r}: all sizes must be >= 1")
+            h, w = (h - kh) // stride + 1, (w - kw) // stride + 1
+            if h < 1 or w < 1:
+                raise ValueError(
+                    f"NetworkConfig.conv = {self.conv!r}: the grid {self.grid_shape} shrinks to "
+                    "nothing; the conv stack needs at least a 1×1 output"
+                )
+
+    @property
+    def conv_output_shape(self) -> tuple[int, int, int]:
+        """``(h, w, filters)`` after the conv stack: (1, 1, 64) for Table I."""
+        h, w, c = self.grid_shape
+        for kh, kw, stride, filters in self.conv:
+            h, w, c = (h - kh) // stride + 1, (w - kw) // stride + 1, filters
+        return h, w, c
+
+    @property
+    def features(self) -> int:
+        """Width of the flattened conv output (64)."""
+        return math.prod(self.conv_output_shape)
+
+
+class Network(NamedTuple):
+    """Pure functions of one Q-network architecture (see the module docstring)."""
+
+    config: NetworkConfig
+    init: Callable[[jax.Array], Params]
+    initial_carry: Callable[[tuple[int, ...]], Carry]
+    step: Callable[[Params, Observation, Carry], tuple[jax.Array, Carry]]
+    unroll: Callable[[Params, Observation, Carry, jax.Array], tuple[jax.Array, Carry]]
+
+
+def _glorot(key: jax.Array, shape: tuple[int, ...], fan_in: int, fan_out: int) -> jax.Array:
+    limit = math.sqrt(6.0 / (fan_in + fan_out))
+    return jax.random.uniform(key, shape, jnp.float32, -limit, limit)
+
+
+def _dense_init(key: jax.Array, n_in: int, n_out: int) -> Params:
+    return {"w": _glorot(key, (n_in, n_out), n_in, n_out), "b": jnp.zeros((n_out,), jnp.float32)}
+
+
+def _lstm_init(key: jax.Array, n_in: int, n_hidden: int) -> Params:
+    """Weights of [x, h] -> 4 gates (i, f, g, o); forget bias 1."""
+    w = _glorot(key, (n_in + n_hidden, 4 * n_hidden), n_in + n_hidden, n_hidden)
+    b = jnp.zeros((4, n_hidden), jnp.float32).at[1].set(1.0).reshape(-1)
+    return {"w": w, "b": b}
+
+
+def lstm_cell(p: Params, x: jax.Array, state: LSTMState) -> tuple[jax.Array, LSTMState]:
+    """One LSTM step.
+
+    Args:
+        p: ``{"w": (n_in + H, 4H), "b": (4H,)}``; x: (..., n_in); state: ((..., H), (..., H)).
+    Returns:
+        h' (..., H) and the new state (h', c').
+    """
+    h, c = state
+    gates = jnp.concatenate([x, h], axis=-1) @ p["w"] + p["b"]
+    i, f, g, o = jnp.split(gates, 4, axis=-1)
+    c = jax.nn.sigmoid(f) * c + jax.nn.sigmoid(i) * jnp.tanh(g)
+    h = jax.nn.sigmoid(o) * jnp.tanh(c)
+    return h, (h, c)
+
+
+def conv_torso(params: Params, grid: jax.Array, config: NetworkConfig) -> jax.Array:
+    """The conv stack on grids of any leading shape: (..., 45, 30, 4) -> (..., 64)."""
+    lead = grid.shape[: grid.ndim - 3]
+    x = grid.reshape((-1, *grid.shape[-3:]))
+    for layer, (_, _, stride, _) in zip(params["conv"], config.conv, strict=True):
+        x = jax.lax.conv_general_dilated(
+            x,
+            layer["w"],
+            window_strides=(stride, stride),
+            padding="VALID",
+            dimension_numbers=("NHWC", "HWIO", "NHWC"),
+        )
+        x = jax.nn.relu(x + layer["b"])
+    return x.reshape((*lead, config.features))
+
+
+def _extra_inputs(obs: Observation, num_actions: int) -> jax.Array:
+    """``[speed, one-hot last action]`` (..., 1 + A); a last action of -1 is all zeros."""
+    one_hot = jax.nn.one_hot(obs.last_action, num_actions, dtype=jnp.float32)
+    return jnp.concatenate([obs.speed[..., None].astype(jnp.float32), one_hot], axis=-1)
+
+
+def make_network(config: NetworkConfig | None = None) -> Network:
+    """Build the pure functions of a DRQN (or DQN) for ``config``."""
+    config = NetworkConfig() if config is None else config
+    width, n_act = config.recurrent, config.num_actions
+    n_extra = 1 + n_act
+
+    def init(key: jax.Array) -> Params:
+        keys = jax.random.split(key, len(config.conv) + 4)
+        conv, c_in = [], config.grid_shape[2]
+        for k, (kh, kw, _, filters) in zip(keys, config.conv, strict=False):
+            fan_in, fan_out = kh * kw * c_in, kh * kw * filters
+            conv.append(
+                {
+                    "w": _glorot(k, (kh, kw, c_in, filters), fan_in, fan_out),
+                    "b": jnp.zeros((filters,), jnp.float32),
+                }
+            )
+            c_in = filters
+        k1, k2, k3, k4 = keys[len(config.conv) :]
+        if config.kind == "drqn":
+            core = {
+                "lstm1": _lstm_init(k1, config.features, width),
+                "lstm2": _lstm_init(k2, width + n_extra, width),
+            }
+        else:
+            core = {
+                "dense1": _dense_init(k1, config.features, width),
+                "dense2": _dense_init(k2, width + n_extra, width),
+            }
+        return {
+            "conv": conv,
+            **core,
+            "fc": _dense_init(k3, width, config.hidden),
+            "q": _dense_init(k4, config.hidden, n_act),
+        }
+
+    def initial_carry(batch_shape: tuple[int, ...] = ()) -> Carry:
+        if config.kind == "dqn":
+            return ()
+        zeros = jnp.zeros((*batch_shape, width), jnp.float32)
+        return ((zeros, zeros), (zeros, zeros))
+
+    def core_step(params: Params, features: jax.Array, extra: jax.Array, carry: Carry):
+        """The recurrent (or dense) part and the head for one time step."""
+        if config.kind == "drqn":
+            h1, s1 = lstm_cell(params["lstm1"], features, carry[0])
+            h2, s2 = lstm_cell(params["lstm2"], jnp.concatenate([h1, extra], -1), carry[1])
+            carry = (s1, s2)
+        else:
+            h1 = jax.nn.relu(features @ params["dense1"]["w"] + params["dense1"]["b"])
+            x2 = jnp.concatenate([h1, extra], -1)
+            h2 = jax.nn.relu(x2 @ params["dense2"]["w"] + params["dense2"]["b"])
+        hidden = jax.nn.relu(h2 @ params["fc"]["w"] + params["fc"]["b"])
+        return hidden @ params["q"]["w"] + params["q"]["b"], carry
+
+    def step(params: Params, obs: Observation, carry: Carry) -> tuple[jax.Array, Carry]:
+        """Q-values (..., A) for one time step with any leading batch shape."""
+        features = conv_torso(params, obs.grid, config)
+        return core_step(params, features, _extra_inputs(obs, n_act), carry)
+
+    def unroll(
+        params: Params, obs_seq: Observation, carry: Carry, resets: jax.Array
+    ) -> tuple[jax.Array, Carry]:
+        """Q-values (T, B..., A) over a time-major sequence.
+
+        The conv stack runs on all T·B grids at once; the recurrent core is a
+        ``lax.scan`` over T whose carry is zeroed where ``resets`` (T, B...) is true.
+        """
+        features = conv_torso(params, obs_seq.grid, config)  # (T, B..., F)
+        extra = _extra_inputs(obs_seq, n_act)
+
+        def body(carry, inputs):
+            feat, ext, reset = inputs
+            carry = jax.tree.map(lambda x: jnp.where(reset[..., None], 0.0, x), carry)
+            q, carry = core_step(params, feat, ext, carry)
+            return carry, q
+
+        carry, q = jax.lax.scan(body, carry, (features, extra, resets))
+        return q, carry
+
+    return Network(config=config, init=init, initial_carry=initial_carry, step=step, unroll=unroll)
+
+
+def param_count(params: Params) -> int:
+    """Number of scalars in a parameter pytree."""
+    return sum(int(x.size) for x in jax.tree.leaves(params))

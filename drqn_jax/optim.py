@@ -1,0 +1,100 @@
+"""Adam and the element-wise gradient clamp, by hand, shaped like optax (SPEC §7).
+
+No optax at run time: ``adam(lr, b1, b2, eps)`` returns a
+:class:`GradientTransformation` with optax's ``init(params) -> state`` and
+``update(grads, state, params) -> (updates, state)``; :func:`apply_updates`
+adds the updates to the parameters; :func:`clip` is optax's ``clip`` (the
+``clip = "grad"`` switch: gradients clamped to [−max, max] element-wise);
+:func:`chain` composes transformations. Hyperparameters may be traced
+arrays, so a sweep can ``vmap`` over the learning rate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+__all__ = ["AdamState", "GradientTransformation", "adam", "apply_updates", "chain", "clip"]
+
+Params = Any
+
+
+class GradientTransformation(NamedTuple):
+    """optax-shaped pair of pure functions."""
+
+    init: Callable[[Params], Any]
+    update: Callable[[Params, Any, Params | None], tuple[Params, Any]]
+
+
+class AdamState(NamedTuple):
+    """Step count and the first and second moment estimates (same tree as params)."""
+
+    count: jax.Array
+    mu: Params
+    nu: Params
+
+
+def adam(
+    learning_rate: float | jax.Array,
+    b1: float | jax.Array = 0.9,
+    b2: float | jax.Array = 0.999,
+    eps: float | jax.Array = 1e-8,
+) -> GradientTransformation:
+    """Adam (Kingma & Ba 2015) with bias correction, as ``optax.adam``.
+
+    ``m ← b1·m + (1−b1)·g``; ``v ← b2·v + (1−b2)·g²``;
+    ``update = −lr · (m / (1−b1ᵗ)) / (sqrt(v / (1−b2ᵗ)) + eps)``.
+    """
+
+    def init(params: Params) -> AdamState:
+        zeros = jax.tree.map(jnp.zeros_like, params)
+        return AdamState(count=jnp.zeros((), jnp.int32), mu=zeros, nu=zeros)
+
+    def update(grads: Params, state: AdamState, params: Params | None = None):
+        count = state.count + 1
+        mu = jax.tree.map(lambda m, g: b1 * m + (1.0 - b1) * g, state.mu, grads)
+        nu = jax.tree.map(lambda v, g: b2 * v + (1.0 - b2) * g * g, state.nu, grads)
+        t = count.astype(jnp.float32)
+        mu_correction = 1.0 - b1**t
+        nu_correction = 1.0 - b2**t
+        updates = jax.tree.map(
+            lambda m, v: -learning_rate * (m / mu_correction) / (jnp.sqrt(v / nu_correction) + eps),
+            mu,
+            nu,
+        )
+        return updates, AdamState(count=count, mu=mu, nu=nu)
+
+    return GradientTransformation(init, update)
+
+
+def clip(max_delta: float | jax.Array) -> GradientTransformation:
+    """Clamp every gradient element to ``[−max_delta, max_delta]`` (optax.clip)."""
+
+    def update(grads: Params, state: Any, params: Params | None = None):
+        return jax.tree.map(lambda g: jnp.clip(g, -max_delta, max_delta), grads), state
+
+    return GradientTransformation(lambda params: (), update)
+
+
+def chain(*transforms: GradientTransformation) -> GradientTransformation:
+    """Apply ``transforms`` in order (optax.chain)."""
+
+    def init(params: Params) -> tuple:
+        return tuple(t.init(params) for t in transforms)
+
+    def update(grads: Params, state: tuple, params: Params | None = None):
+        new_state = []
+        for t, s in zip(transforms, state, strict=True):
+            grads, s = t.update(grads, s, params)
+            new_state.append(s)
+        return grads, tuple(new_state)
+
+    return GradientTransformation(init, update)
+
+
+def apply_updates(params: Params, updates: Params) -> Params:
+    """``params + updates``, leaf by leaf, keeping each leaf's dtype."""
+    return jax.tree.map(lambda p, u: (p + u).astype(p.dtype), params, updates)

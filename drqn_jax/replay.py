@@ -1,0 +1,250 @@
+"""Replay of whole episodes (paper Table II: M = 50; SPEC §7).
+
+Storage is compact: per observation a :class:`~drqn_jax.env.grid.GridInputs`
+record (6P + 2 floats) instead of the 45×30×4 grid, re-rasterised at sample
+time; per transition the action, reward and ``terminated`` flag. The speed and
+last-action inputs are rebuilt from the record and the stored actions. For
+M = 50 episodes of up to 1000 steps with P = 10 this is about 13 MB.
+
+The ring holds M episode slots. With N parallel environments each writes its
+episodes, oldest first, into its own ``M // N`` slots, so two writers never
+share a slot. A slot can be sampled only once its episode is complete; a
+slot being rewritten is not sampled. A sample draws ``batch`` complete
+episodes uniformly with replacement and from each a window of ``window``
+consecutive transitions (``window + 1`` observations) at a uniform start;
+episodes shorter than the window are padded and masked. A window therefore
+never crosses an episode start and never reads an unwritten step.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from drqn_jax.env.grid import GridInputs, rasterize
+from drqn_jax.env.params import EnvParams, StaticEnvParams
+from drqn_jax.env.state import NO_ACTION, Observation
+from drqn_jax.pytree import pytree_dataclass
+
+__all__ = [
+    "EpisodeReplay",
+    "Windows",
+    "add_transition",
+    "begin_episodes",
+    "end_episodes",
+    "init_replay",
+    "observations",
+    "replay_bytes",
+    "sample_windows",
+]
+
+
+@pytree_dataclass
+class EpisodeReplay:
+    """Ring of M episode slots of up to L transitions, written by N environments.
+
+    Attributes:
+        records: GridInputs with leaves (M, L + 1, …): the observations.
+        action: (M, L) int32; reward: (M, L) float32; terminated: (M, L) bool.
+        length: (M,) int32, transitions stored in each slot.
+        complete: (M,) bool, the slot holds a whole episode (may be sampled).
+        slot: (N,) int32, the slot each environment is writing.
+        episodes: (N,) int32, episodes each environment has begun.
+    """
+
+    records: GridInputs
+    action: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    length: jax.Array
+    complete: jax.Array
+    slot: jax.Array
+    episodes: jax.Array
+
+    @property
+    def capacity(self) -> int:
+        return self.length.shape[0]
+
+    @property
+    def max_length(self) -> int:
+        return self.action.shape[1]
+
+    @property
+    def num_writers(self) -> int:
+        return self.slot.shape[0]
+
+
+@pytree_dataclass
+class Windows:
+    """A sampled minibatch, time-major.
+
+    Attributes:
+        obs: Observation with leaves (W + 1, B, …), rasterised.
+        action, reward, terminated, mask: (W, B); ``mask`` is false on padding.
+        slot, start: (B,) int32, where each window came from.
+    """
+
+    obs: Observation
+    action: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    mask: jax.Array
+    slot: jax.Array
+    start: jax.Array
+
+
+def init_replay(
+    capacity: int, max_length: int, num_writers: int, static: StaticEnvParams
+) -> EpisodeReplay:
+    """An empty replay of ``capacity`` episodes of up to ``max_length`` transitions."""
+    if not 1 <= num_writers <= capacity:
+        raise ValueError(
+            f"replay capacity = {capacity} episodes: must be >= the number of parallel "
+            f"environments ({num_writers}), each of which writes its own slots"
+        )
+    m, n_obs, p = capacity, max_length + 1, static.num_pedestrians
+    f32 = jnp.float32
+    records = GridInputs(
+        s=jnp.zeros((m, n_obs), f32),
+        v=jnp.zeros((m, n_obs), f32),
+        position=jnp.zeros((m, n_obs, p, 2), f32),
+        velocity=jnp.zeros((m, n_obs, p, 2), f32),
+        heading=jnp.zeros((m, n_obs, p), f32),
+        speed=jnp.zeros((m, n_obs, p), f32),
+    )
+    return EpisodeReplay(
+        records=records,
+        action=jnp.zeros((m, max_length), jnp.int32),
+        reward=jnp.zeros((m, max_length), f32),
+        terminated=jnp.zeros((m, max_length), bool),
+        length=jnp.zeros((m,), jnp.int32),
+        complete=jnp.zeros((m,), bool),
+        slot=jnp.zeros((num_writers,), jnp.int32),
+        episodes=jnp.zeros((num_writers,), jnp.int32),
+    )
+
+
+def replay_bytes(replay: EpisodeReplay) -> int:
+    """Bytes held by the replay's arrays."""
+    return sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(replay))
+
+
+def _set(buffer: jax.Array, where: jax.Array, index: tuple, value: jax.Array) -> jax.Array:
+    """``buffer.at[index].set(value)`` only for writers where ``where`` (N,) is true."""
+    old = buffer[index]
+    mask = where.reshape(where.shape + (1,) * (old.ndim - 1))
+    return buffer.at[index].set(jnp.where(mask, value, old), unique_indices=True)
+
+
+def begin_episodes(replay: EpisodeReplay, starting: jax.Array, first: GridInputs) -> EpisodeReplay:
+    """Writers flagged in ``starting`` (N,) start an episode with observation ``first``.
+
+    Each takes the oldest of its own slots, which stops being sampleable.
+    """
+    n = replay.num_writers
+    per_writer = replay.capacity // n
+    writer = jnp.arange(n, dtype=jnp.int32)
+    slot = jnp.where(starting, writer * per_writer + replay.episodes % per_writer, replay.slot)
+    zero = jnp.zeros((n,), jnp.int32)
+    records = jax.tree.map(
+        lambda buf, x: _set(buf, starting, (slot, zero), x), replay.records, first
+    )
+    return replay.replace(
+        records=records,
+        length=_set(replay.length, starting, (slot,), zero),
+        complete=_set(replay.complete, starting, (slot,), jnp.zeros((n,), bool)),
+        slot=slot,
+        episodes=replay.episodes + starting.astype(jnp.int32),
+    )
+
+
+def add_transition(
+    replay: EpisodeReplay,
+    action: jax.Array,
+    reward: jax.Array,
+    terminated: jax.Array,
+    next_record: GridInputs,
+    active: jax.Array | None = None,
+) -> EpisodeReplay:
+    """Append one transition per writer (N,) to its current episode.
+
+    ``next_record`` is the observation after the action (the pre-reset one
+    when the episode ended). Writers where ``active`` is false are skipped.
+    Past ``max_length`` transitions nothing more is stored.
+    """
+    n = replay.num_writers
+    active = jnp.ones((n,), bool) if active is None else active
+    t = replay.length[replay.slot]
+    active = active & (t < replay.max_length)
+    t = jnp.minimum(t, replay.max_length - 1)
+    slot = replay.slot
+    records = jax.tree.map(
+        lambda buf, x: _set(buf, active, (slot, t + 1), x), replay.records, next_record
+    )
+    return replay.replace(
+        records=records,
+        action=_set(replay.action, active, (slot, t), action.astype(jnp.int32)),
+        reward=_set(replay.reward, active, (slot, t), reward.astype(jnp.float32)),
+        terminated=_set(replay.terminated, active, (slot, t), terminated),
+        length=_set(replay.length, active, (slot,), t + 1),
+    )
+
+
+def end_episodes(replay: EpisodeReplay, ending: jax.Array) -> EpisodeReplay:
+    """Mark the current episode of writers flagged in ``ending`` (N,) complete."""
+    ones = jnp.ones((replay.num_writers,), bool)
+    return replay.replace(complete=_set(replay.complete, ending, (replay.slot,), ones))
+
+
+def observations(
+    records: GridInputs,
+    last_action: jax.Array,
+    params: EnvParams,
+    static: StaticEnvParams,
+) -> Observation:
+    """Rasterise records of any leading shape into observations (as the env does)."""
+    lead = records.s.shape
+    flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[len(lead) :])), records)
+    grid = jax.vmap(rasterize, (0, None, None))(flat, params, static)
+    return Observation(
+        grid=grid.reshape((*lead, *grid.shape[1:])),
+        speed=(records.v * (1.0 / params.v_ref)).astype(jnp.float32),
+        last_action=last_action.astype(jnp.int32),
+    )
+
+
+def sample_windows(
+    replay: EpisodeReplay,
+    key: jax.Array,
+    batch: int,
+    window: int,
+    params: EnvParams,
+    static: StaticEnvParams,
+) -> Windows:
+    """Draw ``batch`` windows of ``window`` transitions from complete episodes.
+
+    Episodes are drawn uniformly with replacement among complete slots (call
+    only once one is complete); the start is uniform in ``[0, max(n − W, 0)]``.
+    """
+    key_slot, key_start = jax.random.split(key)
+    logits = jnp.where(replay.complete, 0.0, -jnp.inf)
+    slot = jax.random.categorical(key_slot, logits, shape=(batch,)).astype(jnp.int32)
+    n = replay.length[slot]
+    start = jax.random.randint(key_start, (batch,), 0, jnp.maximum(n - window, 0) + 1)
+    t = start[None, :] + jnp.arange(window, dtype=jnp.int32)[:, None]  # (W, B)
+    mask = t < n[None, :]
+    t_obs = jnp.concatenate([t, t[-1:] + 1], axis=0)  # (W + 1, B)
+    t_obs = jnp.minimum(t_obs, replay.max_length)
+    t = jnp.minimum(t, replay.max_length - 1)
+    records = jax.tree.map(lambda buf: buf[slot[None, :], t_obs], replay.records)
+    prev = jnp.maximum(t_obs - 1, 0)
+    last_action = jnp.where(t_obs == 0, NO_ACTION, replay.action[slot[None, :], prev])
+    return Windows(
+        obs=observations(records, last_action, params, static),
+        action=replay.action[slot[None, :], t],
+        reward=jnp.where(mask, replay.reward[slot[None, :], t], 0.0),
+        terminated=replay.terminated[slot[None, :], t] & mask,
+        mask=mask,
+        slot=slot,
+        start=start,
+    )

@@ -1,0 +1,111 @@
+"""Double DQN targets and the sequence loss on hand-computed cases."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from drqn_jax.env.state import Observation
+from drqn_jax.loss import CLIP_GRAD, CLIP_HUBER, double_dqn_targets, huber, sequence_loss
+from drqn_jax.networks import NetworkConfig, make_network
+from drqn_jax.optim import clip
+from drqn_jax.replay import Windows
+
+
+def test_double_dqn_target_hand_computed():
+    q_online_next = jnp.array([[1.0, 5.0, 2.0, 0.0], [3.0, 0.0, 0.0, 1.0], [0.0, 0.0, 9.0, 0.0]])
+    q_target_next = jnp.array([[7.0, 2.0, 8.0, 9.0], [4.0, 6.0, 6.0, 6.0], [1.0, 1.0, -3.0, 1.0]])
+    reward = jnp.array([1.0, -1.0, 0.5])
+    # step 0: ordinary; step 1: terminal (no bootstrap); step 2: truncated — it is
+    # not terminated, so it bootstraps
+    terminated = jnp.array([False, True, False])
+    y = double_dqn_targets(q_online_next, q_target_next, reward, terminated, 0.9)
+    # argmax online -> [1, 0, 2]; target at those -> [2, 4, -3]
+    np.testing.assert_allclose(np.asarray(y), [1.0 + 0.9 * 2.0, -1.0, 0.5 + 0.9 * -3.0])
+    # not plain DQN: max of the target would give 1 + 0.9·9 for step 0
+    assert float(y[0]) != pytest.approx(1.0 + 0.9 * 9.0)
+
+
+def test_huber():
+    x = jnp.array([-3.0, -1.0, -0.5, 0.0, 0.5, 1.0, 3.0])
+    np.testing.assert_allclose(np.asarray(huber(x)), [2.5, 0.5, 0.125, 0.0, 0.125, 0.5, 2.5])
+    g = jax.grad(lambda x: jnp.sum(huber(x)))(x)
+    np.testing.assert_allclose(np.asarray(g), [-1.0, -1.0, -0.5, 0.0, 0.5, 1.0, 1.0])
+
+
+@pytest.fixture(scope="module")
+def small_net():
+    net = make_network(NetworkConfig(recurrent=16, hidden=16))
+    return net, net.init(jax.random.key(0)), net.init(jax.random.key(1))
+
+
+def _windows(key, steps=4, batch=3, mask=None):
+    k1, k2, k3, k4 = jax.random.split(key, 4)
+    obs = Observation(
+        grid=jax.random.uniform(k1, (steps + 1, batch, 45, 30, 4)),
+        speed=jax.random.uniform(k2, (steps + 1, batch)),
+        last_action=jax.random.randint(k3, (steps + 1, batch), -1, 4),
+    )
+    mask = jnp.ones((steps, batch), bool) if mask is None else mask
+    return Windows(
+        obs=obs,
+        action=jax.random.randint(k4, (steps, batch), 0, 4),
+        reward=jnp.where(mask, jnp.linspace(-1, 1, steps * batch).reshape(steps, batch), 0.0),
+        terminated=jnp.zeros((steps, batch), bool).at[-1, 0].set(True) & mask,
+        mask=mask,
+        slot=jnp.zeros((batch,), jnp.int32),
+        start=jnp.zeros((batch,), jnp.int32),
+    )
+
+
+def test_sequence_loss_matches_hand_unrolled(small_net):
+    net, online, target = small_net
+    w = _windows(jax.random.key(2))
+    loss, _ = sequence_loss(online, target, w, net, 0.9, CLIP_HUBER)
+    resets = jnp.zeros((5, 3), bool)
+    q_on, _ = net.unroll(online, w.obs, net.initial_carry((3,)), resets)
+    q_tg, _ = net.unroll(target, w.obs, net.initial_carry((3,)), resets)
+    q_on, q_tg = np.asarray(q_on, np.float64), np.asarray(q_tg, np.float64)
+    total = 0.0
+    for t in range(4):
+        for b in range(3):
+            a_star = np.argmax(q_on[t + 1, b])
+            boot = 0.0 if bool(w.terminated[t, b]) else 0.9 * q_tg[t + 1, b, a_star]
+            td = q_on[t, b, int(w.action[t, b])] - (float(w.reward[t, b]) + boot)
+            total += 0.5 * td**2 if abs(td) <= 1 else abs(td) - 0.5
+    assert float(loss) == pytest.approx(total / 12, rel=1e-5)
+
+
+def test_padding_is_masked_out(small_net):
+    net, online, target = small_net
+    mask = jnp.ones((4, 3), bool).at[2:, 1].set(False)
+    w = _windows(jax.random.key(3), mask=mask)
+    loss, _ = sequence_loss(online, target, w, net, 0.9)
+    # garbage in the padded steps changes nothing
+    garbage = w.replace(
+        action=w.action.at[2:, 1].set(3),
+        obs=w.obs.replace(grid=w.obs.grid.at[3:, 1].set(7.0)),
+    )
+    loss_g, _ = sequence_loss(online, target, garbage, net, 0.9)
+    assert float(loss) == float(loss_g)
+    grads = jax.grad(lambda p: sequence_loss(p, target, garbage, net, 0.9)[0])(online)
+    grads_ref = jax.grad(lambda p: sequence_loss(p, target, w, net, 0.9)[0])(online)
+    for a, b in zip(jax.tree.leaves(grads), jax.tree.leaves(grads_ref), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_gradients_flow_only_to_online_and_grad_mode(small_net):
+    net, online, target = small_net
+    w = _windows(jax.random.key(4))
+    g_target = jax.grad(lambda t: sequence_loss(online, t, w, net, 0.9)[0])(target)
+    assert all(float(jnp.abs(x).max()) == 0.0 for x in jax.tree.leaves(g_target))
+    # MSE mode: the loss is ½δ², its clamped gradient is in [-1, 1]
+    loss_mse, aux = sequence_loss(online, target, w, net, 0.9, CLIP_GRAD)
+    loss_huber, _ = sequence_loss(online, target, w, net, 0.9, CLIP_HUBER)
+    assert float(loss_mse) >= float(loss_huber)
+    g = jax.grad(lambda p: sequence_loss(p, target, w, net, 0.9, CLIP_GRAD)[0])(online)
+    clamped, _ = clip(1.0).update(g, (), online)
+    assert all(float(jnp.abs(x).max()) <= 1.0 for x in jax.tree.leaves(clamped))
+    assert float(aux["td_abs"]) > 0.0

@@ -1,0 +1,132 @@
+"""The Q-network of Table I: shapes, parameter count, the LSTM equations, step ≡ unroll."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from drqn_jax.env.state import Observation
+from drqn_jax.networks import NetworkConfig, conv_torso, lstm_cell, make_network, param_count
+
+
+@pytest.fixture(scope="module")
+def drqn():
+    net = make_network()
+    return net, net.init(jax.random.key(0))
+
+
+def _obs(key, lead):
+    k1, k2, k3 = jax.random.split(key, 3)
+    return Observation(
+        grid=jax.random.uniform(k1, (*lead, 45, 30, 4)),
+        speed=jax.random.uniform(k2, lead),
+        last_action=jax.random.randint(k3, lead, -1, 4),
+    )
+
+
+def test_conv_stack_reaches_1x1x64(drqn):
+    net, params = drqn
+    assert net.config.conv_output_shape == (1, 1, 64)
+    grid = jnp.zeros((3, 45, 30, 4))
+    assert conv_torso(params, grid, net.config).shape == (3, 64)
+    # 45×30 → 10×7 → 3×2 → 1×1, layer by layer
+    x = grid
+    shapes = []
+    for layer, (_, _, stride, _) in zip(params["conv"], net.config.conv, strict=True):
+        x = jax.lax.conv_general_dilated(
+            x, layer["w"], (stride, stride), "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC")
+        )
+        shapes.append(x.shape[1:])
+    assert shapes == [(10, 7, 32), (3, 2, 64), (1, 1, 64)]
+
+
+def test_parameter_count(drqn):
+    _, params = drqn
+    conv = (8 * 6 * 4 * 32 + 32) + (4 * 3 * 32 * 64 + 64) + (2 * 2 * 64 * 64 + 64)
+    lstm1 = (64 + 256) * 4 * 256 + 4 * 256
+    lstm2 = (256 + 1 + 4 + 256) * 4 * 256 + 4 * 256
+    head = (256 * 256 + 256) + (256 * 4 + 4)
+    assert param_count(params) == conv + lstm1 + lstm2 + head == 973_220
+
+
+def test_forget_bias_is_one(drqn):
+    _, params = drqn
+    b = np.asarray(params["lstm1"]["b"]).reshape(4, 256)
+    assert np.all(b[1] == 1.0) and np.all(b[[0, 2, 3]] == 0.0)
+
+
+def test_lstm_cell_matches_numpy():
+    rng = np.random.default_rng(0)
+    n_in, hidden, batch = 5, 3, 2
+    w = rng.normal(size=(n_in + hidden, 4 * hidden)).astype(np.float32)
+    b = rng.normal(size=(4 * hidden,)).astype(np.float32)
+    x = rng.normal(size=(batch, n_in)).astype(np.float32)
+    h = rng.normal(size=(batch, hidden)).astype(np.float32)
+    c = rng.normal(size=(batch, hidden)).astype(np.float32)
+
+    def sigmoid(z):
+        return 1.0 / (1.0 + np.exp(-z))
+
+    z = np.concatenate([x, h], 1).astype(np.float64) @ w + b
+    i, f, g, o = np.split(z, 4, axis=1)
+    c_ref = sigmoid(f) * c + sigmoid(i) * np.tanh(g)
+    h_ref = sigmoid(o) * np.tanh(c_ref)
+    out, (h_new, c_new) = lstm_cell({"w": jnp.asarray(w), "b": jnp.asarray(b)}, x, (h, c))
+    np.testing.assert_allclose(np.asarray(c_new), c_ref, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(h_new), h_ref, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(out), np.asarray(h_new))
+
+
+def test_step_shapes_single_and_batched(drqn):
+    net, params = drqn
+    q, carry = net.step(params, _obs(jax.random.key(1), ()), net.initial_carry())
+    assert q.shape == (4,) and carry[1][0].shape == (256,)
+    q, carry = net.step(params, _obs(jax.random.key(1), (7,)), net.initial_carry((7,)))
+    assert q.shape == (7, 4) and carry[0][1].shape == (7, 256)
+
+
+def test_unroll_equals_repeated_steps_with_resets(drqn):
+    net, params = drqn
+    steps, batch = 6, 3
+    obs = _obs(jax.random.key(2), (steps, batch))
+    resets = jnp.zeros((steps, batch), bool).at[3, 1].set(True)  # env 1 restarts at t = 3
+    q_seq, _final = jax.jit(net.unroll)(params, obs, net.initial_carry((batch,)), resets)
+    carry = net.initial_carry((batch,))
+    step = jax.jit(net.step)
+    for t in range(steps):
+        carry = jax.tree.map(lambda x, t=t: jnp.where(resets[t][:, None], 0.0, x), carry)
+        q, carry = step(params, jax.tree.map(lambda x, t=t: x[t], obs), carry)
+        np.testing.assert_allclose(np.asarray(q_seq[t]), np.asarray(q), rtol=1e-5, atol=1e-6)
+    # the reset really changes env 1 from t = 3 on, and nothing else
+    q_nr, _ = jax.jit(net.unroll)(
+        params, obs, net.initial_carry((batch,)), jnp.zeros((steps, batch), bool)
+    )
+    assert np.array_equal(np.asarray(q_nr[:3]), np.asarray(q_seq[:3]))
+    assert not np.allclose(np.asarray(q_nr[3:, 1]), np.asarray(q_seq[3:, 1]))
+    assert np.array_equal(np.asarray(q_nr[:, 0]), np.asarray(q_seq[:, 0]))
+
+
+def test_memory_matters_for_drqn_not_dqn():
+    """The LSTM carries information across steps; the DQN variant does not."""
+    obs = _obs(jax.random.key(3), (4, 1))
+    other_first = obs.replace(grid=obs.grid.at[0].set(0.0))
+    for kind, remembers in (("drqn", True), ("dqn", False)):
+        net = make_network(NetworkConfig(kind=kind, recurrent=32, hidden=32))
+        params = net.init(jax.random.key(0))
+        resets = jnp.zeros((4, 1), bool)
+        q_a, _ = net.unroll(params, obs, net.initial_carry((1,)), resets)
+        q_b, _ = net.unroll(params, other_first, net.initial_carry((1,)), resets)
+        changed_later = not np.allclose(np.asarray(q_a[3]), np.asarray(q_b[3]))
+        assert changed_later == remembers, kind
+        assert net.initial_carry((1,)) == () if kind == "dqn" else True
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="kind"):
+        NetworkConfig(kind="transformer")
+    with pytest.raises(ValueError, match="shrinks to nothing"):
+        NetworkConfig(grid_shape=(30, 45, 4)).conv_output_shape  # noqa: B018
+    with pytest.raises(ValueError, match="recurrent"):
+        NetworkConfig(recurrent=0)

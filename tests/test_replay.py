@@ -1,0 +1,175 @@
+"""Episode replay: windows never cross an episode start or read unwritten steps."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from drqn_jax.env.grid import GridInputs
+from drqn_jax.env.params import StaticEnvParams
+from drqn_jax.replay import (
+    add_transition,
+    begin_episodes,
+    end_episodes,
+    init_replay,
+    observations,
+    replay_bytes,
+    sample_windows,
+)
+
+STATIC = StaticEnvParams(num_pedestrians=2)
+MAX_LEN, WINDOW, BATCH = 20, 8, 64
+
+
+def _record(n, episode, t):
+    """A GridInputs record whose ``s`` encodes (episode, t) and ``v`` the writer."""
+    s = (episode * 1000 + t).astype(jnp.float32)
+    zeros = jnp.zeros((n, STATIC.num_pedestrians), jnp.float32)
+    return GridInputs(
+        s=s,
+        v=jnp.arange(n, dtype=jnp.float32),
+        position=jnp.stack([zeros - 100.0, zeros], -1),
+        velocity=jnp.stack([zeros, zeros], -1),
+        heading=zeros,
+        speed=zeros,
+    )
+
+
+@jax.jit
+def _fill(replay, lengths, episode_ids):
+    """Writers play episodes of the given lengths (E, N) one after another; the
+    last one is left in progress."""
+    n = replay.num_writers
+
+    def episode(replay, inputs):
+        length, ids = inputs
+
+        replay = begin_episodes(replay, jnp.ones((n,), bool), _record(n, ids, jnp.zeros(n)))
+
+        def step(replay, t):
+            active = t < length
+            record = _record(n, ids, jnp.full((n,), t + 1))
+            replay = add_transition(
+                replay,
+                jnp.full((n,), t % 4),
+                jnp.full((n,), t, jnp.float32),
+                active & (t + 1 == length),
+                record,
+                active,
+            )
+            return replay, None
+
+        replay, _ = jax.lax.scan(step, replay, jnp.arange(MAX_LEN))
+        return end_episodes(replay, jnp.ones((n,), bool)), None
+
+    replay, _ = jax.lax.scan(episode, replay, (lengths[:-1], episode_ids[:-1]))
+    # the last episode: begun, a few steps, not complete
+    replay = begin_episodes(
+        replay, jnp.ones((n,), bool), _record(n, episode_ids[-1], 0 * lengths[-1])
+    )
+    return replay
+
+
+def _sample(replay, key):
+    from drqn_jax.env.params import EnvParams
+
+    return sample_windows(replay, key, BATCH, WINDOW, EnvParams(), STATIC)
+
+
+sample = jax.jit(_sample)
+
+
+@settings(max_examples=15, deadline=None, derandomize=True)
+@given(
+    writers=st.sampled_from([1, 2, 3]),
+    capacity=st.integers(3, 7),
+    episodes=st.integers(2, 9),
+    lengths=st.lists(st.integers(1, MAX_LEN), min_size=27, max_size=27),
+    seed=st.integers(0, 10_000),
+)
+def test_windows_stay_inside_one_complete_episode(writers, capacity, episodes, lengths, seed):
+    if capacity < writers:
+        capacity = writers
+    lengths = np.array(lengths[: episodes * writers]).reshape(episodes, writers)
+    ids = np.arange(episodes * writers).reshape(episodes, writers) + 1
+    replay = _fill(init_replay(capacity, MAX_LEN, writers, STATIC), lengths, ids)
+    # sampling needs a complete episode (training starts learning only then)
+    assume(bool(np.asarray(replay.complete).any()))
+    w = sample(replay, jax.random.key(seed))
+    s = np.asarray(w.obs.speed)  # unused here; shape check
+    assert s.shape == (WINDOW + 1, BATCH)
+    slot = np.asarray(w.slot)
+    complete = np.asarray(replay.complete)
+    assert complete[slot].all(), "sampled an incomplete (in-progress) slot"
+    # decode (episode, t) of every observation in every window from the stored s
+    stored_s = np.asarray(replay.records.s)
+    start = np.asarray(w.start)
+    n = np.asarray(replay.length)[slot]
+    mask = np.asarray(w.mask)
+    for b in range(BATCH):
+        valid_obs = min(WINDOW, n[b] - start[b]) + 1
+        codes = stored_s[slot[b], start[b] : start[b] + valid_obs]
+        episode_of = codes // 1000
+        t_of = codes % 1000
+        assert np.all(episode_of == episode_of[0]), "window crosses an episode start"
+        assert np.array_equal(t_of, np.arange(start[b], start[b] + valid_obs))
+        assert start[b] + valid_obs - 1 <= n[b], "window reads unwritten steps"
+        assert mask[:, b].sum() == valid_obs - 1
+        assert np.all(mask[: valid_obs - 1, b]) and not np.any(mask[valid_obs - 1 :, b])
+        # each slot's episode was written by the writer that owns the slot
+        per_writer = capacity // writers
+        assert slot[b] // per_writer < writers
+    assert not np.any(np.asarray(w.reward)[~mask]), "padding leaks rewards"
+    assert not np.any(np.asarray(w.terminated)[~mask])
+
+
+def test_only_whole_episodes_are_sampled_and_oldest_are_replaced():
+    replay = init_replay(2, MAX_LEN, 1, STATIC)
+    lengths = np.array([[5], [6], [7], [3]])
+    replay = _fill(replay, lengths, np.array([[1], [2], [3], [4]]))
+    # episodes 2 and 3 are complete (1 was replaced by 3); episode 4 is in progress in
+    # the slot that held 2, so only episode 3 can be drawn
+    assert np.asarray(replay.complete).tolist() == [True, False]
+    w = sample(replay, jax.random.key(0))
+    codes = np.asarray(replay.records.s)[np.asarray(w.slot), np.asarray(w.start)]
+    assert set((codes // 1000).tolist()) == {3}
+    assert np.all(np.asarray(replay.length)[np.asarray(w.slot)] == 7)
+
+
+def test_last_action_and_terminal_flags():
+    replay = _fill(init_replay(2, MAX_LEN, 1, STATIC), np.array([[5], [1]]), np.array([[1], [2]]))
+    w = sample(replay, jax.random.key(1))
+    b = 0
+    assert int(w.start[b]) == 0  # 5 < window: the window starts at 0, padded
+    # the 6 observations of the 5-step episode; the rest is masked padding
+    np.testing.assert_array_equal(np.asarray(w.obs.last_action[:6, b]), [-1, 0, 1, 2, 3, 0])
+    np.testing.assert_array_equal(np.asarray(w.action[:5, b]), [0, 1, 2, 3, 0])
+    np.testing.assert_array_equal(np.asarray(w.terminated[:, b]), [0, 0, 0, 0, 1, 0, 0, 0])
+    np.testing.assert_array_equal(np.asarray(w.mask[:, b]), [1, 1, 1, 1, 1, 0, 0, 0])
+
+
+def test_too_many_writers_is_refused():
+    with pytest.raises(ValueError, match="capacity"):
+        init_replay(2, MAX_LEN, 3, STATIC)
+
+
+def test_memory_of_the_paper_replay_fits_target():
+    replay = jax.eval_shape(lambda: init_replay(50, 1000, 1, StaticEnvParams()))
+    nbytes = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(replay))
+    assert nbytes <= 32 * 2**20, nbytes
+    assert replay_bytes(init_replay(2, 10, 1, StaticEnvParams())) > 0
+
+
+def test_rasterised_observation_equals_the_envs(env_params):
+    env, params = env_params
+    obs, state = env.reset(jax.random.key(0), params)
+    for t in range(30):
+        obs, state, *_ = env.step_env(jax.random.key(t), state, 0, params)
+    record = GridInputs.of(state.ego, state.pedestrians)
+    rebuilt = observations(record, state.last_action, params, env.static)
+    assert np.array_equal(np.asarray(rebuilt.grid), np.asarray(obs.grid))
+    assert np.array_equal(np.asarray(rebuilt.speed), np.asarray(obs.speed))
