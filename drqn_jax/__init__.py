@@ -21,6 +21,7 @@ from drqn_jax.agents import (  # noqa: E402
     Agent,
     RuleBasedParams,
     constant_agent,
+    drqn_agent,
     random_agent,
     rule_based_agent,
 )
@@ -34,6 +35,7 @@ from drqn_jax.env import (  # noqa: E402
 )
 from drqn_jax.evaluation import EpisodeMetrics, evaluate, run_episodes, summarize  # noqa: E402
 from drqn_jax.registry import make, registered_envs  # noqa: E402
+from drqn_jax.train import Hyperparams, TrainConfig, make_train  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -43,13 +45,17 @@ __all__ = [
     "EnvParams",
     "EnvState",
     "EpisodeMetrics",
+    "Hyperparams",
     "Observation",
     "RuleBasedParams",
     "StaticEnvParams",
+    "TrainConfig",
     "UrbanPedestrians",
     "constant_agent",
+    "drqn_agent",
     "evaluate",
     "make",
+    "make_train",
     "random_agent",
     "registered_envs",
     "rule_based_agent",

@@ -42,6 +42,7 @@ __all__ = [
     "NETWORK_KINDS",
     "Network",
     "NetworkConfig",
+    "add_bias",
     "conv_torso",
     "lstm_cell",
     "make_network",
@@ -111,6 +112,30 @@ class Network(NamedTuple):
     unroll: Callable[[Params, Observation, Carry, jax.Array], tuple[jax.Array, Carry]]
 
 
+@jax.custom_vjp
+def add_bias(x: jax.Array, b: jax.Array) -> jax.Array:
+    """``x + b`` (b broadcast over the last axis) with a vmap-stable gradient.
+
+    The gradient of ``b`` is a sum over every leading axis. As a plain
+    reduction XLA:CPU orders it differently once ``vmap`` adds a seed axis, so
+    a batched run would drift by an ulp from the same run alone; as a
+    product with a ones vector it is a dot, which XLA batches exactly.
+    """
+    return x + b
+
+
+def _add_bias_fwd(x: jax.Array, b: jax.Array) -> tuple[jax.Array, None]:
+    return x + b, None
+
+
+def _add_bias_bwd(_: None, g: jax.Array) -> tuple[jax.Array, jax.Array]:
+    rows = g.reshape(-1, g.shape[-1])
+    return g, jnp.ones((rows.shape[0],), g.dtype) @ rows
+
+
+add_bias.defvjp(_add_bias_fwd, _add_bias_bwd)
+
+
 def _glorot(key: jax.Array, shape: tuple[int, ...], fan_in: int, fan_out: int) -> jax.Array:
     limit = math.sqrt(6.0 / (fan_in + fan_out))
     return jax.random.uniform(key, shape, jnp.float32, -limit, limit)
@@ -136,7 +161,7 @@ def lstm_cell(p: Params, x: jax.Array, state: LSTMState) -> tuple[jax.Array, LST
         h' (..., H) and the new state (h', c').
     """
     h, c = state
-    gates = jnp.concatenate([x, h], axis=-1) @ p["w"] + p["b"]
+    gates = add_bias(jnp.concatenate([x, h], axis=-1) @ p["w"], p["b"])
     i, f, g, o = jnp.split(gates, 4, axis=-1)
     c = jax.nn.sigmoid(f) * c + jax.nn.sigmoid(i) * jnp.tanh(g)
     h = jax.nn.sigmoid(o) * jnp.tanh(c)
@@ -144,19 +169,38 @@ def lstm_cell(p: Params, x: jax.Array, state: LSTMState) -> tuple[jax.Array, LST
 
 
 def conv_torso(params: Params, grid: jax.Array, config: NetworkConfig) -> jax.Array:
-    """The conv stack on grids of any leading shape: (..., 45, 30, 4) -> (..., 64)."""
+    """The conv stack on grids of any leading shape: (..., 45, 30, 4) -> (..., 64).
+
+    Each layer gathers its patches by strided slicing (exact copies) and
+    multiplies them with the kernel as a matrix. A plain
+    ``conv_general_dilated`` gives the same values, but once ``vmap`` batches
+    the kernels over seeds XLA runs it as a grouped convolution that sums in
+    another order: a run among others would then drift from the same run alone.
+    """
     lead = grid.shape[: grid.ndim - 3]
     x = grid.reshape((-1, *grid.shape[-3:]))
-    for layer, (_, _, stride, _) in zip(params["conv"], config.conv, strict=True):
-        x = jax.lax.conv_general_dilated(
-            x,
-            layer["w"],
-            window_strides=(stride, stride),
-            padding="VALID",
-            dimension_numbers=("NHWC", "HWIO", "NHWC"),
+    for layer, (kh, kw, stride, _) in zip(params["conv"], config.conv, strict=True):
+        x = jax.nn.relu(
+            add_bias(_patches(x, kh, kw, stride) @ _kernel_matrix(layer["w"]), layer["b"])
         )
-        x = jax.nn.relu(x + layer["b"])
     return x.reshape((*lead, config.features))
+
+
+def _patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
+    """(N, H, W, C) -> (N, H', W', kh·kw·C) VALID patches, by strided slices (exact copies)."""
+    _, h, w, _ = x.shape
+    h_out, w_out = (h - kh) // stride + 1, (w - kw) // stride + 1
+    rows = [
+        x[:, i : i + stride * (h_out - 1) + 1 : stride, j : j + stride * (w_out - 1) + 1 : stride]
+        for i in range(kh)
+        for j in range(kw)
+    ]
+    return jnp.concatenate(rows, axis=-1)
+
+
+def _kernel_matrix(w: jax.Array) -> jax.Array:
+    """(kh, kw, C, F) kernel as the (kh·kw·C, F) matrix matching :func:`_patches`."""
+    return w.reshape(-1, w.shape[-1])
 
 
 def _extra_inputs(obs: Observation, num_actions: int) -> jax.Array:
@@ -214,11 +258,11 @@ def make_network(config: NetworkConfig | None = None) -> Network:
             h2, s2 = lstm_cell(params["lstm2"], jnp.concatenate([h1, extra], -1), carry[1])
             carry = (s1, s2)
         else:
-            h1 = jax.nn.relu(features @ params["dense1"]["w"] + params["dense1"]["b"])
+            h1 = jax.nn.relu(add_bias(features @ params["dense1"]["w"], params["dense1"]["b"]))
             x2 = jnp.concatenate([h1, extra], -1)
-            h2 = jax.nn.relu(x2 @ params["dense2"]["w"] + params["dense2"]["b"])
-        hidden = jax.nn.relu(h2 @ params["fc"]["w"] + params["fc"]["b"])
-        return hidden @ params["q"]["w"] + params["q"]["b"], carry
+            h2 = jax.nn.relu(add_bias(x2 @ params["dense2"]["w"], params["dense2"]["b"]))
+        hidden = jax.nn.relu(add_bias(h2 @ params["fc"]["w"], params["fc"]["b"]))
+        return add_bias(hidden @ params["q"]["w"], params["q"]["b"]), carry
 
     def step(params: Params, obs: Observation, carry: Carry) -> tuple[jax.Array, Carry]:
         """Q-values (..., A) for one time step with any leading batch shape."""

@@ -58,10 +58,13 @@ def adam(
         mu = jax.tree.map(lambda m, g: b1 * m + (1.0 - b1) * g, state.mu, grads)
         nu = jax.tree.map(lambda v, g: b2 * v + (1.0 - b2) * g * g, state.nu, grads)
         t = count.astype(jnp.float32)
-        mu_correction = 1.0 - b1**t
-        nu_correction = 1.0 - b2**t
+        # Reciprocals multiplied, not scalars divided: XLA rewrites ``x / c`` for a
+        # broadcast scalar ``c`` (one run) but not for a per-seed ``c`` (vmap), and
+        # the two round differently.
+        mu_scale = 1.0 / (1.0 - b1**t)
+        nu_scale = 1.0 / (1.0 - b2**t)
         updates = jax.tree.map(
-            lambda m, v: -learning_rate * (m / mu_correction) / (jnp.sqrt(v / nu_correction) + eps),
+            lambda m, v: -learning_rate * (m * mu_scale) / (jnp.sqrt(v * nu_scale) + eps),
             mu,
             nu,
         )

@@ -11,7 +11,9 @@ episodes, oldest first, into its own ``M // N`` slots, so two writers never
 share a slot. A slot can be sampled only once its episode is complete; a
 slot being rewritten is not sampled. A sample draws ``batch`` complete
 episodes uniformly with replacement and from each a window of ``window``
-consecutive transitions (``window + 1`` observations) at a uniform start;
+consecutive transitions (``window + 1`` observations) at a uniform start
+(the capacity must be at least 2N, so that every writer has a complete
+episode while it fills the next);
 episodes shorter than the window are padded and masked. A window therefore
 never crosses an episode start and never reads an unwritten step.
 """
@@ -97,10 +99,11 @@ def init_replay(
     capacity: int, max_length: int, num_writers: int, static: StaticEnvParams
 ) -> EpisodeReplay:
     """An empty replay of ``capacity`` episodes of up to ``max_length`` transitions."""
-    if not 1 <= num_writers <= capacity:
+    if num_writers < 1 or capacity < 2 * num_writers:
         raise ValueError(
-            f"replay capacity = {capacity} episodes: must be >= the number of parallel "
-            f"environments ({num_writers}), each of which writes its own slots"
+            f"replay capacity = {capacity} episodes: must be >= 2 × the number of parallel "
+            f"environments ({num_writers}); each writes its own slots and needs one to fill "
+            "while another holds a complete episode"
         )
     m, n_obs, p = capacity, max_length + 1, static.num_pedestrians
     f32 = jnp.float32

@@ -72,7 +72,7 @@ def random_rollout(env, params, key, num_steps: int, keep_final: bool = False):
         action = jax.random.randint(k_act, (), 0, env.num_actions)
         obs, state, r, term, trunc, info = env.step(k_step, state, action, params)
         if not keep_final:
-            info = {k: v for k, v in info.items() if k != "final_observation"}
+            info = {k: v for k, v in info.items() if not k.startswith("final_")}
         return state, (obs, r, term, trunc, info)
 
     state, out = jax.lax.scan(body, state, jax.random.split(key_run, num_steps))

@@ -92,8 +92,7 @@ sample = jax.jit(_sample)
     seed=st.integers(0, 10_000),
 )
 def test_windows_stay_inside_one_complete_episode(writers, capacity, episodes, lengths, seed):
-    if capacity < writers:
-        capacity = writers
+    capacity = max(capacity, 2 * writers)
     lengths = np.array(lengths[: episodes * writers]).reshape(episodes, writers)
     ids = np.arange(episodes * writers).reshape(episodes, writers) + 1
     replay = _fill(init_replay(capacity, MAX_LEN, writers, STATIC), lengths, ids)
@@ -154,7 +153,7 @@ def test_last_action_and_terminal_flags():
 
 def test_too_many_writers_is_refused():
     with pytest.raises(ValueError, match="capacity"):
-        init_replay(2, MAX_LEN, 3, STATIC)
+        init_replay(5, MAX_LEN, 3, STATIC)
 
 
 def test_memory_of_the_paper_replay_fits_target():

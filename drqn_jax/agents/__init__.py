@@ -1,6 +1,7 @@
-"""Policies behind one interface: rule-based (paper §V-E), random, constant."""
+"""Policies behind one interface: rule-based (paper §V-E), random, constant, trained DRQN."""
 
 from drqn_jax.agents.base import Agent
+from drqn_jax.agents.drqn import drqn_agent
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action, rule_based_agent
 from drqn_jax.agents.simple import constant_agent, random_agent
 
@@ -8,6 +9,7 @@ __all__ = [
     "Agent",
     "RuleBasedParams",
     "constant_agent",
+    "drqn_agent",
     "random_agent",
     "rule_based_action",
     "rule_based_agent",

@@ -206,8 +206,9 @@ class UrbanPedestrians:
 
         While the episode goes on this is exactly ``step_env(key, …)``; when it
         ends (terminated or truncated) the returned state and observation are
-        exactly ``reset(key, params)``'s, and the observation ``step_env``
-        would have returned is ``info["final_observation"]``. One set of
+        exactly ``reset(key, params)``'s, and the state and observation
+        ``step_env`` would have returned are ``info["final_state"]`` and
+        ``info["final_observation"]``. One set of
         pedestrians is drawn per step (for respawn or for the new episode), and
         the observation is rasterised once; the final observation costs a
         second draw and raster only when the caller uses it.
@@ -216,7 +217,7 @@ class UrbanPedestrians:
         stepped, r, terminated, truncated, info = self.advance(state, action, params)
         next_state = self._next_state(key, stepped, params, terminated | truncated)
         final = self._next_state(key, stepped, params, jnp.asarray(False))
-        info = dict(info, final_observation=self.observation(final, params))
+        info = dict(info, final_state=final, final_observation=self.observation(final, params))
         return self.observation(next_state, params), next_state, r, terminated, truncated, info
 
     # --- spaces ----------------------------------------------------------

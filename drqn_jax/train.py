@@ -1,0 +1,413 @@
+"""Training the DRQN end to end inside one jitted program (paper §V-B, Table II; SPEC §7).
+
+``make_train(config)`` returns a :class:`Trainer` whose functions are pure:
+
+* ``init(key, hparams, env_params) -> TrainState``;
+* ``run(state, num_iterations) -> TrainState``: ``lax.scan`` over iterations
+  — act ε-greedily with the LSTM carry on N environments, store the step in
+  the episode replay, take ``updates_per_step`` Double-DQN gradient steps once
+  the replay holds ``learning_starts`` whole episodes, copy the target network
+  every ``target_period`` gradient steps. An iteration after the last
+  training episode has been recorded changes nothing, so a run split into
+  chunks of any size ends bit-identical to a one-shot run;
+* ``train(key, hparams=None, env_params=None) -> (params, metrics)``: init,
+  then chunks in a ``lax.while_loop`` until ``num_episodes`` episodes are
+  recorded. ``jax.jit(jax.vmap(train))(keys)`` runs several seeds at once.
+
+ε falls linearly from ``epsilon_start`` to ``epsilon_end`` over the training
+episodes (an episode keeps the ε it started with); during the first
+``explore_bias_fraction`` of episodes a random action is drawn with
+``explore_bias_probs`` (accelerate 0.4, slow_down 0.1, brake 0.1, steer 0.4),
+uniformly afterwards. The acting LSTM advances on every step and is zeroed
+when its environment starts a new episode.
+
+Shape-setting choices live in the hashable :class:`TrainConfig`; the rest
+(learning rate, γ, ε schedule, target period, clip mode, …) in the traced
+:class:`Hyperparams`, so a sweep can ``vmap`` over them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from drqn_jax.env.grid import GridInputs
+from drqn_jax.env.params import EnvParams
+from drqn_jax.env.state import NUM_ACTIONS, Observation
+from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.loss import CLIP_GRAD, CLIP_MODES, sequence_loss
+from drqn_jax.networks import Network, NetworkConfig, make_network
+from drqn_jax.optim import adam, apply_updates, clip
+from drqn_jax.pytree import check_sums_to_one, param, pytree_dataclass, validate
+from drqn_jax.registry import make
+from drqn_jax.replay import (
+    EpisodeReplay,
+    add_transition,
+    begin_episodes,
+    end_episodes,
+    init_replay,
+    sample_windows,
+)
+
+__all__ = ["Hyperparams", "TrainConfig", "TrainState", "Trainer", "make_train"]
+
+METRIC_NAMES = (
+    "episode_return",
+    "length",
+    "collision",
+    "goal",
+    "distance",
+    "mean_speed",
+    "epsilon",
+    "mean_loss",
+)
+
+
+@pytree_dataclass
+class Hyperparams:
+    """Traced training hyperparameters (paper Table II; SPEC §7)."""
+
+    learning_rate: float = param(1e-3, low=0.0, low_open=True)
+    adam_b1: float = param(0.9, low=0.0, high=1.0, high_open=True)
+    adam_b2: float = param(0.999, low=0.0, high=1.0, high_open=True)
+    adam_eps: float = param(1e-8, low=0.0, low_open=True)
+    gamma: float = param(0.9, low=0.0, high=1.0)
+    epsilon_start: float = param(1.0, low=0.0, high=1.0)
+    epsilon_end: float = param(0.1, low=0.0, high=1.0)
+    explore_bias_fraction: float = param(0.1, low=0.0, high=1.0)
+    explore_accelerate: float = param(0.4, low=0.0, high=1.0)
+    explore_slow_down: float = param(0.1, low=0.0, high=1.0)
+    explore_brake: float = param(0.1, low=0.0, high=1.0)
+    explore_steer: float = param(0.4, low=0.0, high=1.0)
+    target_period: int = param(10_000, low=1, doc="gradient steps between target copies")
+    learning_starts: int = param(4, low=1, doc="complete episodes in replay before learning")
+    clip: int = param("huber", choices=CLIP_MODES)
+
+    def __post_init__(self) -> None:
+        validate(self)
+        check_sums_to_one(
+            self,
+            ("explore_accelerate", "explore_slow_down", "explore_brake", "explore_steer"),
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Shape-setting training settings (hashable; a change recompiles).
+
+    The defaults are the paper's protocol (SPEC §7): one environment, 200
+    episodes, replay of 50 episodes, minibatch 32 windows × 8 steps, one
+    gradient step per environment step.
+    """
+
+    env_id: str = "UrbanPedestrians-v0"
+    env_overrides: tuple[tuple[str, Any], ...] = ()
+    network: NetworkConfig = dataclasses.field(default_factory=NetworkConfig)
+    num_envs: int = 1
+    num_episodes: int = 200
+    replay_episodes: int = 50
+    batch_size: int = 32
+    window: int = 8
+    updates_per_step: int = 1
+    chunk_iterations: int = 1000
+    hyperparams: Hyperparams = dataclasses.field(default_factory=Hyperparams)
+
+    def __post_init__(self) -> None:
+        for name in (
+            "num_envs",
+            "num_episodes",
+            "replay_episodes",
+            "batch_size",
+            "window",
+            "updates_per_step",
+            "chunk_iterations",
+        ):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"TrainConfig.{name} = {value!r}: must be an integer >= 1")
+        if self.replay_episodes < 2 * self.num_envs:
+            raise ValueError(
+                f"TrainConfig.replay_episodes = {self.replay_episodes}: must be >= 2 × num_envs "
+                f"({2 * self.num_envs}); each environment writes its own replay slots"
+            )
+
+    def __hash__(self) -> int:  # Hyperparams holds arrays: hash the static part only
+        return hash(
+            (
+                self.env_id,
+                self.env_overrides,
+                self.network,
+                self.num_envs,
+                self.num_episodes,
+                self.replay_episodes,
+                self.batch_size,
+                self.window,
+                self.updates_per_step,
+                self.chunk_iterations,
+            )
+        )
+
+
+@pytree_dataclass
+class TrainState:
+    """Everything a training run carries between iterations (and checkpoints).
+
+    Per-environment leaves have a leading N axis; ``metrics`` holds one
+    (num_episodes,) array per name in ``METRIC_NAMES``.
+    """
+
+    key: jax.Array
+    hparams: Hyperparams
+    env_params: EnvParams
+    env_state: Any
+    obs: Observation
+    carry: Any
+    online: Any
+    target: Any
+    opt_state: Any
+    replay: EpisodeReplay
+    episode: jax.Array  # (N,) int32 index of each env's current episode
+    epsilon: jax.Array  # (N,) float32 ε of each env's current episode
+    ep_return: jax.Array
+    ep_length: jax.Array
+    ep_loss_sum: jax.Array
+    ep_loss_count: jax.Array
+    episodes_started: jax.Array
+    recorded: jax.Array  # () int32 training episodes whose metrics are written
+    grad_steps: jax.Array
+    env_steps: jax.Array
+    metrics: dict[str, jax.Array]
+
+    @property
+    def finished(self) -> jax.Array:
+        return self.recorded >= self.metrics["length"].shape[-1]
+
+
+class Trainer(NamedTuple):
+    """The pure functions of one training configuration (see the module docstring)."""
+
+    config: TrainConfig
+    env: UrbanPedestrians
+    env_params: EnvParams
+    network: Network
+    init: Callable[..., TrainState]
+    run: Callable[[TrainState, int], TrainState]
+    train: Callable[..., tuple[Any, dict[str, jax.Array]]]
+
+
+def _tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
+    """Leaf-wise ``where`` with ``cond`` (N,) broadcast over trailing axes."""
+
+    def pick(x, y):
+        return jnp.where(cond.reshape(cond.shape + (1,) * (x.ndim - cond.ndim)), x, y)
+
+    return jax.tree.map(pick, a, b)
+
+
+def make_train(config: TrainConfig | None = None) -> Trainer:
+    """Build the pure training functions for ``config``."""
+    config = TrainConfig() if config is None else config
+    env, default_env_params = make(config.env_id, **dict(config.env_overrides))
+    network = make_network(dataclasses.replace(config.network, grid_shape=env.static.grid_shape))
+    n_env, n_episodes = config.num_envs, config.num_episodes
+    max_steps = env.static.max_steps
+
+    def epsilon_of(episode: jax.Array, hp: Hyperparams) -> jax.Array:
+        frac = jnp.clip(episode * (1.0 / max(n_episodes - 1, 1)), 0.0, 1.0)
+        return (hp.epsilon_start + (hp.epsilon_end - hp.epsilon_start) * frac).astype(jnp.float32)
+
+    def init(
+        key: jax.Array, hparams: Hyperparams | None = None, env_params: EnvParams | None = None
+    ) -> TrainState:
+        hp = config.hyperparams if hparams is None else hparams
+        env_params = default_env_params if env_params is None else env_params
+        key, k_net, k_env = jax.random.split(key, 3)
+        online = network.init(k_net)
+        opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+        obs, env_state = jax.vmap(env.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
+        replay = init_replay(config.replay_episodes, max_steps, n_env, env.static)
+        replay = begin_episodes(
+            replay, jnp.ones((n_env,), bool), GridInputs.of(env_state.ego, env_state.pedestrians)
+        )
+        episode = jnp.arange(n_env, dtype=jnp.int32)
+        zeros_f = jnp.zeros((n_env,), jnp.float32)
+        zeros_i = jnp.zeros((n_env,), jnp.int32)
+        metrics = {
+            name: jnp.zeros((n_episodes,), bool if name in ("collision", "goal") else jnp.float32)
+            for name in METRIC_NAMES
+        }
+        metrics["length"] = jnp.zeros((n_episodes,), jnp.int32)
+        return TrainState(
+            key=key,
+            hparams=hp,
+            env_params=env_params,
+            env_state=env_state,
+            obs=obs,
+            carry=network.initial_carry((n_env,)),
+            online=online,
+            target=online,
+            opt_state=opt.init(online),
+            replay=replay,
+            episode=episode,
+            epsilon=epsilon_of(episode, hp),
+            ep_return=zeros_f,
+            ep_length=zeros_i,
+            ep_loss_sum=zeros_f,
+            ep_loss_count=zeros_i,
+            episodes_started=jnp.asarray(n_env, jnp.int32),
+            recorded=jnp.zeros((), jnp.int32),
+            grad_steps=jnp.zeros((), jnp.int32),
+            env_steps=jnp.zeros((), jnp.int32),
+            metrics=metrics,
+        )
+
+    def act(state: TrainState, key: jax.Array) -> tuple[jax.Array, Any]:
+        """ε-greedy actions (N,) and the advanced LSTM carry."""
+        hp = state.hparams
+        k_explore, k_random = jax.random.split(key)
+        q, carry = network.step(state.online, state.obs, state.carry)
+        greedy = jnp.argmax(q, axis=-1).astype(jnp.int32)
+        biased = state.episode < hp.explore_bias_fraction * n_episodes
+        bias = jnp.stack(
+            [hp.explore_accelerate, hp.explore_slow_down, hp.explore_brake, hp.explore_steer]
+        )
+        probs = jnp.where(biased[:, None], bias, 1.0 / NUM_ACTIONS)
+        random_action = jax.random.categorical(k_random, jnp.log(probs)).astype(jnp.int32)
+        explore = jax.random.uniform(k_explore, (n_env,)) < state.epsilon
+        return jnp.where(explore, random_action, greedy), carry
+
+    def learn(state: TrainState, key: jax.Array) -> tuple[TrainState, jax.Array]:
+        """``updates_per_step`` gradient steps; returns the summed loss."""
+        hp = state.hparams
+        opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+        clamp = clip(1.0)
+
+        def update(carry, k):
+            online, target, opt_state, grad_steps = carry
+            windows = sample_windows(
+                state.replay,
+                k,
+                config.batch_size,
+                config.window,
+                state.env_params,
+                env.static,
+            )
+            (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
+                online, target, windows, network, hp.gamma, hp.clip
+            )
+            clamped, _ = clamp.update(grads, ())
+            grads = jax.tree.map(lambda c, g: jnp.where(hp.clip == CLIP_GRAD, c, g), clamped, grads)
+            updates, opt_state = opt.update(grads, opt_state, online)
+            online = apply_updates(online, updates)
+            grad_steps = grad_steps + 1
+            copy = grad_steps % hp.target_period == 0
+            target = jax.tree.map(lambda o, t: jnp.where(copy, o, t), online, target)
+            return (online, target, opt_state, grad_steps), loss
+
+        carry = (state.online, state.target, state.opt_state, state.grad_steps)
+        keys = jax.random.split(key, config.updates_per_step)
+        (online, target, opt_state, grad_steps), losses = jax.lax.scan(update, carry, keys)
+        state = state.replace(
+            online=online, target=target, opt_state=opt_state, grad_steps=grad_steps
+        )
+        return state, jnp.sum(losses)
+
+    def iteration(state: TrainState) -> TrainState:
+        """One vector env step, its storage, learning and episode bookkeeping."""
+        key, k_act, k_env, k_learn = jax.random.split(state.key, 4)
+        action, carry = act(state, k_act)
+        obs, env_state, reward, terminated, truncated, info = jax.vmap(env.step, (0, 0, 0, None))(
+            jax.random.split(k_env, n_env), state.env_state, action, state.env_params
+        )
+        done = terminated | truncated
+        final = info["final_state"]
+        replay = add_transition(
+            state.replay,
+            action,
+            reward,
+            terminated,
+            GridInputs.of(final.ego, final.pedestrians),
+        )
+        replay = end_episodes(replay, done)
+        replay = begin_episodes(replay, done, GridInputs.of(env_state.ego, env_state.pedestrians))
+        state = state.replace(key=key, replay=replay)
+
+        can_learn = jnp.sum(replay.complete) >= state.hparams.learning_starts
+        state, loss_sum = jax.lax.cond(
+            can_learn, learn, lambda s, k: (s, jnp.zeros((), jnp.float32)), state, k_learn
+        )
+        n_updates = jnp.where(can_learn, config.updates_per_step, 0)
+
+        # episode bookkeeping
+        ep_return = state.ep_return + reward
+        ep_length = state.ep_length + 1
+        ep_loss_sum = state.ep_loss_sum + loss_sum
+        ep_loss_count = state.ep_loss_count + n_updates
+        record = done & (state.episode < n_episodes)
+        index = jnp.where(record, state.episode, n_episodes)  # out of range: dropped
+        duration = ep_length.astype(jnp.float32) * state.env_params.dt
+        values = {
+            "episode_return": ep_return,
+            "length": ep_length,
+            "collision": info["collision"],
+            "goal": info["goal"],
+            "distance": info["distance"],
+            "mean_speed": info["distance"] / duration,
+            "epsilon": state.epsilon,
+            "mean_loss": ep_loss_sum / jnp.maximum(ep_loss_count, 1).astype(jnp.float32),
+        }
+        metrics = {
+            name: state.metrics[name].at[index].set(values[name].astype(buf.dtype), mode="drop")
+            for name, buf in state.metrics.items()
+        }
+        new_episode = state.episodes_started + jnp.cumsum(done.astype(jnp.int32)) - 1
+        episode = jnp.where(done, new_episode, state.episode)
+        zero_f, zero_i = jnp.zeros_like(ep_return), jnp.zeros_like(ep_length)
+        return state.replace(
+            env_state=env_state,
+            obs=obs,
+            carry=_tree_where(done, network.initial_carry((n_env,)), carry),
+            episode=episode,
+            epsilon=jnp.where(done, epsilon_of(episode, state.hparams), state.epsilon),
+            ep_return=jnp.where(done, zero_f, ep_return),
+            ep_length=jnp.where(done, zero_i, ep_length),
+            ep_loss_sum=jnp.where(done, zero_f, ep_loss_sum),
+            ep_loss_count=jnp.where(done, zero_i, ep_loss_count),
+            episodes_started=state.episodes_started + jnp.sum(done, dtype=jnp.int32),
+            recorded=state.recorded + jnp.sum(record, dtype=jnp.int32),
+            env_steps=state.env_steps + n_env,
+            metrics=metrics,
+        )
+
+    def run(state: TrainState, num_iterations: int) -> TrainState:
+        """``num_iterations`` iterations; those after the run finished change nothing."""
+
+        def body(state, _):
+            return jax.lax.cond(state.finished, lambda s: s, iteration, state), None
+
+        state, _ = jax.lax.scan(body, state, None, length=num_iterations)
+        return state
+
+    def train(
+        key: jax.Array, hparams: Hyperparams | None = None, env_params: EnvParams | None = None
+    ) -> tuple[Any, dict[str, jax.Array]]:
+        """A whole training run: final online parameters and per-episode metrics."""
+        state = init(key, hparams, env_params)
+        state = jax.lax.while_loop(
+            lambda s: ~s.finished, lambda s: run(s, config.chunk_iterations), state
+        )
+        return state.online, state.metrics
+
+    return Trainer(
+        config=config,
+        env=env,
+        env_params=default_env_params,
+        network=network,
+        init=init,
+        run=run,
+        train=train,
+    )

@@ -1,0 +1,180 @@
+"""make_train: determinism, chunking, seeds under vmap, the DRQN agent, and learning."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import drqn_jax
+from drqn_jax.networks import NetworkConfig
+from drqn_jax.train import Hyperparams, TrainConfig, make_train
+from tests.helpers import assert_tree_equal, take
+
+SMALL_NET = NetworkConfig(
+    conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=16, hidden=16
+)
+TINY = TrainConfig(
+    env_overrides=(("max_steps", 30),),
+    network=SMALL_NET,
+    num_envs=2,
+    num_episodes=6,
+    replay_episodes=4,
+    batch_size=4,
+    window=4,
+    chunk_iterations=16,
+    hyperparams=Hyperparams(learning_starts=1, target_period=7),
+)
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    trainer = make_train(TINY)
+    return trainer, jax.jit(trainer.train)
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tiny):
+    _, train = tiny
+    return train(jax.random.key(0))
+
+
+def test_smoke_metrics(tiny, tiny_run):
+    trainer, _ = tiny
+    params, metrics = tiny_run
+    assert set(metrics) == {
+        "episode_return",
+        "length",
+        "collision",
+        "goal",
+        "distance",
+        "mean_speed",
+        "epsilon",
+        "mean_loss",
+    }
+    for value in metrics.values():
+        assert value.shape == (6,)
+    length = np.asarray(metrics["length"])
+    assert np.all((length >= 1) & (length <= 30))
+    # ε falls linearly from 1 to 0.1 over the 6 training episodes
+    np.testing.assert_allclose(np.asarray(metrics["epsilon"]), np.linspace(1.0, 0.1, 6), atol=1e-6)
+    loss = np.asarray(metrics["mean_loss"])
+    assert np.all(np.isfinite(loss)) and np.any(loss > 0)
+    assert np.all(np.isfinite(np.asarray(metrics["episode_return"])))
+    # the parameters moved away from their initialisation
+    init = trainer.network.init(jax.random.split(jax.random.key(0), 3)[1])
+    assert not np.allclose(np.asarray(params["q"]["w"]), np.asarray(init["q"]["w"]))
+
+
+def test_same_key_bit_identical(tiny, tiny_run):
+    _, train = tiny
+    assert_tree_equal(train(jax.random.key(0)), tiny_run)
+    other = train(jax.random.key(1))
+    assert not np.array_equal(
+        np.asarray(other[1]["episode_return"]), np.asarray(tiny_run[1]["episode_return"])
+    )
+
+
+def test_chunked_equals_one_shot(tiny, tiny_run):
+    trainer, _ = tiny
+    init = jax.jit(trainer.init)
+    run = jax.jit(trainer.run, static_argnums=1)
+    state = init(jax.random.key(0))
+    chunks = 0
+    while not bool(state.finished):
+        state = run(state, 5)
+        chunks += 1
+    assert chunks > 3
+    assert_tree_equal((state.online, state.metrics), tiny_run)
+    assert int(state.recorded) == 6 and int(state.grad_steps) > 0
+
+
+def test_vmap_over_seeds_equals_separate_runs(tiny):
+    trainer, train = tiny
+    keys = jax.random.split(jax.random.key(3), 4)
+    together = jax.jit(jax.vmap(trainer.train))(keys)
+    for i in range(4):
+        assert_tree_equal(take(together, i), train(keys[i]))
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="replay_episodes"):
+        TrainConfig(num_envs=4, replay_episodes=6)
+    with pytest.raises(ValueError, match="num_episodes"):
+        TrainConfig(num_episodes=0)
+    with pytest.raises(ValueError, match="explore_"):
+        Hyperparams(explore_accelerate=0.9)
+    with pytest.raises(ValueError, match="learning_rate"):
+        Hyperparams(learning_rate=-1e-3)
+    with pytest.raises(ValueError, match="clip"):
+        Hyperparams(clip="none")
+
+
+def test_trained_agent_plugs_into_evaluate(tiny, tiny_run):
+    trainer, _ = tiny
+    params, _ = tiny_run
+    agent = drqn_jax.drqn_agent(trainer.network, params)
+    env, env_params = trainer.env, trainer.env_params
+    a = drqn_jax.evaluate(agent, jax.random.key(9), 4, env, env_params)
+    b = drqn_jax.evaluate(agent, jax.random.key(9), 4, env, env_params)
+    assert_tree_equal(a["episodes"], b["episodes"])
+    assert a["agent"] == "drqn" and a["num_episodes"] == 4
+    # new weights, same compiled program: a different agent pytree of the same kind
+    other = drqn_jax.drqn_agent(trainer.network, jax.tree.map(lambda x: -x, params))
+    assert jax.tree.structure(other) == jax.tree.structure(agent)
+
+
+def test_learns_to_drive_near_the_speed_limit():
+    """Trivial scene (pedestrians stay on the sidewalks): the agent learns to drive.
+
+    A narrow network, 16 environments, γ = 0.97 and 2400 gradient steps; about
+    45 s on the 2-core CPU. Early episodes crawl (< 8 km/h); the greedy agent
+    then holds a steady speed of 12.5–15 km/h. NOT YET the issue's stricter
+    "holds 13–15 km/h": seeds 0, 1, 2 give steady means of 13.1, 13.3 and
+    13.8 km/h but only 51 %, 80 % and 96 % of steps inside 13–15 km/h (the
+    agent keeps a margin under the limit); see the closing note of issue 3.
+    """
+    config = TrainConfig(
+        env_overrides=(
+            ("max_steps", 200),
+            ("prob_crossing", 0.0),
+            ("prob_jaywalking", 0.0),
+            ("prob_sidewalk", 1.0),
+        ),
+        network=NetworkConfig(
+            conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=32, hidden=32
+        ),
+        num_envs=16,
+        num_episodes=192,
+        replay_episodes=32,
+        batch_size=16,
+        window=8,
+        chunk_iterations=100,
+        hyperparams=Hyperparams(
+            learning_starts=2, target_period=200, learning_rate=3e-3, epsilon_end=0.02, gamma=0.97
+        ),
+    )
+    trainer = make_train(config)
+    params, metrics = jax.jit(trainer.train)(jax.random.key(0))
+    agent = drqn_jax.drqn_agent(trainer.network, params)
+    env, env_params = trainer.env, trainer.env_params
+
+    def rollout(key):
+        obs, state = env.reset(key, env_params)
+        carry = agent.init_carry(key)
+
+        def body(loop, k):
+            obs, state, carry = loop
+            action, carry = agent.act(k, obs, carry, state, env, env_params)
+            obs, state, *_ = env.step_env(k, state, action, env_params)
+            return (obs, state, carry), state.ego.v * 3.6
+
+        return jax.lax.scan(body, (obs, state, carry), jax.random.split(key, 200))[1]
+
+    speed_kmh = np.asarray(jax.jit(jax.vmap(rollout))(jax.random.split(jax.random.key(5), 16)))
+    steady = speed_kmh[:, 30:]  # after 3 s of acceleration from rest
+    assert 12.5 <= steady.mean() <= 15.0, steady.mean()
+    assert np.mean((steady >= 12.0) & (steady <= 15.5)) >= 0.9
+    # and it did not get there by chance: early training episodes were slow
+    mean_speed = np.asarray(metrics["mean_speed"]) * 3.6
+    assert mean_speed[:16].mean() < 8.0
