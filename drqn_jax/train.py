@@ -95,7 +95,7 @@ class Hyperparams:
         )
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class TrainConfig:
     """Shape-setting training settings (hashable; a change recompiles).
 
@@ -135,20 +135,20 @@ class TrainConfig:
                 f"({2 * self.num_envs}); each environment writes its own replay slots"
             )
 
+    def _static_key(self) -> tuple:
+        return tuple(
+            getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "hyperparams"
+        )
+
     def __hash__(self) -> int:  # Hyperparams holds arrays: hash the static part only
-        return hash(
-            (
-                self.env_id,
-                self.env_overrides,
-                self.network,
-                self.num_envs,
-                self.num_episodes,
-                self.replay_episodes,
-                self.batch_size,
-                self.window,
-                self.updates_per_step,
-                self.chunk_iterations,
-            )
+        return hash(self._static_key())
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, TrainConfig):
+            return NotImplemented
+        mine, theirs = jax.tree.leaves(self.hyperparams), jax.tree.leaves(other.hyperparams)
+        return self._static_key() == other._static_key() and all(
+            bool(jnp.array_equal(a, b)) for a, b in zip(mine, theirs, strict=True)
         )
 
 

@@ -97,6 +97,12 @@ def test_vmap_over_seeds_equals_separate_runs(tiny):
         assert_tree_equal(take(together, i), train(keys[i]))
 
 
+def test_config_equality_and_hash():
+    assert TrainConfig() == TrainConfig() and hash(TrainConfig()) == hash(TrainConfig())
+    assert TrainConfig() != TrainConfig(hyperparams=Hyperparams(gamma=0.5))
+    assert TrainConfig() != TrainConfig(num_envs=2)
+
+
 def test_config_validation():
     with pytest.raises(ValueError, match="replay_episodes"):
         TrainConfig(num_envs=4, replay_episodes=6)
