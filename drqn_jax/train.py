@@ -208,6 +208,12 @@ def _tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
     return jax.tree.map(pick, a, b)
 
 
+def _small_leaves(state: TrainState) -> TrainState:
+    """``state`` with its large buffers (replay, networks, optimiser, metrics) emptied,
+    for cheap leaf-wise selection of everything else."""
+    return state.replace(replay=None, online=None, target=None, opt_state=None, metrics=None)
+
+
 def make_train(config: TrainConfig | None = None) -> Trainer:
     """Build the pure training functions for ``config``."""
     config = TrainConfig() if config is None else config
@@ -280,8 +286,21 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
         explore = jax.random.uniform(k_explore, (n_env,)) < state.epsilon
         return jnp.where(explore, random_action, greedy), carry
 
-    def learn(state: TrainState, key: jax.Array) -> tuple[TrainState, jax.Array]:
-        """``updates_per_step`` gradient steps; returns the summed loss."""
+    def learn(
+        learner: tuple,
+        replay: EpisodeReplay,
+        state: TrainState,
+        key: jax.Array,
+        num_updates: jax.Array,
+    ) -> tuple[tuple, jax.Array]:
+        """``num_updates`` (0 or ``updates_per_step``) gradient steps on ``learner`` =
+        (online, target, opt_state, grad_steps); the new learner and the summed loss.
+
+        A ``while_loop`` with a dynamic trip count gates learning rather than a
+        ``lax.cond``: a loop carries its buffers in place, whereas a cond whose
+        skip branch returns its input makes XLA copy the parameters and Adam
+        state (15 MB) every iteration.
+        """
         hp = state.hparams
         opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
         clamp = clip(1.0)
@@ -289,12 +308,7 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
         def update(carry, k):
             online, target, opt_state, grad_steps = carry
             windows = sample_windows(
-                state.replay,
-                k,
-                config.batch_size,
-                config.window,
-                state.env_params,
-                env.static,
+                replay, k, config.batch_size, config.window, state.env_params, env.static
             )
             (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
                 online, target, windows, network, hp.gamma, hp.clip
@@ -308,22 +322,34 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
             target = jax.tree.map(lambda o, t: jnp.where(copy, o, t), online, target)
             return (online, target, opt_state, grad_steps), loss
 
-        carry = (state.online, state.target, state.opt_state, state.grad_steps)
         keys = jax.random.split(key, config.updates_per_step)
-        (online, target, opt_state, grad_steps), losses = jax.lax.scan(update, carry, keys)
-        state = state.replace(
-            online=online, target=target, opt_state=opt_state, grad_steps=grad_steps
+
+        def body(loop):
+            i, learner, loss_sum = loop
+            learner, loss = update(learner, keys[i])
+            return i + 1, learner, loss_sum + loss
+
+        _, learner, loss_sum = jax.lax.while_loop(
+            lambda loop: loop[0] < num_updates,
+            body,
+            (jnp.zeros((), jnp.int32), learner, jnp.zeros((), jnp.float32)),
         )
-        return state, jnp.sum(losses)
+        return learner, loss_sum
 
     def iteration(state: TrainState) -> TrainState:
-        """One vector env step, its storage, learning and episode bookkeeping."""
+        """One vector env step, its storage, learning and episode bookkeeping.
+
+        Once the run has finished (every training episode recorded) the
+        iteration changes nothing: small leaves are selected, replay and metric
+        writes are masked and learning is gated, so no large buffer is copied.
+        """
+        live = ~state.finished
         key, k_act, k_env, k_learn = jax.random.split(state.key, 4)
         action, carry = act(state, k_act)
         obs, env_state, reward, terminated, truncated, info = jax.vmap(env.step, (0, 0, 0, None))(
             jax.random.split(k_env, n_env), state.env_state, action, state.env_params
         )
-        done = terminated | truncated
+        done = (terminated | truncated) & live
         final = info["final_state"]
         replay = add_transition(
             state.replay,
@@ -331,16 +357,17 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
             reward,
             terminated,
             GridInputs.of(final.ego, final.pedestrians),
+            active=jnp.broadcast_to(live, (n_env,)),
         )
         replay = end_episodes(replay, done)
         replay = begin_episodes(replay, done, GridInputs.of(env_state.ego, env_state.pedestrians))
-        state = state.replace(key=key, replay=replay)
 
-        can_learn = jnp.sum(replay.complete) >= state.hparams.learning_starts
-        state, loss_sum = jax.lax.cond(
-            can_learn, learn, lambda s, k: (s, jnp.zeros((), jnp.float32)), state, k_learn
-        )
+        can_learn = live & (jnp.sum(replay.complete) >= state.hparams.learning_starts)
         n_updates = jnp.where(can_learn, config.updates_per_step, 0)
+        learner = (state.online, state.target, state.opt_state, state.grad_steps)
+        (online, target, opt_state, grad_steps), loss_sum = learn(
+            learner, replay, state, k_learn, n_updates
+        )
 
         # episode bookkeeping
         ep_return = state.ep_return + reward
@@ -367,7 +394,8 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
         new_episode = state.episodes_started + jnp.cumsum(done.astype(jnp.int32)) - 1
         episode = jnp.where(done, new_episode, state.episode)
         zero_f, zero_i = jnp.zeros_like(ep_return), jnp.zeros_like(ep_length)
-        return state.replace(
+        moved = state.replace(
+            key=key,
             env_state=env_state,
             obs=obs,
             carry=_tree_where(done, network.initial_carry((n_env,)), carry),
@@ -380,6 +408,18 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
             episodes_started=state.episodes_started + jnp.sum(done, dtype=jnp.int32),
             recorded=state.recorded + jnp.sum(record, dtype=jnp.int32),
             env_steps=state.env_steps + n_env,
+        )
+        small = jax.tree.map(
+            lambda new, old: jnp.where(live, new, old),
+            _small_leaves(moved),
+            _small_leaves(state),
+        )
+        return small.replace(
+            replay=replay,
+            online=online,
+            target=target,
+            opt_state=opt_state,
+            grad_steps=grad_steps,
             metrics=metrics,
         )
 
@@ -387,7 +427,7 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
         """``num_iterations`` iterations; those after the run finished change nothing."""
 
         def body(state, _):
-            return jax.lax.cond(state.finished, lambda s: s, iteration, state), None
+            return iteration(state), None
 
         state, _ = jax.lax.scan(body, state, None, length=num_iterations)
         return state
