@@ -133,10 +133,14 @@ def replay_bytes(replay: EpisodeReplay) -> int:
 
 
 def _set(buffer: jax.Array, where: jax.Array, index: tuple, value: jax.Array) -> jax.Array:
-    """``buffer.at[index].set(value)`` only for writers where ``where`` (N,) is true."""
-    old = buffer[index]
-    mask = where.reshape(where.shape + (1,) * (old.ndim - 1))
-    return buffer.at[index].set(jnp.where(mask, value, old), unique_indices=True)
+    """``buffer.at[index].set(value)`` only for writers where ``where`` (N,) is true.
+
+    Skipped writers get an out-of-range slot and the scatter drops them, so
+    the buffer is only written, never read: XLA then updates it in place
+    instead of copying it.
+    """
+    slot = jnp.where(where, index[0], buffer.shape[0])
+    return buffer.at[(slot, *index[1:])].set(value, mode="drop", unique_indices=True)
 
 
 def begin_episodes(replay: EpisodeReplay, starting: jax.Array, first: GridInputs) -> EpisodeReplay:

@@ -287,28 +287,22 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
         return jnp.where(explore, random_action, greedy), carry
 
     def learn(
-        learner: tuple,
-        replay: EpisodeReplay,
-        state: TrainState,
-        key: jax.Array,
-        num_updates: jax.Array,
+        learner: tuple, replay: EpisodeReplay, hp: Hyperparams, env_params: EnvParams, key
     ) -> tuple[tuple, jax.Array]:
-        """``num_updates`` (0 or ``updates_per_step``) gradient steps on ``learner`` =
-        (online, target, opt_state, grad_steps); the new learner and the summed loss.
+        """``updates_per_step`` gradient steps on ``learner`` = (online, target,
+        opt_state, grad_steps); the new learner and the summed loss.
 
-        A ``while_loop`` with a dynamic trip count gates learning rather than a
-        ``lax.cond``: a loop carries its buffers in place, whereas a cond whose
-        skip branch returns its input makes XLA copy the parameters and Adam
-        state (15 MB) every iteration.
+        Gated by a ``lax.cond`` that takes the replay as a read-only operand and
+        returns only the learner: a ``while_loop`` carrying the replay, or a cond
+        returning the whole state, makes XLA copy the 13 MB replay every step.
         """
-        hp = state.hparams
         opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
         clamp = clip(1.0)
 
         def update(carry, k):
             online, target, opt_state, grad_steps = carry
             windows = sample_windows(
-                replay, k, config.batch_size, config.window, state.env_params, env.static
+                replay, k, config.batch_size, config.window, env_params, env.static
             )
             (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
                 online, target, windows, network, hp.gamma, hp.clip
@@ -323,18 +317,8 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
             return (online, target, opt_state, grad_steps), loss
 
         keys = jax.random.split(key, config.updates_per_step)
-
-        def body(loop):
-            i, learner, loss_sum = loop
-            learner, loss = update(learner, keys[i])
-            return i + 1, learner, loss_sum + loss
-
-        _, learner, loss_sum = jax.lax.while_loop(
-            lambda loop: loop[0] < num_updates,
-            body,
-            (jnp.zeros((), jnp.int32), learner, jnp.zeros((), jnp.float32)),
-        )
-        return learner, loss_sum
+        learner, losses = jax.lax.scan(update, learner, keys)
+        return learner, jnp.sum(losses)
 
     def iteration(state: TrainState) -> TrainState:
         """One vector env step, its storage, learning and episode bookkeeping.
@@ -363,11 +347,18 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
         replay = begin_episodes(replay, done, GridInputs.of(env_state.ego, env_state.pedestrians))
 
         can_learn = live & (jnp.sum(replay.complete) >= state.hparams.learning_starts)
-        n_updates = jnp.where(can_learn, config.updates_per_step, 0)
         learner = (state.online, state.target, state.opt_state, state.grad_steps)
-        (online, target, opt_state, grad_steps), loss_sum = learn(
-            learner, replay, state, k_learn, n_updates
+        (online, target, opt_state, grad_steps), loss_sum = jax.lax.cond(
+            can_learn,
+            learn,
+            lambda learner, *_: (learner, jnp.zeros((), jnp.float32)),
+            learner,
+            replay,
+            state.hparams,
+            state.env_params,
+            k_learn,
         )
+        n_updates = jnp.where(can_learn, config.updates_per_step, 0)
 
         # episode bookkeeping
         ep_return = state.ep_return + reward
