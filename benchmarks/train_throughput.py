@@ -19,10 +19,10 @@ step), for 1 run and for R runs ``jax.vmap``-ed over seeds (``--runs``):
    iteration) and then stacked. The lengths of these episodes (ε ≥ 0.91,
    untrained network, learning off) give the mid-case wall-time estimate, and
    the best 1000-iteration chunk the cost of an iteration before learning starts.
-2. **Gradient updates in isolation.** One update re-created from the public
-   pieces exactly as ``make_train``'s ``learn`` does it (``sample_windows`` →
-   ``value_and_grad(sequence_loss)`` → clamp switch → Adam → ``apply_updates``
-   → periodic target copy); ``--updates`` K of them in one jitted ``lax.scan``.
+2. **Gradient updates in isolation.** The trainer's own ``gradient_update``
+   (``sample_windows`` → ``value_and_grad(sequence_loss)`` → clamp switch →
+   Adam → ``apply_updates`` → periodic target copy); ``--updates`` K of them
+   in one jitted ``lax.scan``.
 3. **End to end.** ``trainer.run(state, --iterations I)`` with learning
    active: I iterations of acting (ε-greedy with the LSTM), env step, replay
    write, one gradient update, episode bookkeeping. The state is donated.
@@ -73,10 +73,8 @@ import jax.numpy as jnp
 import numpy as np
 from machine import machine_info, machine_lines  # benchmarks/machine.py
 
-from drqn_jax.loss import CLIP_GRAD, sequence_loss
 from drqn_jax.networks import NetworkConfig, param_count
-from drqn_jax.optim import adam, apply_updates, clip
-from drqn_jax.replay import replay_bytes, sample_windows
+from drqn_jax.replay import replay_bytes
 from drqn_jax.train import Hyperparams, TrainConfig, Trainer, TrainState, make_train
 
 TARGET_UPDATES_PER_S = 20.0  # issue 3: gradient updates/s at batch 32 × 8, 2-core CPU
@@ -240,34 +238,6 @@ def batched(fn: Callable, runs: int, in_axes: Any = 0) -> Callable:
     return fn if runs == 1 else jax.vmap(fn, in_axes=in_axes)
 
 
-def make_update(trainer: Trainer) -> Callable:
-    """One Double-DQN gradient update, as ``make_train``'s ``learn`` takes it."""
-    config, env, network = trainer.config, trainer.env, trainer.network
-    clamp = clip(1.0)
-
-    def update(
-        carry: UpdateCarry, key: jax.Array, replay: Any, hp: Hyperparams, env_params: Any
-    ) -> tuple[UpdateCarry, jax.Array]:
-        online, target, opt_state, grad_steps = carry
-        opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
-        windows = sample_windows(
-            replay, key, config.batch_size, config.window, env_params, env.static
-        )
-        (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
-            online, target, windows, network, hp.gamma, hp.clip
-        )
-        clamped, _ = clamp.update(grads, ())
-        grads = jax.tree.map(lambda c, g: jnp.where(hp.clip == CLIP_GRAD, c, g), clamped, grads)
-        updates, opt_state = opt.update(grads, opt_state, online)
-        online = apply_updates(online, updates)
-        grad_steps = grad_steps + 1
-        copy = grad_steps % hp.target_period == 0
-        target = jax.tree.map(lambda o, t: jnp.where(copy, o, t), online, target)
-        return (online, target, opt_state, grad_steps), loss
-
-    return update
-
-
 def make_updates(update: Callable, num_updates: int) -> Callable:
     """``num_updates`` updates in one ``lax.scan`` (fresh windows each)."""
 
@@ -378,7 +348,7 @@ def bench_runs(
     }
 
     # (a) gradient updates in isolation
-    update = make_update(trainer)
+    update = trainer.gradient_update
     updates = batched(make_updates(update, args.updates), runs, (0, 0, 0, 0, None))
     carry = (state.online, state.target, state.opt_state, state.grad_steps)
     statics = (state.replay, state.hparams, trainer.env_params)
@@ -715,7 +685,7 @@ def main(argv: Sequence[str] | None = None) -> None:
 
     # counted FLOPs (unbatched: one run)
     one = fills[0][0]
-    update = make_update(trainer)
+    update = trainer.gradient_update
     upd_args = (
         (one.online, one.target, one.opt_state, one.grad_steps),
         jax.random.key(0),

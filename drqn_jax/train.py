@@ -197,6 +197,7 @@ class Trainer(NamedTuple):
     init: Callable[..., TrainState]
     run: Callable[[TrainState, int], TrainState]
     train: Callable[..., tuple[Any, dict[str, jax.Array]]]
+    gradient_update: Callable[..., tuple[tuple, jax.Array]]
 
 
 def _tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
@@ -286,35 +287,43 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
         explore = jax.random.uniform(k_explore, (n_env,)) < state.epsilon
         return jnp.where(explore, random_action, greedy), carry
 
+    def gradient_update(
+        learner: tuple, key: jax.Array, replay: EpisodeReplay, hp: Hyperparams, env_params
+    ) -> tuple[tuple, jax.Array]:
+        """One Double-DQN gradient step on ``learner`` = (online, target, opt_state,
+        grad_steps): sample windows, loss and gradient, clamp switch, Adam, and the
+        hard target copy every ``target_period`` steps. Returns the learner and the loss.
+        """
+        online, target, opt_state, grad_steps = learner
+        opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+        windows = sample_windows(
+            replay, key, config.batch_size, config.window, env_params, env.static
+        )
+        (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
+            online, target, windows, network, hp.gamma, hp.clip
+        )
+        clamped, _ = clip(1.0).update(grads, ())
+        grads = jax.tree.map(lambda c, g: jnp.where(hp.clip == CLIP_GRAD, c, g), clamped, grads)
+        updates, opt_state = opt.update(grads, opt_state, online)
+        online = apply_updates(online, updates)
+        grad_steps = grad_steps + 1
+        copy = grad_steps % hp.target_period == 0
+        target = jax.tree.map(lambda o, t: jnp.where(copy, o, t), online, target)
+        return (online, target, opt_state, grad_steps), loss
+
     def learn(
         learner: tuple, replay: EpisodeReplay, hp: Hyperparams, env_params: EnvParams, key
     ) -> tuple[tuple, jax.Array]:
-        """``updates_per_step`` gradient steps on ``learner`` = (online, target,
-        opt_state, grad_steps); the new learner and the summed loss.
+        """``updates_per_step`` gradient steps on ``learner``; the new learner and the
+        summed loss.
 
         Gated by a ``lax.cond`` that takes the replay as a read-only operand and
         returns only the learner: a ``while_loop`` carrying the replay, or a cond
         returning the whole state, makes XLA copy the 13 MB replay every step.
         """
-        opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
-        clamp = clip(1.0)
 
-        def update(carry, k):
-            online, target, opt_state, grad_steps = carry
-            windows = sample_windows(
-                replay, k, config.batch_size, config.window, env_params, env.static
-            )
-            (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
-                online, target, windows, network, hp.gamma, hp.clip
-            )
-            clamped, _ = clamp.update(grads, ())
-            grads = jax.tree.map(lambda c, g: jnp.where(hp.clip == CLIP_GRAD, c, g), clamped, grads)
-            updates, opt_state = opt.update(grads, opt_state, online)
-            online = apply_updates(online, updates)
-            grad_steps = grad_steps + 1
-            copy = grad_steps % hp.target_period == 0
-            target = jax.tree.map(lambda o, t: jnp.where(copy, o, t), online, target)
-            return (online, target, opt_state, grad_steps), loss
+        def update(learner, k):
+            return gradient_update(learner, k, replay, hp, env_params)
 
         keys = jax.random.split(key, config.updates_per_step)
         learner, losses = jax.lax.scan(update, learner, keys)
@@ -441,4 +450,5 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
         init=init,
         run=run,
         train=train,
+        gradient_update=gradient_update,
     )
