@@ -14,10 +14,10 @@ import argparse
 import time
 
 import jax
-from machine import machine_info, machine_lines  # benchmarks/machine.py
 
 import drqn_jax
 from drqn_jax.evaluation import metrics_table
+from drqn_jax.machine import machine_info, machine_lines
 
 
 def main() -> None:

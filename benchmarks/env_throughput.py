@@ -37,9 +37,9 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from machine import machine_info, machine_lines  # benchmarks/machine.py
 
 import drqn_jax
+from drqn_jax.machine import machine_info, machine_lines
 
 ENV_ID = "UrbanPedestrians-v0"
 DEFAULT_BATCH_SIZES = (1, 4, 16, 64, 256, 1024, 4096, 16384)

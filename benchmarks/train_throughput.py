@@ -71,8 +71,8 @@ import jax
 import jax.extend.core as jex
 import jax.numpy as jnp
 import numpy as np
-from machine import machine_info, machine_lines  # benchmarks/machine.py
 
+from drqn_jax.machine import machine_info, machine_lines
 from drqn_jax.networks import NetworkConfig, param_count
 from drqn_jax.replay import replay_bytes
 from drqn_jax.train import Hyperparams, TrainConfig, Trainer, TrainState, make_train

@@ -162,6 +162,16 @@ def validate(obj: Any) -> None:
         object.__setattr__(obj, f.name, arr.astype(np.int32 if integer else np.float32))
 
 
+def _show(value: Any) -> str:
+    """A concrete scalar as its shortest exact decimal (float32 0.4 -> ``0.4``), else repr."""
+    arr = np.asarray(value)
+    if arr.ndim == 0 and np.issubdtype(arr.dtype, np.floating):
+        return np.format_float_positional(arr[()], unique=True, trim="-")
+    if arr.ndim == 0 and np.issubdtype(arr.dtype, np.integer):
+        return str(arr.item())
+    return repr(value)
+
+
 def check_order(obj: Any, lower: str, upper: str, *, strict: bool = False) -> None:
     """Raise unless ``obj.lower <= obj.upper`` (``<`` if ``strict``) for concrete values."""
     a, b = getattr(obj, lower), getattr(obj, upper)
@@ -172,7 +182,8 @@ def check_order(obj: Any, lower: str, upper: str, *, strict: bool = False) -> No
         rel = "<" if strict else "<="
         name = type(obj).__name__
         raise ValueError(
-            f"{name}.{lower} = {a!r} and {name}.{upper} = {b!r}: must satisfy {lower} {rel} {upper}"
+            f"{name}.{lower} = {_show(a)} and {name}.{upper} = {_show(b)}: "
+            f"must satisfy {lower} {rel} {upper}"
         )
 
 
@@ -183,5 +194,7 @@ def check_sums_to_one(obj: Any, names: Sequence[str], *, tol: float = 1e-6) -> N
         return
     total = np.sum([np.asarray(v, dtype=np.float64) for v in values], axis=0)
     if not np.all(np.abs(total - 1.0) <= tol):
-        parts = " + ".join(f"{n} ({getattr(obj, n)!r})" for n in names)
-        raise ValueError(f"{type(obj).__name__}: {parts} = {total!r}, must sum to 1")
+        parts = " + ".join(f"{n} ({_show(getattr(obj, n))})" for n in names)
+        raise ValueError(
+            f"{type(obj).__name__}: {parts} = {float(np.max(total)):.6g}, must sum to 1"
+        )

@@ -16,12 +16,20 @@ _PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "UrbanPedestriansRealistic-v0": ({}, {"ped_speed_min": 0.5, "ped_speed_max": 1.5}),
 }
 
-__all__ = ["make", "registered_envs"]
+__all__ = ["make", "preset", "registered_envs"]
 
 
 def registered_envs() -> tuple[str, ...]:
     """The ids ``make`` accepts."""
     return tuple(_PRESETS)
+
+
+def preset(env_id: str) -> dict[str, Any]:
+    """The field values ``env_id`` sets on top of the parameter defaults."""
+    if env_id not in _PRESETS:
+        raise ValueError(f"unknown env id {env_id!r}; registered: {', '.join(_PRESETS)}")
+    static_kw, traced_kw = _PRESETS[env_id]
+    return {**static_kw, **traced_kw}
 
 
 def make(

@@ -29,6 +29,7 @@ Shape-setting choices live in the hashable :class:`TrainConfig`; the rest
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -216,8 +217,16 @@ def _small_leaves(state: TrainState) -> TrainState:
 
 
 def make_train(config: TrainConfig | None = None) -> Trainer:
-    """Build the pure training functions for ``config``."""
-    config = TrainConfig() if config is None else config
+    """Build the pure training functions for ``config``.
+
+    Equal configurations get the same :class:`Trainer` (the same function
+    objects), so ``jax.jit`` reuses what it compiled for them.
+    """
+    return _make_train(TrainConfig() if config is None else config)
+
+
+@functools.lru_cache(maxsize=32)
+def _make_train(config: TrainConfig) -> Trainer:
     env, default_env_params = make(config.env_id, **dict(config.env_overrides))
     network = make_network(dataclasses.replace(config.network, grid_shape=env.static.grid_shape))
     n_env, n_episodes = config.num_envs, config.num_episodes

@@ -1,0 +1,319 @@
+"""The ``drqn-jax`` command line: ``train``, ``evaluate``, ``reproduce``, ``bench``.
+
+Exit statuses: 0 done; 1 the run failed (non-finite loss: the last good
+checkpoint is kept); 2 a configuration, usage or checkpoint problem (one
+line on stderr naming it); 130 interrupted by SIGINT/SIGTERM after saving a
+checkpoint.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from drqn_jax.checkpoint import CheckpointError
+from drqn_jax.config import Config, ConfigError, config_names, load_config
+from drqn_jax.evaluation import metrics_table
+from drqn_jax.runner import (
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_USAGE,
+    builtin_agent,
+    evaluate_agents,
+    json_ready,
+    load_run,
+    load_trained_agent,
+    train_run,
+    write_evaluation,
+)
+
+__all__ = ["main"]
+
+#: The paper's Table III (10 episodes per agent; SPEC §8).
+PAPER_TABLE_III = (
+    ("rule-based", "40 %", 7.79, 82.6),
+    ("DRQN", "70 %", 6.09, 123.1),
+)
+
+
+class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
+    pass
+
+
+def _config_options(parser: argparse.ArgumentParser, default: str) -> None:
+    parser.add_argument(
+        "--config",
+        default=default,
+        help=f"TOML file, or a name in configs/ ({', '.join(config_names())})",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.FIELD=VALUE",
+        help="override one field (repeatable), e.g. --set train.learning_rate=3e-4",
+    )
+
+
+def _run_dir_option(parser: argparse.ArgumentParser, prefix: str) -> None:
+    parser.add_argument(
+        "--run-dir",
+        default=None,
+        help=f"where to write the run (default: runs/{prefix}-<config>-<UTC time>)",
+    )
+
+
+def _quiet_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="drqn-jax",
+        description="JAX DRQN for urban driving among pedestrians (Deshpande et al.)",
+        formatter_class=_Formatter,
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    train = sub.add_parser(
+        "train", help="train the DRQN", description=_TRAIN_DOC, formatter_class=_Formatter
+    )
+    _config_options(train, "default")
+    _run_dir_option(train, "train")
+    train.add_argument(
+        "--resume",
+        metavar="RUN_DIR",
+        default=None,
+        help="continue the run in RUN_DIR from its last checkpoint (uses its config.toml)",
+    )
+    _quiet_option(train)
+
+    ev = sub.add_parser(
+        "evaluate",
+        help="evaluate a trained run or a built-in agent",
+        description=_EVALUATE_DOC,
+        formatter_class=_Formatter,
+    )
+    ev.add_argument("run_dir", nargs="?", default=None, help="a run directory (its DRQN agent)")
+    ev.add_argument(
+        "--agent",
+        choices=("drqn", "rule-based", "random", "accelerate"),
+        default=None,
+        help="agent to evaluate (default: drqn with RUN_DIR, rule-based without)",
+    )
+    ev.add_argument(
+        "--episodes", type=int, default=None, help="episodes (default: evaluate.episodes)"
+    )
+    ev.add_argument("--seed", type=int, default=None, help="run.seed for the evaluation key")
+    ev.add_argument(
+        "--json", default=None, metavar="PATH", help="write the metrics as JSON ('-': stdout)"
+    )
+    _config_options(ev, "default")
+
+    rep = sub.add_parser(
+        "reproduce",
+        help="train, evaluate and print the paper's Table III beside ours",
+        description=_REPRODUCE_DOC,
+        formatter_class=_Formatter,
+    )
+    _config_options(rep, "default")
+    _run_dir_option(rep, "reproduce")
+    _quiet_option(rep)
+
+    bench = sub.add_parser(
+        "bench",
+        help="measure env steps/s and training throughput on this machine",
+        description=_BENCH_DOC,
+        formatter_class=_Formatter,
+    )
+    bench.add_argument("what", choices=("env", "train", "all"), nargs="?", default="all")
+    bench.add_argument("--num-envs", type=int, default=4096, help="parallel envs for 'env'")
+    bench.add_argument("--steps", type=int, default=200, help="env steps per timed call for 'env'")
+    bench.add_argument(
+        "--iterations", type=int, default=20, help="training iterations per timed call for 'train'"
+    )
+    _config_options(bench, "default")
+    return parser
+
+
+_TRAIN_DOC = """Train the DRQN of a config; writes config.toml, metrics.csv, checkpoints,
+evaluation.json and results.md to the run directory. Ctrl-C (or SIGTERM) saves a
+checkpoint and exits with status 130; --resume continues bit-identically."""
+_EVALUATE_DOC = """Evaluate a run directory's DRQN or a built-in agent greedily on the
+evaluation key and print the SPEC §8 metrics."""
+_REPRODUCE_DOC = """Train the DRQN with the config (default.toml), evaluate it and the
+rule-based agent on evaluate.episodes episodes each, and print the paper's Table III beside
+ours with the wall time."""
+_BENCH_DOC = """Measure env steps/s (vectorised env, random actions) and training
+iterations/s of the config's trainer, with the machine they ran on."""
+
+
+def _default_run_dir(prefix: str, config_name: str) -> Path:
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%d-%H%M%S")
+    return Path("runs") / f"{prefix}-{Path(config_name).stem}-{stamp}"
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    if args.resume is not None:
+        config = load_run(args.resume, tuple(args.overrides))
+        run_dir = Path(args.resume)
+    else:
+        config = load_config(args.config, args.overrides)
+        run_dir = Path(args.run_dir or _default_run_dir("train", args.config))
+    resume = args.resume is not None
+    return _train_and_evaluate(config, run_dir, resume, args.quiet, start, reproduce=False)
+
+
+def _train_and_evaluate(
+    config: Config, run_dir: Path, resume: bool, quiet: bool, start: float, *, reproduce: bool
+) -> int:
+    """Train, then evaluate the DRQN (and, to reproduce Table III, the rule-based agent)."""
+    result = train_run(config, run_dir, resume=resume, quiet=quiet)
+    if result.status != "finished":
+        print(("error: " if result.status == "diverged" else "") + result.message, file=sys.stderr)
+        return EXIT_FAILED if result.status == "diverged" else EXIT_INTERRUPTED
+    agents = [_trained(result)]
+    if reproduce:
+        agents.append(builtin_agent("rule-based", config))
+    results = evaluate_agents(config, agents)
+    wall = time.perf_counter() - start
+    tables = [paper_comparison(results)] if reproduce else []
+    table = "\n\n".join([*tables, metrics_table(results)])
+    write_evaluation(run_dir, results, {**_run_summary(result), "total_wall_time_s": wall}, table)
+    print(table)
+    print(
+        f"\nwall time {wall:.1f} s (training {result.wall_time_s:.1f} s over "
+        f"{int(result.state.recorded)} episodes, {int(result.state.grad_steps)} gradient steps)"
+        f"\nrun directory: {run_dir}"
+    )
+    return EXIT_OK
+
+
+def _trained(result: Any) -> Any:
+    from drqn_jax.agents import drqn_agent
+
+    return drqn_agent(result.trainer.network, result.state.online)
+
+
+def _run_summary(result: Any) -> dict[str, Any]:
+    state = result.state
+    return {
+        "run_dir": str(result.run_dir),
+        "train_wall_time_s": result.wall_time_s,
+        "compile_time_s": result.compile_time_s,
+        "episodes": int(state.recorded),
+        "env_steps": int(state.env_steps),
+        "grad_steps": int(state.grad_steps),
+    }
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    overrides = list(args.overrides)
+    if args.episodes is not None:
+        overrides.append(f"evaluate.episodes={args.episodes}")
+    if args.seed is not None:
+        overrides.append(f"run.seed={args.seed}")
+    agent_name = args.agent or ("drqn" if args.run_dir else "rule-based")
+    if agent_name == "drqn":
+        if args.run_dir is None:
+            raise ConfigError("--agent drqn needs a RUN_DIR (a trained run)")
+        config = load_run(args.run_dir, ())
+        # the checkpoint was trained with the run's seed; evaluation options apply on top
+        agent, meta = load_trained_agent(config, args.run_dir)
+        config = load_run(args.run_dir, tuple(overrides))
+        if not meta.get("finished", False):
+            print(
+                f"note: {args.run_dir} has not finished training "
+                f"({meta.get('recorded')} episodes so far)",
+                file=sys.stderr,
+            )
+    else:
+        source = Path(args.run_dir) / "config.toml" if args.run_dir else args.config
+        config = load_config(source, overrides)
+        agent = builtin_agent(agent_name, config)
+    start = time.perf_counter()
+    (result,) = evaluate_agents(config, [agent])
+    wall = time.perf_counter() - start
+    print(metrics_table([result]))
+    print(f"\n{result['num_episodes']} episodes, seed {config['run']['seed']}, {wall:.1f} s")
+    if args.json is not None:
+        text = json.dumps(json_ready(result), indent=2) + "\n"
+        if args.json == "-":
+            sys.stdout.write(text)
+        else:
+            Path(args.json).write_text(text)
+    return EXIT_OK
+
+
+def paper_comparison(results: list[dict[str, Any]]) -> str:
+    """The paper's Table III rows beside ours (collision-free with 95 % CI, speed, distance)."""
+    rows = [
+        "| source | agent | episodes | collision-free | avg speed (km/h) | distance (m) |",
+        "| --- | --- | ---: | --- | ---: | ---: |",
+    ]
+    for agent, free, speed, dist in PAPER_TABLE_III:
+        rows.append(f"| paper (CARLA) | {agent} | 10 | {free} | {speed:.2f} | {dist:.1f} |")
+    for r in results:
+        low, high = r["collision_free_ci"]
+        rows.append(
+            f"| drqn_jax | {r['agent']} | {r['num_episodes']} "
+            f"| {100 * r['collision_free_rate']:.1f} % ({100 * low:.1f}–{100 * high:.1f}) "
+            f"| {r['avg_speed_kmh']:.2f} | {r['avg_distance_m']:.1f} |"
+        )
+    return "\n".join(rows)
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    config = load_config(args.config, args.overrides)
+    run_dir = Path(args.run_dir or _default_run_dir("reproduce", args.config))
+    return _train_and_evaluate(config, run_dir, False, args.quiet, start, reproduce=True)
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from drqn_jax.bench import bench_env, bench_train
+    from drqn_jax.machine import machine_info, machine_lines
+
+    config = load_config(args.config, args.overrides)
+    if args.num_envs < 1 or args.steps < 1 or args.iterations < 1:
+        raise ConfigError("--num-envs, --steps and --iterations must be >= 1")
+    if args.what in ("env", "all"):
+        print(bench_env(config, args.num_envs, args.steps))
+    if args.what in ("train", "all"):
+        print(bench_train(config, args.iterations))
+    print("\n".join(machine_lines(machine_info())))
+    return EXIT_OK
+
+
+COMMANDS = {
+    "train": cmd_train,
+    "evaluate": cmd_evaluate,
+    "reproduce": cmd_reproduce,
+    "bench": cmd_bench,
+}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``drqn-jax`` console script; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return COMMANDS[args.command](args)
+    except (ConfigError, CheckpointError) as err:
+        print(f"drqn-jax {args.command}: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:  # outside training (compiling, evaluating): nothing to save
+        print(f"drqn-jax {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

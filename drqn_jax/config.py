@@ -1,0 +1,411 @@
+"""Run configurations: TOML files in ``configs/``, ``--set`` overrides, validation.
+
+A configuration has six sections; every field has a default, so a file
+names only what it changes:
+
+* ``[run]``: ``seed`` (training key ``split(key(seed))[0]``, evaluation key
+  ``[1]``: disjoint, SPEC §8) and ``checkpoint_every_s``;
+* ``[env]``: ``id`` (a registered env) and any ``StaticEnvParams`` or
+  ``EnvParams`` field; the id's preset fills the fields the file leaves out;
+* ``[network]``: ``kind``, ``conv``, ``recurrent``, ``hidden`` (Table I);
+* ``[train]``: the ``TrainConfig`` sizes (envs, episodes, replay, batch,
+  window, update ratio, chunk) and every ``Hyperparams`` field (Table II);
+* ``[rule_based]``: the baseline's ``RuleBasedParams`` (SPEC §6);
+* ``[evaluate]``: ``episodes`` per agent (SPEC §8) and ``batch_size``.
+
+:func:`load_config` reads a file (or a name in ``configs/``), applies
+``section.field=value`` overrides and validates everything — unknown
+fields, types, ranges and the cross-field rules — before anything is
+compiled. Any problem raises :class:`ConfigError` with one line naming the
+field, the value and what is allowed. The resolved configuration (every field,
+defaults included) is a plain nested dict: :meth:`Config.to_toml` writes it,
+:meth:`Config.training_hash` identifies what a checkpoint depends on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import re
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from drqn_jax.agents.rule_based import RuleBasedParams
+from drqn_jax.env.params import EnvParams, StaticEnvParams
+from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.networks import NetworkConfig
+from drqn_jax.registry import make, preset, registered_envs
+from drqn_jax.train import Hyperparams, TrainConfig
+
+__all__ = ["CONFIG_DIR", "Config", "ConfigError", "config_names", "load_config", "parse_override"]
+
+#: ``configs/`` of the source tree (the project is installed editable).
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+#: The sections a training checkpoint depends on (the rest may change on resume).
+TRAINING_SECTIONS = ("run.seed", "env", "network", "train")
+
+_TRAIN_SIZES = tuple(
+    f.name
+    for f in dataclasses.fields(TrainConfig)
+    if f.name not in ("env_id", "env_overrides", "network", "hyperparams")
+)
+
+
+class ConfigError(ValueError):
+    """A configuration problem; the message is one line naming field, value and rule."""
+
+
+@dataclasses.dataclass(frozen=True)
+class _Field:
+    default: Any
+    kind: str  # "int" | "float" | "str" | "conv"
+    choices: tuple[str, ...] | None = None
+    doc: str = ""
+
+
+def _fields_of(cls: type, skip: Sequence[str] = ()) -> dict[str, _Field]:
+    """Schema entries from a dataclass's defaults and :func:`param` metadata."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        if f.name in skip:
+            continue
+        choices = f.metadata.get("choices")
+        default = f.default
+        if choices is not None:
+            out[f.name] = _Field(choices[default], "str", choices, f.metadata.get("doc", ""))
+        elif isinstance(default, int) and not isinstance(default, bool):
+            out[f.name] = _Field(default, "int", doc=f.metadata.get("doc", ""))
+        elif isinstance(default, float):
+            out[f.name] = _Field(default, "float", doc=f.metadata.get("doc", ""))
+        elif f.name == "conv":
+            out[f.name] = _Field([list(layer) for layer in default], "conv")
+        elif isinstance(default, str):
+            out[f.name] = _Field(default, "str")
+    return out
+
+
+def _schema() -> dict[str, dict[str, _Field]]:
+    network = _fields_of(NetworkConfig, skip=("grid_shape", "num_actions"))
+    network["kind"] = dataclasses.replace(network["kind"], choices=("drqn", "dqn"))
+    train_sizes = _fields_of(TrainConfig)
+    return {
+        "run": {
+            "seed": _Field(0, "int", doc="training key split(key(seed))[0], evaluation [1]"),
+            "checkpoint_every_s": _Field(60.0, "float", doc="seconds between checkpoints"),
+        },
+        "env": {
+            "id": _Field("UrbanPedestrians-v0", "str", registered_envs()),
+            **_fields_of(StaticEnvParams),
+            **_fields_of(EnvParams),
+        },
+        "network": network,
+        "train": {**{n: train_sizes[n] for n in _TRAIN_SIZES}, **_fields_of(Hyperparams)},
+        "rule_based": _fields_of(RuleBasedParams),
+        "evaluate": {
+            "episodes": _Field(1000, "int", doc="episodes per agent"),
+            "batch_size": _Field(0, "int", doc="episodes per jitted batch; 0 = all at once"),
+        },
+    }
+
+
+SCHEMA = _schema()
+
+# Which section a constructor's error message (``Class.field = ...``) belongs to.
+_OWNER = {
+    "StaticEnvParams": "env",
+    "EnvParams": "env",
+    "NetworkConfig": "network",
+    "TrainConfig": "train",
+    "Hyperparams": "train",
+    "RuleBasedParams": "rule_based",
+}
+
+
+def _is_conv(value: Any) -> bool:
+    """A non-empty list of ``[kernel_h, kernel_w, stride, filters]`` integer lists."""
+    return (
+        isinstance(value, list)
+        and bool(value)
+        and all(
+            isinstance(layer, list)
+            and len(layer) == 4
+            and all(isinstance(x, int) and not isinstance(x, bool) for x in layer)
+            for layer in value
+        )
+    )
+
+
+def _check_type(where: str, value: Any, field: _Field) -> Any:
+    """``value`` as the field's type, or a ConfigError."""
+    is_int = isinstance(value, int) and not isinstance(value, bool)
+    if field.kind == "int" and is_int:
+        return value
+    if field.kind == "float" and (is_int or isinstance(value, float)):
+        return float(value)
+    if field.kind == "str" and isinstance(value, str):
+        if field.choices is not None and value not in field.choices:
+            allowed = ", ".join(map(repr, field.choices))
+            raise ConfigError(f"{where} = {value!r}: must be one of {allowed}")
+        return value
+    if field.kind == "conv" and _is_conv(value):
+        return [list(layer) for layer in value]
+    wanted = {
+        "int": "an integer",
+        "float": "a number",
+        "str": "a string" + (f" (one of {', '.join(field.choices)})" if field.choices else ""),
+        "conv": "a list of [kernel_h, kernel_w, stride, filters] integer lists",
+    }[field.kind]
+    raise ConfigError(f"{where} = {value!r}: must be {wanted}")
+
+
+def parse_override(text: str) -> tuple[str, str, Any]:
+    """``"section.field=value"`` -> (section, field, value).
+
+    The value is read as a TOML value (``3e-4``, ``true``, ``[[8, 6, 4, 32]]``,
+    ``"name"``); anything that is not valid TOML is taken as a bare string, so
+    ``--set env.id=UrbanPedestriansRealistic-v0`` needs no quotes.
+    """
+    key, sep, raw = text.partition("=")
+    section, dot, name = key.strip().partition(".")
+    if not sep or not dot or not section or not name:
+        raise ConfigError(f"--set {text!r}: expected section.field=value, e.g. train.gamma=0.95")
+    raw = raw.strip()
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return section, name, value
+
+
+def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: Any) -> None:
+    if section not in SCHEMA:
+        raise ConfigError(
+            f"unknown section [{section}] (field {section}.{name}); sections: {', '.join(SCHEMA)}"
+        )
+    if name not in SCHEMA[section]:
+        raise ConfigError(
+            f"unknown field {section}.{name}; [{section}] has: {', '.join(SCHEMA[section])}"
+        )
+    values[section][name] = _check_type(f"{section}.{name}", value, SCHEMA[section][name])
+
+
+def config_names() -> tuple[str, ...]:
+    """The configs shipped in ``configs/`` (``paper``, ``default``, …)."""
+    return tuple(sorted(p.stem for p in CONFIG_DIR.glob("*.toml")))
+
+
+def _read_toml(source: str | Path) -> tuple[dict[str, Any], str]:
+    path = Path(source)
+    if not path.suffix and not path.exists():
+        path = CONFIG_DIR / f"{source}.toml"
+    if not path.is_file():
+        names = ", ".join(config_names()) or "(none found)"
+        raise ConfigError(f"config {str(source)!r}: no such file; built-in names: {names}")
+    try:
+        return tomllib.loads(path.read_text()), str(path)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"config {str(path)!r}: not valid TOML: {err}") from None
+
+
+def _resolve_extends(raw: dict[str, Any], origin: str, depth: int = 0) -> dict[str, Any]:
+    """A file's tables on top of those of the config its ``extends`` key names."""
+    if "extends" not in raw:
+        return raw
+    raw = dict(raw)
+    parent_name = raw.pop("extends")
+    if not isinstance(parent_name, str) or depth > 8:
+        raise ConfigError(f"extends = {parent_name!r} in {origin}: must name one config, no cycle")
+    parent_source: str | Path = parent_name
+    if Path(origin).is_file() and (Path(origin).parent / parent_name).is_file():
+        parent_source = Path(origin).parent / parent_name
+    parent, parent_origin = _read_toml(parent_source)
+    merged = _resolve_extends(parent, parent_origin, depth + 1)
+    merged = {k: dict(v) if isinstance(v, dict) else v for k, v in merged.items()}
+    for section, table in raw.items():
+        if isinstance(table, dict) and isinstance(merged.get(section), dict):
+            merged[section].update(table)
+        else:
+            merged[section] = table
+    return merged
+
+
+def load_config(
+    source: str | Path | dict[str, Any] | None = None, overrides: Sequence[str] = ()
+) -> Config:
+    """Read, override and validate a configuration.
+
+    Args:
+        source: a TOML path, a name in ``configs/`` (``"paper"``), a nested
+            dict of the same shape, or None for all defaults.
+        overrides: ``"section.field=value"`` strings applied after the file.
+    Raises:
+        ConfigError: on the first unknown field, wrong type, out-of-range
+            value or broken cross-field rule, naming it.
+    """
+    if source is None:
+        raw, origin = {}, "defaults"
+    elif isinstance(source, dict):
+        raw, origin = source, "dict"
+    else:
+        raw, origin = _read_toml(source)
+    raw = _resolve_extends(raw, origin)
+    given: dict[str, dict[str, Any]] = {section: {} for section in SCHEMA}
+    for section, table in raw.items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"{section} = {table!r}: expected a [{section}] table")
+        for name, value in table.items():
+            _merge(given, section, name, value)
+    for text in overrides:
+        _merge(given, *parse_override(text))
+
+    values = {s: {n: f.default for n, f in fields.items()} for s, fields in SCHEMA.items()}
+    env_id = given["env"].get("id", values["env"]["id"])
+    values["env"].update(preset(env_id))
+    for section, table in given.items():
+        values[section].update(table)
+    config = Config(values, origin)
+    config.validate()
+    return config
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Config:
+    """A resolved configuration: ``values[section][field]`` for every field."""
+
+    values: dict[str, dict[str, Any]]
+    origin: str = "dict"
+
+    def __getitem__(self, section: str) -> dict[str, Any]:
+        return self.values[section]
+
+    # -- building the objects -------------------------------------------------
+    def env_overrides(self) -> dict[str, Any]:
+        """``make`` keyword arguments: every env field that differs from the preset."""
+        base = {n: f.default for n, f in SCHEMA["env"].items()}
+        base.update(preset(self["env"]["id"]))
+        return {n: v for n, v in self["env"].items() if n != "id" and v != base[n]}
+
+    def make_env(self) -> tuple[UrbanPedestrians, EnvParams]:
+        return make(self["env"]["id"], **self.env_overrides())
+
+    def network_config(self) -> NetworkConfig:
+        net = self["network"]
+        conv = tuple(tuple(layer) for layer in net["conv"])
+        return NetworkConfig(
+            kind=net["kind"], conv=conv, recurrent=net["recurrent"], hidden=net["hidden"]
+        )
+
+    def hyperparams(self) -> Hyperparams:
+        train = self["train"]
+        return Hyperparams(**{n: train[n] for n in SCHEMA["train"] if n not in _TRAIN_SIZES})
+
+    def train_config(self) -> TrainConfig:
+        train = self["train"]
+        return TrainConfig(
+            env_id=self["env"]["id"],
+            env_overrides=tuple(sorted(self.env_overrides().items())),
+            network=self.network_config(),
+            hyperparams=self.hyperparams(),
+            **{n: train[n] for n in _TRAIN_SIZES},
+        )
+
+    def rule_based_params(self) -> RuleBasedParams:
+        return RuleBasedParams(**self["rule_based"])
+
+    def keys(self) -> tuple[jax.Array, jax.Array]:
+        """(training key, evaluation key): the two halves of ``split(key(seed))``."""
+        train_key, eval_key = jax.random.split(jax.random.key(self["run"]["seed"]))
+        return train_key, eval_key
+
+    # -- validation -----------------------------------------------------------
+    def validate(self) -> None:
+        """Ranges (through the objects' own checks) and cross-field rules."""
+        run, train, evaluate = self["run"], self["train"], self["evaluate"]
+        if not 0 <= run["seed"] < 2**32:
+            raise ConfigError(f"run.seed = {run['seed']}: must be an integer in [0, 2**32)")
+        every = run["checkpoint_every_s"]
+        if not (math.isfinite(every) and every > 0):
+            raise ConfigError(f"run.checkpoint_every_s = {every}: must be a number > 0")
+        if evaluate["episodes"] < 1:
+            raise ConfigError(f"evaluate.episodes = {evaluate['episodes']}: must be >= 1")
+        if evaluate["batch_size"] < 0:
+            raise ConfigError(
+                f"evaluate.batch_size = {evaluate['batch_size']}: must be >= 0 (0: all at once)"
+            )
+        try:
+            env, _ = self.make_env()
+            self.train_config()
+            self.rule_based_params()
+        except ValueError as err:
+            raise ConfigError(_in_config_words(str(err))) from None
+        max_steps = env.static.max_steps
+        if train["window"] > max_steps:
+            raise ConfigError(
+                f"train.window = {train['window']}: must be <= env.max_steps ({max_steps}); "
+                "a window longer than an episode"
+            )
+        if train["batch_size"] > train["replay_episodes"]:
+            raise ConfigError(
+                f"train.batch_size = {train['batch_size']}: must be <= train.replay_episodes "
+                f"({train['replay_episodes']}); a minibatch draws its windows from the replay"
+            )
+        writers = train["num_envs"]
+        storable = writers * (train["replay_episodes"] // writers - 1)
+        if train["learning_starts"] > storable:
+            raise ConfigError(
+                f"train.learning_starts = {train['learning_starts']}: must be <= {storable}, the "
+                f"complete episodes a replay of {train['replay_episodes']} holds while "
+                f"{writers} env(s) write (learning would never start)"
+            )
+
+    # -- output ---------------------------------------------------------------
+    def to_toml(self) -> str:
+        """The resolved configuration as TOML (every field; reads back equal)."""
+        lines = []
+        for section, table in self.values.items():
+            lines.append(f"[{section}]")
+            lines.extend(f"{name} = {_toml_value(value)}" for name, value in table.items())
+            lines.append("")
+        return "\n".join(lines)
+
+    def training_dict(self) -> dict[str, Any]:
+        """The part of the configuration a training run's results depend on."""
+        out: dict[str, Any] = {}
+        for entry in TRAINING_SECTIONS:
+            section, _, name = entry.partition(".")
+            out[entry] = self[section][name] if name else dict(self[section])
+        return out
+
+    def training_hash(self) -> str:
+        """sha256 of :meth:`training_dict` (canonical JSON)."""
+        text = json.dumps(self.training_dict(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _in_config_words(message: str) -> str:
+    """``"Hyperparams.gamma = 2: ..."`` -> ``"train.gamma = 2: ..."``."""
+    for cls, section in _OWNER.items():
+        message = re.sub(rf"\b{cls}\.", f"{section}.", message)
+        message = re.sub(rf"^{cls}:", f"[{section}]:", message)
+    return message
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return repr(value)  # validated finite; repr reads back to the same float
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} as TOML")

@@ -1,0 +1,365 @@
+"""Host-side driver of a training run: chunks, progress, checkpoints, signals, evaluation.
+
+The learning itself is the pure :func:`drqn_jax.train.make_train`; this module
+calls its compiled ``run(state, chunk_iterations)`` from Python so that it can
+show progress, write checkpoints and stop cleanly between chunks. A run split
+into chunks ends bit-identical to a one-shot run (issue 3), so none of this
+changes the results: not the progress bar, not the checkpoint interval, not an
+interruption followed by ``--resume``.
+
+A run directory holds:
+
+* ``config.toml``: the resolved configuration (every field);
+* ``metrics.csv``: one row per recorded training episode (SI units: m, m/s);
+* ``checkpoint.npz`` + ``checkpoint.json``: the whole ``TrainState`` (online
+  and target parameters, Adam state, replay, PRNG key, counters) and its
+  metadata (config hash, counters, wall time), written atomically;
+* ``evaluation.json`` and ``results.md``: the final greedy evaluation (SPEC §8).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import dataclasses
+import io
+import json
+import math
+import signal
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from drqn_jax.agents import drqn_agent, rule_based_agent
+from drqn_jax.agents.base import Agent
+from drqn_jax.checkpoint import (
+    CHECKPOINT_NPZ,
+    CheckpointError,
+    atomic_write_text,
+    load_checkpoint,
+    save_checkpoint,
+)
+from drqn_jax.config import Config, load_config
+from drqn_jax.evaluation import evaluate
+from drqn_jax.train import METRIC_NAMES, TrainConfig, Trainer, TrainState, make_train
+
+__all__ = [
+    "RunResult",
+    "builtin_agent",
+    "evaluate_agents",
+    "json_ready",
+    "load_run",
+    "load_trained_agent",
+    "metrics_csv",
+    "train_run",
+    "write_evaluation",
+]
+
+#: Exit statuses of the command line.
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+_RECENT = 20  # episodes in the progress bar's running means
+
+
+@dataclasses.dataclass
+class RunResult:
+    """What :func:`train_run` ended with.
+
+    ``status`` is ``"finished"``, ``"interrupted"`` (a signal: checkpoint
+    saved) or ``"diverged"`` (a non-finite loss or parameter: the last good
+    checkpoint is kept, nothing newer is written).
+    """
+
+    status: str
+    state: TrainState
+    trainer: Trainer
+    run_dir: Path
+    wall_time_s: float
+    compile_time_s: float
+    message: str = ""
+
+
+class _StopRequest:
+    """SIGINT/SIGTERM set a flag checked between chunks; a second signal aborts."""
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+
+    def _handler(self, signum: int, frame: Any) -> None:
+        if self.signal is not None:
+            raise KeyboardInterrupt
+        self.signal = signum
+        print(
+            f"\n{signal.Signals(signum).name}: stopping after this chunk and saving a checkpoint "
+            "(signal again to abort without saving)",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[_StopRequest]:
+        previous = {s: signal.signal(s, self._handler) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            yield self
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+
+
+_COMPILED: dict[TrainConfig, Any] = {}
+
+
+def _compiled_run(trainer: Trainer, state: TrainState) -> Any:
+    """``run(state, chunk_iterations)`` compiled once per configuration and process."""
+    config = trainer.config
+    if config not in _COMPILED:
+        run = jax.jit(trainer.run, static_argnums=1)
+        _COMPILED[config] = run.lower(state, config.chunk_iterations).compile()
+    return _COMPILED[config]
+
+
+@jax.jit
+def _finite(state: TrainState) -> jax.Array:
+    """() bool: online parameters, running episode losses and recorded losses all finite."""
+    leaves = [*jax.tree.leaves(state.online), state.ep_loss_sum, state.metrics["mean_loss"]]
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
+
+
+def recorded_metrics(state: TrainState) -> dict[str, np.ndarray]:
+    """Host copies of the recorded episodes' metrics, in episode order, plus ``episode``.
+
+    With N parallel environments episodes finish out of order; an episode is
+    recorded once it ended (its ``length`` is then >= 1).
+    """
+    metrics = {name: np.asarray(v) for name, v in state.metrics.items()}
+    done = metrics["length"] > 0
+    out = {"episode": np.flatnonzero(done)}
+    out.update({name: metrics[name][done] for name in METRIC_NAMES})
+    return out
+
+
+def _format(value: Any) -> str:
+    if isinstance(value, np.floating):
+        return np.format_float_positional(value, unique=True, trim="-")
+    if isinstance(value, np.bool_):
+        return str(int(value))
+    return str(value)
+
+
+def metrics_csv(state: TrainState) -> str:
+    """``metrics.csv`` text: ``episode`` then every training metric (SI units)."""
+    rows = recorded_metrics(state)
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(rows.keys())
+    for i in range(len(rows["episode"])):
+        writer.writerow(_format(column[i]) for column in rows.values())
+    return out.getvalue()
+
+
+def _progress_postfix(state: TrainState, steps_per_s: float) -> dict[str, str]:
+    rows = recorded_metrics(state)
+    recent = slice(-_RECENT, None)
+    postfix = {"steps/s": f"{steps_per_s:,.0f}"}
+    if len(rows["episode"]):
+        postfix["return"] = f"{rows['episode_return'][recent].mean():.1f}"
+        postfix["collisions"] = f"{100 * rows['collision'][recent].mean():.0f}%"
+    return postfix
+
+
+def _checkpoint_meta(config: Config, state: TrainState, wall: float, chunks: int) -> dict:
+    return {
+        "config": config.training_dict(),
+        "config_hash": config.training_hash(),
+        "recorded": int(state.recorded),
+        "grad_steps": int(state.grad_steps),
+        "env_steps": int(state.env_steps),
+        "finished": bool(state.finished),
+        "chunks": chunks,
+        "wall_time_s": wall,
+    }
+
+
+def _save(run_dir: Path, config: Config, state: TrainState, wall: float, chunks: int) -> None:
+    save_checkpoint(run_dir, state, _checkpoint_meta(config, state, wall, chunks))
+    atomic_write_text(run_dir / "metrics.csv", metrics_csv(state))
+
+
+def train_run(
+    config: Config, run_dir: str | Path, *, resume: bool = False, quiet: bool = False
+) -> RunResult:
+    """Train (or continue training) the run in ``run_dir`` until it finishes or is stopped.
+
+    Args:
+        config: the resolved configuration (for a resume: the run's own, from
+            :func:`load_run`, with any non-training overrides).
+        run_dir: created if needed; a fresh run refuses a directory that
+            already holds a checkpoint.
+        resume: continue from the directory's checkpoint.
+        quiet: no progress bar.
+    Raises:
+        CheckpointError: a fresh run in a used directory, or a missing,
+            corrupt or incompatible checkpoint on resume.
+    """
+    run_dir = Path(run_dir)
+    trainer = make_train(config.train_config())
+    train_key, _ = config.keys()
+    init = jax.jit(trainer.init)
+    wall_before, chunks = 0.0, 0
+    if resume:
+        expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
+        state, meta = load_checkpoint(run_dir, jax.eval_shape(init, train_key), expected)
+        wall_before, chunks = float(meta["wall_time_s"]), int(meta["chunks"])
+    else:
+        if (run_dir / CHECKPOINT_NPZ).exists():
+            raise CheckpointError(
+                f"{run_dir} already holds a training run; continue it with --resume {run_dir} "
+                "or choose another --run-dir"
+            )
+        run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(run_dir / "config.toml", config.to_toml())
+        state = init(train_key)
+
+    stop = _StopRequest()
+    with stop.installed():  # a signal while compiling also stops cleanly
+        start = time.perf_counter()
+        run = _compiled_run(trainer, state)
+        compile_s = time.perf_counter() - start
+        if not resume:
+            _save(run_dir, config, state, 0.0, 0)  # resume works from here on
+
+        def elapsed() -> float:
+            return wall_before + time.perf_counter() - start
+
+        status, state, chunks = _chunks(config, run, state, chunks, stop, quiet, run_dir, elapsed)
+    wall = elapsed()
+    if status != "diverged":
+        _save(run_dir, config, state, wall, chunks)
+    num_episodes = config["train"]["num_episodes"]
+    message = {
+        "finished": "",
+        "interrupted": f"interrupted after {int(state.recorded)}/{num_episodes} episodes; "
+        f"checkpoint saved, continue with: drqn-jax train --resume {run_dir}",
+        "diverged": f"non-finite loss or parameters after episode {int(state.recorded)} "
+        f"(chunk {chunks + 1}); the last good checkpoint in {run_dir} is kept",
+    }[status]
+    return RunResult(status, state, trainer, run_dir, wall, compile_s, message)
+
+
+def _chunks(
+    config: Config,
+    run: Any,
+    state: TrainState,
+    chunks: int,
+    stop: _StopRequest,
+    quiet: bool,
+    run_dir: Path,
+    elapsed: Callable[[], float],
+) -> tuple[str, TrainState, int]:
+    """Run chunks until the run finishes, a signal arrives or the loss turns non-finite.
+
+    Returns the status, the last good state and the number of chunks it has run;
+    saves a checkpoint every ``run.checkpoint_every_s`` on the way.
+    """
+    every = config["run"]["checkpoint_every_s"]
+    last_save = time.perf_counter()
+    with _progress_bar(config["train"]["num_episodes"], int(state.recorded), quiet) as bar:
+        while not bool(state.finished):
+            if stop.signal is not None:
+                return "interrupted", state, chunks
+            t0, steps0 = time.perf_counter(), int(state.env_steps)
+            new_state = run(state)
+            if not bool(_finite(new_state)):
+                return "diverged", state, chunks
+            state, chunks = new_state, chunks + 1
+            steps_per_s = (int(state.env_steps) - steps0) / max(time.perf_counter() - t0, 1e-9)
+            bar.update(int(state.recorded) - bar.n)
+            bar.set_postfix(_progress_postfix(state, steps_per_s), refresh=False)
+            if time.perf_counter() - last_save >= every and not bool(state.finished):
+                _save(run_dir, config, state, elapsed(), chunks)
+                last_save = time.perf_counter()
+    return "finished", state, chunks
+
+
+def _progress_bar(total: int, initial: int, quiet: bool) -> Any:
+    """A tqdm bar on stderr that appears only on runs longer than 2 s."""
+    from tqdm.auto import tqdm
+
+    return tqdm(
+        total=total,
+        initial=initial,
+        unit="ep",
+        desc="training",
+        disable=quiet,
+        delay=2.0,
+        file=sys.stderr,
+        dynamic_ncols=True,
+    )
+
+
+def load_run(run_dir: str | Path, overrides: tuple[str, ...] = ()) -> Config:
+    """The resolved configuration stored in a run directory, with ``overrides``."""
+    path = Path(run_dir) / "config.toml"
+    if not path.is_file():
+        raise CheckpointError(f"{run_dir}: not a run directory (no config.toml)")
+    return load_config(path, overrides)
+
+
+def load_trained_agent(config: Config, run_dir: str | Path) -> tuple[Agent, dict[str, Any]]:
+    """The greedy DRQN agent of a run directory's last checkpoint, and its metadata."""
+    trainer = make_train(config.train_config())
+    template = jax.eval_shape(trainer.init, config.keys()[0])
+    expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
+    state, meta = load_checkpoint(run_dir, template, expected)
+    return drqn_agent(trainer.network, state.online), meta
+
+
+def builtin_agent(name: str, config: Config) -> Agent:
+    """``rule-based``, ``random`` or ``accelerate`` (the constant agent)."""
+    from drqn_jax.agents import constant_agent, random_agent
+
+    if name == "rule-based":
+        return rule_based_agent(config.rule_based_params())
+    if name == "random":
+        return random_agent()
+    if name == "accelerate":
+        return constant_agent("accelerate")
+    raise ValueError(f"unknown agent {name!r}: rule-based, random or accelerate")
+
+
+def evaluate_agents(config: Config, agents: list[Agent]) -> list[dict[str, Any]]:
+    """SPEC §8 metrics of each agent on ``evaluate.episodes`` episodes of the
+    evaluation key (the same episodes for every agent)."""
+    env, env_params = config.make_env()
+    _, eval_key = config.keys()
+    batch = config["evaluate"]["batch_size"] or None
+    episodes = config["evaluate"]["episodes"]
+    return [evaluate(a, eval_key, episodes, env, env_params, batch_size=batch) for a in agents]
+
+
+def json_ready(result: dict[str, Any]) -> dict[str, Any]:
+    """An :func:`evaluate` result without per-episode arrays; non-finite numbers as null."""
+
+    def clean(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, tuple | list):
+            return [clean(x) for x in v]
+        return v
+
+    return {k: clean(v) for k, v in result.items() if k != "episodes"}
+
+
+def write_evaluation(
+    run_dir: Path, results: list[dict[str, Any]], extra: dict[str, Any], table: str
+) -> None:
+    """``evaluation.json`` (results + ``extra``) and ``results.md`` (``table``)."""
+    payload = {**extra, "agents": [json_ready(r) for r in results]}
+    atomic_write_text(run_dir / "evaluation.json", json.dumps(payload, indent=2) + "\n")
+    atomic_write_text(run_dir / "results.md", table + "\n")

@@ -1,0 +1,266 @@
+"""The drqn-jax command line on the smoke config: run directory, resume, signals, errors."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drqn_jax import cli, runner
+from drqn_jax.checkpoint import CHECKPOINT_JSON, CHECKPOINT_NPZ, load_checkpoint
+from drqn_jax.config import load_config
+
+SMOKE = ["--config", "smoke", "--quiet"]
+RUN_FILES = {
+    "config.toml",
+    "metrics.csv",
+    CHECKPOINT_NPZ,
+    CHECKPOINT_JSON,
+    "evaluation.json",
+    "results.md",
+}
+
+
+def _state(run_dir: Path):
+    """The TrainState leaves of a run directory's checkpoint (npz arrays, no manifest)."""
+    return {k: v for k, v in np.load(run_dir / CHECKPOINT_NPZ).items() if k != "manifest.json"}
+
+
+def _assert_same_checkpoint(a: Path, b: Path) -> None:
+    sa, sb = _state(a), _state(b)
+    assert sa.keys() == sb.keys()
+    for name in sa:
+        np.testing.assert_array_equal(sa[name], sb[name], err_msg=name, strict=True)
+
+
+@pytest.fixture(scope="module")
+def straight(tmp_path_factory):
+    """An uninterrupted smoke run."""
+    run_dir = tmp_path_factory.mktemp("straight") / "run"
+    assert cli.main(["train", *SMOKE, "--run-dir", str(run_dir)]) == 0
+    return run_dir
+
+
+def test_train_writes_the_run_directory(straight, capsys):
+    assert {p.name for p in straight.iterdir()} >= RUN_FILES
+    assert not [p for p in straight.iterdir() if p.name.endswith(".tmp")]
+    rows = (straight / "metrics.csv").read_text().splitlines()
+    assert rows[0].split(",") == [
+        "episode",
+        "episode_return",
+        "length",
+        "collision",
+        "goal",
+        "distance",
+        "mean_speed",
+        "epsilon",
+        "mean_loss",
+    ]
+    assert [int(r.split(",")[0]) for r in rows[1:]] == list(range(6))
+    meta = json.loads((straight / CHECKPOINT_JSON).read_text())
+    assert meta["finished"] and meta["recorded"] == 6
+    assert meta["config_hash"] == load_config(straight / "config.toml").training_hash()
+    evaluation = json.loads((straight / "evaluation.json").read_text())
+    (drqn,) = evaluation["agents"]
+    assert drqn["agent"] == "drqn" and drqn["num_episodes"] == 8
+    assert "| drqn | 8 |" in (straight / "results.md").read_text()
+
+
+def test_progress_bar_does_not_change_results(straight, tmp_path, capsys):
+    loud = tmp_path / "loud"
+    assert cli.main(["train", "--config", "smoke", "--run-dir", str(loud)]) == 0
+    _assert_same_checkpoint(straight, loud)
+    assert (loud / "metrics.csv").read_text() == (straight / "metrics.csv").read_text()
+
+
+def _interrupt_after(monkeypatch, chunks: int) -> None:
+    """Send SIGINT to this process right after the ``chunks``-th chunk of training."""
+    compiled = runner._compiled_run
+    calls = {"n": 0}
+
+    def wrapped(trainer, state):
+        run = compiled(trainer, state)
+
+        def run_and_signal(s):
+            out = run(s)
+            calls["n"] += 1
+            if calls["n"] == chunks:
+                signal.raise_signal(signal.SIGINT)
+            return out
+
+        return run_and_signal
+
+    monkeypatch.setattr(runner, "_compiled_run", wrapped)
+
+
+def test_interrupt_then_resume_is_bit_identical(straight, tmp_path, monkeypatch, capsys):
+    run_dir = tmp_path / "run"
+    _interrupt_after(monkeypatch, 2)
+    assert cli.main(["train", *SMOKE, "--run-dir", str(run_dir)]) == 130
+    assert "--resume" in capsys.readouterr().err
+    meta = json.loads((run_dir / CHECKPOINT_JSON).read_text())
+    assert meta["chunks"] == 2 and not meta["finished"]
+    assert not (run_dir / "evaluation.json").exists()
+    monkeypatch.undo()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert cli.main(["train", "--resume", str(run_dir), "--quiet"]) == 0
+    _assert_same_checkpoint(straight, run_dir)
+    assert (run_dir / "metrics.csv").read_text() == (straight / "metrics.csv").read_text()
+    assert (
+        json.loads((run_dir / "evaluation.json").read_text())["agents"]
+        == json.loads((straight / "evaluation.json").read_text())["agents"]
+    )
+
+
+def test_sigterm_in_a_subprocess_saves_and_exits_130(tmp_path):
+    """A real signal from outside, delivered while the process trains."""
+    run_dir = tmp_path / "run"
+    cmd = [
+        sys.executable,
+        "-m",
+        "drqn_jax.cli",
+        "train",
+        *SMOKE,
+        "--set",
+        "train.num_episodes=4000",
+        "--set",
+        "train.chunk_iterations=4",
+        "--run-dir",
+        str(run_dir),
+    ]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 240
+    while not (run_dir / CHECKPOINT_JSON).exists():  # written once compiled
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "SIGTERM" in err and "--resume" in err
+    config = load_config(run_dir / "config.toml")
+    meta = json.loads((run_dir / CHECKPOINT_JSON).read_text())
+    assert meta["chunks"] > 0 and meta["recorded"] < 4000
+    assert meta["config_hash"] == config.training_hash()
+
+
+def test_resume_with_other_training_settings_names_the_field(straight, capsys):
+    code = cli.main(["train", "--resume", str(straight), "--set", "train.batch_size=2", "--quiet"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "train.batch_size" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_resume_errors_are_one_line(tmp_path, capsys):
+    assert cli.main(["train", "--resume", str(tmp_path / "nothing"), "--quiet"]) == 2
+    assert "not a run directory" in capsys.readouterr().err
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "config.toml").write_text(load_config("smoke").to_toml())
+    assert cli.main(["train", "--resume", str(run_dir), "--quiet"]) == 2
+    assert "checkpoint" in capsys.readouterr().err
+
+
+def test_truncated_checkpoint_is_reported(straight, tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    for name in ("config.toml", CHECKPOINT_JSON):
+        (run_dir / name).write_bytes((straight / name).read_bytes())
+    data = (straight / CHECKPOINT_NPZ).read_bytes()
+    (run_dir / CHECKPOINT_NPZ).write_bytes(data[: len(data) // 2])
+    assert cli.main(["train", "--resume", str(run_dir), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert CHECKPOINT_NPZ in err and len(err.strip().splitlines()) == 1
+
+
+def test_fresh_run_refuses_a_used_directory(straight, capsys):
+    assert cli.main(["train", *SMOKE, "--run-dir", str(straight)]) == 2
+    assert "--resume" in capsys.readouterr().err
+
+
+def test_config_error_exits_2_before_compiling(tmp_path, capsys):
+    code = cli.main(
+        ["train", *SMOKE, "--set", "train.learning_rate=-1", "--run-dir", str(tmp_path)]
+    )
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "train.learning_rate = -1" in err
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_non_finite_loss_keeps_the_last_good_checkpoint(tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    code = cli.main(
+        ["train", *SMOKE, "--set", "train.learning_rate=1e38", "--run-dir", str(run_dir)]
+    )
+    assert code == 1
+    assert "non-finite" in capsys.readouterr().err
+    config = load_config(run_dir / "config.toml")
+    trainer = runner.make_train(config.train_config())
+    import jax
+
+    template = jax.eval_shape(trainer.init, config.keys()[0])
+    state, meta = load_checkpoint(run_dir, template)
+    assert not meta["finished"]
+    assert all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves(state.online))
+
+
+def test_evaluate_builtin_and_trained(straight, capsys):
+    assert cli.main(["evaluate", "--agent", "rule-based", "--episodes", "4", "--json", "-"]) == 0
+    out = capsys.readouterr().out
+    payload = json.loads(out[out.index("{") :])
+    assert payload["agent"] == "rule-based" and payload["num_episodes"] == 4
+    assert 0.0 <= payload["collision_free_rate"] <= 1.0
+    path = straight.parent / "eval.json"
+    assert cli.main(["evaluate", str(straight), "--episodes", "3", "--json", str(path)]) == 0
+    assert json.loads(path.read_text())["agent"] == "drqn"
+    assert "| drqn | 3 |" in capsys.readouterr().out
+
+
+def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
+    run_dir = tmp_path / "rep"
+    assert cli.main(["reproduce", *SMOKE, "--run-dir", str(run_dir)]) == 0
+    out = capsys.readouterr().out
+    assert "| paper (CARLA) | rule-based | 10 | 40 % | 7.79 | 82.6 |" in out
+    assert "| drqn_jax | drqn | 8 |" in out and "| drqn_jax | rule-based | 8 |" in out
+    assert "wall time" in out
+    agents = json.loads((run_dir / "evaluation.json").read_text())["agents"]
+    assert [a["agent"] for a in agents] == ["drqn", "rule-based"]
+
+
+def test_bench_env_prints_throughput(capsys):
+    code = cli.main(["bench", "env", "--config", "smoke", "--num-envs", "4", "--steps", "5"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "env steps/s at 4 envs" in out and "JAX" in out
+
+
+@pytest.mark.parametrize("command", ["train", "evaluate", "reproduce", "bench"])
+def test_help_lists_every_option_with_its_default(command, capsys):
+    with pytest.raises(SystemExit) as info:
+        cli.main([command, "--help"])
+    assert info.value.code == 0
+    text = capsys.readouterr().out
+    parser = cli.build_parser()
+    sub = parser._subparsers._group_actions[0].choices[command]
+    for action in sub._actions:
+        if action.option_strings and action.dest != "help":
+            assert action.option_strings[-1] in text
+            if action.default not in (None, False, [], "==SUPPRESS=="):
+                assert f"(default: {action.default})" in " ".join(text.split())
+
+
+def test_console_script_is_installed():
+    script = Path(sys.executable).parent / "drqn-jax"
+    out = subprocess.run([str(script), "--help"], capture_output=True, text=True)
+    assert out.returncode == 0
+    for command in ("train", "evaluate", "reproduce", "bench"):
+        assert command in out.stdout

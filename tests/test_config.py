@@ -1,0 +1,128 @@
+"""Configs: the shipped TOML files, --set overrides, validation before compiling, round trips."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from drqn_jax.config import SCHEMA, ConfigError, config_names, load_config, parse_override
+from drqn_jax.networks import NetworkConfig
+from drqn_jax.train import TrainConfig
+
+
+def test_shipped_configs_load():
+    assert {"paper", "default", "realistic", "smoke"} <= set(config_names())
+    for name in config_names():
+        config = load_config(name)
+        config.train_config()  # builds every object
+
+
+def test_paper_config_is_the_papers_protocol():
+    """paper.toml is SPEC §7's protocol: TrainConfig's defaults, which cite Table II."""
+    config = load_config("paper")
+    got = config.train_config()
+    want = TrainConfig(chunk_iterations=got.chunk_iterations)
+    assert got == want
+    assert got.network == NetworkConfig()
+    assert config["env"]["max_steps"] == 1000 and config.env_overrides() == {}
+
+
+def test_realistic_extends_default_with_walking_speeds():
+    default, realistic = load_config("default"), load_config("realistic")
+    assert realistic["env"]["id"] == "UrbanPedestriansRealistic-v0"
+    assert realistic["env"]["ped_speed_max"] == 1.5 and default["env"]["ped_speed_max"] < 0.5
+    assert realistic["train"] == default["train"] and realistic["network"] == default["network"]
+
+
+def test_set_overrides_and_parsing():
+    config = load_config(
+        "smoke",
+        [
+            "train.learning_rate=3e-4",
+            "env.id=UrbanPedestriansRealistic-v0",  # a bare string
+            'train.clip="grad"',
+            "network.conv=[[8, 6, 4, 4], [4, 3, 3, 4], [2, 2, 2, 4]]",
+            "train.gamma=1",  # an int for a float field
+        ],
+    )
+    assert config["train"]["learning_rate"] == 3e-4
+    assert config["env"]["id"] == "UrbanPedestriansRealistic-v0"
+    assert config["train"]["clip"] == "grad" and config["train"]["gamma"] == 1.0
+    assert config.network_config().conv[2] == (2, 2, 2, 4)
+    assert parse_override("run.seed = 7") == ("run", "seed", 7)
+    with pytest.raises(ConfigError, match=r"section\.field=value"):
+        parse_override("learning_rate=1")
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("train.learning_rate=-3e-4", r"train\.learning_rate = -0\.0003: out of range"),
+        ("train.window=31", r"train\.window = 31: must be <= env\.max_steps \(30\)"),
+        ("train.batch_size=5", r"train\.batch_size = 5: must be <= train\.replay_episodes \(4\)"),
+        ("train.learning_starts=3", r"train\.learning_starts = 3: must be <= 2"),
+        ("train.num_envs=2.5", r"train\.num_envs = 2\.5: must be an integer"),
+        ("train.gamma=true", r"train\.gamma = True: must be a number"),
+        ("train.clip=none", r"train\.clip = 'none': must be one of 'huber', 'grad'"),
+        ("train.lr=1", r"unknown field train\.lr; \[train\] has: .*learning_rate"),
+        ("trian.gamma=1", r"unknown section \[trian\]"),
+        ("env.id=Nope-v0", r"env\.id = 'Nope-v0': must be one of"),
+        ("env.max_steps=0", r"env\.max_steps = 0: must be an integer >= 1"),
+        ("env.prob_crossing=0.9", r"\[env\]|prob_crossing"),
+        ("network.kind=lstm", r"network\.kind = 'lstm': must be one of"),
+        ("network.conv=[[8, 6, 4]]", r"network\.conv = .*kernel_h, kernel_w, stride, filters"),
+        ("network.conv=[[50, 6, 4, 8]]", r"network\.conv = .*shrinks to nothing"),
+        ("run.seed=-1", r"run\.seed = -1"),
+        ("run.checkpoint_every_s=0", r"run\.checkpoint_every_s = 0\.0: must be a number > 0"),
+        ("evaluate.episodes=0", r"evaluate\.episodes = 0: must be >= 1"),
+        ("train.explore_brake=0.3", r"explore_brake \(0\.3\).*must sum to 1"),
+        ("env.ped_speed_min=2", r"env\.ped_speed_min = 2 and env\.ped_speed_max"),
+    ],
+)
+def test_bad_values_name_field_value_and_rule(override, message):
+    with pytest.raises(ConfigError, match=message) as info:
+        load_config("smoke", [override])
+    assert "\n" not in str(info.value)
+
+
+def test_unknown_fields_in_files_and_bad_toml(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[train]\nbatchsize = 4\n")
+    with pytest.raises(ConfigError, match=r"unknown field train\.batchsize"):
+        load_config(bad)
+    bad.write_text("[train\n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(bad)
+    with pytest.raises(ConfigError, match=r"no such file; built-in names: .*paper"):
+        load_config("no-such-config")
+
+
+def test_resolved_toml_reads_back_equal(tmp_path):
+    config = load_config("realistic", ["train.learning_rate=3e-4", "env.max_steps=300"])
+    path = tmp_path / "resolved.toml"
+    path.write_text(config.to_toml())
+    again = load_config(path)
+    assert again.values == config.values
+    assert again.training_hash() == config.training_hash()
+    assert again.train_config() == config.train_config()
+    # every field of every section is written out
+    assert {s: set(t) for s, t in again.values.items()} == {s: set(t) for s, t in SCHEMA.items()}
+
+
+def test_training_hash_tracks_training_fields_only():
+    base = load_config("smoke")
+    assert load_config("smoke", ["evaluate.episodes=3"]).training_hash() == base.training_hash()
+    assert (
+        load_config("smoke", ["run.checkpoint_every_s=9"]).training_hash() == base.training_hash()
+    )
+    for override in ("train.gamma=0.5", "env.max_steps=31", "network.hidden=8", "run.seed=1"):
+        assert load_config("smoke", [override]).training_hash() != base.training_hash(), override
+
+
+def test_env_overrides_are_the_difference_from_the_preset():
+    config = load_config("realistic", ["env.max_steps=300"])
+    assert config.env_overrides() == {"max_steps": 300}
+    env, params = config.make_env()
+    assert env.static.max_steps == 300 and float(params.ped_speed_max) == 1.5
+    assert dataclasses.asdict(env.static)["num_pedestrians"] == 10
