@@ -164,6 +164,11 @@ def _default_run_dir(prefix: str, config_name: str) -> Path:
 def cmd_train(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     if args.resume is not None:
+        if args.config != "default" or args.run_dir is not None:
+            raise ConfigError(
+                "--resume RUN_DIR continues with RUN_DIR's own config.toml and directory: "
+                "drop --config and --run-dir (use --set for non-training fields)"
+            )
         config = load_run(args.resume, tuple(args.overrides))
         run_dir = Path(args.resume)
     else:
@@ -243,10 +248,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     (result,) = evaluate_agents(config, [agent])
     wall = time.perf_counter() - start
-    print(metrics_table([result]))
-    print(f"\n{result['num_episodes']} episodes, seed {config['run']['seed']}, {wall:.1f} s")
+    # with --json - stdout carries only the JSON (pipe it to jq); the table goes to stderr
+    table_out = sys.stderr if args.json == "-" else sys.stdout
+    print(metrics_table([result]), file=table_out)
+    seed = config["run"]["seed"]
+    print(f"\n{result['num_episodes']} episodes, seed {seed}, {wall:.1f} s", file=table_out)
     if args.json is not None:
-        text = json.dumps(json_ready(result), indent=2) + "\n"
+        text = json.dumps({**json_ready(result), "seed": seed}, indent=2) + "\n"
         if args.json == "-":
             sys.stdout.write(text)
         else:

@@ -160,6 +160,8 @@ def test_resume_with_other_training_settings_names_the_field(straight, capsys):
 
 
 def test_resume_errors_are_one_line(tmp_path, capsys):
+    assert cli.main(["train", "--resume", str(tmp_path), "--config", "paper"]) == 2
+    assert "drop --config" in capsys.readouterr().err
     assert cli.main(["train", "--resume", str(tmp_path / "nothing"), "--quiet"]) == 2
     assert "not a run directory" in capsys.readouterr().err
     run_dir = tmp_path / "run"
@@ -215,8 +217,9 @@ def test_non_finite_loss_keeps_the_last_good_checkpoint(tmp_path, capsys):
 
 def test_evaluate_builtin_and_trained(straight, capsys):
     assert cli.main(["evaluate", "--agent", "rule-based", "--episodes", "4", "--json", "-"]) == 0
-    out = capsys.readouterr().out
-    payload = json.loads(out[out.index("{") :])
+    captured = capsys.readouterr()
+    payload = json.loads(captured.out)  # stdout is only the JSON; the table is on stderr
+    assert "| rule-based | 4 |" in captured.err
     assert payload["agent"] == "rule-based" and payload["num_episodes"] == 4
     assert 0.0 <= payload["collision_free_rate"] <= 1.0
     path = straight.parent / "eval.json"
