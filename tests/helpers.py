@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from functools import partial
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -10,6 +11,8 @@ import numpy as np
 
 from drqn_jax.env.road_map import WALKWAY, semantic_class
 from drqn_jax.env.state import SIDEWALK
+from drqn_jax.networks import NetworkConfig
+from drqn_jax.train import Hyperparams, TrainConfig
 
 
 def tree_equal(a, b) -> bool:
@@ -154,3 +157,29 @@ def invariant_rollout(env, params, keys, num_steps: int):
         return checks, count
 
     return jax.vmap(one)(keys)
+
+
+SMALL_NET = NetworkConfig(
+    conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=16, hidden=16
+)
+
+
+def tiny_train_config(max_steps: int = 30, **changes: Any) -> TrainConfig:
+    """A training config that compiles and runs in seconds (tests only).
+
+    2 envs, 6 episodes of at most ``max_steps`` steps, replay of 4, batch 4 × 4,
+    the narrow ``SMALL_NET``, learning from the first complete episode, target
+    copy every 7 steps; ``changes`` replace any ``TrainConfig`` field.
+    """
+    base = dict(
+        env_overrides=(("max_steps", max_steps),),
+        network=SMALL_NET,
+        num_envs=2,
+        num_episodes=6,
+        replay_episodes=4,
+        batch_size=4,
+        window=4,
+        chunk_iterations=16,
+        hyperparams=Hyperparams(learning_starts=1, target_period=7),
+    )
+    return TrainConfig(**{**base, **changes})

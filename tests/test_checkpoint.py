@@ -25,24 +25,12 @@ from drqn_jax.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from drqn_jax.networks import NetworkConfig
-from drqn_jax.train import Hyperparams, TrainConfig, make_train
-from tests.helpers import assert_tree_equal
+from drqn_jax.train import Hyperparams, make_train
+from tests.helpers import assert_tree_equal, tiny_train_config
 
-SMALL_NET = NetworkConfig(
-    conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=16, hidden=16
-)
 # short episodes, so that 5 iterations already complete one and take gradient steps
-TINY = TrainConfig(
-    env_overrides=(("max_steps", 3),),
-    network=SMALL_NET,
-    num_envs=2,
-    num_episodes=8,
-    replay_episodes=4,
-    batch_size=4,
-    window=4,
-    chunk_iterations=16,
-    hyperparams=Hyperparams(learning_starts=1, target_period=2),
+TINY = tiny_train_config(
+    max_steps=3, num_episodes=8, hyperparams=Hyperparams(learning_starts=1, target_period=2)
 )
 CONFIG = {"train": {"batch_size": 4, "num_envs": 2, "window": 4}, "env": {"max_steps": 3}}
 

@@ -9,22 +9,9 @@ import pytest
 import drqn_jax
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.train import Hyperparams, TrainConfig, make_train
-from tests.helpers import assert_tree_equal, take
+from tests.helpers import assert_tree_equal, take, tiny_train_config
 
-SMALL_NET = NetworkConfig(
-    conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=16, hidden=16
-)
-TINY = TrainConfig(
-    env_overrides=(("max_steps", 30),),
-    network=SMALL_NET,
-    num_envs=2,
-    num_episodes=6,
-    replay_episodes=4,
-    batch_size=4,
-    window=4,
-    chunk_iterations=16,
-    hyperparams=Hyperparams(learning_starts=1, target_period=7),
-)
+TINY = tiny_train_config()
 
 
 @pytest.fixture(scope="module")
