@@ -34,8 +34,15 @@ from drqn_jax.env import (  # noqa: E402
     UrbanPedestrians,
 )
 from drqn_jax.evaluation import EpisodeMetrics, evaluate, run_episodes, summarize  # noqa: E402
+from drqn_jax.gymnasium_env import (  # noqa: E402
+    UrbanPedestriansGymEnv,
+    UrbanPedestriansVectorEnv,
+    register_gymnasium_envs,
+)
 from drqn_jax.registry import make, registered_envs  # noqa: E402
 from drqn_jax.train import Hyperparams, TrainConfig, make_train  # noqa: E402
+
+register_gymnasium_envs()  # gymnasium.make("drqn_jax/UrbanPedestrians-v0"), make_vec(...)
 
 __version__ = "0.1.0"
 
@@ -51,12 +58,15 @@ __all__ = [
     "StaticEnvParams",
     "TrainConfig",
     "UrbanPedestrians",
+    "UrbanPedestriansGymEnv",
+    "UrbanPedestriansVectorEnv",
     "constant_agent",
     "drqn_agent",
     "evaluate",
     "make",
     "make_train",
     "random_agent",
+    "register_gymnasium_envs",
     "registered_envs",
     "rule_based_agent",
     "run_episodes",

@@ -1,0 +1,755 @@
+"""Gymnasium environments over the JAX simulator (SPEC §1–5).
+
+The pure JAX env (:class:`~drqn_jax.env.urban.UrbanPedestrians`) speaks the
+gymnax contract; this module puts it behind Gymnasium's API so that any
+Gymnasium-speaking library can drive it, with NumPy in and out:
+
+* :class:`UrbanPedestriansGymEnv` — a :class:`gymnasium.Env` (one episode at a
+  time, no auto-reset; ``render_mode="rgb_array"``);
+* :class:`UrbanPedestriansVectorEnv` — a native :class:`gymnasium.vector.VectorEnv`:
+  one jitted, ``vmap``-ed call per step for all sub-environments, with
+  ``AutoresetMode.NEXT_STEP`` (default), ``SAME_STEP`` or ``DISABLED``;
+* :func:`register_gymnasium_envs` — registers ``drqn_jax/<id>`` for every id of
+  :func:`drqn_jax.registered_envs` (``import drqn_jax`` calls it), so
+  ``gymnasium.make("drqn_jax/UrbanPedestrians-v0", max_steps=300)`` and
+  ``gymnasium.make_vec("drqn_jax/UrbanPedestrians-v0", num_envs=64)`` work;
+  extra keyword arguments go to :func:`drqn_jax.make`.
+
+Observation (SPEC §4), a ``Dict``:
+
+* ``grid``: ``Box`` (45, 30, 4) float32 with per-channel bounds: occupancy
+  [0, 1], relative heading [−1, 1], speed [0, b], semantics [0, 1], where b is
+  the largest value the speed channel can take under the env's parameters
+  (:func:`grid_speed_high`; the JAX space leaves it unbounded);
+* ``speed``: ``Box`` shape **(1,)** float32 in [0, max_vehicle_speed / v_ref]
+  (the JAX observation's ``()`` scalar as a length-1 vector, the shape common
+  libraries — ``FlattenObservation``, Stable-Baselines3's ``MultiInputPolicy`` —
+  expect of a Box);
+* ``last_action``: ``Discrete(5, start=-1)``: −1 at episode start, else 0–3.
+
+Actions: ``Discrete(4)`` (0 accelerate, 1 slow_down, 2 brake, 3 steer; paper
+§IV-B). Termination and truncation are the JAX env's (``step_env``: collision or
+goal; ``max_steps``). ``info`` holds ``collision``, ``goal`` (Python bools),
+``ttc`` (s, ``inf`` when none), ``distance`` (m), ``speed`` (m/s, unnormalised)
+(NumPy float32) and ``time`` (steps, NumPy int32); the vector env batches them
+into (N,) arrays of bool, float32 and int32.
+
+Keys. Every reset draws one JAX key from Gymnasium's ``np_random`` (so
+``reset(seed=s)`` is reproducible and an unseeded reset continues the stream);
+it splits into the key that draws the new episode and the key the env holds;
+every step splits the held key. The vector env keeps one ``np_random`` per
+sub-environment, seeded like :class:`gymnasium.vector.SyncVectorEnv` seeds its
+envs (``seed + i``), and auto-resets from that sub-environment's stream, so
+sub-environment ``i`` behaves exactly like ``gymnasium.make(id)`` reset with
+``seed + i`` and driven by the same actions, whatever ``num_envs`` is.
+
+The jitted functions are built once per static env (a module-level cache keyed
+on the hashable JAX env) and take ``EnvParams`` as arguments, so creating
+more envs, or the realistic preset beside the paper's, compiles nothing new.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, ClassVar, NamedTuple, SupportsFloat
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnasium import spaces
+from gymnasium.error import ResetNeeded
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from drqn_jax.env.collision import collision
+from drqn_jax.env.params import SPEED_RELATIVE, EnvParams
+from drqn_jax.env.road_map import CROSSING_AREA, OFF_ROAD, ROAD, WALKWAY, semantic_class
+from drqn_jax.env.state import NUM_ACTIONS, EnvState, Observation
+from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.registry import make as make_jax_env
+from drqn_jax.registry import registered_envs
+
+__all__ = [
+    "NAMESPACE",
+    "RENDER_AHEAD_M",
+    "RENDER_BEHIND_M",
+    "RENDER_HALF_WIDTH_M",
+    "RENDER_PIXELS_PER_M",
+    "UrbanPedestriansGymEnv",
+    "UrbanPedestriansVectorEnv",
+    "grid_speed_high",
+    "gymnasium_ids",
+    "gymnasium_observation_space",
+    "register_gymnasium_envs",
+    "render_frame",
+]
+
+NAMESPACE = "drqn_jax"
+SPEED_CHANNEL = 2  # the grid channel without a fixed upper bound (SPEC §4)
+# Float32 rounding margin on the bounds derived from EnvParams (relative).
+_BOUND_MARGIN = 1e-5
+
+# Bird's-eye view: metres behind / ahead of the ego centre, half width across
+# the main road's centre line, resolution.
+RENDER_BEHIND_M = 10.0
+RENDER_AHEAD_M = 50.0
+RENDER_HALF_WIDTH_M = 15.0
+RENDER_PIXELS_PER_M = 8
+
+# RGB colours of the map classes (SPEC §1), the ego and the behaviours (SPEC §3).
+_MAP_COLOURS = {
+    OFF_ROAD: (58, 66, 56),
+    WALKWAY: (168, 168, 158),
+    CROSSING_AREA: (232, 232, 222),  # light zebra stripes; the dark ones are road
+    ROAD: (78, 78, 84),
+}
+_LANE_MARK = (220, 220, 200)
+_GOAL_LINE = (250, 200, 40)
+_EGO = (40, 110, 235)
+_EGO_COLLIDED = (235, 40, 40)
+_BEHAVIOUR_COLOURS = (
+    (40, 190, 80),  # crossing: green
+    (235, 60, 50),  # jaywalking: red
+    (250, 165, 30),  # sidewalk: orange
+)
+
+
+# --- spaces -----------------------------------------------------------------
+def _round_up_f32(x: float) -> np.float32:
+    """``x`` widened by the float32 rounding margin, as float32."""
+    return np.float32(x * (1.0 + _BOUND_MARGIN) if x > 0 else x)
+
+
+def grid_speed_high(params: EnvParams) -> float:
+    """Largest value of the grid's speed channel (SPEC §4, ch2) under ``params``.
+
+    ``speed_channel = "pedestrian"``: a pedestrian walks at most
+    ``ped_speed_max``, so ``ped_speed_max / speed_norm_pedestrian``.
+    ``"relative"``: the ego drives at most ``max_vehicle_speed`` along +x, so
+    ``(max_vehicle_speed + ped_speed_max + δ) / speed_norm_relative``, where δ
+    bounds the float32 error of a velocity measured as a displacement over
+    ``dt`` at world coordinates up to the goal plus the spawn and despawn
+    ranges. Both carry a relative float32 rounding margin of 1e-5.
+    """
+    ped_max = float(params.ped_speed_max)
+    if int(params.speed_channel) == SPEED_RELATIVE:
+        extent = abs(float(params.goal_x)) + float(params.spawn_max) + float(params.despawn_ahead)
+        delta = 2.0 * extent * float(np.finfo(np.float32).eps) / float(params.dt)
+        bound = (float(params.max_vehicle_speed) + ped_max + delta) / float(
+            params.speed_norm_relative
+        )
+    else:
+        bound = ped_max / float(params.speed_norm_pedestrian)
+    return float(_round_up_f32(bound))
+
+
+def gymnasium_observation_space(env: UrbanPedestrians, params: EnvParams) -> spaces.Dict:
+    """The Gymnasium observation space of one env (SPEC §4).
+
+    Bounds are the JAX env's :meth:`~UrbanPedestrians.observation_space`, with
+    the speed channel's open upper bound replaced by :func:`grid_speed_high`
+    and the ego speed's by its float32-rounded value (margin 1e-5).
+
+    Returns:
+        ``Dict(grid=Box((rows, cols, 4), float32), speed=Box((1,), float32),
+        last_action=Discrete(5, start=-1))``.
+    """
+    jax_space = env.observation_space(params)
+    grid = jax_space.spaces["grid"]
+    low = np.array(np.broadcast_to(np.asarray(grid.low, np.float32), grid.shape))
+    high = np.array(np.broadcast_to(np.asarray(grid.high, np.float32), grid.shape))
+    high[..., SPEED_CHANNEL] = np.minimum(high[..., SPEED_CHANNEL], grid_speed_high(params))
+    if not np.all(np.isfinite(low)) or not np.all(np.isfinite(high)):
+        raise ValueError("grid bounds must be finite: a channel has no known bound")
+    speed = jax_space.spaces["speed"]
+    last_action = jax_space.spaces["last_action"]
+    return spaces.Dict(
+        {
+            "grid": spaces.Box(low, high, grid.shape, np.float32),
+            "speed": spaces.Box(
+                np.float32(speed.low), _round_up_f32(float(speed.high)), (1,), np.float32
+            ),
+            "last_action": spaces.Discrete(last_action.n, start=last_action.start),
+        }
+    )
+
+
+def _numpy_observation(obs: Observation) -> dict[str, Any]:
+    """NumPy (fresh, writable) observation dict; leading batch axes are kept.
+
+    ``grid`` (..., rows, cols, 4) float32, ``speed`` (..., 1) float32,
+    ``last_action`` (...) int64 (a NumPy scalar when unbatched).
+    """
+    last_action = np.array(obs.last_action, np.int64)
+    return {
+        "grid": np.array(obs.grid, np.float32),
+        "speed": np.array(obs.speed, np.float32)[..., None],
+        "last_action": last_action[()] if last_action.ndim == 0 else last_action,
+    }
+
+
+def _invalid_action(action: Any, space: spaces.Space) -> ValueError:
+    return ValueError(
+        f"invalid action {action!r}: not an element of the action space {space} "
+        "(0 accelerate, 1 slow_down, 2 brake, 3 steer)"
+    )
+
+
+def _contains(space: spaces.Space, x: Any) -> bool:
+    try:
+        return bool(space.contains(x))
+    except Exception:  # e.g. an object NumPy cannot compare
+        return False
+
+
+# --- rendering --------------------------------------------------------------
+def render_frame(
+    env: UrbanPedestrians,
+    state: EnvState,
+    params: EnvParams,
+    *,
+    behind_m: float = RENDER_BEHIND_M,
+    ahead_m: float = RENDER_AHEAD_M,
+    half_width_m: float = RENDER_HALF_WIDTH_M,
+    pixels_per_m: int = RENDER_PIXELS_PER_M,
+) -> jax.Array:
+    """Bird's-eye view of the scene around the ego (SPEC §1–3), pure JAX.
+
+    x (the ego's road) runs left to right from ``s - behind_m`` to
+    ``s + ahead_m``, y upwards from ``-half_width_m`` to ``half_width_m``.
+    Each pixel shows the map class at its centre (:func:`semantic_class`:
+    off-road, walkway, zebra-striped crossings, road, the dashed centre line,
+    the goal line), then the ego's box (blue, red when it overlaps a
+    pedestrian) and the pedestrians as discs coloured by behaviour (crossing
+    green, jaywalking red, sidewalk orange).
+
+    Returns:
+        (H, W, 3) uint8 with ``H = 2 * half_width_m * pixels_per_m`` and
+        ``W = (behind_m + ahead_m) * pixels_per_m`` (240 × 480 by default).
+    """
+    height = round(2 * half_width_m * pixels_per_m)
+    width = round((behind_m + ahead_m) * pixels_per_m)
+    pixel = 1.0 / pixels_per_m
+    s = state.ego.s
+    x = s - behind_m + (jnp.arange(width, dtype=jnp.float32) + 0.5) * pixel  # (W,)
+    y = half_width_m - (jnp.arange(height, dtype=jnp.float32) + 0.5) * pixel  # (H,)
+    xy = jnp.stack(jnp.broadcast_arrays(x[None, :], y[:, None]), axis=-1)  # (H, W, 2)
+    cls = semantic_class(xy, params, env.static)
+
+    palette = jnp.asarray([_MAP_COLOURS[c] for c in range(4)], jnp.uint8)
+    image = palette[cls]
+    # Zebra stripes, 0.5 m, parallel to the traffic they cross.
+    along = jnp.where(jnp.abs(xy[..., 1]) < params.lane_width, xy[..., 1], xy[..., 0])
+    dark_stripe = (cls == CROSSING_AREA) & (jnp.floor(along * 2.0) % 2 == 1)
+    image = jnp.where(dark_stripe[..., None], palette[ROAD], image)
+    # Dashed centre line, not across intersections (where the kerb side is no walkway).
+    kerb = jnp.stack([x, jnp.full_like(x, params.lane_width + 0.5 * params.sidewalk_width)], -1)
+    between_streets = semantic_class(kerb, params, env.static) == WALKWAY  # (W,)
+    centre_line = (
+        (cls == ROAD)
+        & between_streets[None, :]
+        & (jnp.abs(xy[..., 1]) < 0.1 + 0.5 * pixel)
+        & (jnp.floor(xy[..., 0] / 3.0) % 2 == 0)
+    )
+    image = jnp.where(centre_line[..., None], jnp.asarray(_LANE_MARK, jnp.uint8), image)
+    goal = (jnp.abs(xy[..., 0] - params.goal_x) < 0.25) & (jnp.abs(xy[..., 1]) < params.lane_width)
+    image = jnp.where(goal[..., None], jnp.asarray(_GOAL_LINE, jnp.uint8), image)
+
+    ego_y = -0.5 * params.lane_width
+    in_ego = (jnp.abs(xy[..., 0] - s) <= 0.5 * params.ego_length) & (
+        jnp.abs(xy[..., 1] - ego_y) <= 0.5 * params.ego_width
+    )
+    collided = collision(state.ego, state.pedestrians, params)
+    ego_colour = jnp.where(
+        collided, jnp.asarray(_EGO_COLLIDED, jnp.uint8), jnp.asarray(_EGO, jnp.uint8)
+    )
+    image = jnp.where(in_ego[..., None], ego_colour, image)
+
+    peds = state.pedestrians
+    radius = jnp.maximum(params.ped_radius, 2.0 * pixel)
+    d2 = jnp.sum((xy[:, :, None, :] - peds.position[None, None, :, :]) ** 2, axis=-1)  # (H,W,P)
+    inside = d2 <= radius * radius
+    first = jnp.argmax(inside, axis=-1)  # the lowest-index pedestrian on top
+    behaviour = jnp.clip(peds.behaviour[first], 0, len(_BEHAVIOUR_COLOURS) - 1)
+    ped_colour = jnp.asarray(_BEHAVIOUR_COLOURS, jnp.uint8)[behaviour]
+    return jnp.where(jnp.any(inside, axis=-1)[..., None], ped_colour, image)
+
+
+# --- compiled functions, one set per static env ------------------------------
+class _SingleFns(NamedTuple):
+    reset: Any  # (key_data (w,) uint32, params) -> (key_data, obs, state)
+    step: Any  # (key_data, state, action, params) -> (key_data, obs, state, r, term, trunc, info)
+    render: Any  # (state, params) -> (H, W, 3) uint8
+
+
+class _VectorFns(NamedTuple):
+    reset: Any  # (key_data (N, w), params) -> (key_data, obs, states)
+    reset_masked: Any  # (key_data, held, states, mask, params) -> (key_data, obs, states)
+    step_next: Any  # NEXT_STEP / DISABLED step, see _vector_step
+    step_same: Any  # SAME_STEP step
+    render: Any  # (states, params) -> (N, H, W, 3) uint8
+
+
+@functools.cache
+def _key_data_shape() -> tuple[int, ...]:
+    """Shape of one key's raw data under JAX's default PRNG implementation ((2,) for threefry)."""
+    return jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0))).shape
+
+
+def _draw_key_data(rng: np.random.Generator) -> np.ndarray:
+    """One JAX key's raw data (uint32 words) drawn from a NumPy generator."""
+    return rng.integers(0, 2**32, size=_key_data_shape(), dtype=np.uint32)
+
+
+def _split(key_data: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Split raw key data into (kept key data, a typed key to use now)."""
+    kept, use = jax.random.split(jax.random.wrap_key_data(key_data))
+    return jax.random.key_data(kept), use
+
+
+def _single_reset(env: UrbanPedestrians, key_data: jax.Array, params: EnvParams):
+    held, reset_key = _split(key_data)
+    obs, state = env.reset_env(reset_key, params)
+    return held, obs, state
+
+
+def _single_step(
+    env: UrbanPedestrians, key_data: jax.Array, state: EnvState, action: jax.Array, params
+):
+    held, step_key = _split(key_data)
+    obs, state, reward, terminated, truncated, info = env.step_env(step_key, state, action, params)
+    return held, obs, state, reward, terminated, truncated, info
+
+
+def _vector_step(
+    env: UrbanPedestrians,
+    same_step: bool,
+    key_data: jax.Array,
+    reset_key_data: jax.Array,
+    state: EnvState,
+    action: jax.Array,
+    autoreset: jax.Array,
+    params: EnvParams,
+):
+    """One sub-environment's step with select-style auto-reset (vmapped by the caller).
+
+    The step (``step_env`` with a key split from the held one) and a fresh
+    episode (``reset_state`` from ``reset_key_data``, split as
+    :func:`_single_reset` splits it) are both computed and selected leaf by
+    leaf; the observation is rasterised from the selected state. NEXT_STEP
+    restarts where ``autoreset`` (the previous step ended the episode), with
+    reward 0 and no termination; SAME_STEP restarts where this step ends it and
+    also returns the final observation.
+    """
+    held, step_key = _split(key_data)
+    obs_final, stepped, reward, terminated, truncated, info = env.step_env(
+        step_key, state, action, params
+    )
+    fresh_held, reset_key = _split(reset_key_data)
+    fresh = env.reset_state(reset_key, params)
+    restart = (terminated | truncated) if same_step else autoreset
+    new_state = jax.tree.map(lambda a, b: jnp.where(restart, a, b), fresh, stepped)
+    new_held = jnp.where(restart, fresh_held, held)
+    obs = env.observation(new_state, params)
+    if not same_step:
+        reward = jnp.where(restart, jnp.zeros_like(reward), reward)
+        terminated = terminated & ~restart
+        truncated = truncated & ~restart
+    return new_held, obs, new_state, reward, terminated, truncated, info, obs_final, restart
+
+
+@functools.cache
+def _single_fns(env: UrbanPedestrians) -> _SingleFns:
+    """Jitted reset/step/render of one env, built once per static env."""
+    return _SingleFns(
+        reset=jax.jit(functools.partial(_single_reset, env)),
+        step=jax.jit(functools.partial(_single_step, env)),
+        render=jax.jit(functools.partial(render_frame, env)),
+    )
+
+
+@functools.cache
+def _vector_fns(env: UrbanPedestrians) -> _VectorFns:
+    """Jitted, vmapped reset/step/render of a batch of one static env."""
+    reset = jax.vmap(functools.partial(_single_reset, env), in_axes=(0, None))
+
+    def reset_masked(key_data, held, states, mask, params):
+        new_held, _, fresh = reset(key_data, params)
+        select = functools.partial(jax.vmap(jnp.where), mask)
+        states = jax.tree.map(select, fresh, states)
+        return select(new_held, held), jax.vmap(env.observation, (0, None))(states, params), states
+
+    def step(same_step: bool):
+        fn = functools.partial(_vector_step, env, same_step)
+        return jax.jit(jax.vmap(fn, in_axes=(0, 0, 0, 0, 0, None)))
+
+    return _VectorFns(
+        reset=jax.jit(reset),
+        reset_masked=jax.jit(reset_masked),
+        step_next=step(False),
+        step_same=step(True),
+        render=jax.jit(jax.vmap(functools.partial(render_frame, env), in_axes=(0, None))),
+    )
+
+
+# --- the single env ---------------------------------------------------------
+class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
+    """The urban-pedestrian env (paper §V-D, SPEC §1–5) as a :class:`gymnasium.Env`.
+
+    Args:
+        env_id: a :func:`drqn_jax.registered_envs` id (``"UrbanPedestrians-v0"``:
+            the paper's settings; ``"UrbanPedestriansRealistic-v0"``).
+        render_mode: ``None`` or ``"rgb_array"`` (:func:`render_frame`).
+        **overrides: any :func:`drqn_jax.make` override, e.g. ``max_steps=300``.
+
+    Attributes:
+        jax_env, params: the JAX env and its ``EnvParams``.
+        observation_space: see the module docstring; action_space: ``Discrete(4)``.
+
+    ``step`` before ``reset`` raises :class:`gymnasium.error.ResetNeeded` (the
+    env is registered without Gymnasium's ``OrderEnforcing`` and
+    ``PassiveEnvChecker`` wrappers: it enforces the order itself and passes
+    ``check_env``). Stepping past the end of an episode continues the
+    simulation without resetting; call ``reset``.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}  # 1/dt
+
+    def __init__(
+        self, env_id: str = "UrbanPedestrians-v0", render_mode: str | None = None, **overrides: Any
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode={render_mode!r} is not supported; "
+                f"render modes: {self.metadata['render_modes']}"
+            )
+        self.env_id = env_id
+        self.jax_env, params = make_jax_env(env_id, **overrides)
+        self.params = params
+        self._device_params = jax.device_put(params)
+        self.render_mode = render_mode
+        self.observation_space = gymnasium_observation_space(self.jax_env, params)
+        self.action_space = spaces.Discrete(NUM_ACTIONS)
+        self._fns = _single_fns(self.jax_env)
+        self._key_data: jax.Array | None = None
+        self._state: EnvState | None = None
+
+    @property
+    def state(self) -> EnvState | None:
+        """The current JAX ``EnvState`` (``None`` before the first reset)."""
+        return self._state
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Start an episode; the JAX key is drawn from ``self.np_random``.
+
+        Args:
+            seed: reseeds ``np_random`` when given. ``options`` is accepted and unused.
+        Returns:
+            ``(observation, {})``.
+        """
+        super().reset(seed=seed)
+        key_data = _draw_key_data(self.np_random)
+        self._key_data, obs, self._state = self._fns.reset(key_data, self._device_params)
+        return _numpy_observation(jax.device_get(obs)), {}
+
+    def step(self, action: Any) -> tuple[dict[str, Any], SupportsFloat, bool, bool, dict[str, Any]]:
+        """One decision step (0.1 s) with ``action`` in ``Discrete(4)``.
+
+        Returns:
+            ``(observation, reward, terminated, truncated, info)``: reward a
+            Python float in [−10, 1], the flags Python bools, info as in the
+            module docstring.
+        Raises:
+            ValueError: ``action`` is not in the action space.
+            ResetNeeded: called before ``reset``.
+        """
+        if isinstance(action, jax.Array):
+            action = np.asarray(action)
+        if not _contains(self.action_space, action):
+            raise _invalid_action(action, self.action_space)
+        if self._state is None:
+            raise ResetNeeded("Cannot call UrbanPedestriansGymEnv.step before reset")
+        out = self._fns.step(self._key_data, self._state, np.int32(action), self._device_params)
+        self._key_data, obs, self._state, reward, terminated, truncated, info = out
+        obs, reward, terminated, truncated, info = jax.device_get(
+            (obs, reward, terminated, truncated, info)
+        )
+        # Flags as Python bools (SyncVectorEnv batches those, not np.bool_, into bool arrays).
+        info = {k: bool(v) if v.dtype == np.bool_ else v[()] for k, v in info.items()}
+        return _numpy_observation(obs), float(reward), bool(terminated), bool(truncated), info
+
+    def render(self) -> np.ndarray | None:
+        """(240, 480, 3) uint8 bird's-eye view (:func:`render_frame`) for ``"rgb_array"``."""
+        if self.render_mode is None:
+            gymnasium.logger.warn(
+                "render() called without a render_mode; e.g. "
+                'gymnasium.make("drqn_jax/UrbanPedestrians-v0", render_mode="rgb_array")'
+            )
+            return None
+        if self._state is None:
+            raise ResetNeeded("Cannot call UrbanPedestriansGymEnv.render before reset")
+        return np.array(self._fns.render(self._state, self._device_params))
+
+
+# --- the vector env ---------------------------------------------------------
+def _batched_info(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
+    """Gymnasium's vector info layout: ``key`` (N,) (zero where absent) and mask ``_key``."""
+    if not mask.any():
+        return {}
+    out: dict[str, np.ndarray] = {}
+    for name, value in values.items():
+        value = np.asarray(value)
+        out[name] = np.where(mask, value, np.zeros_like(value))
+        out[f"_{name}"] = mask.copy()
+    return out
+
+
+class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
+    """``num_envs`` copies of the env stepped by one jitted, vmapped call (SPEC §1–5).
+
+    Args:
+        num_envs: N, the number of sub-environments.
+        env_id: a :func:`drqn_jax.registered_envs` id.
+        autoreset_mode: ``AutoresetMode`` (or its value): ``NEXT_STEP`` (default;
+            the step after an episode ends resets that sub-environment: its
+            action is ignored, reward 0, flags False, no info),
+            ``SAME_STEP`` (the ending step returns the new episode's first
+            observation; the last one is ``info["final_obs"]``, its info
+            ``info["final_info"]``, as :class:`gymnasium.vector.SyncVectorEnv`),
+            or ``DISABLED`` (reset ended sub-environments with
+            ``reset(options={"reset_mask": mask})``).
+        render_mode: ``None`` or ``"rgb_array"`` (a tuple of N frames).
+        **overrides: any :func:`drqn_jax.make` override, e.g. ``max_steps=300``.
+
+    Batches: observations ``grid`` (N, 45, 30, 4) float32, ``speed`` (N, 1)
+    float32, ``last_action`` (N,) int64; rewards (N,) float64; flags (N,) bool;
+    actions (N,) integers in ``MultiDiscrete([4] * N)``.
+    """
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        env_id: str = "UrbanPedestrians-v0",
+        autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ) -> None:
+        if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
+            raise ValueError(f"num_envs = {num_envs!r}: must be an integer >= 1")
+        self.autoreset_mode = AutoresetMode(autoreset_mode)
+        if render_mode is not None and render_mode != "rgb_array":
+            raise ValueError(f"render_mode={render_mode!r} is not supported; use 'rgb_array'")
+        self.num_envs = num_envs
+        self.env_id = env_id
+        self.jax_env, params = make_jax_env(env_id, **overrides)
+        self.params = params
+        self._device_params = jax.device_put(params)
+        self.render_mode = render_mode
+        self.metadata = {
+            **UrbanPedestriansGymEnv.metadata,
+            "autoreset_mode": self.autoreset_mode,
+        }
+        self.single_observation_space = gymnasium_observation_space(self.jax_env, params)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.single_action_space = spaces.Discrete(NUM_ACTIONS)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._fns = _vector_fns(self.jax_env)
+        self._rngs: list[np.random.Generator | None] = [None] * num_envs
+        self._seeds: list[int | None] = [None] * num_envs
+        # Each sub-environment's next reset key, drawn ahead from its np_random.
+        self._next_key_data: np.ndarray | None = None
+        self._key_data: jax.Array | None = None  # (N, w) held keys
+        self._states: EnvState | None = None
+        self._ended = np.zeros(num_envs, bool)  # NEXT_STEP: reset on the next step
+
+    @property
+    def np_random(self) -> tuple[np.random.Generator | None, ...]:
+        """The sub-environments' generators (as :class:`SyncVectorEnv`'s ``np_random``)."""
+        return tuple(self._rngs)
+
+    @property
+    def np_random_seed(self) -> tuple[int | None, ...]:
+        """The seeds the sub-environments' generators were last made from."""
+        return tuple(self._seeds)
+
+    @property
+    def states(self) -> EnvState | None:
+        """The batched JAX ``EnvState`` (leading axis N; ``None`` before reset)."""
+        return self._states
+
+    def _take_reset_keys(self, seeds: list[int | None], which: np.ndarray) -> np.ndarray:
+        """(N, w) uint32: reset keys for the sub-environments in ``which``, drawn as
+        ``gymnasium.make(id).reset(seed=seeds[i])`` would draw them."""
+        if self._next_key_data is None:
+            self._next_key_data = np.zeros((self.num_envs, *_key_data_shape()), np.uint32)
+        keys = np.zeros_like(self._next_key_data)
+        following = self._next_key_data.copy()
+        for i in np.flatnonzero(which):
+            if seeds[i] is not None or self._rngs[i] is None:
+                self._rngs[i], self._seeds[i] = seeding.np_random(seeds[i])
+                following[i] = _draw_key_data(self._rngs[i])
+            keys[i] = following[i]
+            following[i] = _draw_key_data(self._rngs[i])
+        self._next_key_data = following
+        return keys
+
+    def reset(
+        self,
+        *,
+        seed: int | list[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Reset all sub-environments, or those in ``options["reset_mask"]`` ((N,) bool).
+
+        Args:
+            seed: ``None`` (continue each sub-environment's stream), an int s
+                (sub-environment i gets s + i) or a list of N ints / ``None``.
+        Returns:
+            ``(observations, {})``; the observations of sub-environments not
+            reset are their current ones.
+        """
+        if seed is None:
+            seeds: list[int | None] = [None] * self.num_envs
+        elif isinstance(seed, int | np.integer):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(
+                    f"seed: a list of length num_envs={self.num_envs} was expected, "
+                    f"got length {len(seeds)}"
+                )
+        mask = None if options is None else options.get("reset_mask")
+        if mask is not None:
+            if not isinstance(mask, np.ndarray) or mask.dtype != np.bool_:
+                raise TypeError(f"options['reset_mask'] must be a NumPy bool array, got {mask!r}")
+            if mask.shape != (self.num_envs,) or not mask.any():
+                raise ValueError(
+                    f"options['reset_mask'] must have shape ({self.num_envs},) and at least one "
+                    f"True value, got {mask!r}"
+                )
+            if self._states is None:
+                raise ResetNeeded("the first reset must reset every sub-environment")
+        which = np.ones(self.num_envs, bool) if mask is None else mask
+        key_data = self._take_reset_keys(seeds, which)
+        if mask is None:
+            self._key_data, obs, self._states = self._fns.reset(key_data, self._device_params)
+        else:
+            self._key_data, obs, self._states = self._fns.reset_masked(
+                key_data, self._key_data, self._states, mask, self._device_params
+            )
+        self._ended = self._ended & ~which
+        return _numpy_observation(jax.device_get(obs)), {}
+
+    def step(
+        self, actions: Any
+    ) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Step every sub-environment with ``actions`` ((N,) integers in 0–3).
+
+        Returns:
+            ``(observations, rewards, terminations, truncations, infos)`` with
+            Gymnasium's vector info layout (``key`` and mask ``_key``); see the
+            class docstring for the auto-reset modes.
+        Raises:
+            ValueError: ``actions`` is not in the action space.
+            ResetNeeded: called before ``reset``, or (``DISABLED``) with an
+                ended sub-environment not reset.
+        """
+        if isinstance(actions, jax.Array):
+            actions = np.asarray(actions)
+        if not _contains(self.action_space, actions):
+            raise _invalid_action(actions, self.action_space)
+        if self._states is None:
+            raise ResetNeeded("Cannot call UrbanPedestriansVectorEnv.step before reset")
+        same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
+        autoreset = self._ended & (self.autoreset_mode == AutoresetMode.NEXT_STEP)
+        if self.autoreset_mode == AutoresetMode.DISABLED and self._ended.any():
+            raise ResetNeeded(
+                f"sub-environments {np.flatnonzero(self._ended).tolist()} ended; with "
+                "AutoresetMode.DISABLED reset them with reset(options={'reset_mask': mask})"
+            )
+        step = self._fns.step_same if same_step else self._fns.step_next
+        out = step(
+            self._key_data,
+            self._next_key_data,
+            self._states,
+            np.asarray(actions, np.int32),
+            autoreset,
+            self._device_params,
+        )
+        self._key_data, obs, self._states = out[:3]
+        reward, terminated, truncated, info, restarted = jax.device_get(
+            (out[3], out[4], out[5], out[6], out[8])
+        )
+        observations = _numpy_observation(jax.device_get(obs))
+        done = terminated | truncated
+        if same_step:
+            infos = _batched_info(info, ~done)
+            if done.any():
+                final = _numpy_observation(jax.device_get(out[7]))
+                final_obs = np.full(self.num_envs, None, dtype=object)
+                for i in np.flatnonzero(done):
+                    final_obs[i] = {name: value[i] for name, value in final.items()}
+                infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
+                infos["final_info"], infos["_final_info"] = _batched_info(info, done), done.copy()
+        else:
+            infos = _batched_info(info, ~autoreset)
+        # The sub-environments that started an episode used their next reset key.
+        restarted = np.asarray(restarted, bool)
+        if restarted.any():
+            self._take_reset_keys([None] * self.num_envs, restarted)
+        self._ended = done
+        return (
+            observations,
+            np.asarray(reward, np.float64),
+            np.array(terminated, bool),
+            np.array(truncated, bool),
+            infos,
+        )
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """N (240, 480, 3) uint8 frames (:func:`render_frame`) for ``"rgb_array"``."""
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode")
+            return None
+        if self._states is None:
+            raise ResetNeeded("Cannot call UrbanPedestriansVectorEnv.render before reset")
+        frames = np.array(self._fns.render(self._states, self._device_params))
+        return tuple(frames)
+
+
+# --- registration -----------------------------------------------------------
+def gymnasium_ids() -> tuple[str, ...]:
+    """The Gymnasium ids: ``drqn_jax/<id>`` for every :func:`drqn_jax.registered_envs` id."""
+    return tuple(f"{NAMESPACE}/{env_id}" for env_id in registered_envs())
+
+
+def register_gymnasium_envs() -> tuple[str, ...]:
+    """Register :func:`gymnasium_ids` with Gymnasium (idempotent: present ids are kept).
+
+    Each id has ``entry_point`` :class:`UrbanPedestriansGymEnv`,
+    ``vector_entry_point`` :class:`UrbanPedestriansVectorEnv` and
+    ``kwargs={"env_id": <drqn_jax id>}``; ``order_enforce`` and the passive
+    checker are off (the env enforces reset-before-step and passes
+    ``check_env``), so ``gymnasium.make`` returns the env itself.
+
+    Returns:
+        the ids.
+    """
+    for env_id in registered_envs():
+        gym_id = f"{NAMESPACE}/{env_id}"
+        if gym_id in gymnasium.registry:
+            continue
+        gymnasium.register(
+            id=gym_id,
+            entry_point=f"{__name__}:UrbanPedestriansGymEnv",
+            vector_entry_point=f"{__name__}:UrbanPedestriansVectorEnv",
+            kwargs={"env_id": env_id},
+            order_enforce=False,
+            disable_env_checker=True,
+        )
+    return gymnasium_ids()
