@@ -1,4 +1,8 @@
-"""The ``drqn-jax`` command line: ``train``, ``evaluate``, ``reproduce``, ``bench``.
+"""The ``drqn-jax`` command line: ``train``, ``evaluate``, ``reproduce``, ``replay``, ``bench``.
+
+``replay`` records greedy episodes of a trained run or a built-in agent as a
+rerun ``.rrd`` file (:mod:`drqn_jax.recording`); ``train --rrd`` and
+``reproduce --rrd`` write the training curves as one.
 
 Exit statuses: 0 done; 1 the run failed (non-finite loss: the last good
 checkpoint is kept); 2 a configuration, usage or checkpoint problem (one
@@ -30,6 +34,8 @@ from drqn_jax.runner import (
     json_ready,
     load_run,
     load_trained_agent,
+    load_trained_network,
+    recorded_metrics,
     train_run,
     write_evaluation,
 )
@@ -75,6 +81,19 @@ def _quiet_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _rrd_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--rrd",
+        default=None,
+        metavar="PATH",
+        help="also write the training curves (return, length, loss, ε, collision rate per "
+        "episode) as a rerun recording to PATH when training stops",
+    )
+
+
+_AGENTS = ("drqn", "rule-based", "random", "accelerate")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="drqn-jax",
@@ -94,6 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="continue the run in RUN_DIR from its last checkpoint (uses its config.toml)",
     )
+    _rrd_option(train)
     _quiet_option(train)
 
     ev = sub.add_parser(
@@ -105,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("run_dir", nargs="?", default=None, help="a run directory (its DRQN agent)")
     ev.add_argument(
         "--agent",
-        choices=("drqn", "rule-based", "random", "accelerate"),
+        choices=_AGENTS,
         default=None,
         help="agent to evaluate (default: drqn with RUN_DIR, rule-based without)",
     )
@@ -126,7 +146,32 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _config_options(rep, "default")
     _run_dir_option(rep, "reproduce")
+    _rrd_option(rep)
     _quiet_option(rep)
+
+    replay = sub.add_parser(
+        "replay",
+        help="record episodes of a trained run or a built-in agent for the rerun viewer",
+        description=_REPLAY_DOC,
+        formatter_class=_Formatter,
+    )
+    replay.add_argument("run_dir", nargs="?", default=None, help="a run directory (its DRQN agent)")
+    replay.add_argument(
+        "--agent",
+        choices=_AGENTS,
+        default=None,
+        help="agent to record (default: drqn with RUN_DIR, rule-based without)",
+    )
+    replay.add_argument("--episodes", type=int, default=5, help="episodes to record")
+    replay.add_argument(
+        "--out",
+        default=None,
+        metavar="PATH",
+        help="the .rrd file to write (default: RUN_DIR/episodes.rrd, or episodes.rrd "
+        "without RUN_DIR)",
+    )
+    replay.add_argument("--seed", type=int, default=None, help="run.seed for the evaluation key")
+    _config_options(replay, "default")
 
     bench = sub.add_parser(
         "bench",
@@ -152,6 +197,10 @@ evaluation key and print the SPEC §8 metrics."""
 _REPRODUCE_DOC = """Train the DRQN with the config (default.toml), evaluate it and the
 rule-based agent on evaluate.episodes episodes each, and print the paper's Table III beside
 ours with the wall time."""
+_REPLAY_DOC = """Record episodes of a run directory's greedy DRQN (with its four Q-values per
+step) or of a built-in agent as a rerun recording: the map, the ego, the pedestrians coloured by
+behaviour, the four grid channels, speed, action, reward and TTC on the timeline "step". Episode
+i is episode i of `evaluate` (the config's evaluation key). View it with: rerun PATH"""
 _BENCH_DOC = """Measure env steps/s (vectorised env, random actions) and training
 iterations/s of the config's trainer, with the machine they ran on."""
 
@@ -175,14 +224,37 @@ def cmd_train(args: argparse.Namespace) -> int:
         config = load_config(args.config, args.overrides)
         run_dir = Path(args.run_dir or _default_run_dir("train", args.config))
     resume = args.resume is not None
-    return _train_and_evaluate(config, run_dir, resume, args.quiet, start, reproduce=False)
+    return _train_and_evaluate(
+        config, run_dir, resume, args.quiet, start, reproduce=False, rrd=args.rrd
+    )
 
 
 def _train_and_evaluate(
-    config: Config, run_dir: Path, resume: bool, quiet: bool, start: float, *, reproduce: bool
+    config: Config,
+    run_dir: Path,
+    resume: bool,
+    quiet: bool,
+    start: float,
+    *,
+    reproduce: bool,
+    rrd: str | None = None,
 ) -> int:
-    """Train, then evaluate the DRQN (and, to reproduce Table III, the rule-based agent)."""
+    """Train, then evaluate the DRQN (and, to reproduce Table III, the rule-based agent).
+
+    With ``rrd`` the training curves of every recorded episode are written there
+    once training stops (finished, interrupted or diverged: the last good state).
+    """
+    if rrd is not None and Path(rrd).is_dir():
+        raise ConfigError(f"--rrd {rrd}: is a directory; give a file name such as training.rrd")
     result = train_run(config, run_dir, resume=resume, quiet=quiet)
+    if rrd is not None:
+        from drqn_jax.recording import record_training
+
+        try:
+            record_training(rrd, recorded_metrics(result.state))
+            print(f"training curves: {rrd} (view with: rerun {rrd})", file=sys.stderr)
+        except OSError as err:  # the run itself is saved: report and go on
+            print(f"error: --rrd {rrd}: {err}", file=sys.stderr)
     if result.status != "finished":
         print(("error: " if result.status == "diverged" else "") + result.message, file=sys.stderr)
         return EXIT_FAILED if result.status == "diverged" else EXIT_INTERRUPTED
@@ -284,7 +356,67 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     config = load_config(args.config, args.overrides)
     run_dir = Path(args.run_dir or _default_run_dir("reproduce", args.config))
-    return _train_and_evaluate(config, run_dir, False, args.quiet, start, reproduce=True)
+    return _train_and_evaluate(
+        config, run_dir, False, args.quiet, start, reproduce=True, rrd=args.rrd
+    )
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from drqn_jax.agents import drqn_agent
+    from drqn_jax.recording import collect_episodes, write_episodes
+
+    if args.episodes < 1:
+        raise ConfigError(f"--episodes = {args.episodes}: must be an integer >= 1")
+    overrides = list(args.overrides)
+    if args.seed is not None:
+        overrides.append(f"run.seed={args.seed}")
+    agent_name = args.agent or ("drqn" if args.run_dir else "rule-based")
+    network = network_params = None
+    if agent_name == "drqn":
+        if args.run_dir is None:
+            raise ConfigError("--agent drqn needs a RUN_DIR (a trained run)")
+        config = load_run(args.run_dir, ())
+        network, network_params, meta = load_trained_network(config, args.run_dir)
+        agent = drqn_agent(network, network_params)
+        config = load_run(args.run_dir, tuple(overrides))
+        if not meta.get("finished", False):
+            print(
+                f"note: {args.run_dir} has not finished training "
+                f"({meta.get('recorded')} episodes so far)",
+                file=sys.stderr,
+            )
+    else:
+        source = Path(args.run_dir) / "config.toml" if args.run_dir else args.config
+        config = load_config(source, overrides)
+        agent = builtin_agent(agent_name, config)
+    default_out = Path(args.run_dir) / "episodes.rrd" if args.run_dir else Path("episodes.rrd")
+    out = Path(args.out) if args.out else default_out
+    if out.is_dir():
+        raise ConfigError(f"--out {out}: is a directory; give a file name such as episodes.rrd")
+    env, env_params = config.make_env()
+    _, eval_key = config.keys()
+    record = collect_episodes(
+        agent,
+        eval_key,
+        args.episodes,
+        env,
+        env_params,
+        network=network,
+        network_params=network_params,
+    )
+    try:
+        write_episodes(out, record, env, env_params)
+    except OSError as err:
+        raise ConfigError(f"--out {out}: {err.strerror or err}") from None
+    for i in range(record.num_episodes):
+        print(
+            f"episode {i}: {int(record.length[i])} steps, "
+            f"return {float(record.episode_return[i]):.2f}, {record.outcome(i)}"
+        )
+    seed = config["run"]["seed"]
+    print(f"wrote {record.num_episodes} episodes of {agent.name} (seed {seed}) to {out}")
+    print(f"view with: rerun {out}")
+    return EXIT_OK
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -306,6 +438,7 @@ COMMANDS = {
     "train": cmd_train,
     "evaluate": cmd_evaluate,
     "reproduce": cmd_reproduce,
+    "replay": cmd_replay,
     "bench": cmd_bench,
 }
 

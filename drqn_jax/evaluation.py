@@ -27,6 +27,7 @@ __all__ = [
     "EpisodeMetrics",
     "episode_keys",
     "evaluate",
+    "map_episodes",
     "metrics_table",
     "rollout_episode",
     "run_episodes",
@@ -141,9 +142,28 @@ def run_episodes(
     def one(key):
         return rollout_episode(agent, key, env, params)
 
-    if batch_size is None:
-        return jax.vmap(one)(keys)
-    return jax.lax.map(one, keys, batch_size=batch_size)
+    return map_episodes(one, keys, batch_size)
+
+
+def map_episodes(fn: Any, keys: jax.Array, batch_size: int | None = None) -> Any:
+    """``vmap(fn)(keys)`` in batches of ``batch_size`` (all at once for None).
+
+    Every batch that runs has at least two rows: ``keys`` is padded with copies
+    of its first key to a multiple of the batch size, and the padding dropped.
+    A batch of one would make XLA:CPU pick its matrix-vector kernels for the
+    network's matmuls, whose rounding differs from the matrix-matrix ones
+    (Q-values 1 ulp apart), so episode i would not be bit-identical whatever
+    the number of episodes beside it. Rows are independent, so padding changes
+    nothing else.
+    """
+    n = keys.shape[0]
+    size = max(2, n if batch_size is None else batch_size)
+    padded = -(-n // size) * size
+    if padded > n:
+        pad = jnp.broadcast_to(keys[:1], (padded - n, *keys.shape[1:]))
+        keys = jnp.concatenate([keys, pad])
+    out = jax.vmap(fn)(keys) if padded == size else jax.lax.map(fn, keys, batch_size=size)
+    return jax.tree.map(lambda x: x[:n], out)
 
 
 def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float, float]:

@@ -47,6 +47,7 @@ from drqn_jax.checkpoint import (
 )
 from drqn_jax.config import Config, load_config
 from drqn_jax.evaluation import evaluate
+from drqn_jax.networks import Network
 from drqn_jax.train import METRIC_NAMES, TrainConfig, Trainer, TrainState, make_train
 
 __all__ = [
@@ -56,7 +57,9 @@ __all__ = [
     "json_ready",
     "load_run",
     "load_trained_agent",
+    "load_trained_network",
     "metrics_csv",
+    "recorded_metrics",
     "train_run",
     "write_evaluation",
 ]
@@ -311,13 +314,21 @@ def load_run(run_dir: str | Path, overrides: tuple[str, ...] = ()) -> Config:
     return load_config(path, overrides)
 
 
-def load_trained_agent(config: Config, run_dir: str | Path) -> tuple[Agent, dict[str, Any]]:
-    """The greedy DRQN agent of a run directory's last checkpoint, and its metadata."""
+def load_trained_network(
+    config: Config, run_dir: str | Path
+) -> tuple[Network, Any, dict[str, Any]]:
+    """The network, online parameters and metadata of a run directory's last checkpoint."""
     trainer = make_train(config.train_config())
     template = jax.eval_shape(trainer.init, config.keys()[0])
     expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
     state, meta = load_checkpoint(run_dir, template, expected)
-    return drqn_agent(trainer.network, state.online), meta
+    return trainer.network, state.online, meta
+
+
+def load_trained_agent(config: Config, run_dir: str | Path) -> tuple[Agent, dict[str, Any]]:
+    """The greedy DRQN agent of a run directory's last checkpoint, and its metadata."""
+    network, params, meta = load_trained_network(config, run_dir)
+    return drqn_agent(network, params), meta
 
 
 def builtin_agent(name: str, config: Config) -> Agent:

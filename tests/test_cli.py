@@ -15,6 +15,7 @@ import pytest
 from drqn_jax import cli, runner
 from drqn_jax.checkpoint import CHECKPOINT_JSON, CHECKPOINT_NPZ, load_checkpoint
 from drqn_jax.config import load_config
+from drqn_jax.env.state import ACTIONS
 
 SMOKE = ["--config", "smoke", "--quiet"]
 RUN_FILES = {
@@ -41,9 +42,10 @@ def _assert_same_checkpoint(a: Path, b: Path) -> None:
 
 @pytest.fixture(scope="module")
 def straight(tmp_path_factory):
-    """An uninterrupted smoke run."""
+    """An uninterrupted smoke run (its training curves in ../training.rrd)."""
     run_dir = tmp_path_factory.mktemp("straight") / "run"
-    assert cli.main(["train", *SMOKE, "--run-dir", str(run_dir)]) == 0
+    rrd = run_dir.parent / "training.rrd"
+    assert cli.main(["train", *SMOKE, "--run-dir", str(run_dir), "--rrd", str(rrd)]) == 0
     return run_dir
 
 
@@ -228,6 +230,34 @@ def test_evaluate_builtin_and_trained(straight, capsys):
     assert "| drqn | 3 |" in capsys.readouterr().out
 
 
+def _rrd_rows(path: Path) -> dict[str, int]:
+    """Temporal rows per entity of a rerun recording."""
+    from rerun.chunk import RrdReader
+
+    rows: dict[str, int] = {}
+    for chunk in RrdReader(str(path)).stream().to_chunks():
+        if not chunk.is_static:
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    return rows
+
+
+def test_train_rrd_and_replay_of_the_trained_drqn(straight, capsys):
+    curves = _rrd_rows(straight.parent / "training.rrd")
+    for name in ("return", "length", "loss", "epsilon", "collision_rate"):
+        assert curves[f"/training/{name}"] == 6  # one value per training episode
+    out = straight.parent / "replay.rrd"
+    assert cli.main(["replay", str(straight), "--episodes", "8", "--out", str(out)]) == 0
+    assert "8 episodes of drqn (seed 0)" in capsys.readouterr().out
+    rows = _rrd_rows(out)
+    lengths = [rows[f"/episode/{i}/action"] for i in range(8)]
+    assert all(rows[f"/episode/{i}/q/{a}"] == lengths[i] for i in range(8) for a in ACTIONS)
+    assert all(rows[f"/episode/{i}/world/ego"] == lengths[i] + 1 for i in range(8))
+    assert "/episode/8/world/ego" not in rows
+    # the replayed episodes are the 8 that training's final evaluation played
+    evaluation = json.loads((straight / "evaluation.json").read_text())["agents"][0]
+    assert np.mean(lengths) == evaluation["avg_length"]
+
+
 def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
     run_dir = tmp_path / "rep"
     assert cli.main(["reproduce", *SMOKE, "--run-dir", str(run_dir)]) == 0
@@ -246,7 +276,7 @@ def test_bench_env_prints_throughput(capsys):
     assert "env steps/s at 4 envs" in out and "JAX" in out
 
 
-@pytest.mark.parametrize("command", ["train", "evaluate", "reproduce", "bench"])
+@pytest.mark.parametrize("command", ["train", "evaluate", "reproduce", "replay", "bench"])
 def test_help_lists_every_option_with_its_default(command, capsys):
     with pytest.raises(SystemExit) as info:
         cli.main([command, "--help"])
@@ -265,5 +295,5 @@ def test_console_script_is_installed():
     script = Path(sys.executable).parent / "drqn-jax"
     out = subprocess.run([str(script), "--help"], capture_output=True, text=True)
     assert out.returncode == 0
-    for command in ("train", "evaluate", "reproduce", "bench"):
+    for command in ("train", "evaluate", "reproduce", "replay", "bench"):
         assert command in out.stdout

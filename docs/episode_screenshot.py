@@ -1,0 +1,53 @@
+"""Make docs/episode.png: a rule-based episode of the default config in the rerun viewer.
+
+Needs a running headless viewer with a renderer (on a machine without a GPU:
+``apt-get install mesa-vulkan-drivers``)::
+
+    rerun --headless --renderer vulkan --window-size 1600x900 &
+    python docs/episode_screenshot.py   # then stop the viewer
+
+Episode 0 of the evaluation key (``drqn-jax replay --agent rule-based
+--episodes 1``), with the world view zoomed on the ego at step 250, where the
+rule-based agent brakes for a jaywalker.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import drqn_jax
+from drqn_jax import recording
+from drqn_jax.config import load_config
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--step", type=int, default=250, help="time cursor (step)")
+    parser.add_argument("--rrd", default="/tmp/drqn_jax_episode.rrd", help="recording to write")
+    parser.add_argument("--out", default="docs/episode.png", help="screenshot to write")
+    args = parser.parse_args()
+
+    from rerun.experimental import ViewerClient
+
+    config = load_config("default")
+    env, params = config.make_env()
+    _, eval_key = config.keys()
+    agent = drqn_jax.rule_based_agent(config.rule_based_params())
+    record = recording.collect_episodes(agent, eval_key, 1, env, params)
+    s = float(record.state.ego.s[0, args.step])
+    blueprint = recording.episode_blueprint(1, False, env, params, x_range=(s - 15.0, s + 45.0))
+    recording.write_episodes(args.rrd, record, env, params, blueprint=blueprint)
+
+    viewer = ViewerClient.connect()
+    viewer.open(str(Path(args.rrd).resolve()))
+    while viewer.get_state().loading:
+        time.sleep(0.5)
+    viewer.set_time("step", sequence=args.step, play_state="paused")
+    time.sleep(2.0)  # let it paint the new time
+    viewer.save_screenshot(str(Path(args.out).resolve()))
+
+
+if __name__ == "__main__":
+    main()
