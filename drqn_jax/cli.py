@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from drqn_jax.checkpoint import CheckpointError
+from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, config_names, load_config
 from drqn_jax.evaluation import metrics_table
 from drqn_jax.runner import (
@@ -173,6 +173,26 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--seed", type=int, default=None, help="run.seed for the evaluation key")
     _config_options(replay, "default")
 
+    sweep = sub.add_parser(
+        "sweep",
+        help="train and evaluate a grid of seeds x hyperparameters as one program per shape",
+        description=_SWEEP_DOC,
+        formatter_class=_Formatter,
+    )
+    sweep.add_argument("sweep_file", help="the sweep TOML (base config, [set], [axes])")
+    sweep.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.FIELD=VALUE",
+        help="override one field of every point (repeatable)",
+    )
+    sweep.add_argument(
+        "--out", default=None, help="results directory (default: runs/sweep-<file>-<UTC time>)"
+    )
+    sweep.add_argument("--dry-run", action="store_true", help="validate and describe, run nothing")
+
     bench = sub.add_parser(
         "bench",
         help="measure env steps/s and training throughput on this machine",
@@ -201,6 +221,10 @@ _REPLAY_DOC = """Record episodes of a run directory's greedy DRQN (with its four
 step) or of a built-in agent as a rerun recording: the map, the ego, the pedestrians coloured by
 behaviour, the four grid channels, speed, action, reward and TTC on the timeline "step". Episode
 i is episode i of `evaluate` (the config's evaluation key). View it with: rerun PATH"""
+_SWEEP_DOC = """Run every point of a sweep file: points that share shapes train in one
+jit(vmap(train)) sharded over all devices; each run is evaluated on the same episodes.
+Writes results.md and results.csv (mean, std, 95 % t-interval and IQM across seeds per
+setting) and runs.json (every run)."""
 _BENCH_DOC = """Measure env steps/s (vectorised env, random actions) and training
 iterations/s of the config's trainer, with the machine they ran on."""
 
@@ -434,11 +458,34 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from drqn_jax.sweep import load_sweep, run_sweep, summarize_sweep, sweep_csv, sweep_table
+
+    sweep = load_sweep(args.sweep_file, args.overrides)
+    print(sweep.describe(), file=sys.stderr)
+    if args.dry_run:
+        return EXIT_OK
+    out = Path(args.out or _default_run_dir("sweep", args.sweep_file))
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    results = run_sweep(sweep)
+    rows = summarize_sweep(results)
+    table = sweep_table(rows)
+    atomic_write_text(out / "results.md", table + "\n")
+    atomic_write_text(out / "results.csv", sweep_csv(rows))
+    runs = [json_ready(r) for r in results]
+    atomic_write_text(out / "runs.json", json.dumps(runs, indent=2) + "\n")
+    print(table)
+    print(f"\n{len(results)} runs in {time.perf_counter() - start:.1f} s; results in {out}")
+    return EXIT_OK
+
+
 COMMANDS = {
     "train": cmd_train,
     "evaluate": cmd_evaluate,
     "reproduce": cmd_reproduce,
     "replay": cmd_replay,
+    "sweep": cmd_sweep,
     "bench": cmd_bench,
 }
 

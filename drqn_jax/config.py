@@ -43,7 +43,16 @@ from drqn_jax.networks import NetworkConfig
 from drqn_jax.registry import make, preset, registered_envs
 from drqn_jax.train import Hyperparams, TrainConfig
 
-__all__ = ["CONFIG_DIR", "Config", "ConfigError", "config_names", "load_config", "parse_override"]
+__all__ = [
+    "CONFIG_DIR",
+    "TRAIN_SIZES",
+    "Config",
+    "ConfigError",
+    "config_names",
+    "load_config",
+    "parse_override",
+    "toml_value",
+]
 
 #: ``configs/`` of the source tree (the project is installed editable).
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
@@ -51,7 +60,7 @@ CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 #: The sections a training checkpoint depends on (the rest may change on resume).
 TRAINING_SECTIONS = ("run.seed", "env", "network", "train")
 
-_TRAIN_SIZES = tuple(
+TRAIN_SIZES = tuple(
     f.name
     for f in dataclasses.fields(TrainConfig)
     if f.name not in ("env_id", "env_overrides", "network", "hyperparams")
@@ -106,7 +115,7 @@ def _schema() -> dict[str, dict[str, _Field]]:
             **_fields_of(EnvParams),
         },
         "network": network,
-        "train": {**{n: train_sizes[n] for n in _TRAIN_SIZES}, **_fields_of(Hyperparams)},
+        "train": {**{n: train_sizes[n] for n in TRAIN_SIZES}, **_fields_of(Hyperparams)},
         "rule_based": _fields_of(RuleBasedParams),
         "evaluate": {
             "episodes": _Field(1000, "int", doc="episodes per agent"),
@@ -304,7 +313,7 @@ class Config:
 
     def hyperparams(self) -> Hyperparams:
         train = self["train"]
-        return Hyperparams(**{n: train[n] for n in SCHEMA["train"] if n not in _TRAIN_SIZES})
+        return Hyperparams(**{n: train[n] for n in SCHEMA["train"] if n not in TRAIN_SIZES})
 
     def train_config(self) -> TrainConfig:
         train = self["train"]
@@ -313,7 +322,7 @@ class Config:
             env_overrides=tuple(sorted(self.env_overrides().items())),
             network=self.network_config(),
             hyperparams=self.hyperparams(),
-            **{n: train[n] for n in _TRAIN_SIZES},
+            **{n: train[n] for n in TRAIN_SIZES},
         )
 
     def rule_based_params(self) -> RuleBasedParams:
@@ -371,7 +380,7 @@ class Config:
         lines = []
         for section, table in self.values.items():
             lines.append(f"[{section}]")
-            lines.extend(f"{name} = {_toml_value(value)}" for name, value in table.items())
+            lines.extend(f"{name} = {toml_value(value)}" for name, value in table.items())
             lines.append("")
         return "\n".join(lines)
 
@@ -397,7 +406,7 @@ def _in_config_words(message: str) -> str:
     return message
 
 
-def _toml_value(value: Any) -> str:
+def toml_value(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int):
@@ -407,5 +416,5 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, str):
         return json.dumps(value)
     if isinstance(value, list):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
     raise TypeError(f"cannot write {value!r} as TOML")
