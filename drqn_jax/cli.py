@@ -77,6 +77,17 @@ def _run_dir_option(parser: argparse.ArgumentParser, prefix: str) -> None:
     )
 
 
+def _agent_options(parser: argparse.ArgumentParser, verb: str) -> None:
+    """``[RUN_DIR]`` and ``--agent``: a trained run's DRQN or a built-in agent."""
+    parser.add_argument("run_dir", nargs="?", default=None, help="a run directory (its DRQN agent)")
+    parser.add_argument(
+        "--agent",
+        choices=_AGENTS,
+        default=None,
+        help=f"agent to {verb} (default: drqn with RUN_DIR, rule-based without)",
+    )
+
+
 def _quiet_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -122,13 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
         description=_EVALUATE_DOC,
         formatter_class=_Formatter,
     )
-    ev.add_argument("run_dir", nargs="?", default=None, help="a run directory (its DRQN agent)")
-    ev.add_argument(
-        "--agent",
-        choices=_AGENTS,
-        default=None,
-        help="agent to evaluate (default: drqn with RUN_DIR, rule-based without)",
-    )
+    _agent_options(ev, "evaluate")
     ev.add_argument(
         "--episodes", type=int, default=None, help="episodes (default: evaluate.episodes)"
     )
@@ -155,13 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
         description=_REPLAY_DOC,
         formatter_class=_Formatter,
     )
-    replay.add_argument("run_dir", nargs="?", default=None, help="a run directory (its DRQN agent)")
-    replay.add_argument(
-        "--agent",
-        choices=_AGENTS,
-        default=None,
-        help="agent to record (default: drqn with RUN_DIR, rule-based without)",
-    )
+    _agent_options(replay, "record")
     replay.add_argument("--episodes", type=int, default=5, help="episodes to record")
     replay.add_argument(
         "--out",
