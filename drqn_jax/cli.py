@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from drqn_jax.agents import drqn_agent
 from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, config_names, load_config
 from drqn_jax.evaluation import metrics_table
@@ -33,7 +34,6 @@ from drqn_jax.runner import (
     evaluate_agents,
     json_ready,
     load_run,
-    load_trained_agent,
     load_trained_network,
     recorded_metrics,
     train_run,
@@ -299,8 +299,6 @@ def _train_and_evaluate(
 
 
 def _trained(result: Any) -> Any:
-    from drqn_jax.agents import drqn_agent
-
     return drqn_agent(result.trainer.network, result.state.online)
 
 
@@ -316,30 +314,38 @@ def _run_summary(result: Any) -> dict[str, Any]:
     }
 
 
+def _chosen_agent(args: argparse.Namespace, overrides: list[str]) -> tuple[Config, Any, Any, Any]:
+    """``(config, agent, network, network_params)`` for ``[RUN_DIR] --agent``.
+
+    The DRQN comes from the run's last checkpoint (trained with the run's own
+    config; ``overrides`` apply on top for the episodes); a built-in agent uses
+    the run's config, or ``--config``. ``network`` is None for a built-in agent.
+    """
+    agent_name = args.agent or ("drqn" if args.run_dir else "rule-based")
+    if agent_name != "drqn":
+        source = Path(args.run_dir) / "config.toml" if args.run_dir else args.config
+        config = load_config(source, overrides)
+        return config, builtin_agent(agent_name, config), None, None
+    if args.run_dir is None:
+        raise ConfigError("--agent drqn needs a RUN_DIR (a trained run)")
+    network, params, meta = load_trained_network(load_run(args.run_dir, ()), args.run_dir)
+    if not meta.get("finished", False):
+        print(
+            f"note: {args.run_dir} has not finished training "
+            f"({meta.get('recorded')} episodes so far)",
+            file=sys.stderr,
+        )
+    config = load_run(args.run_dir, tuple(overrides))
+    return config, drqn_agent(network, params), network, params
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     overrides = list(args.overrides)
     if args.episodes is not None:
         overrides.append(f"evaluate.episodes={args.episodes}")
     if args.seed is not None:
         overrides.append(f"run.seed={args.seed}")
-    agent_name = args.agent or ("drqn" if args.run_dir else "rule-based")
-    if agent_name == "drqn":
-        if args.run_dir is None:
-            raise ConfigError("--agent drqn needs a RUN_DIR (a trained run)")
-        config = load_run(args.run_dir, ())
-        # the checkpoint was trained with the run's seed; evaluation options apply on top
-        agent, meta = load_trained_agent(config, args.run_dir)
-        config = load_run(args.run_dir, tuple(overrides))
-        if not meta.get("finished", False):
-            print(
-                f"note: {args.run_dir} has not finished training "
-                f"({meta.get('recorded')} episodes so far)",
-                file=sys.stderr,
-            )
-    else:
-        source = Path(args.run_dir) / "config.toml" if args.run_dir else args.config
-        config = load_config(source, overrides)
-        agent = builtin_agent(agent_name, config)
+    config, agent, _, _ = _chosen_agent(args, overrides)
     start = time.perf_counter()
     (result,) = evaluate_agents(config, [agent])
     wall = time.perf_counter() - start
@@ -385,7 +391,6 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from drqn_jax.agents import drqn_agent
     from drqn_jax.recording import collect_episodes, write_episodes
 
     if args.episodes < 1:
@@ -393,25 +398,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     overrides = list(args.overrides)
     if args.seed is not None:
         overrides.append(f"run.seed={args.seed}")
-    agent_name = args.agent or ("drqn" if args.run_dir else "rule-based")
-    network = network_params = None
-    if agent_name == "drqn":
-        if args.run_dir is None:
-            raise ConfigError("--agent drqn needs a RUN_DIR (a trained run)")
-        config = load_run(args.run_dir, ())
-        network, network_params, meta = load_trained_network(config, args.run_dir)
-        agent = drqn_agent(network, network_params)
-        config = load_run(args.run_dir, tuple(overrides))
-        if not meta.get("finished", False):
-            print(
-                f"note: {args.run_dir} has not finished training "
-                f"({meta.get('recorded')} episodes so far)",
-                file=sys.stderr,
-            )
-    else:
-        source = Path(args.run_dir) / "config.toml" if args.run_dir else args.config
-        config = load_config(source, overrides)
-        agent = builtin_agent(agent_name, config)
+    config, agent, network, network_params = _chosen_agent(args, overrides)
     default_out = Path(args.run_dir) / "episodes.rrd" if args.run_dir else Path("episodes.rrd")
     out = Path(args.out) if args.out else default_out
     if out.is_dir():

@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from drqn_jax.agents import drqn_agent, rule_based_agent
+from drqn_jax.agents import rule_based_agent
 from drqn_jax.agents.base import Agent
 from drqn_jax.checkpoint import (
     CHECKPOINT_NPZ,
@@ -56,7 +56,6 @@ __all__ = [
     "evaluate_agents",
     "json_ready",
     "load_run",
-    "load_trained_agent",
     "load_trained_network",
     "metrics_csv",
     "recorded_metrics",
@@ -281,9 +280,11 @@ def _chunks(
             if not bool(_finite(new_state)):
                 return "diverged", state, chunks
             state, chunks = new_state, chunks + 1
-            steps_per_s = (int(state.env_steps) - steps0) / max(time.perf_counter() - t0, 1e-9)
-            bar.update(int(state.recorded) - bar.n)
-            bar.set_postfix(_progress_postfix(state, steps_per_s), refresh=False)
+            if not quiet:  # the postfix copies the metrics to the host: only when shown
+                steps = int(state.env_steps) - steps0
+                steps_per_s = steps / max(time.perf_counter() - t0, 1e-9)
+                bar.update(int(state.recorded) - bar.n)
+                bar.set_postfix(_progress_postfix(state, steps_per_s), refresh=False)
             if time.perf_counter() - last_save >= every and not bool(state.finished):
                 _save(run_dir, config, state, elapsed(), chunks)
                 last_save = time.perf_counter()
@@ -323,12 +324,6 @@ def load_trained_network(
     expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
     state, meta = load_checkpoint(run_dir, template, expected)
     return trainer.network, state.online, meta
-
-
-def load_trained_agent(config: Config, run_dir: str | Path) -> tuple[Agent, dict[str, Any]]:
-    """The greedy DRQN agent of a run directory's last checkpoint, and its metadata."""
-    network, params, meta = load_trained_network(config, run_dir)
-    return drqn_agent(network, params), meta
 
 
 def builtin_agent(name: str, config: Config) -> Agent:
