@@ -24,17 +24,32 @@ and passing them (arguments) compile to the same arithmetic.
 
 XLA reads its flags when the CPU backend starts, so this only takes effect
 if no JAX computation ran before ``import drqn_jax``; otherwise a warning says so.
+
+Two things outside the program also fix the rounding of matrix products, and
+results are bit-identical only where they agree (measured, issue 6):
+
+* **XLA:CPU's thread pool.** It has ``max(PJRT_NPROC, forced host devices)``
+  threads, ``PJRT_NPROC`` defaulting to the usable cores
+  (:func:`cpu_thread_pool_size`), and Eigen splits a product's sums by the
+  pool size. Sharding over D forced host devices changes nothing while D is
+  at most the core count; on a machine with fewer cores than D, compare with
+  a one-device run given the same pool (``PJRT_NPROC=D``).
+* **No batch of one.** A ``vmap`` over one element compiles unbatched
+  products that round differently from the batched ones; the sweep runner
+  never gives a device a single run and evaluation never runs a single
+  episode alone.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import warnings
 
 DETERMINISM_FLAG = "--xla_cpu_max_isa=AVX"
 OPT_OUT_VARIABLE = "DRQN_JAX_ALLOW_FMA"
 
-__all__ = ["DETERMINISM_FLAG", "configure_xla_flags", "fma_disabled"]
+__all__ = ["DETERMINISM_FLAG", "configure_xla_flags", "cpu_thread_pool_size", "fma_disabled"]
 
 
 def _backend_started() -> bool:
@@ -52,6 +67,27 @@ def fma_disabled() -> bool:
     return any(f"--xla_cpu_max_isa={isa}" in flags for isa in ("AVX", "SSE4_2")) and not any(
         f"--xla_cpu_max_isa={isa}" in flags for isa in ("AVX2", "AVX512", "AVX512F")
     )
+
+
+def cpu_thread_pool_size() -> int:
+    """Threads of XLA:CPU's pool: ``max(PJRT_NPROC (or NPROC, or the usable cores),
+    --xla_force_host_platform_device_count)``, as the PJRT CPU client sizes it."""
+    nproc = None
+    for name in ("PJRT_NPROC", "NPROC"):
+        try:
+            nproc = max(0, int(os.environ[name]))
+            break
+        except (KeyError, ValueError):
+            continue
+    if nproc is None:
+        try:
+            nproc = len(os.sched_getaffinity(0))
+        except AttributeError:  # not on Linux
+            nproc = os.cpu_count() or 1
+    match = re.search(
+        r"--xla_force_host_platform_device_count=(\d+)", os.environ.get("XLA_FLAGS", "")
+    )
+    return max(nproc, int(match.group(1)) if match else 1)
 
 
 def configure_xla_flags() -> None:

@@ -12,7 +12,7 @@ import jax
 import jaxlib
 
 import drqn_jax
-from drqn_jax.determinism import fma_disabled
+from drqn_jax.determinism import cpu_thread_pool_size, fma_disabled
 
 __all__ = ["machine_info", "machine_lines"]
 
@@ -68,6 +68,7 @@ def machine_info() -> dict[str, Any]:
         # batch-independent results) unless DRQN_JAX_ALLOW_FMA=1 or the user set an ISA.
         "xla_flags": os.environ.get("XLA_FLAGS", "(unset)"),
         "fma_disabled": fma_disabled(),
+        "xla_cpu_threads": cpu_thread_pool_size(),
         "drqn_jax_allow_fma": os.environ.get("DRQN_JAX_ALLOW_FMA", "(unset)"),
         "drqn_jax_version": drqn_jax.__version__,
         "git_commit": git_commit(),
@@ -88,6 +89,8 @@ def machine_lines(info: dict[str, Any]) -> list[str]:
         f"- XLA_FLAGS (after import drqn_jax): {info['xla_flags']}"
         f" (FMA {'disabled' if info['fma_disabled'] else 'allowed'};"
         f" DRQN_JAX_ALLOW_FMA: {info['drqn_jax_allow_fma']})",
+        f"- XLA:CPU thread pool: {info['xla_cpu_threads']} threads (PJRT_NPROC: "
+        f"{os.environ.get('PJRT_NPROC', '(unset)')})",
         f"- drqn_jax {info['drqn_jax_version']}, git commit {info['git_commit']}",
         f"- Python {info['python_version']}",
         f"- date (UTC): {info['date']}",
