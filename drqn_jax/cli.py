@@ -190,7 +190,26 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument(
         "--out", default=None, help="results directory (default: runs/sweep-<file>-<UTC time>)"
     )
-    sweep.add_argument("--dry-run", action="store_true", help="validate and describe, run nothing")
+    sweep.add_argument(
+        "--dry-run", action="store_true", help="validate, plan and describe; run nothing"
+    )
+    sweep.add_argument(
+        "--resume", action="store_true", help="continue the sweep in --out from its checkpoints"
+    )
+    sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    sweep.add_argument(
+        "--memory-gb",
+        type=float,
+        default=None,
+        help="memory one call may use (default: the host's MemAvailable, or the devices' own)",
+    )
+    group = sweep.add_argument_group(
+        "several processes (machines)",
+        "give all three, or set JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES, JAX_PROCESS_ID",
+    )
+    group.add_argument("--coordinator", metavar="HOST:PORT", help="process 0's address")
+    group.add_argument("--num-processes", type=int, metavar="N", help="processes in all")
+    group.add_argument("--process-id", type=int, metavar="I", help="this process (0 … N-1)")
 
     bench = sub.add_parser(
         "bench",
@@ -220,10 +239,12 @@ _REPLAY_DOC = """Record episodes of a run directory's greedy DRQN (with its four
 step) or of a built-in agent as a rerun recording: the map, the ego, the pedestrians coloured by
 behaviour, the four grid channels, speed, action, reward and TTC on the timeline "step". Episode
 i is episode i of `evaluate` (the config's evaluation key). View it with: rerun PATH"""
-_SWEEP_DOC = """Run every point of a sweep file: points that share shapes train in one
-jit(vmap(train)) sharded over all devices; each run is evaluated on the same episodes.
-Writes results.md and results.csv (mean, std, 95 % t-interval and IQM across seeds per
-setting) and runs.json (every run)."""
+_SWEEP_DOC = """Run every point of a sweep file: points that share shapes train together in
+compiled jit(vmap) calls, the runs sharded over all local devices, as many per call as the
+memory plan allows; each run is evaluated on the same episodes. Writes results.md and
+results.csv (mean, std, 95 % t-interval and IQM across seeds per setting) and runs.json
+(every run). Ctrl-C saves checkpoints (status 130); --resume continues. With several
+processes each trains its slice of the runs and process 0 writes the results."""
 _BENCH_DOC = """Measure env steps/s (vectorised env, random actions) and training
 iterations/s of the config's trainer, with the machine they ran on."""
 
@@ -445,24 +466,47 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from drqn_jax.sweep import load_sweep, run_sweep, summarize_sweep, sweep_csv, sweep_table
+    import jax
 
+    from drqn_jax.sweep import load_sweep, summarize_sweep, sweep_csv, sweep_table
+    from drqn_jax.sweep_runner import describe_plan, init_distributed, plan_calls, run_sweep
+
+    dist = init_distributed(args.coordinator, args.num_processes, args.process_id)
+    if dist.processes > 1 and args.out is None:
+        raise ConfigError("several processes need --out (the same directory name on every one)")
+    if args.resume and args.out is None:
+        raise ConfigError("--resume needs --out DIR, the directory of the sweep to continue")
+    if args.memory_gb is not None and not args.memory_gb > 0:
+        raise ConfigError(f"--memory-gb = {args.memory_gb}: must be > 0")
     sweep = load_sweep(args.sweep_file, args.overrides)
-    print(sweep.describe(), file=sys.stderr)
+    devices = len(jax.local_devices())
+    budget = None if args.memory_gb is None else int(args.memory_gb * 1e9)
+    calls = plan_calls(sweep, devices, dist, budget, "--memory-gb")
+    if dist.leader:
+        print(sweep.describe(), file=sys.stderr)
+    print(describe_plan(calls, devices, dist), file=sys.stderr)
     if args.dry_run:
         return EXIT_OK
     out = Path(args.out or _default_run_dir("sweep", args.sweep_file))
-    out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    results = run_sweep(sweep)
-    rows = summarize_sweep(results)
+    outcome = run_sweep(sweep, out, calls=calls, dist=dist, resume=args.resume, quiet=args.quiet)
+    if outcome.status == "interrupted":
+        print(
+            f"interrupted; checkpoints saved, continue with: drqn-jax sweep {args.sweep_file} "
+            f"--out {out} --resume (and the same --set options)",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
+    if not dist.leader:
+        return EXIT_OK
+    rows = summarize_sweep(outcome.results)
     table = sweep_table(rows)
     atomic_write_text(out / "results.md", table + "\n")
     atomic_write_text(out / "results.csv", sweep_csv(rows))
-    runs = [json_ready(r) for r in results]
-    atomic_write_text(out / "runs.json", json.dumps(runs, indent=2) + "\n")
+    atomic_write_text(out / "runs.json", json.dumps(outcome.results, indent=2) + "\n")
     print(table)
-    print(f"\n{len(results)} runs in {time.perf_counter() - start:.1f} s; results in {out}")
+    elapsed = time.perf_counter() - start
+    print(f"\n{len(outcome.results)} runs in {elapsed:.1f} s; results in {out}")
     return EXIT_OK
 
 

@@ -206,8 +206,16 @@ def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: An
 
 
 def config_names() -> tuple[str, ...]:
-    """The configs shipped in ``configs/`` (``paper``, ``default``, …)."""
-    return tuple(sorted(p.stem for p in CONFIG_DIR.glob("*.toml")))
+    """The configs shipped in ``configs/`` (``paper``, ``default``, …), sweep files
+    (a top-level ``[axes]`` table, e.g. ``sweep.toml``) left out."""
+    return tuple(sorted(p.stem for p in CONFIG_DIR.glob("*.toml") if not _is_sweep_file(p)))
+
+
+def _is_sweep_file(path: Path) -> bool:
+    try:
+        return "axes" in tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError):
+        return False  # a broken config: loading it names the error
 
 
 def _read_toml(source: str | Path) -> tuple[dict[str, Any], str]:

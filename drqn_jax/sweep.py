@@ -1,4 +1,4 @@
-"""Hyperparameter sweeps as one compiled program per shape, sharded over devices.
+"""Hyperparameter sweeps: the sweep file, its points, their programs, the results table.
 
 A sweep file (TOML) names a base config and axes::
 
@@ -16,14 +16,13 @@ anything compiles. Points whose shapes agree (static env parameters, network,
 training sizes) form one program: ``jit(vmap(train))`` over their PRNG keys,
 ``Hyperparams`` and ``EnvParams``; an axis that changes shapes (network
 width, pedestrian count, window …) splits the sweep into several programs,
-listed by :meth:`Sweep.describe` before any runs. The run axis is sharded over
-all devices with a ``NamedSharding`` on a one-axis ``Mesh``; runs are padded
-to a multiple of the device count with copies of the last run, and the copies
-are dropped. Each run's results are bit-identical to the same run alone and do
-not depend on the device count (tests/test_sweep.py).
+listed by :meth:`Sweep.describe` before any runs. How they run (memory
+plan, sharding over devices, checkpoints, several processes) is
+:mod:`drqn_jax.sweep_runner`.
 
 Evaluation: every run is evaluated greedily on the same episodes — the
-evaluation key of the base config — so runs differ only by their training.
+evaluation key of the first point — so runs differ only by their training.
+:func:`summarize_sweep` pools the seeds of each setting.
 """
 
 from __future__ import annotations
@@ -36,11 +35,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import jax
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from drqn_jax.agents import drqn_agent
 from drqn_jax.config import (
     TRAIN_SIZES,
     Config,
@@ -49,20 +45,16 @@ from drqn_jax.config import (
     parse_override,
     toml_value,
 )
-from drqn_jax.evaluation import episode_keys, run_episodes, summarize
-from drqn_jax.train import make_train
+from drqn_jax.stats import interquartile_mean, t_interval
 
 __all__ = [
     "Sweep",
     "SweepPoint",
-    "evaluate_runs",
-    "interquartile_mean",
     "load_sweep",
-    "run_sweep",
+    "shape_key",
     "summarize_sweep",
     "sweep_csv",
     "sweep_table",
-    "train_runs",
 ]
 
 MODES = ("product", "zip")
@@ -219,103 +211,6 @@ def load_sweep(path: str | Path, overrides: Sequence[str] = ()) -> Sweep:
     return Sweep(str(base), axes, points)
 
 
-def _stack(trees: Sequence[Any]) -> Any:
-    return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)
-
-
-def _pad(tree: Any, size: int) -> Any:
-    """Leading axis padded to ``size`` with copies of the last row."""
-
-    def pad(x):
-        n = x.shape[0]
-        if n == size:
-            return x
-        return jax.numpy.concatenate([x, jax.numpy.repeat(x[-1:], size - n, axis=0)])
-
-    return jax.tree.map(pad, tree)
-
-
-def train_runs(points: Sequence[SweepPoint], devices: Sequence[Any] | None = None):
-    """Train ``points`` (all of one shape) in one ``jit(vmap(train))``, sharded.
-
-    Returns:
-        ``(trainer, params, metrics)`` with NumPy leaves of leading size
-        ``len(points)`` (padding dropped).
-    """
-    devices = list(jax.devices() if devices is None else devices)
-    trainer = make_train(points[0].config.train_config())
-    n, d = len(points), len(devices)
-    size = math.ceil(n / d) * d
-    keys = jax.numpy.stack([p.config.keys()[0] for p in points])
-    hparams = _stack([p.config.hyperparams() for p in points])
-    env_params = _stack([p.config.make_env()[1] for p in points])
-    sharding = NamedSharding(Mesh(np.asarray(devices), ("runs",)), PartitionSpec("runs"))
-    args = jax.device_put(_pad((keys, hparams, env_params), size), sharding)
-    train = jax.jit(jax.vmap(trainer.train), out_shardings=sharding)
-    params, metrics = train(*args)
-    params, metrics = jax.tree.map(lambda x: np.asarray(x)[:n], (params, metrics))
-    return trainer, params, metrics
-
-
-def evaluate_runs(
-    trainer: Any, params: Any, points: Sequence[SweepPoint], eval_key: jax.Array, episodes: int
-) -> list[dict[str, Any]]:
-    """SPEC §8 metrics of each run's greedy DRQN on the same ``episodes`` episodes."""
-    keys = episode_keys(eval_key, episodes)
-    out = []
-    for i, point in enumerate(points):
-        env, env_params = point.config.make_env()
-        agent = drqn_agent(trainer.network, jax.tree.map(lambda x, i=i: x[i], params))
-        ep = run_episodes(agent, keys, env, env_params)
-        out.append(summarize(jax.tree.map(np.asarray, ep), float(env_params.ttc_threshold)))
-    return out
-
-
-def run_sweep(sweep: Sweep, devices: Sequence[Any] | None = None) -> list[dict[str, Any]]:
-    """Train and evaluate every point; one result dict per run, in point order."""
-    eval_key = sweep.points[0].config.keys()[1]
-    episodes = sweep.points[0].config["evaluate"]["episodes"]
-    results: dict[int, dict[str, Any]] = {}
-    for points in sweep.programs():
-        trainer, params, metrics = train_runs(points, devices)
-        evaluations = evaluate_runs(trainer, params, points, eval_key, episodes)
-        for i, (point, evaluation) in enumerate(zip(points, evaluations, strict=True)):
-            returns = metrics["episode_return"][i]
-            tail = max(1, len(returns) // 10)
-            results[point.index] = {
-                "index": point.index,
-                "values": point.values,
-                "final_train_return": float(np.mean(returns[-tail:])),
-                **evaluation,
-            }
-    return [results[i] for i in range(len(sweep.points))]
-
-
-def _interval(values: np.ndarray) -> tuple[float, float]:
-    """95 % Student-t interval of the mean (nan with fewer than 2 values)."""
-    n = len(values)
-    if n < 2:
-        return (math.nan, math.nan)
-    half = T_975[min(n - 1, len(T_975)) - 1] * values.std(ddof=1) / math.sqrt(n)
-    return (float(values.mean() - half), float(values.mean() + half))
-
-
-def interquartile_mean(values: np.ndarray) -> float:
-    """Mean of the middle 50 % (the 25 %-trimmed mean, fractional ends weighted)."""
-    x = np.sort(np.asarray(values, np.float64))
-    n = len(x)
-    lo, hi = 0.25 * n, 0.75 * n
-    weights = np.clip(np.minimum(np.arange(1, n + 1), hi) - np.maximum(np.arange(n), lo), 0, 1)
-    return float(np.sum(weights * x) / np.sum(weights))
-
-
-# two-sided 95 % Student-t quantiles for 1..30 degrees of freedom, then the normal's
-T_975 = (
-    12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228,
-    2.201, 2.179, 2.160, 2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086,
-    2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042, 1.960,
-)  # fmt: skip
-
 TABLE_METRICS = (
     "collision_free_rate",
     "goal_rate",
@@ -327,18 +222,20 @@ TABLE_METRICS = (
 
 
 def summarize_sweep(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per setting (axis values but the seed): n runs and, per metric, mean, std,
-    95 % t-interval and interquartile mean across the seeds."""
+    """Per setting (axis values but the seed): n runs, how many diverged (a
+    non-finite loss or parameter), and per metric the mean, std, 95 % t-interval
+    and interquartile mean across the seeds."""
     settings: dict[tuple, list[dict[str, Any]]] = {}
     for r in results:
         key = tuple((k, _hashable(v)) for k, v in r["values"].items() if k != "run.seed")
         settings.setdefault(key, []).append(r)
     rows = []
     for key, runs in settings.items():
-        row: dict[str, Any] = {"setting": dict(key), "runs": len(runs)}
+        diverged = sum(bool(r.get("diverged")) for r in runs)
+        row: dict[str, Any] = {"setting": dict(key), "runs": len(runs), "diverged": diverged}
         for metric in TABLE_METRICS:
             x = np.array([r[metric] for r in runs], np.float64)
-            low, high = _interval(x)
+            low, high = t_interval(x)
             row[metric] = {
                 "mean": float(x.mean()),
                 "std": float(x.std(ddof=1)) if len(x) > 1 else math.nan,
@@ -355,7 +252,8 @@ def sweep_table(rows: Sequence[dict[str, Any]]) -> str:
     header = [*names, "runs", *TABLE_METRICS]
     lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
     for row in rows:
-        cells = [str(row["setting"][n]) for n in names] + [str(row["runs"])]
+        runs = f"{row['runs']}" + (f" ({row['diverged']} diverged)" if row["diverged"] else "")
+        cells = [str(row["setting"][n]) for n in names] + [runs]
         for metric in TABLE_METRICS:
             m = row[metric]
             low, high = m["ci95"]
@@ -367,15 +265,15 @@ def sweep_table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 def sweep_csv(rows: Sequence[dict[str, Any]]) -> str:
-    """CSV of :func:`summarize_sweep`: setting columns, runs, then per metric
+    """CSV of :func:`summarize_sweep`: setting columns, runs, diverged, then per metric
     ``<metric>_mean``, ``_std``, ``_ci_low``, ``_ci_high``, ``_iqm``."""
     names = list(rows[0]["setting"]) if rows else []
-    header = [*names, "runs"]
+    header = [*names, "runs", "diverged"]
     for metric in TABLE_METRICS:
         header += [f"{metric}_{s}" for s in ("mean", "std", "ci_low", "ci_high", "iqm")]
     lines = [",".join(header)]
     for row in rows:
-        cells = [str(row["setting"][n]) for n in names] + [str(row["runs"])]
+        cells = [str(row["setting"][n]) for n in names] + [str(row["runs"]), str(row["diverged"])]
         for metric in TABLE_METRICS:
             m = row[metric]
             cells += [repr(m["mean"]), repr(m["std"]), repr(m["ci95"][0]), repr(m["ci95"][1])]

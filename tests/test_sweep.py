@@ -16,12 +16,11 @@ import pytest
 
 from drqn_jax import cli
 from drqn_jax.config import ConfigError
-from drqn_jax.sweep import (
-    interquartile_mean,
-    load_sweep,
-    summarize_sweep,
-    train_runs,
-)
+from drqn_jax.memory import USABLE_FRACTION, run_memory
+from drqn_jax.runner import _StopRequest
+from drqn_jax.stats import interquartile_mean
+from drqn_jax.sweep import load_sweep, summarize_sweep
+from drqn_jax.sweep_runner import Call, call_size, plan_calls, run_sweep, train_call, train_runs
 from drqn_jax.train import make_train
 from tests.helpers import assert_tree_equal
 
@@ -96,19 +95,25 @@ def test_each_run_is_bit_identical_to_the_run_alone(trained):
         assert_tree_equal(alone, jax.tree.map(lambda x, i=point.index: x[i], (params, metrics)))
 
 
-def _train_on_forced_devices(sweep_file: Path, devices: int, out: Path) -> list[np.ndarray]:
+def _train_on_forced_devices(
+    sweep_file: Path, devices: int, out: Path, threads: int | None = None
+) -> list[np.ndarray]:
     """Leaves of the sweep's first 3 runs trained in a process with ``devices`` forced
-    host devices (the runs sharded over all of them, padded to a multiple)."""
+    host devices (the runs sharded over all of them, padded to a multiple) and, if
+    given, an XLA:CPU thread pool of ``threads`` (``PJRT_NPROC``)."""
     script = textwrap.dedent(f"""
         import jax, numpy as np
         import drqn_jax
-        from drqn_jax.sweep import load_sweep, train_runs
+        from drqn_jax.sweep import load_sweep
+        from drqn_jax.sweep_runner import train_runs
         assert len(jax.devices()) == {devices}, jax.devices()
         sweep = load_sweep({str(sweep_file)!r})
         _, params, metrics = train_runs(sweep.points[:3])
         np.savez({str(out)!r}, *jax.tree.leaves((params, metrics)))
     """)
     env = {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
+    if threads is not None:
+        env["PJRT_NPROC"] = str(threads)
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
     saved = np.load(out)
@@ -120,11 +125,6 @@ def _first_three(trained) -> list[np.ndarray]:
     return jax.tree.leaves(jax.tree.map(lambda x: x[:3], (params, metrics)))
 
 
-@pytest.fixture(scope="module")
-def four_devices(sweep_file, tmp_path_factory):
-    return _train_on_forced_devices(sweep_file, 4, tmp_path_factory.mktemp("four") / "r.npz")
-
-
 def test_two_forced_devices_give_bit_identical_runs(sweep_file, trained, tmp_path):
     """3 runs padded to 4, sharded over 2 host devices ≡ the one-device program, bit for bit."""
     two = _train_on_forced_devices(sweep_file, 2, tmp_path / "two.npz")
@@ -134,25 +134,19 @@ def test_two_forced_devices_give_bit_identical_runs(sweep_file, trained, tmp_pat
         np.testing.assert_array_equal(got, want, strict=True)
 
 
-def test_four_forced_devices_shard_and_unpad_the_runs(trained, four_devices):
-    """Sharding over 4 devices runs the same 3 runs, in order, padding dropped
-    (equal up to float rounding: see the next test)."""
-    one = _first_three(trained)
-    assert len(four_devices) == len(one)
-    for got, want in zip(four_devices, one, strict=True):
-        assert got.shape == want.shape and got.dtype == want.dtype
-        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
+def test_four_forced_devices_give_bit_identical_runs(sweep_file, tmp_path):
+    """3 runs padded to 4, one per forced host device ≡ the one-device program, bit for bit.
 
-
-@pytest.mark.xfail(
-    strict=True,
-    reason="NOT YET: with 4 forced host devices on a 2-core machine (more devices than "
-    "cores), XLA:CPU rounds dots with a long contraction (e.g. the conv-1 weight gradient, "
-    "192 x 1400 x 32) differently than with 1 or 2 devices, even for a one-device program; "
-    "see the issue 6 note",
-)
-def test_four_forced_devices_give_bit_identical_runs(trained, four_devices):
-    for got, want in zip(four_devices, _first_three(trained), strict=True):
+    XLA:CPU's thread pool has max(cores, forced devices) threads, and Eigen's
+    matrix products split their sums by the pool size: on a machine with
+    fewer than 4 cores, 4 forced devices mean a bigger pool than one device
+    has. Both processes get the same pool (``PJRT_NPROC=4``), as two machines
+    with 4 cores would; see ``drqn_jax.determinism``.
+    """
+    four = _train_on_forced_devices(sweep_file, 4, tmp_path / "four.npz", threads=4)
+    one = _train_on_forced_devices(sweep_file, 1, tmp_path / "one.npz", threads=4)
+    assert len(four) == len(one)
+    for got, want in zip(four, one, strict=True):
         np.testing.assert_array_equal(got, want, strict=True)
 
 
@@ -195,17 +189,139 @@ def _metrics():
     return TABLE_METRICS
 
 
-def test_cli_sweep_writes_tables(sweep_file, tmp_path, capsys):
+def test_cli_sweep_writes_tables(sweep_file, cli_sweep, capsys):
     assert cli.main(["sweep", str(sweep_file), "--dry-run"]) == 0
-    assert "sweep over 4 runs" in capsys.readouterr().err
-    out = tmp_path / "out"
-    code = cli.main(["sweep", str(sweep_file), "--set", "evaluate.episodes=2", "--out", str(out)])
-    assert code == 0
-    runs = json.loads((out / "runs.json").read_text())
+    err = capsys.readouterr().err
+    assert "sweep over 4 runs" in err and "memory plan (1 device(s))" in err
+    runs = json.loads((cli_sweep / "runs.json").read_text())
     assert [r["index"] for r in runs] == [0, 1, 2, 3]
-    assert all(r["num_episodes"] == 2 for r in runs)
-    csv = (out / "results.csv").read_text().splitlines()
-    assert csv[0].startswith("train.learning_rate,runs,collision_free_rate_mean")
+    assert all(r["num_episodes"] == 2 and r["diverged"] is False for r in runs)
+    csv = (cli_sweep / "results.csv").read_text().splitlines()
+    assert csv[0].startswith("train.learning_rate,runs,diverged,collision_free_rate_mean")
     assert len(csv) == 3
-    assert "| 0.001 | 2 |" in (out / "results.md").read_text()
-    assert Path(out / "results.md").read_text() in capsys.readouterr().out + "\n"
+    assert "| 0.001 | 2 |" in (cli_sweep / "results.md").read_text()
+    assert not list(cli_sweep.glob("calls/*/checkpoint.npz"))  # the results replaced them
+
+
+@pytest.fixture(scope="module")
+def cli_sweep(sweep_file, tmp_path_factory):
+    """The 4-run sweep through the command line, one process: its output directory."""
+    out = tmp_path_factory.mktemp("cli") / "out"
+    code = cli.main(
+        ["sweep", str(sweep_file), "--set", "evaluate.episodes=2", "--out", str(out), "--quiet"]
+    )
+    assert code == 0
+    return out
+
+
+def test_two_processes_on_localhost_match_one_process(sweep_file, cli_sweep, tmp_path):
+    """2 processes (jax.distributed on localhost), 2 runs each; process 0 gathers
+    the results: runs.json equal to the one-process sweep's."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        port = s.getsockname()[1]
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "drqn_jax.cli", "sweep", str(sweep_file), "--quiet"]
+    command += ["--set", "evaluate.episodes=2", "--out", str(out)]
+    command += ["--coordinator", f"localhost:{port}", "--num-processes", "2"]
+    env = {**os.environ, "XLA_FLAGS": ""}
+    procs = [
+        subprocess.Popen(
+            [*command, "--process-id", str(i)],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(2)
+    ]
+    for i, proc in enumerate(procs):
+        _, stderr = proc.communicate(timeout=600)
+        assert proc.returncode == 0, f"process {i}: {stderr[-3000:]}"
+    assert "process 1 of 2" in stderr  # the last one's plan
+    assert json.loads((out / "runs.json").read_text()) == json.loads(
+        (cli_sweep / "runs.json").read_text()
+    )
+    assert (out / "results.csv").read_text() == (cli_sweep / "results.csv").read_text()
+    assert (out / "plan.process-0.json").is_file() and (out / "plan.process-1.json").is_file()
+
+
+def test_an_interrupted_call_resumes_bit_identically(sweep_file, trained, tmp_path):
+    sweep, params, metrics = trained
+    call = Call(0, tuple(sweep.points), 4)
+    stop = _StopRequest()
+
+    def interrupt(state):
+        stop.signal = 2  # as SIGINT's handler would, after the first chunk
+
+    first = train_call(call, jax.devices(), directory=tmp_path, stop=stop, on_chunk=interrupt)
+    assert first.status == "interrupted" and (tmp_path / "checkpoint.npz").is_file()
+    assert not bool(jax.numpy.all(first.state.finished))
+    resumed = train_call(call, jax.devices(), directory=tmp_path)
+    assert resumed.status == "finished"
+    assert_tree_equal((resumed.state.online, resumed.state.metrics), (params, metrics))
+
+
+def test_resume_skips_finished_calls_and_refuses_another_sweep(sweep_file, cli_sweep, capsys):
+    sweep = load_sweep(sweep_file, ["evaluate.episodes=2"])
+    outcome = run_sweep(sweep, cli_sweep, resume=True, quiet=True)  # no training: all ended
+    assert outcome.status == "finished"
+    assert outcome.results == json.loads((cli_sweep / "runs.json").read_text())
+    code = cli.main(
+        ["sweep", str(sweep_file), "--set", "train.gamma=0.5", "--out", str(cli_sweep), "--resume"]
+    )
+    assert code == 2
+    assert "holds another sweep: point 0" in capsys.readouterr().err
+    code = cli.main(["sweep", str(sweep_file), "--out", str(cli_sweep)])
+    assert code == 2 and "already holds a sweep" in capsys.readouterr().err
+
+
+def test_the_memory_plan_splits_or_refuses(sweep_file, capsys):
+    sweep = load_sweep(sweep_file)
+    per_run = run_memory(sweep.points[0].config).total
+    calls = plan_calls(sweep, 1, budget=int(2.5 * per_run / USABLE_FRACTION))
+    assert [len(c.points) for c in calls] == [2, 2] and all(c.size == 2 for c in calls)
+    assert [p.index for c in calls for p in c.points] == [0, 1, 2, 3]
+    assert [len(c.points) for c in plan_calls(sweep, 1, budget=10**12)] == [4]
+    code = cli.main(["sweep", str(sweep_file), "--memory-gb", "0.001", "--dry-run"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "memory plan: one run needs" in err and "replay" in err and "--memory-gb" in err
+
+
+def test_calls_never_hold_one_run_per_device():
+    assert [call_size(n, 1) for n in (1, 2, 3)] == [2, 2, 3]
+    assert [call_size(n, 4) for n in (1, 4, 5, 8, 9)] == [8, 8, 8, 8, 12]
+    assert call_size(3, 4, most_per_device=1) == 4  # memory allows no more
+
+
+def test_the_thread_pool_size_follows_pjrt_nproc_and_forced_devices(monkeypatch):
+    from drqn_jax.determinism import cpu_thread_pool_size
+
+    monkeypatch.setenv("PJRT_NPROC", "3")
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=4")
+    assert cpu_thread_pool_size() == 4
+    monkeypatch.setenv("PJRT_NPROC", "6")
+    assert cpu_thread_pool_size() == 6
+    monkeypatch.delenv("XLA_FLAGS")
+    monkeypatch.delenv("PJRT_NPROC")
+    monkeypatch.delenv("NPROC", raising=False)
+    assert cpu_thread_pool_size() == len(os.sched_getaffinity(0))
+
+
+def test_several_processes_need_all_three_settings(monkeypatch):
+    from drqn_jax.sweep_runner import Distributed, init_distributed
+
+    for name in ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID"):
+        monkeypatch.delenv(name, raising=False)
+    assert init_distributed(None, None, None) == Distributed(0, 1)
+    monkeypatch.setenv("JAX_COORDINATOR_ADDRESS", "localhost:1")
+    with pytest.raises(ConfigError, match="need all three"):
+        init_distributed(None, 2, None)
+    monkeypatch.setenv("JAX_PROCESS_ID", "two")
+    with pytest.raises(ConfigError, match="JAX_PROCESS_ID = 'two'"):
+        init_distributed(None, 2, None)
+    with pytest.raises(ConfigError, match="0 <= process_id < num_processes"):
+        init_distributed(None, 2, 2)

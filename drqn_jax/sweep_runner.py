@@ -1,0 +1,515 @@
+"""Running a sweep: memory plan, compiled calls, checkpoints, progress, several processes.
+
+The points of a :class:`~drqn_jax.sweep.Sweep` are grouped into programs by
+shape; each process takes a contiguous slice of every program, and the
+memory plan (:mod:`drqn_jax.memory`) cuts that slice into **calls**: runs
+trained together by one compiled ``jit(vmap(run))``, the run axis sharded
+over the process's devices (a ``NamedSharding`` on a one-axis ``Mesh``),
+padded to a multiple of the device count with copies of the last run.
+
+A call runs chunk by chunk (``train.chunk_iterations`` iterations of every
+run) from the host, like ``drqn-jax train``: a progress bar counts the
+episodes of all runs, a checkpoint of the whole batched ``TrainState`` is
+written every ``run.checkpoint_every_s`` and on SIGINT/SIGTERM, and a call
+that ends writes its runs' results. ``resume=True`` skips the calls that
+ended and continues the others from their checkpoints. A run's results do not
+depend on the call it was in, the device count or the process count: each is
+bit-identical to the same run alone (tests/test_sweep.py).
+
+Output directory::
+
+    OUT/plan.json                      the points (values, training hash) and processes
+    OUT/calls/runs-<first>-<last>/     checkpoint.npz/.json while a call runs,
+                                       runs.json once it ended
+    OUT/results.md, results.csv        per setting: mean, std, 95 % interval, IQM
+    OUT/runs.json                      every run's evaluation and training summary
+
+Several processes (machines): :func:`init_distributed` calls
+``jax.distributed.initialize``; every process trains its slice and publishes
+its runs' results in the coordination service's key-value store; process 0
+gathers them and writes the tables. No file system needs to be shared.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from drqn_jax.agents import drqn_agent
+from drqn_jax.checkpoint import CheckpointError, atomic_write_text, load_checkpoint, save_checkpoint
+from drqn_jax.config import ConfigError
+from drqn_jax.evaluation import episode_keys, run_episodes, summarize
+from drqn_jax.memory import RunMemory, available_memory, run_memory, runs_per_call
+from drqn_jax.runner import _finite, _progress_bar, _StopRequest, json_ready
+from drqn_jax.sweep import Sweep, SweepPoint
+from drqn_jax.train import Trainer, TrainState, make_train
+
+__all__ = [
+    "Call",
+    "Distributed",
+    "SweepOutcome",
+    "evaluate_runs",
+    "init_distributed",
+    "plan_calls",
+    "run_sweep",
+    "train_call",
+]
+
+_GATHER_TIMEOUT_MS = 2**31 - 1  # process 0 waits for the others as long as they train
+
+
+@dataclasses.dataclass(frozen=True)
+class Distributed:
+    """This process's place among the processes of a sweep (1 of 1 when alone)."""
+
+    process: int = 0
+    processes: int = 1
+
+    @property
+    def leader(self) -> bool:
+        return self.process == 0
+
+
+def init_distributed(
+    coordinator: str | None, num_processes: int | None, process_id: int | None
+) -> Distributed:
+    """``jax.distributed.initialize`` from the flags, else ``JAX_COORDINATOR_ADDRESS``,
+    ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``; alone (no call) when none is given.
+
+    Must run before any JAX computation.
+    """
+    env = os.environ
+    coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS")
+    given = [coordinator, num_processes, process_id]
+    if num_processes is None and "JAX_NUM_PROCESSES" in env:
+        num_processes = _int_variable("JAX_NUM_PROCESSES")
+    if process_id is None and "JAX_PROCESS_ID" in env:
+        process_id = _int_variable("JAX_PROCESS_ID")
+    if coordinator is None and num_processes is None and process_id is None:
+        return Distributed()
+    if None in (coordinator, num_processes, process_id):
+        raise ConfigError(
+            "several processes need all three of --coordinator HOST:PORT, --num-processes N "
+            "and --process-id I (or JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES, "
+            f"JAX_PROCESS_ID); got {given}"
+        )
+    if num_processes < 1 or not 0 <= process_id < num_processes:
+        raise ConfigError(
+            f"--num-processes = {num_processes}, --process-id = {process_id}: need "
+            "num_processes >= 1 and 0 <= process_id < num_processes"
+        )
+    jax.distributed.initialize(coordinator, num_processes, process_id)
+    return Distributed(process_id, num_processes)
+
+
+def _int_variable(name: str) -> int:
+    try:
+        return int(os.environ[name])
+    except ValueError:
+        raise ConfigError(f"{name} = {os.environ[name]!r}: must be an integer") from None
+
+
+# ------------------------------------------------------------------------------- the plan
+
+
+@dataclasses.dataclass(frozen=True)
+class Call:
+    """Runs of one program trained together by one compiled call."""
+
+    program: int
+    points: tuple[SweepPoint, ...]
+    size: int  # runs in the call, padding included: a multiple of the device count
+    memory: RunMemory | None = None  # per run, as planned
+
+    @property
+    def name(self) -> str:
+        return f"runs-{self.points[0].index:04d}-{self.points[-1].index:04d}"
+
+    def fingerprint(self) -> str:
+        """What the call's checkpoint must match: its runs' training configs and size."""
+        text = json.dumps([self.size, [p.config.training_hash() for p in self.points]])
+        return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _process_slice(points: Sequence[SweepPoint], dist: Distributed) -> list[SweepPoint]:
+    """Contiguous, near-equal slices of ``points``, one per process."""
+    n, p = len(points), dist.processes
+    bounds = [n * i // p for i in range(p + 1)]
+    return list(points[bounds[dist.process] : bounds[dist.process + 1]])
+
+
+def plan_calls(
+    sweep: Sweep,
+    devices: int,
+    dist: Distributed = Distributed(),
+    budget: int | None = None,
+    memory_source: str = "",
+) -> list[Call]:
+    """This process's calls, in order: its slice of every program, cut to fit in memory.
+
+    Args:
+        devices: local device count (each call's size is a multiple of it).
+        budget: bytes available to one call (default: :func:`available_memory`).
+    Raises:
+        MemoryPlanError: one run per device does not fit (before anything compiles).
+    """
+    if budget is None:
+        budget, memory_source = available_memory(jax.local_devices()[:devices])
+    calls = []
+    for k, program in enumerate(sweep.programs()):
+        mine = _process_slice(program, dist)
+        if not mine:
+            continue
+        memory = run_memory(mine[0].config)
+        most = runs_per_call(memory, len(mine), devices, budget, memory_source)
+        count = math.ceil(len(mine) / most)  # calls of near-equal size: one compile
+        per_call = math.ceil(len(mine) / count)
+        size = call_size(per_call, devices, most // devices)
+        for i in range(0, len(mine), per_call):
+            calls.append(Call(k, tuple(mine[i : i + per_call]), size, memory))
+    return calls
+
+
+def call_size(runs: int, devices: int, most_per_device: int = 2) -> int:
+    """Runs in a call of ``runs`` runs, padding included: a multiple of ``devices``
+    with at least 2 runs per device where memory allows.
+
+    A batch of one run per device is avoided because XLA then compiles
+    unbatched matrix products, which round differently from batched ones: the
+    run would drift by an ulp from the same run among others (or alone).
+    """
+    per_device = max(math.ceil(runs / devices), min(2, most_per_device))
+    return per_device * devices
+
+
+def describe_plan(calls: Sequence[Call], devices: int, dist: Distributed) -> str:
+    """One line per call: its runs, size, memory per run and in all."""
+    where = f"process {dist.process} of {dist.processes}, " if dist.processes > 1 else ""
+    lines = [f"memory plan ({where}{devices} device(s)):"]
+    for call in calls:
+        pad = call.size - len(call.points)
+        lines.append(
+            f"  program {call.program}, {call.name}: {len(call.points)} run(s)"
+            + (f" + {pad} padding" if pad else "")
+            + (
+                " (1 per device: rounds differently from batched runs)"
+                if call.size == devices
+                else ""
+            )
+            + (f", {call.memory.describe()} per run" if call.memory else "")
+        )
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- a call
+
+
+def _stack(trees: Sequence[Any]) -> Any:
+    return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)
+
+
+def _pad(tree: Any, size: int) -> Any:
+    """Leading axis padded to ``size`` with copies of the last row."""
+
+    def pad(x):
+        n = x.shape[0]
+        return x if n == size else jnp.concatenate([x, jnp.repeat(x[-1:], size - n, axis=0)])
+
+    return jax.tree.map(pad, tree)
+
+
+def _sharding(devices: Sequence[Any]) -> NamedSharding:
+    return NamedSharding(Mesh(np.asarray(devices), ("runs",)), PartitionSpec("runs"))
+
+
+def _init_args(points: Sequence[SweepPoint], size: int) -> tuple[Any, Any, Any]:
+    """(keys, hparams, env_params) of the runs, stacked and padded to ``size``."""
+    keys = jnp.stack([p.config.keys()[0] for p in points])
+    hparams = _stack([p.config.hyperparams() for p in points])
+    env_params = _stack([p.config.make_env()[1] for p in points])
+    return _pad((keys, hparams, env_params), size)
+
+
+_COMPILED: dict[tuple, tuple[Callable, Callable]] = {}
+
+
+def _programs(trainer: Trainer, size: int, devices: Sequence[Any]) -> tuple[Callable, Callable]:
+    """(batched init, batched chunk) for ``size`` runs on ``devices``, jitted once per process."""
+    cache_key = (trainer.config, size, tuple(devices))
+    if cache_key not in _COMPILED:
+        sharding = _sharding(devices)
+        init = jax.jit(jax.vmap(trainer.init), out_shardings=sharding)
+        chunk = trainer.config.chunk_iterations
+        run = jax.jit(
+            jax.vmap(lambda s: trainer.run(s, chunk)),
+            in_shardings=sharding,
+            out_shardings=sharding,
+            donate_argnums=0,
+        )
+        _COMPILED[cache_key] = (init, run)
+    return _COMPILED[cache_key]
+
+
+@dataclasses.dataclass
+class CallOutcome:
+    """How a call ended: ``finished`` or ``interrupted`` (checkpoint saved)."""
+
+    status: str
+    trainer: Trainer
+    state: TrainState  # batched, padding included
+
+
+def train_call(
+    call: Call,
+    devices: Sequence[Any],
+    *,
+    directory: Path | None = None,
+    checkpoint_every_s: float = math.inf,
+    stop: _StopRequest | None = None,
+    on_chunk: Callable[[TrainState], None] | None = None,
+) -> CallOutcome:
+    """Train the call's runs to the end, chunk by chunk; sharded over ``devices``.
+
+    With ``directory``: continue from its checkpoint if there is one, save one
+    every ``checkpoint_every_s`` and when ``stop`` is set (then the outcome is
+    ``interrupted``).
+    """
+    trainer = make_train(call.points[0].config.train_config())
+    init, run = _programs(trainer, call.size, devices)
+    args = _init_args(call.points, call.size)
+    checkpoint = directory is not None and (directory / "checkpoint.npz").exists()
+    if checkpoint:
+        template = jax.eval_shape(init, *args)
+        state, _ = load_checkpoint(directory, template, {"config_hash": call.fingerprint()})
+        state = jax.device_put(state, _sharding(devices))
+    else:
+        state = init(*args)
+    last_save = time.perf_counter()
+    while not bool(jnp.all(state.finished)):
+        if stop is not None and stop.signal is not None:
+            _save_call(directory, call, state)
+            return CallOutcome("interrupted", trainer, state)
+        state = run(state)
+        if on_chunk is not None:
+            on_chunk(state)
+        if directory is not None and time.perf_counter() - last_save >= checkpoint_every_s:
+            _save_call(directory, call, state)
+            last_save = time.perf_counter()
+    return CallOutcome("finished", trainer, state)
+
+
+def _save_call(directory: Path | None, call: Call, state: TrainState) -> None:
+    if directory is not None:
+        meta = {"config_hash": call.fingerprint(), "runs": [p.index for p in call.points]}
+        save_checkpoint(directory, state, meta)
+
+
+def evaluate_runs(
+    network: Any, params: Any, points: Sequence[SweepPoint], eval_key: jax.Array, episodes: int
+) -> list[dict[str, Any]]:
+    """SPEC §8 metrics of each run's greedy DRQN on the same ``episodes`` episodes."""
+    keys = episode_keys(eval_key, episodes)
+    out = []
+    for i, point in enumerate(points):
+        env, env_params = point.config.make_env()
+        agent = drqn_agent(network, jax.tree.map(lambda x, i=i: x[i], params))
+        ep = run_episodes(agent, keys, env, env_params)
+        out.append(summarize(jax.tree.map(np.asarray, ep), float(env_params.ttc_threshold)))
+    return out
+
+
+def call_results(
+    call: Call, outcome: CallOutcome, eval_key: jax.Array, episodes: int
+) -> list[dict[str, Any]]:
+    """Per run: its index and axis values, the evaluation, the final training
+    return (mean of the last 10 % of episodes) and whether it diverged."""
+    n = len(call.points)
+    params = jax.tree.map(lambda x: np.asarray(x)[:n], outcome.state.online)
+    returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
+    finite = np.asarray(jax.vmap(_finite)(outcome.state))[:n]
+    evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key, episodes)
+    results = []
+    for point, evaluation, ret, ok in zip(call.points, evaluations, returns, finite, strict=True):
+        tail = max(1, len(ret) // 10)
+        results.append(
+            {
+                "index": point.index,
+                "values": point.values,
+                "final_train_return": float(np.mean(ret[-tail:])),
+                "diverged": not bool(ok),
+                **json_ready(evaluation),
+            }
+        )
+    return results
+
+
+# ------------------------------------------------------------------------------ the sweep
+
+
+@dataclasses.dataclass
+class SweepOutcome:
+    """``finished`` (``results``: every run, in point order, on process 0; this
+    process's runs elsewhere) or ``interrupted``."""
+
+    status: str
+    results: list[dict[str, Any]]
+    calls: list[Call]
+
+
+def _plan_record(sweep: Sweep, dist: Distributed) -> dict[str, Any]:
+    return {
+        "base": sweep.base,
+        "axes": sweep.axes,
+        "processes": dist.processes,
+        "points": [
+            {"index": p.index, "values": p.values, "training_hash": p.config.training_hash()}
+            for p in sweep.points
+        ],
+    }
+
+
+def _plan_path(out: Path, dist: Distributed) -> Path:
+    """``OUT/plan.json``; one per process when there are several (no shared file system needed)."""
+    return out / ("plan.json" if dist.processes == 1 else f"plan.process-{dist.process}.json")
+
+
+def _check_plan(path: Path, record: dict[str, Any]) -> None:
+    out = path.parent
+    if not path.is_file():
+        raise CheckpointError(f"{out}: no sweep to resume (no {path.name})")
+    saved = json.loads(path.read_text())
+    if saved.get("processes") != record["processes"]:
+        raise CheckpointError(
+            f"{out}: the sweep ran as {saved.get('processes')} process(es); resume it with as many"
+        )
+    old = {p["index"]: p for p in saved.get("points", [])}
+    for point in record["points"]:
+        if old.get(point["index"], {}).get("training_hash") != point["training_hash"]:
+            raise CheckpointError(
+                f"{out} holds another sweep: point {point['index']} ({point['values']}) "
+                "differs; resume with the same sweep file and --set overrides"
+            )
+    if len(old) != len(record["points"]):
+        raise CheckpointError(
+            f"{out} holds another sweep: {len(old)} points, not {len(record['points'])}"
+        )
+
+
+def run_sweep(
+    sweep: Sweep,
+    out: str | Path,
+    *,
+    calls: Sequence[Call] | None = None,
+    dist: Distributed = Distributed(),
+    resume: bool = False,
+    quiet: bool = False,
+) -> SweepOutcome:
+    """Train and evaluate this process's runs call by call; gather on process 0.
+
+    Args:
+        calls: the plan (default: :func:`plan_calls` on all local devices).
+        resume: continue a sweep in ``out`` (same points, same process count).
+    """
+    out = Path(out)
+    devices = jax.local_devices()
+    if calls is None:
+        calls = plan_calls(sweep, len(devices), dist)
+    record, plan = _plan_record(sweep, dist), _plan_path(out, dist)
+    if resume:
+        _check_plan(plan, record)
+    else:
+        if plan.exists():
+            raise CheckpointError(
+                f"{out} already holds a sweep; continue it with --resume or choose another --out"
+            )
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(plan, json.dumps(record, indent=1) + "\n")
+    first = sweep.points[0].config
+    eval_key, episodes = first.keys()[1], first["evaluate"]["episodes"]
+    every = first["run"]["checkpoint_every_s"]
+    results: list[dict[str, Any]] = []
+    total = sum(len(c.points) * c.points[0].config["train"]["num_episodes"] for c in calls)
+    stop = _StopRequest()
+    desc = f"sweep (process {dist.process})" if dist.processes > 1 else "sweep"
+    with stop.installed(), _progress_bar(total, 0, quiet or not dist.leader) as bar:
+        bar.set_description(desc)
+        done_before = 0
+        for call in calls:
+            directory = out / "calls" / call.name
+            saved = directory / "runs.json"
+            if resume and saved.is_file():
+                results += json.loads(saved.read_text())
+                done_before += len(call.points) * call.points[0].config["train"]["num_episodes"]
+                bar.update(done_before - bar.n)
+                continue
+
+            def progress(state: TrainState, before: int = done_before, n: int = len(call.points)):
+                bar.update(before + int(np.asarray(state.recorded)[:n].sum()) - bar.n)
+
+            outcome = train_call(
+                call,
+                devices,
+                directory=directory,
+                checkpoint_every_s=every,
+                stop=stop,
+                on_chunk=progress,
+            )
+            if outcome.status == "interrupted":
+                return SweepOutcome("interrupted", results, list(calls))
+            call_result = call_results(call, outcome, eval_key, episodes)
+            directory.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(saved, json.dumps(call_result, indent=1) + "\n")
+            for name in ("checkpoint.npz", "checkpoint.json"):  # the results replace them
+                (directory / name).unlink(missing_ok=True)
+            results += call_result
+            done_before += len(call.points) * call.points[0].config["train"]["num_episodes"]
+    if dist.processes > 1:
+        results = _gather(results, dist)
+    return SweepOutcome("finished", sorted(results, key=lambda r: r["index"]), list(calls))
+
+
+def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, Any]]:
+    """Every process's results on process 0, through the coordination service's
+    key-value store (no shared file system, no device collectives)."""
+    from jax._src import distributed
+
+    client = distributed.global_state.client
+    client.key_value_set(f"drqn_jax/sweep/results/{dist.process}", json.dumps(results))
+    if not dist.leader:
+        return results
+    gathered = []
+    for p in range(dist.processes):
+        text = client.blocking_key_value_get(f"drqn_jax/sweep/results/{p}", _GATHER_TIMEOUT_MS)
+        gathered += json.loads(text)
+    return gathered
+
+
+def train_runs(
+    points: Sequence[SweepPoint], devices: Sequence[Any] | None = None
+) -> tuple[Trainer, Any, dict[str, np.ndarray]]:
+    """Train ``points`` (all of one shape) in one call on ``devices`` (default: all
+    local devices), no checkpoints, no memory plan.
+
+    Returns:
+        ``(trainer, params, metrics)`` with NumPy leaves of leading size ``len(points)``.
+    """
+    devices = list(jax.local_devices() if devices is None else devices)
+    call = Call(0, tuple(points), call_size(len(points), len(devices)))
+    outcome = train_call(call, devices)
+    n = len(points)
+    params, metrics = jax.tree.map(
+        lambda x: np.asarray(x)[:n], (outcome.state.online, outcome.state.metrics)
+    )
+    return outcome.trainer, params, metrics
