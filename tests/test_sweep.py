@@ -96,19 +96,33 @@ def test_each_run_is_bit_identical_to_the_run_alone(trained):
 
 
 def _train_on_forced_devices(
-    sweep_file: Path, devices: int, out: Path, threads: int | None = None
+    sweep_file: Path,
+    devices: int,
+    out: Path,
+    *,
+    runs: int = 3,
+    threads: int | None = None,
+    alone: bool = False,
 ) -> list[np.ndarray]:
-    """Leaves of the sweep's first 3 runs trained in a process with ``devices`` forced
-    host devices (the runs sharded over all of them, padded to a multiple) and, if
-    given, an XLA:CPU thread pool of ``threads`` (``PJRT_NPROC``)."""
+    """Leaves of the sweep's first ``runs`` runs trained in a process with ``devices``
+    forced host devices — as one sweep call sharded over all of them, or each
+    ``alone`` (``jit(train)``) — with, if given, an XLA:CPU pool of ``threads``."""
     script = textwrap.dedent(f"""
         import jax, numpy as np
         import drqn_jax
         from drqn_jax.sweep import load_sweep
         from drqn_jax.sweep_runner import train_runs
+        from drqn_jax.train import make_train
         assert len(jax.devices()) == {devices}, jax.devices()
-        sweep = load_sweep({str(sweep_file)!r})
-        _, params, metrics = train_runs(sweep.points[:3])
+        points = load_sweep({str(sweep_file)!r}).points[:{runs}]
+        if {alone}:
+            results = [
+                jax.jit(make_train(p.config.train_config()).train)(p.config.keys()[0])
+                for p in points
+            ]
+            params, metrics = jax.tree.map(lambda *x: np.stack(x), *results)
+        else:
+            _, params, metrics = train_runs(points)
         np.savez({str(out)!r}, *jax.tree.leaves((params, metrics)))
     """)
     env = {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
@@ -134,8 +148,9 @@ def test_two_forced_devices_give_bit_identical_runs(sweep_file, trained, tmp_pat
         np.testing.assert_array_equal(got, want, strict=True)
 
 
-def test_four_forced_devices_give_bit_identical_runs(sweep_file, tmp_path):
-    """3 runs padded to 4, one per forced host device ≡ the one-device program, bit for bit.
+def test_four_forced_devices_reproduce_each_run_alone(sweep_file, tmp_path):
+    """The 4-point sweep sharded over 4 forced host devices (2 runs per device, 4 of
+    them padding) ≡ each point trained alone on one device, bit for bit.
 
     XLA:CPU's thread pool has max(cores, forced devices) threads, and Eigen's
     matrix products split their sums by the pool size: on a machine with
@@ -143,10 +158,12 @@ def test_four_forced_devices_give_bit_identical_runs(sweep_file, tmp_path):
     has. Both processes get the same pool (``PJRT_NPROC=4``), as two machines
     with 4 cores would; see ``drqn_jax.determinism``.
     """
-    four = _train_on_forced_devices(sweep_file, 4, tmp_path / "four.npz", threads=4)
-    one = _train_on_forced_devices(sweep_file, 1, tmp_path / "one.npz", threads=4)
-    assert len(four) == len(one)
-    for got, want in zip(four, one, strict=True):
+    four = _train_on_forced_devices(sweep_file, 4, tmp_path / "4.npz", runs=4, threads=4)
+    alone = _train_on_forced_devices(
+        sweep_file, 1, tmp_path / "1.npz", runs=4, threads=4, alone=True
+    )
+    assert len(four) == len(alone)
+    for got, want in zip(four, alone, strict=True):
         np.testing.assert_array_equal(got, want, strict=True)
 
 
