@@ -50,7 +50,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from drqn_jax.agents import drqn_agent
 from drqn_jax.checkpoint import CheckpointError, atomic_write_text, load_checkpoint, save_checkpoint
 from drqn_jax.config import ConfigError
-from drqn_jax.evaluation import episode_keys, run_episodes, summarize
+from drqn_jax.evaluation import evaluate
 from drqn_jax.memory import RunMemory, available_memory, run_memory, runs_per_call
 from drqn_jax.runner import _finite, _progress_bar, _StopRequest, json_ready
 from drqn_jax.sweep import Sweep, SweepPoint
@@ -317,29 +317,31 @@ def _save_call(directory: Path | None, call: Call, state: TrainState) -> None:
 
 
 def evaluate_runs(
-    network: Any, params: Any, points: Sequence[SweepPoint], eval_key: jax.Array, episodes: int
+    network: Any, params: Any, points: Sequence[SweepPoint], eval_key: jax.Array
 ) -> list[dict[str, Any]]:
-    """SPEC §8 metrics of each run's greedy DRQN on the same ``episodes`` episodes."""
-    keys = episode_keys(eval_key, episodes)
+    """SPEC §8 metrics of each run's greedy DRQN on the episodes of ``eval_key``
+    (``evaluate.episodes`` of them, in batches of ``evaluate.batch_size``), as
+    ``drqn-jax evaluate`` computes them."""
     out = []
     for i, point in enumerate(points):
         env, env_params = point.config.make_env()
         agent = drqn_agent(network, jax.tree.map(lambda x, i=i: x[i], params))
-        ep = run_episodes(agent, keys, env, env_params)
-        out.append(summarize(jax.tree.map(np.asarray, ep), float(env_params.ttc_threshold)))
+        settings = point.config["evaluate"]
+        batch = settings["batch_size"] or None
+        out.append(
+            evaluate(agent, eval_key, settings["episodes"], env, env_params, batch_size=batch)
+        )
     return out
 
 
-def call_results(
-    call: Call, outcome: CallOutcome, eval_key: jax.Array, episodes: int
-) -> list[dict[str, Any]]:
+def call_results(call: Call, outcome: CallOutcome, eval_key: jax.Array) -> list[dict[str, Any]]:
     """Per run: its index and axis values, the evaluation, the final training
     return (mean of the last 10 % of episodes) and whether it diverged."""
     n = len(call.points)
     params = jax.tree.map(lambda x: np.asarray(x)[:n], outcome.state.online)
     returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
     finite = np.asarray(jax.vmap(_finite)(outcome.state))[:n]
-    evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key, episodes)
+    evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key)
     results = []
     for point, evaluation, ret, ok in zip(call.points, evaluations, returns, finite, strict=True):
         tail = max(1, len(ret) // 10)
@@ -437,7 +439,7 @@ def run_sweep(
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(plan, json.dumps(record, indent=1) + "\n")
     first = sweep.points[0].config
-    eval_key, episodes = first.keys()[1], first["evaluate"]["episodes"]
+    eval_key = first.keys()[1]
     every = first["run"]["checkpoint_every_s"]
     results: list[dict[str, Any]] = []
     total = sum(len(c.points) * c.points[0].config["train"]["num_episodes"] for c in calls)
@@ -468,7 +470,7 @@ def run_sweep(
             )
             if outcome.status == "interrupted":
                 return SweepOutcome("interrupted", results, list(calls))
-            call_result = call_results(call, outcome, eval_key, episodes)
+            call_result = call_results(call, outcome, eval_key)
             directory.mkdir(parents=True, exist_ok=True)
             atomic_write_text(saved, json.dumps(call_result, indent=1) + "\n")
             for name in ("checkpoint.npz", "checkpoint.json"):  # the results replace them
