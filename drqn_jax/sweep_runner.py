@@ -51,7 +51,13 @@ from drqn_jax.agents import drqn_agent
 from drqn_jax.checkpoint import CheckpointError, atomic_write_text, load_checkpoint, save_checkpoint
 from drqn_jax.config import ConfigError
 from drqn_jax.evaluation import evaluate
-from drqn_jax.memory import RunMemory, available_memory, run_memory, runs_per_call
+from drqn_jax.memory import (
+    RunMemory,
+    available_memory,
+    format_bytes,
+    run_memory,
+    runs_per_call,
+)
 from drqn_jax.runner import _finite, _progress_bar, _StopRequest, json_ready
 from drqn_jax.sweep import Sweep, SweepPoint
 from drqn_jax.train import Trainer, TrainState, make_train
@@ -208,7 +214,12 @@ def describe_plan(calls: Sequence[Call], devices: int, dist: Distributed) -> str
                 if call.size == devices
                 else ""
             )
-            + (f", {call.memory.describe()} per run" if call.memory else "")
+            + (
+                f", {format_bytes(call.size * call.memory.total)} in all; "
+                f"per run {call.memory.describe()}"
+                if call.memory
+                else ""
+            )
         )
     return "\n".join(lines)
 
