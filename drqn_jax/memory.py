@@ -170,15 +170,25 @@ def available_memory(devices: Sequence[Any]) -> tuple[int, str]:
     return total, f"{devices[0].platform} memory of {len(devices)} device(s)"
 
 
-def runs_per_call(per_run: RunMemory, runs: int, devices: int, budget: int, source: str) -> int:
+def runs_per_call(
+    per_run: RunMemory, runs: int, devices: int, budget: int, source: str, *, batched: bool = True
+) -> int:
     """How many runs one compiled call trains at once: a multiple of ``devices``
     (the run axis is sharded over them), at most ``runs`` rounded up to one.
+
+    ``batched`` (``vmap``): every run's update temporaries are live at once;
+    otherwise (``lax.map``, one run after another on each device) only one's.
 
     Raises:
         MemoryPlanError: not even one run per device fits in ``budget``.
     """
     usable = USABLE_FRACTION * budget
-    per_device = int(usable // (per_run.total * devices))
+    per_device_budget = usable / devices
+    if batched:
+        per_device = int(per_device_budget // per_run.total)
+    else:
+        state = per_run.total - per_run.activations
+        per_device = int((per_device_budget - per_run.activations) // state)
     if per_device < 1:
         raise MemoryPlanError(
             f"memory plan: one run needs {per_run.describe()}; {devices} device(s) need "

@@ -137,6 +137,7 @@ class Call:
     program: int
     points: tuple[SweepPoint, ...]
     size: int  # runs in the call, padding included: a multiple of the device count
+    strategy: str = "vmap"  # "vmap" or "map" (see STRATEGIES)
     memory: RunMemory | None = None  # per run, as planned
 
     @property
@@ -145,7 +146,8 @@ class Call:
 
     def fingerprint(self) -> str:
         """What the call's checkpoint must match: its runs' training configs and size."""
-        text = json.dumps([self.size, [p.config.training_hash() for p in self.points]])
+        hashes = [p.config.training_hash() for p in self.points]
+        text = json.dumps([self.size, self.strategy, hashes])
         return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -156,47 +158,72 @@ def _process_slice(points: Sequence[SweepPoint], dist: Distributed) -> list[Swee
     return list(points[bounds[dist.process] : bounds[dist.process + 1]])
 
 
+#: How a device trains its runs: ``vmap`` batches them (one program step
+#: advances all; what accelerators want), ``map`` runs them one after another
+#: inside the same program (``lax.map``; on CPUs, where one run already keeps
+#: the cores busy and batched products are slower); ``auto``: ``map`` on CPU
+#: devices, ``vmap`` elsewhere.
+STRATEGIES = ("auto", "vmap", "map")
+
+
+def resolve_strategy(strategy: str, devices: Sequence[Any]) -> str:
+    """``vmap`` or ``map`` for ``strategy`` on ``devices``."""
+    if strategy not in STRATEGIES:
+        raise ConfigError(f"strategy = {strategy!r}: must be one of {', '.join(STRATEGIES)}")
+    if strategy == "auto":
+        return "map" if all(d.platform == "cpu" for d in devices) else "vmap"
+    return strategy
+
+
 def plan_calls(
     sweep: Sweep,
     devices: int,
     dist: Distributed = Distributed(),
     budget: int | None = None,
     memory_source: str = "",
+    strategy: str = "auto",
 ) -> list[Call]:
     """This process's calls, in order: its slice of every program, cut to fit in memory.
 
     Args:
         devices: local device count (each call's size is a multiple of it).
         budget: bytes available to one call (default: :func:`available_memory`).
+        strategy: one of :data:`STRATEGIES`.
     Raises:
         MemoryPlanError: one run per device does not fit (before anything compiles).
     """
+    local = jax.local_devices()[:devices]
+    strategy = resolve_strategy(strategy, local)
     if budget is None:
-        budget, memory_source = available_memory(jax.local_devices()[:devices])
+        budget, memory_source = available_memory(local)
     calls = []
     for k, program in enumerate(sweep.programs()):
         mine = _process_slice(program, dist)
         if not mine:
             continue
         memory = run_memory(mine[0].config)
-        most = runs_per_call(memory, len(mine), devices, budget, memory_source)
+        batched = strategy == "vmap"
+        most = runs_per_call(memory, len(mine), devices, budget, memory_source, batched=batched)
         count = math.ceil(len(mine) / most)  # calls of near-equal size: one compile
         per_call = math.ceil(len(mine) / count)
-        size = call_size(per_call, devices, most // devices)
+        size = call_size(per_call, devices, strategy, most // devices)
         for i in range(0, len(mine), per_call):
-            calls.append(Call(k, tuple(mine[i : i + per_call]), size, memory))
+            calls.append(Call(k, tuple(mine[i : i + per_call]), size, strategy, memory))
     return calls
 
 
-def call_size(runs: int, devices: int, most_per_device: int = 2) -> int:
-    """Runs in a call of ``runs`` runs, padding included: a multiple of ``devices``
-    with at least 2 runs per device where memory allows.
+def call_size(runs: int, devices: int, strategy: str = "vmap", most_per_device: int = 2) -> int:
+    """Runs in a call of ``runs`` runs, padding included: a multiple of ``devices``;
+    for ``vmap``, at least 2 runs per device where memory allows.
 
     A batch of one run per device is avoided because XLA then compiles
     unbatched matrix products, which round differently from batched ones: the
     run would drift by an ulp from the same run among others (or alone).
+    ``map`` runs every run unbatched, as alone, and skips the padding.
     """
-    per_device = max(math.ceil(runs / devices), min(2, most_per_device))
+    per_device = math.ceil(runs / devices)
+    if strategy == "vmap":
+        per_device = max(per_device, min(2, most_per_device))
     return per_device * devices
 
 
@@ -256,17 +283,43 @@ def _init_args(points: Sequence[SweepPoint], size: int) -> tuple[Any, Any, Any]:
 _COMPILED: dict[tuple, tuple[Callable, Callable]] = {}
 
 
-def _programs(trainer: Trainer, size: int, devices: Sequence[Any]) -> tuple[Callable, Callable]:
-    """(batched init, batched chunk) for ``size`` runs on ``devices``, jitted once per process."""
-    cache_key = (trainer.config, size, tuple(devices))
+def call_programs(
+    trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
+) -> tuple[Callable, Callable]:
+    """``(init, run)`` of a call, jitted once per process and shape.
+
+    ``init(keys, hparams, env_params)`` builds the ``size`` runs' batched
+    state (sharded over ``devices``); ``run(state, real)`` advances every run
+    whose ``real`` (size,) flag is set and that has not finished by one chunk
+    (``train.chunk_iterations`` iterations). Each device trains its shard of
+    the runs (``shard_map``): batched (``vmap``) or one after another
+    (``map``, where padding and finished runs cost nothing).
+    """
+    cache_key = (trainer.config, size, tuple(devices), strategy)
     if cache_key not in _COMPILED:
-        sharding = _sharding(devices)
-        init = jax.jit(jax.vmap(trainer.init), out_shardings=sharding)
+        mesh = Mesh(np.asarray(devices), ("runs",))
+        runs = PartitionSpec("runs")
         chunk = trainer.config.chunk_iterations
+
+        def advance(state: TrainState) -> TrainState:
+            return trainer.run(state, chunk)
+
+        def batched(states: TrainState, real: jax.Array) -> TrainState:
+            return jax.vmap(advance)(states)
+
+        def one_by_one(states: TrainState, real: jax.Array) -> TrainState:
+            def one(args):
+                state, is_real = args
+                return jax.lax.cond(is_real & ~state.finished, advance, lambda s: s, state)
+
+            return jax.lax.map(one, (states, real))
+
+        body = batched if strategy == "vmap" else one_by_one
+        init = jax.jit(jax.vmap(trainer.init), out_shardings=NamedSharding(mesh, runs))
         run = jax.jit(
-            jax.vmap(lambda s: trainer.run(s, chunk)),
-            in_shardings=sharding,
-            out_shardings=sharding,
+            # no collectives: each device's runs are independent (check_vma off, as
+            # the env's lax.cond branches mix per-device and replicated values)
+            jax.shard_map(body, mesh=mesh, in_specs=(runs, runs), out_specs=runs, check_vma=False),
             donate_argnums=0,
         )
         _COMPILED[cache_key] = (init, run)
@@ -298,13 +351,15 @@ def train_call(
     ``interrupted``).
     """
     trainer = make_train(call.points[0].config.train_config())
-    init, run = _programs(trainer, call.size, devices)
+    init, run = call_programs(trainer, call.size, devices, call.strategy)
     args = _init_args(call.points, call.size)
+    sharding = _sharding(devices)
+    real = jax.device_put(np.arange(call.size) < len(call.points), sharding)
     checkpoint = directory is not None and (directory / "checkpoint.npz").exists()
     if checkpoint:
         template = jax.eval_shape(init, *args)
         state, _ = load_checkpoint(directory, template, {"config_hash": call.fingerprint()})
-        state = jax.device_put(state, _sharding(devices))
+        state = jax.device_put(state, sharding)
     else:
         state = init(*args)
     last_save = time.perf_counter()
@@ -312,7 +367,7 @@ def train_call(
         if stop is not None and stop.signal is not None:
             _save_call(directory, call, state)
             return CallOutcome("interrupted", trainer, state)
-        state = run(state)
+        state = run(state, real)
         if on_chunk is not None:
             on_chunk(state)
         if directory is not None and time.perf_counter() - last_save >= checkpoint_every_s:
@@ -510,7 +565,7 @@ def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, 
 
 
 def train_runs(
-    points: Sequence[SweepPoint], devices: Sequence[Any] | None = None
+    points: Sequence[SweepPoint], devices: Sequence[Any] | None = None, strategy: str = "auto"
 ) -> tuple[Trainer, Any, dict[str, np.ndarray]]:
     """Train ``points`` (all of one shape) in one call on ``devices`` (default: all
     local devices), no checkpoints, no memory plan.
@@ -519,8 +574,9 @@ def train_runs(
         ``(trainer, params, metrics)`` with NumPy leaves of leading size ``len(points)``.
     """
     devices = list(jax.local_devices() if devices is None else devices)
-    call = Call(0, tuple(points), call_size(len(points), len(devices)))
-    outcome = train_call(call, devices)
+    strategy = resolve_strategy(strategy, devices)
+    size = call_size(len(points), len(devices), strategy)
+    outcome = train_call(Call(0, tuple(points), size, strategy), devices)
     n = len(points)
     params, metrics = jax.tree.map(
         lambda x: np.asarray(x)[:n], (outcome.state.online, outcome.state.metrics)

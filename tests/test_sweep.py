@@ -43,11 +43,19 @@ def sweep_file(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def trained(sweep_file):
-    """The 4-run sweep on one device, in one program."""
+    """The 4-run sweep on one device, in one program (``auto``: one run after
+    another on the CPU)."""
     sweep = load_sweep(sweep_file)
     (points,) = sweep.programs()
     _, params, metrics = train_runs(points)
     return sweep, params, metrics
+
+
+def test_vmap_and_map_give_bit_identical_runs(trained):
+    """The batched strategy (what accelerators run) ≡ one run after another."""
+    sweep, params, metrics = trained
+    _, params_vmap, metrics_vmap = train_runs(sweep.points, strategy="vmap")
+    assert_tree_equal((params_vmap, metrics_vmap), (params, metrics))
 
 
 def test_points_are_the_product_of_the_axes(sweep_file):
@@ -103,6 +111,7 @@ def _train_on_forced_devices(
     runs: int = 3,
     threads: int | None = None,
     alone: bool = False,
+    strategy: str = "auto",
 ) -> list[np.ndarray]:
     """Leaves of the sweep's first ``runs`` runs trained in a process with ``devices``
     forced host devices — as one sweep call sharded over all of them, or each
@@ -122,7 +131,7 @@ def _train_on_forced_devices(
             ]
             params, metrics = jax.tree.map(lambda *x: np.stack(x), *results)
         else:
-            _, params, metrics = train_runs(points)
+            _, params, metrics = train_runs(points, strategy={strategy!r})
         np.savez({str(out)!r}, *jax.tree.leaves((params, metrics)))
     """)
     env = {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
@@ -140,17 +149,28 @@ def _first_three(trained) -> list[np.ndarray]:
 
 
 def test_two_forced_devices_give_bit_identical_runs(sweep_file, trained, tmp_path):
-    """3 runs padded to 4, sharded over 2 host devices ≡ the one-device program, bit for bit."""
-    two = _train_on_forced_devices(sweep_file, 2, tmp_path / "two.npz")
+    """3 runs batched (padded to 4), sharded over 2 host devices ≡ the one-device
+    program, bit for bit."""
+    two = _train_on_forced_devices(sweep_file, 2, tmp_path / "two.npz", strategy="vmap")
     one = _first_three(trained)
     assert len(two) == len(one)
     for got, want in zip(two, one, strict=True):
         np.testing.assert_array_equal(got, want, strict=True)
 
 
-def test_four_forced_devices_reproduce_each_run_alone(sweep_file, tmp_path):
-    """The 4-point sweep sharded over 4 forced host devices (2 runs per device, 4 of
-    them padding) ≡ each point trained alone on one device, bit for bit.
+@pytest.fixture(scope="module")
+def alone_with_four_threads(sweep_file, tmp_path_factory):
+    out = tmp_path_factory.mktemp("alone") / "1.npz"
+    return _train_on_forced_devices(sweep_file, 1, out, runs=4, threads=4, alone=True)
+
+
+@pytest.mark.parametrize("strategy", ["map", "vmap"])
+def test_four_forced_devices_reproduce_each_run_alone(
+    sweep_file, alone_with_four_threads, strategy, tmp_path
+):
+    """The 4-point sweep sharded over 4 forced host devices (``map``: one run per
+    device; ``vmap``: 2 per device, 4 of them padding) ≡ each point trained alone
+    on one device, bit for bit.
 
     XLA:CPU's thread pool has max(cores, forced devices) threads, and Eigen's
     matrix products split their sums by the pool size: on a machine with
@@ -158,12 +178,11 @@ def test_four_forced_devices_reproduce_each_run_alone(sweep_file, tmp_path):
     has. Both processes get the same pool (``PJRT_NPROC=4``), as two machines
     with 4 cores would; see ``drqn_jax.determinism``.
     """
-    four = _train_on_forced_devices(sweep_file, 4, tmp_path / "4.npz", runs=4, threads=4)
-    alone = _train_on_forced_devices(
-        sweep_file, 1, tmp_path / "1.npz", runs=4, threads=4, alone=True
+    four = _train_on_forced_devices(
+        sweep_file, 4, tmp_path / "4.npz", runs=4, threads=4, strategy=strategy
     )
-    assert len(four) == len(alone)
-    for got, want in zip(four, alone, strict=True):
+    assert len(four) == len(alone_with_four_threads)
+    for got, want in zip(four, alone_with_four_threads, strict=True):
         np.testing.assert_array_equal(got, want, strict=True)
 
 
@@ -297,21 +316,26 @@ def test_resume_skips_finished_calls_and_refuses_another_sweep(sweep_file, cli_s
 
 def test_the_memory_plan_splits_or_refuses(sweep_file, capsys):
     sweep = load_sweep(sweep_file)
-    per_run = run_memory(sweep.points[0].config).total
-    calls = plan_calls(sweep, 1, budget=int(2.5 * per_run / USABLE_FRACTION))
-    assert [len(c.points) for c in calls] == [2, 2] and all(c.size == 2 for c in calls)
-    assert [p.index for c in calls for p in c.points] == [0, 1, 2, 3]
-    assert [len(c.points) for c in plan_calls(sweep, 1, budget=10**12)] == [4]
+    per_run = run_memory(sweep.points[0].config)
+    batched = int(2.5 * per_run.total / USABLE_FRACTION)  # vmap: all temporaries at once
+    state = per_run.total - per_run.activations
+    one_by_one = int((per_run.activations + 2.5 * state) / USABLE_FRACTION)  # map: one's
+    for strategy, budget in [("vmap", batched), ("map", one_by_one)]:
+        calls = plan_calls(sweep, 1, budget=budget, strategy=strategy)
+        assert [len(c.points) for c in calls] == [2, 2] and all(c.size == 2 for c in calls)
+        assert [p.index for c in calls for p in c.points] == [0, 1, 2, 3]
+        assert [len(c.points) for c in plan_calls(sweep, 1, budget=10**12)] == [4]
     code = cli.main(["sweep", str(sweep_file), "--memory-gb", "0.001", "--dry-run"])
     assert code == 2
     err = capsys.readouterr().err
     assert "memory plan: one run needs" in err and "replay" in err and "--memory-gb" in err
 
 
-def test_calls_never_hold_one_run_per_device():
+def test_vmap_calls_never_hold_one_run_per_device():
     assert [call_size(n, 1) for n in (1, 2, 3)] == [2, 2, 3]
     assert [call_size(n, 4) for n in (1, 4, 5, 8, 9)] == [8, 8, 8, 8, 12]
     assert call_size(3, 4, most_per_device=1) == 4  # memory allows no more
+    assert [call_size(n, 4, "map") for n in (1, 4, 5)] == [4, 4, 8]  # unbatched: as alone
 
 
 def test_the_thread_pool_size_follows_pjrt_nproc_and_forced_devices(monkeypatch):
