@@ -3,7 +3,8 @@
 Usage::
 
     python benchmarks/sweep_throughput.py [--runs 1 4 16 64] [--iterations 20] [--repeats 3]
-        [--sequential-runs 16] [--sharded-runs 4 16] [--json out.json] [--quick]
+        [--sequential-runs 16] [--sharded-runs 4 16] [--strategy vmap|map] [--json out.json]
+        [--quick]
 
 (``python -m benchmarks.sweep_throughput`` from the repository root works too.)
 
@@ -296,27 +297,6 @@ def bench_sequential(
     return row
 
 
-def sweep_memory(trainer: Trainer, runs: int, seed: int) -> dict[str, Any]:
-    """XLA memory of the sweep's program, ``jit(vmap(trainer.train))`` over ``runs`` keys,
-    hyperparameters and env parameters, as ``drqn_jax.sweep.train_runs`` builds it; not run."""
-    keys = run_keys(seed, runs)
-    hparams = stack([trainer.config.hyperparams] * runs)
-    env_params = stack([trainer.env_params] * runs)
-    train = jax.jit(jax.vmap(trainer.train))
-    compiled, lower_s, xla_s = compile_timed(train, keys, hparams, env_params)
-    xla = memory_of(compiled)
-    progress(
-        f"{runs}-run sweep program jit(vmap(trainer.train)): compile {lower_s + xla_s:.2f} s, "
-        f"peak {peak_mb(xla) or float('nan'):.0f} MB (not run)"
-    )
-    return {
-        "runs": runs,
-        "compile_s": lower_s + xla_s,
-        "xla_memory": xla,
-        "peak_mb": peak_mb(xla),
-    }
-
-
 def fill(trainer: Trainer, seed: int) -> tuple[TrainState, dict[str, Any]]:
     """One run's replay filled up to ``learning_starts`` episodes, learning then on."""
     fill_run = jax.jit(trainer.run, static_argnums=1, donate_argnums=0)
@@ -459,9 +439,14 @@ def report_lines(result: dict[str, Any]) -> list[str]:
         "| temporaries | peak ≈ args + outputs − aliased + temps | peak per run |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    programs = [("`trainer.run`", r, mb(r["train_state_mb"])) for r in rows]
-    if result["sweep_memory"]:
-        programs.append(("`trainer.train` (sweep; compiled, not run)", result["sweep_memory"], "–"))
+    programs = [
+        (
+            "`trainer.run`" if r["runs"] == 1 else f"sweep call ({cfg['strategy']})",
+            r,
+            mb(r["train_state_mb"]),
+        )
+        for r in rows
+    ]
     for name, r, state_mb in programs:
         x = r["xla_memory"] or {}
         per_run = None if r["peak_mb"] is None else r["peak_mb"] / r["runs"]
@@ -487,15 +472,14 @@ def report_lines(result: dict[str, Any]) -> list[str]:
             f"**{s['batched_ratio']:.2f}×** (target: >= {TARGET_BATCHED_RATIO:g}× on the "
             f"2-core CPU; {verdict(s['batched_ratio'] >= TARGET_BATCHED_RATIO)})"
         )
-    for name, key in (("`trainer.run`", "run_peak_gb"), ("sweep `trainer.train`", "sweep_peak_gb")):
-        if s[key] is not None:
-            fits = "fits" if s[key] <= SWEEP_GB else "does NOT fit"
-            out.append(
-                f"- {SWEEP_RUNS}-run {name} program of the "
-                f"{'QUICK config' if cfg['quick'] else 'paper preset'}: XLA peak "
-                f"{s[key]:.2f} GB: {fits} in {SWEEP_GB:g} GB (this machine: "
-                f"{mem['mem_total_gb']:.1f} GB total)"
-            )
+    if s["run_peak_gb"] is not None:
+        fits = "fits" if s["run_peak_gb"] <= SWEEP_GB else "does NOT fit"
+        out.append(
+            f"- {SWEEP_RUNS}-run sweep call (`{cfg['strategy']}`) of the "
+            f"{'QUICK config' if cfg['quick'] else 'paper preset'}: XLA peak "
+            f"{s['run_peak_gb']:.2f} GB: {fits} in {SWEEP_GB:g} GB (this machine: "
+            f"{mem['mem_total_gb']:.1f} GB total)"
+        )
     if s["gpu_speedup"] is not None:
         out.append(
             f"- {SWEEP_RUNS} runs in one program against 1 run on {result['backend']}: "
@@ -551,11 +535,6 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         metavar="R",
         help=f"run counts sharded over {HOST_DEVICES} host devices in a subprocess, CPU only "
         "(default: 4 16; none with --quick; give no value for none)",
-    )
-    parser.add_argument(
-        "--no-sweep-memory",
-        action="store_true",
-        help=f"skip compiling the {SWEEP_RUNS}-run jit(vmap(trainer.train)) for its memory",
     )
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
     parser.add_argument("--json", metavar="PATH", help="also write the results as JSON here")
@@ -647,8 +626,6 @@ def main(argv: Sequence[str] | None = None) -> None:
     else:
         sharded, sharded_note = {}, "not asked for (--sharded-runs)"
 
-    sweep_mem = None if args.no_sweep_memory else sweep_memory(trainer, SWEEP_RUNS, args.seed)
-
     by_runs = {r["runs"]: r for r in rows}
     seq_row = by_runs.get(args.sequential_runs) if sequential else None
     run_64 = by_runs.get(SWEEP_RUNS)
@@ -659,9 +636,6 @@ def main(argv: Sequence[str] | None = None) -> None:
             seq_row["vs_sequential"] >= TARGET_BATCHED_RATIO if seq_row else None
         ),
         "run_peak_gb": run_64["peak_mb"] * MB / GB if run_64 and run_64["peak_mb"] else None,
-        "sweep_peak_gb": (
-            sweep_mem["peak_mb"] * MB / GB if sweep_mem and sweep_mem["peak_mb"] else None
-        ),
         "gpu_speedup": (
             run_64["speedup_vs_1_run"] if backend != "cpu" and run_64 is not None else None
         ),
@@ -697,7 +671,6 @@ def main(argv: Sequence[str] | None = None) -> None:
         "rows": rows,
         "sequential": sequential,
         "sharded": sharded,
-        "sweep_memory": sweep_mem,
         "summary": summary,
         "wall_s": time.perf_counter() - wall_start,
         "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / MB,

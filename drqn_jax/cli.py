@@ -39,6 +39,7 @@ from drqn_jax.runner import (
     train_run,
     write_evaluation,
 )
+from drqn_jax.sweep import STRATEGIES
 
 __all__ = ["main"]
 
@@ -197,6 +198,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--resume", action="store_true", help="continue the sweep in --out from its checkpoints"
     )
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    sweep.add_argument(
+        "--strategy",
+        choices=STRATEGIES,
+        default=None,
+        help="how a device trains its runs: batched (vmap) or one after another (map); "
+        "default: the sweep file's, else auto (map on CPU, vmap elsewhere)",
+    )
     sweep.add_argument(
         "--memory-gb",
         type=float,
@@ -481,7 +489,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     sweep = load_sweep(args.sweep_file, args.overrides)
     devices = len(jax.local_devices())
     budget = None if args.memory_gb is None else int(args.memory_gb * 1e9)
-    calls = plan_calls(sweep, devices, dist, budget, "--memory-gb")
+    calls = plan_calls(sweep, devices, dist, budget, "--memory-gb", args.strategy)
     if dist.leader:
         print(sweep.describe(), file=sys.stderr)
     print(describe_plan(calls, devices, dist), file=sys.stderr)

@@ -36,6 +36,7 @@ __all__ = [
     "RunMemory",
     "activation_bytes",
     "available_memory",
+    "call_bytes",
     "format_bytes",
     "run_memory",
     "runs_per_call",
@@ -170,31 +171,44 @@ def available_memory(devices: Sequence[Any]) -> tuple[int, str]:
     return total, f"{devices[0].platform} memory of {len(devices)} device(s)"
 
 
+def call_bytes(per_run: RunMemory, runs: int, *, batched: bool = True) -> int:
+    """Peak bytes of ``runs`` runs trained together on one device.
+
+    ``batched`` (``vmap``): every run's state and update temporaries at once.
+    Otherwise (``lax.map``, one run after another): the runs' states twice
+    (the map writes a new stack of states beside its input) and one run's
+    temporaries — XLA's own analysis of the 64-run paper program says 3.7 GB
+    against 3.7 GB here (benchmarks/RESULTS.md).
+    """
+    if batched:
+        return runs * per_run.total
+    return 2 * runs * (per_run.total - per_run.activations) + per_run.activations
+
+
 def runs_per_call(
     per_run: RunMemory, runs: int, devices: int, budget: int, source: str, *, batched: bool = True
 ) -> int:
     """How many runs one compiled call trains at once: a multiple of ``devices``
     (the run axis is sharded over them), at most ``runs`` rounded up to one.
 
-    ``batched`` (``vmap``): every run's update temporaries are live at once;
-    otherwise (``lax.map``, one run after another on each device) only one's.
-
     Raises:
         MemoryPlanError: not even one run per device fits in ``budget``.
     """
     usable = USABLE_FRACTION * budget
     per_device_budget = usable / devices
-    if batched:
-        per_device = int(per_device_budget // per_run.total)
-    else:
-        state = per_run.total - per_run.activations
-        per_device = int((per_device_budget - per_run.activations) // state)
+    per_device = 0
+    most = math.ceil(runs / devices)
+    while per_device < most and call_bytes(per_run, per_device + 1, batched=batched) <= (
+        per_device_budget
+    ):
+        per_device += 1
     if per_device < 1:
+        need = devices * call_bytes(per_run, 1, batched=batched)
         raise MemoryPlanError(
             f"memory plan: one run needs {per_run.describe()}; {devices} device(s) need "
-            f"{format_bytes(per_run.total * devices)} but {format_bytes(usable)} is usable "
+            f"{format_bytes(need)} but {format_bytes(usable)} is usable "
             f"({USABLE_FRACTION:.0%} of {format_bytes(budget)}, {source}). Reduce "
             "train.replay_episodes, train.batch_size, train.window or the network, "
             "or give --memory-gb"
         )
-    return min(per_device, math.ceil(runs / devices)) * devices
+    return per_device * devices

@@ -48,6 +48,7 @@ from drqn_jax.config import (
 from drqn_jax.stats import interquartile_mean, t_interval
 
 __all__ = [
+    "STRATEGIES",
     "Sweep",
     "SweepPoint",
     "load_sweep",
@@ -58,6 +59,12 @@ __all__ = [
 ]
 
 MODES = ("product", "zip")
+#: How a device trains its runs: ``vmap`` batches them (one program step
+#: advances all; what accelerators want), ``map`` runs them one after another
+#: inside the same program (``lax.map``; on CPUs, where one run already keeps
+#: the cores busy and batched products are slower); ``auto``: ``map`` on CPU
+#: devices, ``vmap`` elsewhere (:mod:`drqn_jax.sweep_runner`).
+STRATEGIES = ("auto", "vmap", "map")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,6 +88,7 @@ class Sweep:
     base: str
     axes: dict[str, list[Any]]
     points: list[SweepPoint]
+    strategy: str = "auto"
 
     def programs(self) -> list[list[SweepPoint]]:
         """Points grouped by shapes, in order of first appearance: one program each."""
@@ -176,11 +184,16 @@ def load_sweep(path: str | Path, overrides: Sequence[str] = ()) -> Sweep:
         raise ConfigError(f"sweep {str(path)!r}: no such file") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"sweep {str(path)!r}: not valid TOML: {err}") from None
-    unknown = set(raw) - {"base", "mode", "set", "axes"}
+    unknown = set(raw) - {"base", "mode", "strategy", "set", "axes"}
     if unknown:
         raise ConfigError(
             f"sweep {str(path)!r}: unknown key(s) {', '.join(sorted(unknown))}; "
-            "allowed: base, mode, set, axes"
+            "allowed: base, mode, strategy, set, axes"
+        )
+    strategy = raw.get("strategy", "auto")
+    if strategy not in STRATEGIES:
+        raise ConfigError(
+            f"strategy = {strategy!r}: must be one of {', '.join(map(repr, STRATEGIES))}"
         )
     base = raw.get("base", "default")
     base_path = path.parent / base
@@ -208,7 +221,7 @@ def load_sweep(path: str | Path, overrides: Sequence[str] = ()) -> Sweep:
         except ConfigError as err:
             raise ConfigError(f"sweep point {i} ({values}): {err}") from None
         points.append(SweepPoint(i, values, config))
-    return Sweep(str(base), axes, points)
+    return Sweep(str(base), axes, points, strategy)
 
 
 TABLE_METRICS = (

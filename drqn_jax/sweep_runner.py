@@ -54,12 +54,13 @@ from drqn_jax.evaluation import evaluate
 from drqn_jax.memory import (
     RunMemory,
     available_memory,
+    call_bytes,
     format_bytes,
     run_memory,
     runs_per_call,
 )
 from drqn_jax.runner import _finite, _progress_bar, _StopRequest, json_ready
-from drqn_jax.sweep import Sweep, SweepPoint
+from drqn_jax.sweep import STRATEGIES, Sweep, SweepPoint
 from drqn_jax.train import Trainer, TrainState, make_train
 
 __all__ = [
@@ -158,14 +159,6 @@ def _process_slice(points: Sequence[SweepPoint], dist: Distributed) -> list[Swee
     return list(points[bounds[dist.process] : bounds[dist.process + 1]])
 
 
-#: How a device trains its runs: ``vmap`` batches them (one program step
-#: advances all; what accelerators want), ``map`` runs them one after another
-#: inside the same program (``lax.map``; on CPUs, where one run already keeps
-#: the cores busy and batched products are slower); ``auto``: ``map`` on CPU
-#: devices, ``vmap`` elsewhere.
-STRATEGIES = ("auto", "vmap", "map")
-
-
 def resolve_strategy(strategy: str, devices: Sequence[Any]) -> str:
     """``vmap`` or ``map`` for ``strategy`` on ``devices``."""
     if strategy not in STRATEGIES:
@@ -181,19 +174,19 @@ def plan_calls(
     dist: Distributed = Distributed(),
     budget: int | None = None,
     memory_source: str = "",
-    strategy: str = "auto",
+    strategy: str | None = None,
 ) -> list[Call]:
     """This process's calls, in order: its slice of every program, cut to fit in memory.
 
     Args:
         devices: local device count (each call's size is a multiple of it).
         budget: bytes available to one call (default: :func:`available_memory`).
-        strategy: one of :data:`STRATEGIES`.
+        strategy: one of :data:`~drqn_jax.sweep.STRATEGIES` (default: the sweep file's).
     Raises:
         MemoryPlanError: one run per device does not fit (before anything compiles).
     """
     local = jax.local_devices()[:devices]
-    strategy = resolve_strategy(strategy, local)
+    strategy = resolve_strategy(sweep.strategy if strategy is None else strategy, local)
     if budget is None:
         budget, memory_source = available_memory(local)
     calls = []
@@ -228,26 +221,21 @@ def call_size(runs: int, devices: int, strategy: str = "vmap", most_per_device: 
 
 
 def describe_plan(calls: Sequence[Call], devices: int, dist: Distributed) -> str:
-    """One line per call: its runs, size, memory per run and in all."""
+    """One line per call: its runs, padding, strategy, memory in all and per run."""
     where = f"process {dist.process} of {dist.processes}, " if dist.processes > 1 else ""
     lines = [f"memory plan ({where}{devices} device(s)):"]
     for call in calls:
         pad = call.size - len(call.points)
-        lines.append(
-            f"  program {call.program}, {call.name}: {len(call.points)} run(s)"
-            + (f" + {pad} padding" if pad else "")
-            + (
-                " (1 per device: rounds differently from batched runs)"
-                if call.size == devices
-                else ""
-            )
-            + (
-                f", {format_bytes(call.size * call.memory.total)} in all; "
-                f"per run {call.memory.describe()}"
-                if call.memory
-                else ""
-            )
-        )
+        line = f"  program {call.program}, {call.name}: {len(call.points)} run(s)"
+        line += f" + {pad} padding" if pad else ""
+        line += f", {call.strategy}"
+        if call.strategy == "vmap" and call.size == devices:
+            line += " (1 per device: rounds unlike batched runs)"
+        if call.memory is not None:
+            batched = call.strategy == "vmap"
+            total = devices * call_bytes(call.memory, call.size // devices, batched=batched)
+            line += f", {format_bytes(total)} in all; per run {call.memory.describe()}"
+        lines.append(line)
     return "\n".join(lines)
 
 

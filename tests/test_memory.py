@@ -3,10 +3,19 @@
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import pytest
 
 from drqn_jax.config import load_config
-from drqn_jax.memory import MemoryPlanError, RunMemory, format_bytes, run_memory, runs_per_call
+from drqn_jax.memory import (
+    MemoryPlanError,
+    RunMemory,
+    call_bytes,
+    format_bytes,
+    run_memory,
+    runs_per_call,
+)
+from drqn_jax.sweep_runner import call_programs
 from drqn_jax.train import make_train
 
 
@@ -23,6 +32,24 @@ def test_the_estimate_covers_what_xla_allocates(name):
     state_bytes = estimate.total - estimate.activations
     assert state_bytes == xla.argument_size_in_bytes
     assert xla.temp_size_in_bytes <= estimate.activations <= 2 * xla.temp_size_in_bytes
+
+
+@pytest.mark.parametrize("strategy", ["map", "vmap"])
+def test_the_call_estimate_covers_what_xla_allocates(strategy):
+    """A 4-run call of the smoke config: :func:`call_bytes` against XLA's peak
+    (arguments + temporaries of the donating chunk program), within 1–2×."""
+    config = load_config("smoke")
+    trainer = make_train(config.train_config())
+    devices = jax.devices()[:1]
+    init, run = call_programs(trainer, 4, devices, strategy)
+    keys = jax.random.split(config.keys()[0], 4)
+    hparams = jax.tree.map(lambda x: jnp.stack([jnp.asarray(x)] * 4), config.hyperparams())
+    env_params = jax.tree.map(lambda x: jnp.stack([jnp.asarray(x)] * 4), config.make_env()[1])
+    state = jax.eval_shape(init, keys, hparams, env_params)
+    xla = run.lower(state, jax.ShapeDtypeStruct((4,), bool)).compile().memory_analysis()
+    peak = xla.argument_size_in_bytes + xla.temp_size_in_bytes
+    estimate = call_bytes(run_memory(config), 4, batched=strategy == "vmap")
+    assert peak <= estimate <= 2 * peak
 
 
 def test_runs_per_call_is_a_multiple_of_the_devices_or_refuses():

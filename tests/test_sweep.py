@@ -84,6 +84,7 @@ def test_ranges_zip_mode_and_errors(tmp_path):
     for text, message in [
         ('base = "smoke"\nfoo = 1\n', r"unknown key\(s\) foo"),
         ('base = "smoke"\nmode = "grid"\n', r"mode = 'grid'"),
+        ('base = "smoke"\nstrategy = "pmap"\n', r"strategy = 'pmap': must be one of 'auto'"),
         ('base = "smoke"\n[axes]\n"train.gamma" = []\n', r"axes\.train\.gamma = \[\]"),
         ('base = "smoke"\n[axes]\n"train.gamma" = [0.9, 2.0]\n', r"sweep point 1 .*train\.gamma"),
         ('base = "smoke"\n[axes]\n"train.nope" = [1]\n', r"unknown field train\.nope"),
@@ -229,6 +230,9 @@ def test_cli_sweep_writes_tables(sweep_file, cli_sweep, capsys):
     assert cli.main(["sweep", str(sweep_file), "--dry-run"]) == 0
     err = capsys.readouterr().err
     assert "sweep over 4 runs" in err and "memory plan (1 device(s))" in err
+    assert "4 run(s), map," in err  # auto on the CPU
+    assert cli.main(["sweep", str(sweep_file), "--dry-run", "--strategy", "vmap"]) == 0
+    assert "4 run(s), vmap," in capsys.readouterr().err
     runs = json.loads((cli_sweep / "runs.json").read_text())
     assert [r["index"] for r in runs] == [0, 1, 2, 3]
     assert all(r["num_episodes"] == 2 and r["diverged"] is False for r in runs)
@@ -319,7 +323,7 @@ def test_the_memory_plan_splits_or_refuses(sweep_file, capsys):
     per_run = run_memory(sweep.points[0].config)
     batched = int(2.5 * per_run.total / USABLE_FRACTION)  # vmap: all temporaries at once
     state = per_run.total - per_run.activations
-    one_by_one = int((per_run.activations + 2.5 * state) / USABLE_FRACTION)  # map: one's
+    one_by_one = int((per_run.activations + 2 * 2.5 * state) / USABLE_FRACTION)  # map
     for strategy, budget in [("vmap", batched), ("map", one_by_one)]:
         calls = plan_calls(sweep, 1, budget=budget, strategy=strategy)
         assert [len(c.points) for c in calls] == [2, 2] and all(c.size == 2 for c in calls)
