@@ -103,6 +103,7 @@ def _interrupt_after(monkeypatch, chunks: int) -> None:
 
 def test_interrupt_then_resume_is_bit_identical(straight, tmp_path, monkeypatch, capsys):
     run_dir = tmp_path / "run"
+    handler = signal.getsignal(signal.SIGINT)  # SIG_IGN when the suite runs in the background
     _interrupt_after(monkeypatch, 2)
     assert cli.main(["train", *SMOKE, "--run-dir", str(run_dir)]) == 130
     assert "--resume" in capsys.readouterr().err
@@ -110,7 +111,7 @@ def test_interrupt_then_resume_is_bit_identical(straight, tmp_path, monkeypatch,
     assert meta["chunks"] == 2 and not meta["finished"]
     assert not (run_dir / "evaluation.json").exists()
     monkeypatch.undo()
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGINT) is handler  # train restored it
     assert cli.main(["train", "--resume", str(run_dir), "--quiet"]) == 0
     _assert_same_checkpoint(straight, run_dir)
     assert (run_dir / "metrics.csv").read_text() == (straight / "metrics.csv").read_text()
