@@ -90,34 +90,22 @@ from drqn_jax.replay import replay_bytes
 from drqn_jax.sweep_runner import call_programs, resolve_strategy
 from drqn_jax.train import TrainConfig, Trainer, TrainState, make_train
 
-try:  # python -m benchmarks.sweep_throughput (the repository root on sys.path)
-    from benchmarks.train_throughput import (
-        MB,
-        QUICK_CONFIG,
-        SWEEP_GB,
-        SWEEP_RUNS,
-        compile_timed,
-        fill_replay,
-        memory_of,
-        stack,
-        time_calls,
-        tree_bytes,
-        verdict,
-    )
-except ModuleNotFoundError:  # python benchmarks/sweep_throughput.py (benchmarks/ on sys.path)
-    from train_throughput import (
-        MB,
-        QUICK_CONFIG,
-        SWEEP_GB,
-        SWEEP_RUNS,
-        compile_timed,
-        fill_replay,
-        memory_of,
-        stack,
-        time_calls,
-        tree_bytes,
-        verdict,
-    )
+if __package__ in (None, ""):  # python benchmarks/sweep_throughput.py: the root importable
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from benchmarks.train_throughput import (
+    MB,
+    QUICK_CONFIG,
+    SWEEP_GB,
+    SWEEP_RUNS,
+    compile_timed,
+    fill_replay,
+    memory_of,
+    stack,
+    time_calls,
+    tree_bytes,
+    verdict,
+    write_json,
+)
 
 TARGET_BATCHED_RATIO = 0.9  # issue 6: S runs in one program >= 0.9 × the same runs in turn (CPU)
 TARGET_GPU_SPEEDUP = 20.0  # issue 6: 64 runs in one program >= 20 × one run (GPU)
@@ -683,10 +671,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         f"{result['loadavg_1min_at_end']:.2f})"
     )
     if args.json:
-        with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(result, fh, indent=2, default=str)
-            fh.write("\n")
-        print(f"\nwrote {args.json}")
+        write_json(args.json, result)
 
 
 if __name__ == "__main__":

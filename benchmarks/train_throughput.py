@@ -289,6 +289,14 @@ def fill_replay(
     return state, info
 
 
+def write_json(path: str, result: dict[str, Any]) -> None:
+    """``result`` as indented JSON at ``path`` (non-JSON values as ``str``), and say so."""
+    with open(path, "w", encoding="utf-8") as fh:
+        json.dump(result, fh, indent=2, default=str)
+        fh.write("\n")
+    print(f"\nwrote {path}")
+
+
 def compile_timed(jitted: Any, *args: Any) -> tuple[jax.stages.Compiled, float, float]:
     """Lower and compile; return the executable, lower seconds and XLA compile seconds."""
     t0 = time.perf_counter()
@@ -786,10 +794,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         f"{result['loadavg_1min_at_end']:.2f})"
     )
     if args.json:
-        with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(result, fh, indent=2, default=str)
-            fh.write("\n")
-        print(f"\nwrote {args.json}")
+        write_json(args.json, result)
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ evaluation key of the first point — so runs differ only by their training.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 import tomllib
@@ -75,6 +76,11 @@ class SweepPoint:
     values: dict[str, Any]
     config: Config
 
+    @functools.cached_property
+    def shape(self) -> tuple:
+        """:func:`shape_key` of the point's config (computed once)."""
+        return shape_key(self.config)
+
     @property
     def setting(self) -> tuple[tuple[str, Any], ...]:
         """The axis values other than the seed: the runs a results row pools."""
@@ -94,7 +100,7 @@ class Sweep:
         """Points grouped by shapes, in order of first appearance: one program each."""
         groups: dict[Any, list[SweepPoint]] = {}
         for point in self.points:
-            groups.setdefault(shape_key(point.config), []).append(point)
+            groups.setdefault(point.shape, []).append(point)
         return list(groups.values())
 
     def describe(self) -> str:
@@ -126,7 +132,7 @@ def _changes_shape(sweep: Sweep, axis: str) -> bool:
     seen: dict[tuple, set] = {}
     for p in sweep.points:
         rest = tuple((k, _hashable(v)) for k, v in p.values.items() if k != axis)
-        seen.setdefault(rest, set()).add(shape_key(p.config))
+        seen.setdefault(rest, set()).add(p.shape)
     return any(len(keys) > 1 for keys in seen.values())
 
 

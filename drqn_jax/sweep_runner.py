@@ -48,7 +48,14 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from drqn_jax.agents import drqn_agent
-from drqn_jax.checkpoint import CheckpointError, atomic_write_text, load_checkpoint, save_checkpoint
+from drqn_jax.checkpoint import (
+    CHECKPOINT_JSON,
+    CHECKPOINT_NPZ,
+    CheckpointError,
+    atomic_write_text,
+    load_checkpoint,
+    save_checkpoint,
+)
 from drqn_jax.config import ConfigError
 from drqn_jax.evaluation import evaluate
 from drqn_jax.memory import (
@@ -140,6 +147,11 @@ class Call:
     size: int  # runs in the call, padding included: a multiple of the device count
     strategy: str = "vmap"  # "vmap" or "map" (see STRATEGIES)
     memory: RunMemory | None = None  # per run, as planned
+
+    @property
+    def episodes(self) -> int:
+        """Training episodes of the call's runs, padding excluded."""
+        return len(self.points) * self.points[0].config["train"]["num_episodes"]
 
     @property
     def name(self) -> str:
@@ -343,7 +355,7 @@ def train_call(
     args = _init_args(call.points, call.size)
     sharding = _sharding(devices)
     real = jax.device_put(np.arange(call.size) < len(call.points), sharding)
-    checkpoint = directory is not None and (directory / "checkpoint.npz").exists()
+    checkpoint = directory is not None and (directory / CHECKPOINT_NPZ).exists()
     if checkpoint:
         template = jax.eval_shape(init, *args)
         state, _ = load_checkpoint(directory, template, {"config_hash": call.fingerprint()})
@@ -496,7 +508,7 @@ def run_sweep(
     eval_key = first.keys()[1]
     every = first["run"]["checkpoint_every_s"]
     results: list[dict[str, Any]] = []
-    total = sum(len(c.points) * c.points[0].config["train"]["num_episodes"] for c in calls)
+    total = sum(call.episodes for call in calls)
     stop = _StopRequest()
     desc = f"sweep (process {dist.process})" if dist.processes > 1 else "sweep"
     with stop.installed(), _progress_bar(total, 0, quiet or not dist.leader) as bar:
@@ -507,7 +519,7 @@ def run_sweep(
             saved = directory / "runs.json"
             if resume and saved.is_file():
                 results += json.loads(saved.read_text())
-                done_before += len(call.points) * call.points[0].config["train"]["num_episodes"]
+                done_before += call.episodes
                 bar.update(done_before - bar.n)
                 continue
 
@@ -520,17 +532,17 @@ def run_sweep(
                 directory=directory,
                 checkpoint_every_s=every,
                 stop=stop,
-                on_chunk=progress,
+                on_chunk=None if bar.disable else progress,  # no host copy unless shown
             )
             if outcome.status == "interrupted":
                 return SweepOutcome("interrupted", results, list(calls))
             call_result = call_results(call, outcome, eval_key)
             directory.mkdir(parents=True, exist_ok=True)
             atomic_write_text(saved, json.dumps(call_result, indent=1) + "\n")
-            for name in ("checkpoint.npz", "checkpoint.json"):  # the results replace them
+            for name in (CHECKPOINT_NPZ, CHECKPOINT_JSON):  # the results replace them
                 (directory / name).unlink(missing_ok=True)
             results += call_result
-            done_before += len(call.points) * call.points[0].config["train"]["num_episodes"]
+            done_before += call.episodes
     if dist.processes > 1:
         results = _gather(results, dist)
     return SweepOutcome("finished", sorted(results, key=lambda r: r["index"]), list(calls))
