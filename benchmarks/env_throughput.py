@@ -2,7 +2,8 @@
 
 Usage::
 
-    python benchmarks/env_throughput.py [--batch-sizes 1 64 4096] [--steps 200] [--json out.json]
+    python -m benchmarks.env_throughput [--batch-sizes 1 64 4096] [--steps 200] [--out DIR]
+    drqn-jax bench env_throughput …
 
 For every batch size N the whole rollout is ONE jitted program: ``lax.scan``
 over T steps of ``jax.vmap(env.step)`` on N ``UrbanPedestrians-v0`` envs with
@@ -16,22 +17,18 @@ Compile time (``jax.jit(fn).lower(...).compile()``) is measured apart from
 run time. After one warm-up call, ``--repeats`` timed calls follow, each
 continuing the episodes from the previous call's final carry (the carry is
 donated, so one copy of it lives at a time); ``--stat`` picks which repeat
-is reported (``best`` = shortest run time, default, or ``median``). A step
+is reported (``median``, default, or ``best`` = shortest run time). A step
 includes same-step auto-reset.
 
 Prints the machine, a Markdown table (batch size | compile s | run s |
 env steps/s | µs per env-step) and a summary against the targets;
-``--json PATH`` writes the same data as JSON.
+``--out DIR`` writes the same data as ``DIR/env_throughput.json`` and ``.md``.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import statistics
 import sys
-import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -39,10 +36,10 @@ import jax
 import jax.numpy as jnp
 
 import drqn_jax
-from drqn_jax.machine import machine_info, machine_lines
+from benchmarks.harness import base_parser, compile_timed, report, time_calls
 
 ENV_ID = "UrbanPedestrians-v0"
-DEFAULT_BATCH_SIZES = (1, 4, 16, 64, 256, 1024, 4096, 16384)
+DEFAULT_BATCH_SIZES = (1, 16, 256, 1024, 4096, 16384, 65536)
 TARGET_STEPS_PER_S = 200_000
 TARGET_COMPILE_S = 10.0
 # Context from the issue: writing the float32 grid alone bounds this machine near here.
@@ -108,47 +105,27 @@ def bench_batch(
     """Compile and time one batch size; return its row."""
     carry = jax.block_until_ready(make_init(env, num_envs)(jax.random.key(seed), params))
 
-    t0 = time.perf_counter()
-    lowered = jax.jit(make_rollout(env, num_envs, num_steps), donate_argnums=0).lower(carry, params)
-    t1 = time.perf_counter()
-    compiled = lowered.compile()
-    t2 = time.perf_counter()
-
-    t3 = time.perf_counter()
-    carry = jax.block_until_ready(compiled(carry, params))  # warm-up
-    warmup_s = time.perf_counter() - t3
-
-    run_times, cpu_times = [], []
-    for _ in range(repeats):
-        cpu_start, start = time.process_time(), time.perf_counter()
-        carry = jax.block_until_ready(compiled(carry, params))
-        run_times.append(time.perf_counter() - start)
-        cpu_times.append(time.process_time() - cpu_start)
+    compiled, lower_s, xla_s = compile_timed(
+        jax.jit(make_rollout(env, num_envs, num_steps), donate_argnums=0), carry, params
+    )
+    carry, timing = time_calls(lambda c: compiled(c, params), carry, repeats, stat)
     # Sanity: the grid is finite and the episodes are alive.
     obs, _, _ = carry
     grid_finite = bool(jnp.all(jnp.isfinite(obs.grid)))
     occupied = float(jnp.mean(jnp.sum(obs.grid[..., 0], axis=(-2, -1))))
     del carry, obs
 
-    run_s = min(run_times) if stat == "best" else statistics.median(run_times)
+    run_s = timing["run_s"]
     env_steps = num_envs * num_steps
     steps_per_s = env_steps / run_s
     return {
         "batch_size": num_envs,
         "steps": num_steps,
         "env_steps_per_call": env_steps,
-        "lower_s": t1 - t0,
-        "xla_compile_s": t2 - t1,
-        "compile_s": t2 - t0,
-        "warmup_s": warmup_s,
-        "run_times_s": run_times,
-        "run_s": run_s,
-        "run_s_best": min(run_times),
-        "run_s_median": statistics.median(run_times),
-        # CPU seconds this process used per wall second in each timed call: about the
-        # number of cores it got; lower than usual when other processes compete.
-        "cores_used_per_call": [c / w for c, w in zip(cpu_times, run_times, strict=True)],
-        "loadavg_after": os.getloadavg()[0],
+        "lower_s": lower_s,
+        "xla_compile_s": xla_s,
+        "compile_s": lower_s + xla_s,
+        **timing,
         "env_steps_per_s": steps_per_s,
         "us_per_env_step": 1e6 / steps_per_s,
         "grid_gb_per_s": steps_per_s * grid_bytes(env) / 1e9,
@@ -213,9 +190,7 @@ def summary_lines(s: dict[str, Any]) -> list[str]:
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        description="Env steps/s of UrbanPedestrians-v0 (full observation) vs parallel envs."
-    )
+    parser = base_parser("env_throughput", __doc__)
     parser.add_argument(
         "--batch-sizes",
         type=int,
@@ -228,37 +203,21 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--steps", type=int, default=200, metavar="T", help="scan length (default: 200)"
     )
     parser.add_argument(
-        "--repeats", type=int, default=3, help="timed calls per batch size (default: 3)"
-    )
-    parser.add_argument(
         "--stat",
         choices=("best", "median"),
-        default="best",
-        help="which repeat the table reports (default: best = shortest run time)",
+        default="median",
+        help="which repeat the table reports (default: median)",
     )
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (default: 0)")
-    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON here")
     args = parser.parse_args(argv)
     if args.steps < 1 or args.repeats < 1 or any(n < 1 for n in args.batch_sizes):
         parser.error("--batch-sizes, --steps and --repeats must be >= 1")
     return args
 
 
-def main(argv: Sequence[str] | None = None) -> None:
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args = parse_args(argv)
     env, params = drqn_jax.make(ENV_ID)
-    info = machine_info()
-    stat_text = "best (shortest)" if args.stat == "best" else "median"
-
-    print(f"# {ENV_ID} env throughput (full observation)\n")
-    print("\n".join(machine_lines(info)))
-    print(
-        f"\n{args.steps} steps per call (one jitted lax.scan of vmapped env.step, random "
-        f"actions, obs in the carry); run s = {stat_text} of {args.repeats} timed calls "
-        "after 1 warm-up; compile s = lower + compile.\n",
-        flush=True,
-    )
-
     rows = []
     for n in args.batch_sizes:
         row = bench_batch(env, params, n, args.steps, args.repeats, args.stat, args.seed)
@@ -272,31 +231,32 @@ def main(argv: Sequence[str] | None = None) -> None:
         )
         if not row["grid_finite"]:
             print(f"warning: non-finite grid values at batch {n}", file=sys.stderr)
-
     summ = summary(rows, env)
-    print("\n".join(table_lines(rows)))
-    print()
-    print("\n".join(summary_lines(summ)))
-
-    if args.json:
-        payload = {
-            "env_id": ENV_ID,
-            "machine": info,
-            "config": {
-                "batch_sizes": args.batch_sizes,
-                "steps": args.steps,
-                "repeats": args.repeats,
-                "stat": args.stat,
-                "seed": args.seed,
-                "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
-            },
-            "rows": rows,
-            "summary": summ,
-        }
-        with open(args.json, "w", encoding="utf-8") as f:
-            json.dump(payload, f, indent=2)
-            f.write("\n")
-        print(f"\nwrote {args.json}")
+    lines = [
+        f"{args.steps} steps per call (one jitted lax.scan of vmapped env.step, random "
+        f"actions, obs in the carry); run s = {args.stat} of {args.repeats} timed calls "
+        "after 1 warm-up; compile s = lower + compile.",
+        "",
+        *table_lines(rows),
+        "",
+        *summary_lines(summ),
+    ]
+    result = {
+        "env_id": ENV_ID,
+        "config": {
+            k: getattr(args, k) for k in ("batch_sizes", "steps", "repeats", "stat", "seed")
+        },
+        "rows": rows,
+        "summary": summ,
+    }
+    return report(
+        "env_throughput",
+        f"{ENV_ID} env throughput (full observation)",
+        result,
+        lines,
+        args.out,
+        argv,
+    )
 
 
 if __name__ == "__main__":

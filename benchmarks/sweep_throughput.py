@@ -2,8 +2,8 @@
 
 Usage::
 
-    python benchmarks/sweep_throughput.py [--runs 1 4 16 64] [--iterations 20] [--repeats 3]
-        [--sequential-runs 16] [--sharded-runs 4 16] [--strategy vmap|map] [--json out.json]
+    python -m benchmarks.sweep_throughput [--runs 1 4 16 64] [--iterations 20] [--repeats 3]
+        [--sequential-runs 16] [--sharded-runs 4 16] [--strategy vmap|map] [--out DIR]
         [--quick]
 
 (``python -m benchmarks.sweep_throughput`` from the repository root works too.)
@@ -61,7 +61,7 @@ On an accelerator (``jax.default_backend() != "cpu"``) the report adds the
 ``--quick`` swaps in ``train_throughput.QUICK_CONFIG`` (tiny network, 30-step
 episodes), 5 iterations and 1 repeat, and no sharded child unless
 ``--sharded-runs`` is given: a smoke check of the script, not a measurement.
-``--json PATH`` writes everything.
+``--out DIR`` writes everything (``DIR/sweep_throughput.json`` and ``.md``).
 """
 
 from __future__ import annotations
@@ -85,26 +85,24 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import drqn_jax  # noqa: F401  (sets XLA_FLAGS; no JAX computation runs before this import)
-from drqn_jax.machine import machine_info, machine_lines
+from drqn_jax.machine import machine_info
 from drqn_jax.replay import replay_bytes
 from drqn_jax.sweep_runner import call_programs, resolve_strategy
 from drqn_jax.train import TrainConfig, Trainer, TrainState, make_train
 
 if __package__ in (None, ""):  # python benchmarks/sweep_throughput.py: the root importable
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from benchmarks.harness import base_parser, compile_timed, report, time_calls
 from benchmarks.train_throughput import (
     MB,
     QUICK_CONFIG,
     SWEEP_GB,
     SWEEP_RUNS,
-    compile_timed,
     fill_replay,
     memory_of,
     stack,
-    time_calls,
     tree_bytes,
     verdict,
-    write_json,
 )
 
 TARGET_BATCHED_RATIO = 0.9  # issue 6: S runs in one program >= 0.9 × the same runs in turn (CPU)
@@ -488,10 +486,7 @@ def report_lines(result: dict[str, Any]) -> list[str]:
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        description="DRQN sweep throughput: aggregate env steps/s and updates/s of R runs in "
-        "one program, against the same runs one after another and sharded over host devices."
-    )
+    parser = base_parser("sweep_throughput", __doc__)
     parser.add_argument(
         "--runs",
         type=int,
@@ -505,9 +500,6 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         type=int,
         metavar="I",
         help="trainer.run iterations per timed call (default 20; 5 with --quick)",
-    )
-    parser.add_argument(
-        "--repeats", type=int, help="timed calls after 1 warm-up (default 3; 1 with --quick)"
     )
     parser.add_argument(
         "--sequential-runs",
@@ -525,7 +517,6 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "(default: 4 16; none with --quick; give no value for none)",
     )
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
-    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON here")
     parser.add_argument(
         "--quick", action="store_true", help="tiny network and sizes: a smoke check only"
     )
@@ -540,8 +531,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.iterations is None:
         args.iterations = 5 if args.quick else 20
-    if args.repeats is None:
-        args.repeats = 1 if args.quick else 3
+    if args.quick:
+        args.repeats = 1
     if args.sharded_runs is None:
         args.sharded_runs = [] if args.quick else [4, 16]
     args.runs = sorted({1, *args.runs})
@@ -554,13 +545,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def main(argv: Sequence[str] | None = None) -> None:
+def main(argv: Sequence[str] | None = None) -> dict[str, Any] | None:
     args = parse_args(argv)
     config = QUICK_CONFIG if args.quick else TrainConfig()
     if args.sharded_child:
         sharded_child(args, config)
-        return
-    info = machine_info()
+        return None
     machine_memory = meminfo()
     backend = jax.default_backend()
     trainer = make_train(config)
@@ -568,20 +558,18 @@ def main(argv: Sequence[str] | None = None) -> None:
     wall_start = time.perf_counter()
 
     title = "QUICK SMOKE CHECK (tiny network; not a measurement)" if args.quick else "paper preset"
-    print(f"# DRQN sweep throughput, {title}\n")
-    print("\n".join(machine_lines(info)))
-    print(
-        f"\nTrainConfig: num_envs={config.num_envs}, replay_episodes={config.replay_episodes}, "
+    setup = (
+        f"TrainConfig: num_envs={config.num_envs}, replay_episodes={config.replay_episodes}, "
         f"batch_size={config.batch_size}, window={config.window}, "
         f"updates_per_step={config.updates_per_step}, env max_steps="
         f"{trainer.env.static.max_steps}, network {net.kind} (conv {net.conv}, recurrent "
         f"{net.recurrent}, hidden {net.hidden}). One run's replay filled (learning off) until "
         f"learning_starts = {int(config.hyperparams.learning_starts)} episodes, then learning "
-        "on; the R runs are R copies of it with different PRNG keys. Best (shortest) of "
+        "on; the R runs are R copies of it with different PRNG keys. Median of "
         f"{args.repeats} timed calls after 1 warm-up, each continuing from the last; compile s "
-        "= lower + XLA compile.\n",
-        flush=True,
+        "= lower + XLA compile."
     )
+    print(setup, file=sys.stderr, flush=True)
 
     filled, fill_info = fill(trainer, args.seed)
     one, one_run_program = bench_batched(trainer, filled, 1, args)  # args.runs[0] is 1
@@ -630,7 +618,6 @@ def main(argv: Sequence[str] | None = None) -> None:
         "sharded_note": sharded_note,
     }
     result = {
-        "machine": info,
         "machine_memory": machine_memory,
         "backend": backend,
         "config": {
@@ -645,7 +632,6 @@ def main(argv: Sequence[str] | None = None) -> None:
             "train_config": {
                 k: v for k, v in dataclasses.asdict(config).items() if k != "hyperparams"
             },
-            "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
         },
         "fill": fill_info,
         "memory_per_run": {
@@ -665,13 +651,16 @@ def main(argv: Sequence[str] | None = None) -> None:
         "loadavg_1min_at_end": os.getloadavg()[0],
     }
 
-    print("\n".join(report_lines(result)))
-    print(
-        f"\n(benchmark wall time {result['wall_s']:.0f} s; load average (1 min) at end "
-        f"{result['loadavg_1min_at_end']:.2f})"
-    )
-    if args.json:
-        write_json(args.json, result)
+    lines = [
+        setup,
+        "",
+        *report_lines(result),
+        "",
+        f"(benchmark wall time {result['wall_s']:.0f} s; load average (1 min) at end "
+        f"{result['loadavg_1min_at_end']:.2f})",
+    ]
+    title = "DRQN sweep throughput, " + title
+    return report("sweep_throughput", title, result, lines, args.out, argv)
 
 
 if __name__ == "__main__":

@@ -2,8 +2,8 @@
 
 Usage::
 
-    python benchmarks/train_throughput.py [--runs 1 8] [--updates 50] [--iterations 20]
-        [--repeats 3] [--fill-episodes 20] [--json out.json] [--quick]
+    python -m benchmarks.train_throughput [--runs 1 8] [--updates 50] [--iterations 20]
+        [--repeats 5] [--fill-episodes 20] [--out DIR] [--quick]
 
 Measured for the paper preset ``TrainConfig()`` (one env, 200 episodes, replay of
 M = 50 episodes, minibatch 32 windows × 8 steps, one gradient update per env
@@ -41,7 +41,7 @@ the compiled update, which counts every ``while``/``scan`` body ONCE (so the
 Table I layer sizes. GFLOP/s use (a).
 
 Timing: after one warm-up call, ``--repeats`` timed calls, each continuing from
-the previous call's result; the table reports the best (shortest) one, and
+the previous call's result; the table reports the median, and
 the "cores used" (CPU s / wall s) of every timed call goes to stderr.
 
 The paper preset's end-to-end wall time is NOT run; it is estimated from the
@@ -50,7 +50,8 @@ iterations (worst case: every episode truncated at max_steps) and times
 200 × the mean length of the filled episodes (mid case).
 
 ``--quick`` swaps in a tiny network, 30-step episodes and tiny sizes: a smoke
-check of the script, not a measurement. ``--json PATH`` writes everything.
+check of the script, not a measurement. ``--out DIR`` writes everything as
+``DIR/train_throughput.json`` (and the Markdown as ``.md``).
 """
 
 from __future__ import annotations
@@ -58,7 +59,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
-import json
 import math
 import os
 import resource
@@ -72,7 +72,7 @@ import jax.extend.core as jex
 import jax.numpy as jnp
 import numpy as np
 
-from drqn_jax.machine import machine_info, machine_lines
+from benchmarks.harness import base_parser, compile_timed, report, time_calls
 from drqn_jax.networks import NetworkConfig, param_count
 from drqn_jax.replay import replay_bytes
 from drqn_jax.train import Hyperparams, TrainConfig, Trainer, TrainState, make_train
@@ -289,43 +289,6 @@ def fill_replay(
     return state, info
 
 
-def write_json(path: str, result: dict[str, Any]) -> None:
-    """``result`` as indented JSON at ``path`` (non-JSON values as ``str``), and say so."""
-    with open(path, "w", encoding="utf-8") as fh:
-        json.dump(result, fh, indent=2, default=str)
-        fh.write("\n")
-    print(f"\nwrote {path}")
-
-
-def compile_timed(jitted: Any, *args: Any) -> tuple[jax.stages.Compiled, float, float]:
-    """Lower and compile; return the executable, lower seconds and XLA compile seconds."""
-    t0 = time.perf_counter()
-    lowered = jitted.lower(*args)
-    t1 = time.perf_counter()
-    compiled = lowered.compile()
-    return compiled, t1 - t0, time.perf_counter() - t1
-
-
-def time_calls(call: Callable[[Any], Any], carry: Any, repeats: int) -> tuple[Any, dict[str, Any]]:
-    """One warm-up call then ``repeats`` timed calls, each continuing from the last result."""
-    t = time.perf_counter()
-    carry = jax.block_until_ready(call(carry))
-    warmup_s = time.perf_counter() - t
-    run_times, cores = [], []
-    for _ in range(repeats):
-        cpu, t = time.process_time(), time.perf_counter()
-        carry = jax.block_until_ready(call(carry))
-        run_times.append(time.perf_counter() - t)
-        cores.append((time.process_time() - cpu) / run_times[-1])
-    return carry, {
-        "warmup_s": warmup_s,
-        "run_times_s": run_times,
-        "run_s": min(run_times),
-        "cores_used_per_call": cores,
-        "loadavg_after": os.getloadavg()[0],
-    }
-
-
 # --------------------------------------------------------------------------- one run count
 
 
@@ -460,7 +423,7 @@ def report_lines(result: dict[str, Any]) -> list[str]:
     out = [
         f"### Gradient updates in isolation (batch {bw}, {k} updates per call in one lax.scan)",
         "",
-        "| runs | compile s | best s per call | updates/s (all runs) | updates/s per run "
+        "| runs | compile s | median s per call | updates/s (all runs) | updates/s per run "
         "| ms per update (per run) | GFLOP/s (counted) |",
         "|---:|---:|---:|---:|---:|---:|---:|",
     ]
@@ -476,7 +439,7 @@ def report_lines(result: dict[str, Any]) -> list[str]:
         f"### End to end: `trainer.run`, learning active ({it} iterations per call; "
         "1 iteration = 1 env step + 1 update per run)",
         "",
-        "| runs | compile s | best s per call | iterations/s per run | s per iteration "
+        "| runs | compile s | median s per call | iterations/s per run | s per iteration "
         "| env steps/s (all runs) | updates/s (all runs) | GFLOP/s (counted) |",
         "|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
@@ -600,10 +563,7 @@ def report_lines(result: dict[str, Any]) -> list[str]:
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        description="DRQN training throughput: gradient updates/s, env steps/s while learning, "
-        "compile time and memory, for 1 run and for vmapped runs."
-    )
+    parser = base_parser("train_throughput", __doc__)
     parser.add_argument(
         "--runs",
         type=int,
@@ -622,7 +582,6 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         metavar="I",
         help="trainer.run iterations per timed call (default 20)",
     )
-    parser.add_argument("--repeats", type=int, default=3, help="timed calls (default 3)")
     parser.add_argument(
         "--fill-episodes",
         type=int,
@@ -632,7 +591,6 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "learning_starts (default 20)",
     )
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
-    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON here")
     parser.add_argument(
         "--quick", action="store_true", help="tiny network and sizes: a smoke check only"
     )
@@ -646,22 +604,19 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def main(argv: Sequence[str] | None = None) -> None:
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args = parse_args(argv)
     config = QUICK_CONFIG if args.quick else TrainConfig()
     if args.fill_episodes >= config.num_episodes:
         raise SystemExit("--fill-episodes must be below the preset's num_episodes")
-    info = machine_info()
     trainer = make_train(config)
     net = trainer.network.config
     max_runs = max(args.runs)
     wall_start = time.perf_counter()
 
     title = "QUICK SMOKE CHECK (tiny network; not a measurement)" if args.quick else "paper preset"
-    print(f"# DRQN training throughput, {title}\n")
-    print("\n".join(machine_lines(info)))
-    print(
-        f"\nTrainConfig: num_envs={config.num_envs}, num_episodes={config.num_episodes}, "
+    setup = (
+        f"TrainConfig: num_envs={config.num_envs}, num_episodes={config.num_episodes}, "
         f"replay_episodes={config.replay_episodes}, batch_size={config.batch_size}, "
         f"window={config.window}, updates_per_step={config.updates_per_step}, "
         f"env max_steps={trainer.env.static.max_steps}, network {net.kind} "
@@ -669,10 +624,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         f"Each run's replay first filled (learning off) until it has recorded "
         f"{args.fill_episodes} episodes (run 0) or learning_starts = "
         f"{int(config.hyperparams.learning_starts)} (other runs), then learning on. "
-        f"Best (shortest) of {args.repeats} timed calls after 1 warm-up; "
-        "compile s = lower + XLA compile. Runs > 1 are jax.vmap-ed over seeds.\n",
-        flush=True,
+        f"Median of {args.repeats} timed calls after 1 warm-up; "
+        "compile s = lower + XLA compile. Runs > 1 are jax.vmap-ed over seeds."
     )
+    print(setup, file=sys.stderr, flush=True)
 
     # fill the replays, one run at a time
     fill_run = jax.jit(trainer.run, static_argnums=1, donate_argnums=0)
@@ -761,7 +716,6 @@ def main(argv: Sequence[str] | None = None) -> None:
         "collisions": sum(f["collisions"] for _, f in fills),
     }
     result = {
-        "machine": info,
         "config": {
             "quick": args.quick,
             "runs": args.runs,
@@ -775,7 +729,6 @@ def main(argv: Sequence[str] | None = None) -> None:
             "train_config": {
                 k: v for k, v in dataclasses.asdict(config).items() if k != "hyperparams"
             },
-            "command": " ".join([os.path.basename(sys.executable), *sys.argv]),
         },
         "fills": [f for _, f in fills],
         "flops": flops,
@@ -787,14 +740,17 @@ def main(argv: Sequence[str] | None = None) -> None:
         "loadavg_1min_at_end": os.getloadavg()[0],
     }
 
-    print("\n".join(report_lines(result)))
-    print(
-        f"\n(benchmark wall time {result['wall_s']:.0f} s; peak RSS of the process "
+    lines = [
+        setup,
+        "",
+        *report_lines(result),
+        "",
+        f"(benchmark wall time {result['wall_s']:.0f} s; peak RSS of the process "
         f"{result['max_rss_mb']:.0f} MB; load average (1 min) at end "
-        f"{result['loadavg_1min_at_end']:.2f})"
-    )
-    if args.json:
-        write_json(args.json, result)
+        f"{result['loadavg_1min_at_end']:.2f})",
+    ]
+    title = "DRQN training throughput, " + title
+    return report("train_throughput", title, result, lines, args.out, argv)
 
 
 if __name__ == "__main__":

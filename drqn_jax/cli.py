@@ -221,17 +221,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser(
         "bench",
-        help="measure env steps/s and training throughput on this machine",
+        help="run the benchmark suite (or one of its benchmarks) on this machine",
         description=_BENCH_DOC,
         formatter_class=_Formatter,
     )
-    bench.add_argument("what", choices=("env", "train", "all"), nargs="?", default="all")
-    bench.add_argument("--num-envs", type=int, default=4096, help="parallel envs for 'env'")
-    bench.add_argument("--steps", type=int, default=200, help="env steps per timed call for 'env'")
     bench.add_argument(
-        "--iterations", type=int, default=20, help="training iterations per timed call for 'train'"
+        "name",
+        nargs="?",
+        default="all",
+        choices=("all", "quick", *SUITE),
+        help="a benchmark of the suite, 'all' of them, or 'quick' (figures of one config)",
     )
-    _config_options(bench, "default")
+    bench.add_argument(
+        "args",
+        nargs=argparse.REMAINDER,
+        help="the benchmark's own options (drqn-jax bench NAME --help lists them)",
+    )
     return parser
 
 
@@ -253,8 +258,23 @@ memory plan allows; each run is evaluated on the same episodes. Writes results.m
 results.csv (mean, std, 95 % t-interval and IQM across seeds per setting) and runs.json
 (every run). Ctrl-C saves checkpoints (status 130); --resume continues. With several
 processes each trains its slice of the runs and process 0 writes the results."""
-_BENCH_DOC = """Measure env steps/s (vectorised env, random actions) and training
-iterations/s of the config's trainer, with the machine they ran on."""
+_BENCH_DOC = """Run the benchmark suite of benchmarks/ (a clone of the repository is
+needed): each benchmark prints a Markdown table with the machine it ran on, and
+--out DIR writes DIR/NAME.json and DIR/NAME.md. 'all' runs every benchmark with
+the options --repeats, --out and --quick passed on to each. 'quick' prints
+env steps/s and training throughput of one config (options --config, --set,
+--num-envs, --steps, --iterations) and needs no clone."""
+
+#: The suite's benchmarks, in the order ``drqn-jax bench all`` runs them.
+SUITE = (
+    "env_throughput",
+    "stages",
+    "peers",
+    "roofline",
+    "train_throughput",
+    "evaluation",
+    "sweep_throughput",
+)
 
 
 def _default_run_dir(prefix: str, config_name: str) -> Path:
@@ -458,18 +478,59 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def cmd_bench(args: argparse.Namespace) -> int:
-    from drqn_jax.bench import bench_env, bench_train
-    from drqn_jax.machine import machine_info, machine_lines
+def _quick_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="drqn-jax bench quick", formatter_class=_Formatter)
+    parser.add_argument("--num-envs", type=int, default=4096, help="parallel envs")
+    parser.add_argument("--steps", type=int, default=200, help="env steps per timed call")
+    parser.add_argument(
+        "--iterations", type=int, default=20, help="training iterations per timed call"
+    )
+    _config_options(parser, "default")
+    return parser
 
-    config = load_config(args.config, args.overrides)
-    if args.num_envs < 1 or args.steps < 1 or args.iterations < 1:
-        raise ConfigError("--num-envs, --steps and --iterations must be >= 1")
-    if args.what in ("env", "all"):
-        print(bench_env(config, args.num_envs, args.steps))
-    if args.what in ("train", "all"):
-        print(bench_train(config, args.iterations))
-    print("\n".join(machine_lines(machine_info())))
+
+def _benchmark_module(name: str) -> Any:
+    """``benchmarks.NAME`` of the clone this package was installed from."""
+    import importlib
+
+    root = Path(__file__).resolve().parents[1]
+    if not (root / "benchmarks" / "__init__.py").is_file():
+        raise ConfigError(
+            f"bench {name}: the suite lives in benchmarks/ of a clone of the repository "
+            f"(not found beside {Path(__file__).parent}); install with pip install -e ."
+        )
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    return importlib.import_module(f"benchmarks.{name}")
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    if args.name == "quick":
+        from drqn_jax.bench import bench_env, bench_train
+        from drqn_jax.machine import machine_info, machine_lines
+
+        quick = _quick_parser().parse_args(args.args)
+        config = load_config(quick.config, quick.overrides)
+        if quick.num_envs < 1 or quick.steps < 1 or quick.iterations < 1:
+            raise ConfigError("--num-envs, --steps and --iterations must be >= 1")
+        print(bench_env(config, quick.num_envs, quick.steps))
+        print(bench_train(config, quick.iterations))
+        print("\n".join(machine_lines(machine_info())))
+        return EXIT_OK
+    if args.name != "all":
+        _benchmark_module(args.name).main(args.args)
+        return EXIT_OK
+    common = argparse.ArgumentParser(prog="drqn-jax bench all")
+    common.add_argument("--repeats", type=int)
+    common.add_argument("--out", metavar="DIR")
+    common.add_argument("--quick", action="store_true")
+    options = common.parse_args(args.args)
+    passed = [*(["--repeats", str(options.repeats)] if options.repeats else [])]
+    passed += [*(["--out", options.out] if options.out else [])]
+    passed += ["--quick"] if options.quick else []
+    for name in SUITE:
+        print(f"\n# drqn-jax bench {name} {' '.join(passed)}\n", flush=True)
+        _benchmark_module(name).main(passed)
     return EXIT_OK
 
 

@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -270,11 +271,30 @@ def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
     assert [a["agent"] for a in agents] == ["drqn", "rule-based"]
 
 
-def test_bench_env_prints_throughput(capsys):
-    code = cli.main(["bench", "env", "--config", "smoke", "--num-envs", "4", "--steps", "5"])
-    assert code == 0
+def test_bench_quick_prints_throughput(capsys):
+    argv = ["bench", "quick", "--config", "smoke", "--num-envs", "4", "--steps", "5"]
+    assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "env steps/s at 4 envs" in out and "JAX" in out
+
+
+def test_bench_runs_a_suite_benchmark_and_writes_json_and_markdown(tmp_path, capsys):
+    argv = ["bench", "env_throughput", "--batch-sizes", "2", "--steps", "3", "--repeats", "2"]
+    assert cli.main([*argv, "--out", str(tmp_path)]) == 0
+    result = json.loads((tmp_path / "env_throughput.json").read_text())
+    assert result["command"].startswith("python -m benchmarks.env_throughput --batch-sizes 2")
+    assert result["machine"]["jax_version"] == jax.__version__
+    (row,) = result["rows"]
+    assert len(row["run_times_s"]) == 2 and row["run_s"] == np.median(row["run_times_s"])
+    assert row["env_steps_per_s"] == pytest.approx(2 * 3 / row["run_s"])
+    md = (tmp_path / "env_throughput.md").read_text()
+    assert "| 2 |" in md and "JAX" in md and md in capsys.readouterr().out
+
+
+def test_bench_all_takes_only_the_common_options(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["bench", "all", "--batch-sizes", "2"])
+    assert "unrecognized arguments: --batch-sizes" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("command", ["train", "evaluate", "reproduce", "replay", "bench"])
