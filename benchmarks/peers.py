@@ -1,0 +1,425 @@
+"""Peers: our env against the simulators a user would otherwise use, in one run.
+
+Usage::
+
+    python -m benchmarks.peers [--repeats 5] [--out DIR] [--quick] [--num-envs 4096]
+        [--steps 200] [--numpy-steps 2000] [--highway-steps 100] [--no-highway]
+
+Three implementations are timed side by side in ONE process, each with random
+actions and its full observation computed every step:
+
+* **ours**: ``UrbanPedestrians-v0`` (``drqn_jax.make``), ``--num-envs`` envs
+  stepped at once. One call is ONE jitted program, ``lax.scan`` over
+  ``--steps`` steps of ``jax.vmap(env.step)`` with the (45, 30, 4) float32
+  grid in the carry (``benchmarks.env_throughput``'s ``make_init`` /
+  ``make_rollout``; the carry is donated). A step simulates ``params.dt``
+  (0.1 s) and includes same-step auto-reset. Compile time is measured apart.
+* **numpy**: the same env in plain NumPy (``benchmarks.numpy_env``), one env at
+  a time in a Python loop, as ``numpy_steps_per_s`` runs it (random action and
+  uniforms from one ``np.random.Generator``, the grid rasterised, auto-reset
+  within the step); one call is ``--numpy-steps`` steps. Same ``EnvParams``
+  and ``StaticEnvParams`` as ours, so the same dt.
+* **highway-env** ``intersection-v0`` (``pip install -e ".[bench]"``), the
+  closest driving RL env (vehicles only, no pedestrians), with an
+  ``OccupancyGrid`` observation shaped like ours: 45 m ahead × 30 m across at
+  1 m cells (``grid_size`` [[-5, 40], [-15, 15]], ``grid_step`` [1, 1], in the
+  ego's axes), four per-vehicle features (presence, vx, vy, heading) as ours
+  has four per-pedestrian channels. Its default simulation and policy
+  frequencies are kept and reported: one ``env.step`` is one policy decision
+  and simulates ``1 / policy_frequency`` seconds. One call is
+  ``--highway-steps`` decision steps, resetting on termination or truncation,
+  rendering off. If highway-env cannot be imported it is reported as
+  unavailable, with the reason, and the rest still runs.
+
+Each call is timed with ``benchmarks.harness.time_calls``: one warm-up call,
+then the MEDIAN of ``--repeats`` timed calls, each continuing from the last.
+Reported per implementation: steps/s (ours: env steps/s summed over the
+envs; highway-env: decision steps/s), simulated seconds per wall second
+(steps/s × seconds simulated per step) and the ratios of ours to it, per
+step and per simulated second, against the issue's targets (ours ≥ 30 × the
+NumPy loop, ours ≥ 10,000 × highway-env per decision step). Ours uses every
+core XLA gives it; the NumPy and highway-env loops are single-threaded Python
+(the "cores used" column says what each got).
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import math
+import re
+import statistics
+import sys
+import time
+import warnings
+from collections.abc import Sequence
+from typing import Any
+
+import jax
+import numpy as np
+
+import drqn_jax
+from benchmarks import harness
+from benchmarks.env_throughput import make_init, make_rollout
+from benchmarks.numpy_env import NUM_ACTIONS, NumpyUrbanPedestrians
+
+ENV_ID = "UrbanPedestrians-v0"
+HIGHWAY_ENV_ID = "intersection-v0"
+INSTALL_HINT = 'pip install -e ".[bench]"'
+TARGET_VS_NUMPY = 30.0
+TARGET_VS_HIGHWAY = 10_000.0
+
+FULL = {"num_envs": 4096, "steps": 200, "numpy_steps": 2000, "highway_steps": 100, "repeats": 5}
+QUICK = {"num_envs": 64, "steps": 20, "numpy_steps": 200, "highway_steps": 20, "repeats": 2}
+
+# An OccupancyGrid like ours: rows forward from -5 m to 40 m, columns across from -15 m
+# to 15 m, 1 m cells, in the ego's axes; four per-agent channels (ours: presence,
+# heading, speed, semantic class of the pedestrian), normalised to [-1, 1].
+HIGHWAY_OBSERVATION: dict[str, Any] = {
+    "type": "OccupancyGrid",
+    "features": ["presence", "vx", "vy", "heading"],
+    "features_range": {"vx": [-20, 20], "vy": [-20, 20], "heading": [-math.pi, math.pi]},
+    "grid_size": [[-5, 40], [-15, 15]],
+    "grid_step": [1, 1],
+    "align_to_vehicle_axes": True,
+}
+
+
+def _mean(values: Sequence[float]) -> float:
+    return statistics.fmean(values) if values else float("nan")
+
+
+def bench_ours(num_envs: int, num_steps: int, repeats: int, seed: int) -> dict[str, Any]:
+    """Time ``num_steps`` vmapped steps of ``num_envs`` envs per call; the row of ours."""
+    env, params = drqn_jax.make(ENV_ID)
+    carry = jax.block_until_ready(make_init(env, num_envs)(jax.random.key(seed), params))
+    rollout = jax.jit(make_rollout(env, num_envs, num_steps), donate_argnums=0)
+    compiled, lower_s, xla_s = harness.compile_timed(rollout, carry, params)
+    carry, timing = harness.time_calls(lambda c: compiled(c, params), carry, repeats)
+    obs = carry[0]
+    grid_finite = bool(np.isfinite(np.asarray(obs.grid)).all())
+    del carry, obs
+    dt = float(params.dt)
+    steps_per_s = num_envs * num_steps / timing["run_s"]
+    return {
+        "available": True,
+        "implementation": f"ours: {ENV_ID}, JAX, {num_envs} envs at once",
+        "step": f"one env step ({dt:g} s)",
+        "num_envs": num_envs,
+        "steps_per_call": num_steps,
+        "seconds_per_step": dt,
+        "lower_s": lower_s,
+        "xla_compile_s": xla_s,
+        "compile_s": lower_s + xla_s,
+        **timing,
+        "steps_per_s": steps_per_s,
+        "sim_s_per_wall_s": steps_per_s * dt,
+        "cores_used": _mean(timing["cores_used_per_call"]),
+        "grid_shape": list(env.static.grid_shape),
+        "grid_finite": grid_finite,
+    }
+
+
+def bench_numpy(num_steps: int, repeats: int, seed: int) -> dict[str, Any]:
+    """Time ``num_steps`` steps of the NumPy env, one env at a time; the row of numpy.
+
+    Runs the loop of ``benchmarks.numpy_env.numpy_steps_per_s`` with ``EnvParams``
+    of ``drqn_jax.make``, split into calls for ``harness.time_calls``.
+    """
+    env, params = drqn_jax.make(ENV_ID)
+    np_env = NumpyUrbanPedestrians(env.static, params)
+    rng = np.random.default_rng(seed)
+    _, state = np_env.reset(rng)
+
+    def call(state: Any) -> Any:
+        for action in rng.integers(0, NUM_ACTIONS, num_steps):
+            _, state, *_ = np_env.step(state, action, rng)
+        return state
+
+    _, timing = harness.time_calls(call, state, repeats)
+    dt = float(np_env.params.dt)
+    steps_per_s = num_steps / timing["run_s"]
+    return {
+        "available": True,
+        "implementation": f"NumPy: {ENV_ID}, one env in a Python loop",
+        "step": f"one env step ({dt:g} s)",
+        "num_envs": 1,
+        "steps_per_call": num_steps,
+        "seconds_per_step": dt,
+        **timing,
+        "steps_per_s": steps_per_s,
+        "sim_s_per_wall_s": steps_per_s * dt,
+        "cores_used": _mean(timing["cores_used_per_call"]),
+    }
+
+
+def highway_unavailable(reason: str) -> dict[str, Any]:
+    """The highway-env entry when it is not measured, with ``reason``."""
+    return {
+        "available": False,
+        "implementation": f"highway-env {HIGHWAY_ENV_ID}",
+        "reason": reason,
+    }
+
+
+def import_highway() -> tuple[Any, Any, str] | str:
+    """``(gymnasium, highway_env, version)``, or the reason highway-env cannot be used."""
+    try:
+        gym = importlib.import_module("gymnasium")
+        highway_env = importlib.import_module("highway_env")
+    except Exception as exc:  # ImportError, or a broken install failing on import
+        return f"cannot import highway_env ({type(exc).__name__}: {exc}); {INSTALL_HINT}"
+    try:
+        version = importlib.metadata.version("highway-env")
+    except importlib.metadata.PackageNotFoundError:
+        version = getattr(highway_env, "__version__", "unknown")
+    return gym, highway_env, version
+
+
+def bench_highway(num_steps: int, repeats: int, seed: int) -> dict[str, Any]:
+    """Time ``num_steps`` decision steps of highway-env per call; its row (or unavailable)."""
+    imported = import_highway()
+    if isinstance(imported, str):
+        return highway_unavailable(imported)
+    gym, _, version = imported
+
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env = gym.make(HIGHWAY_ENV_ID, config={"observation": dict(HIGHWAY_OBSERVATION)})
+        obs, _ = env.reset(seed=seed)
+    setup_s = time.perf_counter() - t0
+    # gymnasium colours its warnings with ANSI escapes; keep the text.
+    messages = sorted({re.sub(r"\x1b\[[0-9;]*m", "", str(w.message)) for w in caught})
+    for message in messages:
+        print(f"[highway-env warning: {message}]", file=sys.stderr)
+    env.action_space.seed(seed)
+    config = env.unwrapped.config
+    sim_hz, policy_hz = config["simulation_frequency"], config["policy_frequency"]
+    episodes = [0]
+
+    def call(obs: Any) -> Any:
+        for _ in range(num_steps):
+            obs, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            if terminated or truncated:
+                obs, _ = env.reset()
+                episodes[0] += 1
+        return obs
+
+    obs, timing = harness.time_calls(call, obs, repeats)
+    env.close()
+    seconds_per_step = 1.0 / policy_hz
+    steps_per_s = num_steps / timing["run_s"]
+    return {
+        "available": True,
+        "implementation": f"highway-env {version} {HIGHWAY_ENV_ID}, one env",
+        "step": f"one decision ({seconds_per_step:g} s, {sim_hz / policy_hz:g} sim steps)",
+        "version": version,
+        "env_id": HIGHWAY_ENV_ID,
+        "observation_config": HIGHWAY_OBSERVATION,
+        "observation_shape": list(np.shape(obs)),
+        "simulation_frequency_hz": sim_hz,
+        "policy_frequency_hz": policy_hz,
+        "episode_duration_s": config["duration"],
+        "num_envs": 1,
+        "steps_per_call": num_steps,
+        "seconds_per_step": seconds_per_step,
+        "setup_s": setup_s,
+        **timing,
+        "episodes_ended": episodes[0],
+        "steps_per_s": steps_per_s,
+        "sim_s_per_wall_s": steps_per_s * seconds_per_step,
+        "cores_used": _mean(timing["cores_used_per_call"]),
+        "warnings": messages,
+    }
+
+
+def ratios(ours: dict[str, Any], other: dict[str, Any]) -> dict[str, float]:
+    """Ours over ``other``: per (decision) step and per simulated second."""
+    return {
+        "per_step": ours["steps_per_s"] / other["steps_per_s"],
+        "per_simulated_s": ours["sim_s_per_wall_s"] / other["sim_s_per_wall_s"],
+    }
+
+
+def targets(results: dict[str, dict[str, Any]], ratio: dict[str, dict[str, float]]) -> list[dict]:
+    """The issue's targets: each with its measured ratio and ``met`` (None: not measured)."""
+    out = []
+    for name, target, what in (
+        ("numpy", TARGET_VS_NUMPY, "the NumPy loop, per env step"),
+        ("highway-env", TARGET_VS_HIGHWAY, "highway-env, per decision step"),
+    ):
+        measured = ratio[name]["per_step"] if name in ratio else None
+        out.append(
+            {
+                "peer": name,
+                "description": f"ours >= {target:,.0f} × {what}",
+                "target": target,
+                "measured": measured,
+                "met": None if measured is None else measured >= target,
+                "reason": None if name in ratio else results[name].get("reason"),
+            }
+        )
+    return out
+
+
+def target_lines(items: Sequence[dict[str, Any]]) -> list[str]:
+    """One line per target: measured ratio and met / missed (or why it was not measured)."""
+    lines = []
+    for t in items:
+        if t["met"] is None:
+            lines.append(f"- target: {t['description']}: not measured ({t['reason']})")
+        else:
+            verdict = "met" if t["met"] else "missed"
+            lines.append(
+                f"- target: {t['description']}: measured {t['measured']:,.1f} × ({verdict})"
+            )
+    return lines
+
+
+COLUMNS = {
+    "implementation": "implementation",
+    "step": "what a step is",
+    "steps_per_s": "steps/s",
+    "sim_s_per_wall_s": "simulated s per wall s",
+    "ratio_per_step": "ours / it, per step",
+    "ratio_per_sim_s": "ours / it, per simulated s",
+    "cores_used": "cores used",
+}
+
+
+def table_rows(
+    results: dict[str, dict[str, Any]], ratio: dict[str, dict[str, float]]
+) -> list[dict[str, Any]]:
+    """The rows of the Markdown table, ours first."""
+    rows = []
+    for name, r in results.items():
+        if not r["available"]:
+            rows.append(
+                {"implementation": r["implementation"], "step": "–", "steps_per_s": "unavailable"}
+            )
+            continue
+        row = {k: r[k] for k in ("implementation", "step", "steps_per_s", "sim_s_per_wall_s")}
+        row["cores_used"] = r["cores_used"]
+        if name == "ours":
+            row["ratio_per_step"] = row["ratio_per_sim_s"] = "1"
+        else:
+            row["ratio_per_step"] = ratio[name]["per_step"]
+            row["ratio_per_sim_s"] = ratio[name]["per_simulated_s"]
+        rows.append(row)
+    return rows
+
+
+def parse_args(argv: Sequence[str] | None = None) -> Any:
+    """The options; sizes left unset take ``--quick``'s or the full run's defaults."""
+    parser = harness.base_parser("peers", __doc__)
+    parser.set_defaults(repeats=None)
+    parser.add_argument(
+        "--num-envs", type=int, metavar="N", help=f"ours: parallel envs ({FULL['num_envs']})"
+    )
+    parser.add_argument(
+        "--steps", type=int, metavar="T", help=f"ours: steps per timed call ({FULL['steps']})"
+    )
+    parser.add_argument(
+        "--numpy-steps",
+        type=int,
+        metavar="T",
+        help=f"NumPy: steps per timed call ({FULL['numpy_steps']})",
+    )
+    parser.add_argument(
+        "--highway-steps",
+        type=int,
+        metavar="T",
+        help=f"highway-env: decision steps per timed call ({FULL['highway_steps']})",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument(
+        "--no-highway", action="store_true", help="skip highway-env (reported as skipped)"
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="small sizes for a smoke run: "
+        + ", ".join(f"{k.replace('_', '-')} {v}" for k, v in QUICK.items()),
+    )
+    args = parser.parse_args(argv)
+    for key, value in (QUICK if args.quick else FULL).items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
+    for key in FULL:
+        if getattr(args, key) < 1:
+            parser.error(f"--{key.replace('_', '-')} must be >= 1")
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    """Run the three benchmarks, print the report, return its data."""
+    args = parse_args(argv)
+    results: dict[str, dict[str, Any]] = {}
+    print(f"[ours: {args.num_envs} envs × {args.steps} steps per call]", file=sys.stderr)
+    results["ours"] = bench_ours(args.num_envs, args.steps, args.repeats, args.seed)
+    print(f"[numpy: {args.numpy_steps} steps per call]", file=sys.stderr)
+    results["numpy"] = bench_numpy(args.numpy_steps, args.repeats, args.seed)
+    if args.no_highway:
+        results["highway-env"] = highway_unavailable("skipped (--no-highway)")
+    else:
+        print(f"[highway-env: {args.highway_steps} decision steps per call]", file=sys.stderr)
+        results["highway-env"] = bench_highway(args.highway_steps, args.repeats, args.seed)
+
+    ours = results["ours"]
+    ratio = {
+        name: ratios(ours, r) for name, r in results.items() if name != "ours" and r["available"]
+    }
+    goals = targets(results, ratio)
+
+    lines = harness.markdown_table(table_rows(results, ratio), COLUMNS)
+    lines.append("")
+    lines += target_lines(goals)
+    if args.quick:
+        lines.append(
+            f"- --quick: smoke-run sizes ({args.num_envs} envs); the targets are for the full "
+            f"run ({FULL['num_envs']} envs), so a miss here says nothing about them"
+        )
+    lines.append(
+        f"- ours: compile {ours['compile_s']:.2f} s (apart from the timing); steps/s = median "
+        f"of {args.repeats} timed calls after 1 warm-up, for every implementation"
+    )
+    hw = results["highway-env"]
+    if hw["available"]:
+        lines.append(
+            f"- highway-env: simulation {hw['simulation_frequency_hz']} Hz, policy "
+            f"{hw['policy_frequency_hz']} Hz (its defaults), episodes of "
+            f"{hw['episode_duration_s']} s; OccupancyGrid {tuple(hw['observation_shape'])} "
+            f"(features {', '.join(HIGHWAY_OBSERVATION['features'])}; 1 m cells over "
+            "[-5, 40] m × [-15, 15] m in the ego's axes)"
+        )
+    else:
+        lines.append(f"- highway-env: unavailable: {hw['reason']}")
+
+    result = {
+        "config": {
+            "env_id": ENV_ID,
+            "num_envs": args.num_envs,
+            "steps": args.steps,
+            "numpy_steps": args.numpy_steps,
+            "highway_steps": args.highway_steps,
+            "repeats": args.repeats,
+            "seed": args.seed,
+            "quick": args.quick,
+        },
+        "implementations": results,
+        "ratios": ratio,
+        "targets": goals,
+    }
+    return harness.report(
+        name="peers",
+        title=f"Peers: {ENV_ID} (JAX) vs its NumPy loop vs highway-env {HIGHWAY_ENV_ID}",
+        result=result,
+        lines=lines,
+        out=args.out,
+        argv=None if argv is None else list(argv),
+    )
+
+
+if __name__ == "__main__":
+    main()
