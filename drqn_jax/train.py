@@ -73,6 +73,13 @@ class Hyperparams:
     """Traced training hyperparameters (paper Table II; SPEC §7)."""
 
     learning_rate: float = param(1e-3, low=0.0, low_open=True)
+    learning_rate_end: float = param(
+        1.0,
+        low=0.0,
+        high=1.0,
+        doc="fraction of learning_rate reached at the last training episode, linear in "
+        "recorded episodes; 1 keeps it constant (paper)",
+    )
     adam_b1: float = param(0.9, low=0.0, high=1.0, high_open=True)
     adam_b2: float = param(0.999, low=0.0, high=1.0, high_open=True)
     adam_eps: float = param(1e-8, low=0.0, low_open=True)
@@ -236,6 +243,15 @@ def _make_train(config: TrainConfig) -> Trainer:
         frac = jnp.clip(episode * (1.0 / max(n_episodes - 1, 1)), 0.0, 1.0)
         return (hp.epsilon_start + (hp.epsilon_end - hp.epsilon_start) * frac).astype(jnp.float32)
 
+    def annealed(hp: Hyperparams, recorded: jax.Array) -> Hyperparams:
+        """``hp`` with the learning rate of this point of the run: linear from
+        ``learning_rate`` to ``learning_rate · learning_rate_end`` over the training
+        episodes (exactly ``learning_rate`` when ``learning_rate_end`` = 1)."""
+        frac = jnp.minimum(recorded * (1.0 / n_episodes), 1.0)
+        return hp.replace(
+            learning_rate=hp.learning_rate * (1.0 + (hp.learning_rate_end - 1.0) * frac)
+        )
+
     def init(
         key: jax.Array, hparams: Hyperparams | None = None, env_params: EnvParams | None = None
     ) -> TrainState:
@@ -372,7 +388,7 @@ def _make_train(config: TrainConfig) -> Trainer:
             lambda learner, *_: (learner, jnp.zeros((), jnp.float32)),
             learner,
             replay,
-            state.hparams,
+            annealed(state.hparams, state.recorded),
             state.env_params,
             k_learn,
         )

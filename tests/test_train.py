@@ -118,22 +118,27 @@ def test_trained_agent_plugs_into_evaluate(tiny, tiny_run):
 
 
 def test_learns_to_drive_near_the_speed_limit():
-    """Trivial scene (pedestrians stay on the sidewalks): the agent learns to drive.
+    """Trivial scene (pedestrians stay on the sidewalks): the agent learns to drive
+    at 13–15 km/h, under the 15 km/h limit, whose reward r_v = v / v_ref peaks there.
 
-    A narrow network, 16 environments, γ = 0.97 and 2400 gradient steps; about
-    45 s on the 2-core CPU. Early episodes crawl (< 8 km/h); the greedy agent
-    then holds a steady speed of 12.5–15 km/h with key 0 (13.1 km/h).
+    Three seeds trained at once (``jit(vmap(train))``), a narrow network, 16
+    environments, γ = 0.97, 2400 gradient steps each, the learning rate
+    annealed to a tenth (``learning_rate_end = 0.1``); under a minute on the
+    2-core CPU. Early, exploring episodes are slower (about 9 km/h). Then the greedy agent holds a
+    steady speed: the median over the seeds lies in 13–15 km/h and every seed
+    holds 12–15.5 km/h on 90 % of its steps.
 
-    NOT the issue's "holds 13–15 km/h" for every key. Steady mean speeds of
-    this exact config for keys 0–7: 13.1, 13.3, 13.8, 14.1, 12.7, 12.8, 10.9,
-    13.6 km/h (5 of 8 inside 13–15 on the mean; 3 of 8 with >= 90 % of steps
-    inside). Why: the one-step action gap is tiny. With a threshold policy
-    "accelerate below v*, slow down above" the exact discounted returns
-    (γ = 0.97) of accelerate vs slow_down at the threshold differ by 0.02 on
-    Q ≈ 27–31 for v* = 12 and 14 km/h, while v* = 14 beats v* = 12 by 4.5:
-    the learned v* is set by the noise of Q, not by the reward. γ 0.5–0.99,
-    lr 1e-3, batch 32, 2 updates per step, 384 episodes, the `dqn` network
-    and `setpoint_mode = "setpoint"` all gave the same spread (issue 3 note).
+    Why three seeds and the annealing: the one-step action gap near the limit
+    is tiny. For a threshold policy "accelerate below v*, slow down above" the
+    exact discounted returns (γ = 0.97) of accelerate and slow_down at the
+    threshold differ by 0.02 on Q ≈ 27–31, while v* = 14 beats v* = 12 by 4.5;
+    so the learned v* is set by the noise of Q. With a constant learning rate
+    the steady speeds of keys 0–7 were 13.1, 13.3, 13.8, 14.1, 12.7, 12.8,
+    10.9 and 13.6 km/h (5 of 8 in 13–15), moving with any change of rounding.
+    Annealing the learning rate to 0.1 × calms Q: 13.2, 13.7, 13.5, 14.3, 13.6,
+    13.8, 13.8, 12.1 km/h (7 of 8 in 13–15, all ≥ 12). γ 0.5–0.99, lr 1e-3,
+    batch 32, 2 updates per step, 384 episodes, the `dqn` network and
+    `setpoint_mode = "setpoint"` did not narrow the spread (issue 3 notes).
     """
     config = TrainConfig(
         env_overrides=(
@@ -152,15 +157,21 @@ def test_learns_to_drive_near_the_speed_limit():
         window=8,
         chunk_iterations=100,
         hyperparams=Hyperparams(
-            learning_starts=2, target_period=200, learning_rate=3e-3, epsilon_end=0.02, gamma=0.97
+            learning_starts=2,
+            target_period=200,
+            learning_rate=3e-3,
+            learning_rate_end=0.1,
+            epsilon_end=0.02,
+            gamma=0.97,
         ),
     )
     trainer = make_train(config)
-    params, metrics = jax.jit(trainer.train)(jax.random.key(0))
-    agent = drqn_jax.drqn_agent(trainer.network, params)
+    seeds = jax.random.split(jax.random.key(0), 3)
+    params, metrics = jax.jit(jax.vmap(trainer.train))(seeds)
     env, env_params = trainer.env, trainer.env_params
 
-    def rollout(key):
+    def rollout(params, key):
+        agent = drqn_jax.drqn_agent(trainer.network, params)
         obs, state = env.reset(key, env_params)
         carry = agent.init_carry(key)
 
@@ -172,10 +183,14 @@ def test_learns_to_drive_near_the_speed_limit():
 
         return jax.lax.scan(body, (obs, state, carry), jax.random.split(key, 200))[1]
 
-    speed_kmh = np.asarray(jax.jit(jax.vmap(rollout))(jax.random.split(jax.random.key(5), 16)))
-    steady = speed_kmh[:, 30:]  # after 3 s of acceleration from rest
-    assert 12.5 <= steady.mean() <= 15.0, steady.mean()
-    assert np.mean((steady >= 12.0) & (steady <= 15.5)) >= 0.9
-    # and it did not get there by chance: early training episodes were slow
-    mean_speed = np.asarray(metrics["mean_speed"]) * 3.6
-    assert mean_speed[:16].mean() < 8.0
+    keys = jax.random.split(jax.random.key(5), 16)
+    per_seed = jax.vmap(lambda p: jax.vmap(rollout, (None, 0))(p, keys))
+    speed_kmh = np.asarray(jax.jit(per_seed)(params))  # (seeds, episodes, steps)
+    steady = speed_kmh[:, :, 30:]  # after 3 s of acceleration from rest
+    means = steady.mean(axis=(1, 2))
+    assert 13.0 <= np.median(means) <= 15.0, means
+    in_band = np.mean((steady >= 12.0) & (steady <= 15.5), axis=(1, 2))
+    assert np.all(in_band >= 0.9), (means, in_band)
+    # and it did not get there by chance: the first, exploring episodes were slower
+    early_kmh = np.asarray(metrics["mean_speed"])[:, :16].mean(axis=1) * 3.6
+    assert np.all(early_kmh < means - 2.0), (early_kmh, means)
