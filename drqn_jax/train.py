@@ -103,6 +103,16 @@ class Hyperparams:
         )
 
 
+def annealed(hp: Hyperparams, recorded: jax.Array, num_episodes: int) -> Hyperparams:
+    """``hp`` with the learning rate of this point of the run: linear from
+    ``learning_rate`` (no episode recorded) to ``learning_rate · learning_rate_end``
+    (all ``num_episodes`` recorded); exactly ``learning_rate`` when
+    ``learning_rate_end`` = 1 (the paper's constant rate)."""
+    frac = jnp.minimum(recorded * (1.0 / num_episodes), 1.0)
+    scale = 1.0 + (hp.learning_rate_end - 1.0) * frac
+    return hp.replace(learning_rate=hp.learning_rate * scale)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class TrainConfig:
     """Shape-setting training settings (hashable; a change recompiles).
@@ -243,15 +253,6 @@ def _make_train(config: TrainConfig) -> Trainer:
         frac = jnp.clip(episode * (1.0 / max(n_episodes - 1, 1)), 0.0, 1.0)
         return (hp.epsilon_start + (hp.epsilon_end - hp.epsilon_start) * frac).astype(jnp.float32)
 
-    def annealed(hp: Hyperparams, recorded: jax.Array) -> Hyperparams:
-        """``hp`` with the learning rate of this point of the run: linear from
-        ``learning_rate`` to ``learning_rate · learning_rate_end`` over the training
-        episodes (exactly ``learning_rate`` when ``learning_rate_end`` = 1)."""
-        frac = jnp.minimum(recorded * (1.0 / n_episodes), 1.0)
-        return hp.replace(
-            learning_rate=hp.learning_rate * (1.0 + (hp.learning_rate_end - 1.0) * frac)
-        )
-
     def init(
         key: jax.Array, hparams: Hyperparams | None = None, env_params: EnvParams | None = None
     ) -> TrainState:
@@ -388,7 +389,7 @@ def _make_train(config: TrainConfig) -> Trainer:
             lambda learner, *_: (learner, jnp.zeros((), jnp.float32)),
             learner,
             replay,
-            annealed(state.hparams, state.recorded),
+            annealed(state.hparams, state.recorded, n_episodes),
             state.env_params,
             k_learn,
         )

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import drqn_jax
 from drqn_jax.networks import NetworkConfig
-from drqn_jax.train import Hyperparams, TrainConfig, make_train
+from drqn_jax.train import Hyperparams, TrainConfig, annealed, make_train
 from tests.helpers import assert_tree_equal, take, tiny_train_config
 
 TINY = tiny_train_config()
@@ -82,6 +83,15 @@ def test_vmap_over_seeds_equals_separate_runs(tiny):
     together = jax.jit(jax.vmap(trainer.train))(keys)
     for i in range(4):
         assert_tree_equal(take(together, i), train(keys[i]))
+
+
+def test_learning_rate_anneals_linearly_over_the_episodes():
+    hp = Hyperparams(learning_rate=3e-3, learning_rate_end=0.1)
+    rates = [float(annealed(hp, jnp.int32(e), 200).learning_rate) for e in (0, 100, 200, 300)]
+    np.testing.assert_allclose(rates, [3e-3, 1.65e-3, 3e-4, 3e-4], rtol=1e-6)
+    constant = Hyperparams(learning_rate=3e-3)  # learning_rate_end = 1: the paper's rate
+    for e in (0, 77, 200):
+        assert float(annealed(constant, jnp.int32(e), 200).learning_rate) == np.float32(3e-3)
 
 
 def test_config_equality_and_hash():
