@@ -43,8 +43,8 @@ carry), env steps/s, ns per env-step and the stage's share of the full
 step's time at the same N. Every program pays a fixed cost per scan
 iteration (a few µs on XLA:CPU), so at small N each row is mostly that cost:
 the stages' shares then add up to well over 1, and a light stage can even
-take longer than the full step. Read the shares at large N. ``--quick``: N in
-(1, 64), T = 10, 2 repeats: a smoke check of the script, not a measurement.
+take longer than the full step. Read the shares at large N. ``--quick``: N =
+16, T = 10, 2 repeats: a smoke check of the script, not a measurement.
 """
 
 from __future__ import annotations
