@@ -209,7 +209,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="which repeat the table reports (default: median)",
     )
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (default: 0)")
+    parser.add_argument(
+        "--quick", action="store_true", help="batch sizes 2 and 16, 5 steps: a smoke check"
+    )
     args = parser.parse_args(argv)
+    if args.quick:
+        args.batch_sizes, args.steps, args.repeats = [2, 16], 5, 2
     if args.steps < 1 or args.repeats < 1 or any(n < 1 for n in args.batch_sizes):
         parser.error("--batch-sizes, --steps and --repeats must be >= 1")
     return args
