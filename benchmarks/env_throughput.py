@@ -93,6 +93,45 @@ def make_rollout(
     return rollout
 
 
+def time_rollout(
+    env: drqn_jax.UrbanPedestrians,
+    params: drqn_jax.EnvParams,
+    num_envs: int,
+    num_steps: int,
+    repeats: int,
+    key: jax.Array,
+    stat: str = "median",
+    warmup_steps: int = 0,
+) -> tuple[dict[str, Any], Carry, jax.stages.Compiled]:
+    """Reset ``num_envs`` envs from ``key``, compile the rollout, run ``warmup_steps``
+    untimed steps (rounded up to whole calls), then time it with ``time_calls``.
+
+    Returns the timing row (compile apart, env steps/s), the final carry and the
+    compiled rollout (for its cost analysis). The suite's other env benchmarks
+    (peers, stages, roofline) time our env through this function.
+    """
+    carry = jax.block_until_ready(make_init(env, num_envs)(key, params))
+    compiled, lower_s, xla_s = compile_timed(
+        jax.jit(make_rollout(env, num_envs, num_steps), donate_argnums=0), carry, params
+    )
+    for _ in range(-(-warmup_steps // num_steps)):
+        carry = compiled(carry, params)
+    carry, timing = time_calls(lambda c: compiled(c, params), carry, repeats, stat)
+    env_steps = num_envs * num_steps
+    steps_per_s = env_steps / timing["run_s"]
+    row = {
+        "batch_size": num_envs,
+        "steps": num_steps,
+        "env_steps_per_call": env_steps,
+        "lower_s": lower_s,
+        "xla_compile_s": xla_s,
+        "compile_s": lower_s + xla_s,
+        **timing,
+        "env_steps_per_s": steps_per_s,
+    }
+    return row, carry, compiled
+
+
 def bench_batch(
     env: drqn_jax.UrbanPedestrians,
     params: drqn_jax.EnvParams,
@@ -103,34 +142,18 @@ def bench_batch(
     seed: int,
 ) -> dict[str, Any]:
     """Compile and time one batch size; return its row."""
-    carry = jax.block_until_ready(make_init(env, num_envs)(jax.random.key(seed), params))
-
-    compiled, lower_s, xla_s = compile_timed(
-        jax.jit(make_rollout(env, num_envs, num_steps), donate_argnums=0), carry, params
+    row, carry, _ = time_rollout(
+        env, params, num_envs, num_steps, repeats, jax.random.key(seed), stat
     )
-    carry, timing = time_calls(lambda c: compiled(c, params), carry, repeats, stat)
     # Sanity: the grid is finite and the episodes are alive.
     obs, _, _ = carry
-    grid_finite = bool(jnp.all(jnp.isfinite(obs.grid)))
-    occupied = float(jnp.mean(jnp.sum(obs.grid[..., 0], axis=(-2, -1))))
-    del carry, obs
-
-    run_s = timing["run_s"]
-    env_steps = num_envs * num_steps
-    steps_per_s = env_steps / run_s
+    steps_per_s = row["env_steps_per_s"]
     return {
-        "batch_size": num_envs,
-        "steps": num_steps,
-        "env_steps_per_call": env_steps,
-        "lower_s": lower_s,
-        "xla_compile_s": xla_s,
-        "compile_s": lower_s + xla_s,
-        **timing,
-        "env_steps_per_s": steps_per_s,
+        **row,
         "us_per_env_step": 1e6 / steps_per_s,
         "grid_gb_per_s": steps_per_s * grid_bytes(env) / 1e9,
-        "grid_finite": grid_finite,
-        "mean_occupied_cells": occupied,
+        "grid_finite": bool(jnp.all(jnp.isfinite(obs.grid))),
+        "mean_occupied_cells": float(jnp.mean(jnp.sum(obs.grid[..., 0], axis=(-2, -1)))),
     }
 
 

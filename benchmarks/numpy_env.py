@@ -785,8 +785,15 @@ def numpy_steps_per_s(num_steps: int = 2000, seed: int = 0) -> float:
     rng = np.random.default_rng(seed)
     env = NumpyUrbanPedestrians()
     _, state = env.reset(rng)
-    actions = rng.integers(0, NUM_ACTIONS, num_steps)
     start = time.perf_counter()
-    for action in actions:
-        _, state, *_ = env.step(state, action, rng)
+    random_steps(env, state, num_steps, rng)
     return num_steps / (time.perf_counter() - start)
+
+
+def random_steps(
+    env: NumpyUrbanPedestrians, state: Any, num_steps: int, rng: np.random.Generator
+) -> Any:
+    """``num_steps`` steps of uniformly random actions drawn from ``rng``; the last state."""
+    for action in rng.integers(0, NUM_ACTIONS, num_steps):
+        _, state, *_ = env.step(state, action, rng)
+    return state

@@ -60,8 +60,8 @@ import numpy as np
 
 import drqn_jax
 from benchmarks import harness
-from benchmarks.env_throughput import make_init, make_rollout
-from benchmarks.numpy_env import NUM_ACTIONS, NumpyUrbanPedestrians
+from benchmarks.env_throughput import time_rollout
+from benchmarks.numpy_env import NumpyUrbanPedestrians, random_steps
 
 ENV_ID = "UrbanPedestrians-v0"
 HIGHWAY_ENV_ID = "intersection-v0"
@@ -92,15 +92,11 @@ def _mean(values: Sequence[float]) -> float:
 def bench_ours(num_envs: int, num_steps: int, repeats: int, seed: int) -> dict[str, Any]:
     """Time ``num_steps`` vmapped steps of ``num_envs`` envs per call; the row of ours."""
     env, params = drqn_jax.make(ENV_ID)
-    carry = jax.block_until_ready(make_init(env, num_envs)(jax.random.key(seed), params))
-    rollout = jax.jit(make_rollout(env, num_envs, num_steps), donate_argnums=0)
-    compiled, lower_s, xla_s = harness.compile_timed(rollout, carry, params)
-    carry, timing = harness.time_calls(lambda c: compiled(c, params), carry, repeats)
-    obs = carry[0]
-    grid_finite = bool(np.isfinite(np.asarray(obs.grid)).all())
-    del carry, obs
+    timing, carry, _ = time_rollout(env, params, num_envs, num_steps, repeats, jax.random.key(seed))
+    grid_finite = bool(np.isfinite(np.asarray(carry[0].grid)).all())
+    del carry
     dt = float(params.dt)
-    steps_per_s = num_envs * num_steps / timing["run_s"]
+    steps_per_s = timing["env_steps_per_s"]
     return {
         "available": True,
         "implementation": f"ours: {ENV_ID}, JAX, {num_envs} envs at once",
@@ -108,9 +104,6 @@ def bench_ours(num_envs: int, num_steps: int, repeats: int, seed: int) -> dict[s
         "num_envs": num_envs,
         "steps_per_call": num_steps,
         "seconds_per_step": dt,
-        "lower_s": lower_s,
-        "xla_compile_s": xla_s,
-        "compile_s": lower_s + xla_s,
         **timing,
         "steps_per_s": steps_per_s,
         "sim_s_per_wall_s": steps_per_s * dt,
@@ -123,20 +116,17 @@ def bench_ours(num_envs: int, num_steps: int, repeats: int, seed: int) -> dict[s
 def bench_numpy(num_steps: int, repeats: int, seed: int) -> dict[str, Any]:
     """Time ``num_steps`` steps of the NumPy env, one env at a time; the row of numpy.
 
-    Runs the loop of ``benchmarks.numpy_env.numpy_steps_per_s`` with ``EnvParams``
-    of ``drqn_jax.make``, split into calls for ``harness.time_calls``.
+    Runs ``benchmarks.numpy_env.random_steps`` (the loop of ``numpy_steps_per_s``)
+    with ``EnvParams`` of ``drqn_jax.make``, split into calls for ``harness.time_calls``.
     """
     env, params = drqn_jax.make(ENV_ID)
     np_env = NumpyUrbanPedestrians(env.static, params)
     rng = np.random.default_rng(seed)
     _, state = np_env.reset(rng)
 
-    def call(state: Any) -> Any:
-        for action in rng.integers(0, NUM_ACTIONS, num_steps):
-            _, state, *_ = np_env.step(state, action, rng)
-        return state
-
-    _, timing = harness.time_calls(call, state, repeats)
+    _, timing = harness.time_calls(
+        lambda state: random_steps(np_env, state, num_steps, rng), state, repeats
+    )
     dt = float(np_env.params.dt)
     steps_per_s = num_steps / timing["run_s"]
     return {

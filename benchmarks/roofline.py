@@ -60,12 +60,11 @@ import json
 import math
 import os
 import re
-import statistics
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -74,7 +73,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import drqn_jax
-from benchmarks.env_throughput import ENV_ID, grid_bytes, make_init, make_rollout
+from benchmarks.env_throughput import ENV_ID, grid_bytes, time_rollout
 from benchmarks.harness import base_parser, compile_timed, markdown_table, report, time_calls
 from benchmarks.train_throughput import (
     analytic_update_flops,
@@ -118,17 +117,6 @@ GB = 1e9
 # --------------------------------------------------------------------------- 1. the machine
 
 
-def _median_s(call: Callable[[], Any], repeats: int) -> float:
-    """One warm-up call, then the median wall time of ``repeats`` calls."""
-    call()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
-
-
 def measure_bandwidth(nbytes: int, repeats: int) -> dict[str, Any]:
     """GB/s (10^9 B/s) of in-place read + write, fill, fill into fresh memory, NumPy copy."""
     n = nbytes // 4
@@ -152,7 +140,7 @@ def measure_bandwidth(nbytes: int, repeats: int) -> dict[str, Any]:
 
     src = np.ones(n, np.float32)
     dst = np.empty_like(src)
-    np_s = _median_s(lambda: np.copyto(dst, src), repeats)
+    np_s = time_calls(lambda _: np.copyto(dst, src), None, repeats)[1]["run_s"]
     return {
         "array_bytes": nbytes,
         "read_write_gb_per_s": 2 * nbytes / rw["run_s"] / GB,
@@ -270,22 +258,15 @@ def measure_env(
 ) -> tuple[dict[str, Any], GridInputs]:
     """Bytes and FLOPs per env step (XLA) and env steps/s of env_throughput's rollout;
     and the rollout's final states as grid records (N, …)."""
-    carry = jax.block_until_ready(make_init(env, num_envs)(jax.random.key(0), params))
-    rollout = jax.jit(make_rollout(env, num_envs, num_steps), donate_argnums=0)
-    compiled, lower_s, xla_s = compile_timed(rollout, carry, params)
+    t, carry, compiled = time_rollout(env, params, num_envs, num_steps, repeats, jax.random.key(0))
     cost = cost_of(compiled)
     once = while_body_counted_once()
     steps_in_cost = num_envs if once else num_envs * num_steps
-    carry, t = time_calls(lambda c: compiled(c, params), carry, repeats)
     _, state, _ = carry
     records = GridInputs.of(state.ego, state.pedestrians)
-    steps_per_s = num_envs * num_steps / t["run_s"]
+    steps_per_s = t["env_steps_per_s"]
     row = {
-        "batch_size": num_envs,
-        "steps": num_steps,
-        "compile_s": lower_s + xla_s,
         **t,
-        "env_steps_per_s": steps_per_s,
         "cost_analysis_keys": cost_keys(compiled),
         "cost_analysis": cost,
         "while_body_counted_once": once,

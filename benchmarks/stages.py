@@ -50,7 +50,6 @@ take longer than the full step. Read the shares at large N. ``--quick``: N =
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
@@ -59,7 +58,7 @@ import jax
 import jax.numpy as jnp
 
 import drqn_jax
-from benchmarks.env_throughput import ENV_ID, make_init, make_rollout
+from benchmarks.env_throughput import ENV_ID, time_rollout
 from benchmarks.harness import base_parser, compile_timed, markdown_table, report, time_calls
 from drqn_jax.env.collision import collision, time_to_collision
 from drqn_jax.env.ego import ego_step
@@ -236,22 +235,18 @@ def _row(
     what: str,
     num_envs: int,
     num_steps: int,
-    lower_s: float,
-    xla_s: float,
     timing: dict[str, Any],
 ) -> dict[str, Any]:
+    """A stage's row from its timing (compile and ``time_calls`` figures)."""
     env_steps = num_envs * num_steps
     steps_per_s = env_steps / timing["run_s"]
     return {
+        **timing,
         "stage": name,
         "what": what,
         "batch_size": num_envs,
         "steps": num_steps,
         "env_steps_per_call": env_steps,
-        "lower_s": lower_s,
-        "xla_compile_s": xla_s,
-        "compile_s": lower_s + xla_s,
-        **timing,
         "env_steps_per_s": steps_per_s,
         "ns_per_env_step": 1e9 / steps_per_s,
     }
@@ -275,18 +270,14 @@ def bench_batch(
     """All stage rows for ``num_envs`` envs, the full step first; shares filled in."""
     key = jax.random.key(seed)
     key, init_key = jax.random.split(key)
-    carry = jax.block_until_ready(make_init(env, num_envs)(init_key, params))
-
     # the full step: compile, bring the states to life, time
-    full = jax.jit(make_rollout(env, num_envs, num_steps), donate_argnums=0)
-    compiled, lower_s, xla_s = compile_timed(full, carry, params)
-    for _ in range(math.ceil(warmup_steps / num_steps)):
-        carry = compiled(carry, params)
-    carry, timing = time_calls(lambda c, f=compiled: f(c, params), carry, repeats)
+    timing, carry, _ = time_rollout(
+        env, params, num_envs, num_steps, repeats, init_key, warmup_steps=warmup_steps
+    )
     what = "env.step with auto-reset, random actions (benchmarks/env_throughput.py)"
-    rows = [_row(FULL, what, num_envs, num_steps, lower_s, xla_s, timing)]
+    rows = [_row(FULL, what, num_envs, num_steps, timing)]
     _, state, _ = carry
-    del carry, compiled
+    del carry
     _progress(rows[-1])
 
     for name, stage in make_stages(env, num_envs).items():
@@ -295,7 +286,13 @@ def bench_batch(
         program = jax.jit(make_program(stage, num_steps), donate_argnums=0)
         compiled, lower_s, xla_s = compile_timed(program, c, params)
         c, timing = time_calls(lambda c, f=compiled: f(c, params), c, repeats)
-        rows.append(_row(name, stage.what, num_envs, num_steps, lower_s, xla_s, timing))
+        timing = {
+            "lower_s": lower_s,
+            "xla_compile_s": xla_s,
+            "compile_s": lower_s + xla_s,
+            **timing,
+        }
+        rows.append(_row(name, stage.what, num_envs, num_steps, timing))
         rows[-1]["output_finite"] = _finite(c)
         del c, compiled
         _progress(rows[-1])

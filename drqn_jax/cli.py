@@ -525,8 +525,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     common.add_argument("--out", metavar="DIR")
     common.add_argument("--quick", action="store_true")
     options = common.parse_args(args.args)
-    passed = [*(["--repeats", str(options.repeats)] if options.repeats else [])]
-    passed += [*(["--out", options.out] if options.out else [])]
+    passed = ["--repeats", str(options.repeats)] if options.repeats else []
+    passed += ["--out", options.out] if options.out else []
     passed += ["--quick"] if options.quick else []
     for name in SUITE:
         print(f"\n# drqn-jax bench {name} {' '.join(passed)}\n", flush=True)
