@@ -1,4 +1,5 @@
-"""The ``drqn-jax`` command line: ``train``, ``evaluate``, ``reproduce``, ``replay``, ``bench``.
+"""The ``drqn-jax`` command line: ``train``, ``evaluate``, ``reproduce``, ``replay``,
+``sweep``, ``study``, ``bench``.
 
 ``replay`` records greedy episodes of a trained run or a built-in agent as a
 rerun ``.rrd`` file (:mod:`drqn_jax.recording`); ``train --rrd`` and
@@ -42,12 +43,6 @@ from drqn_jax.runner import (
 from drqn_jax.sweep import STRATEGIES
 
 __all__ = ["main"]
-
-#: The paper's Table III (10 episodes per agent; SPEC §8).
-PAPER_TABLE_III = (
-    ("rule-based", "40 %", 7.79, 82.6),
-    ("DRQN", "70 %", 6.09, 123.1),
-)
 
 
 class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
@@ -219,6 +214,44 @@ def build_parser() -> argparse.ArgumentParser:
     group.add_argument("--num-processes", type=int, metavar="N", help="processes in all")
     group.add_argument("--process-id", type=int, metavar="I", help="this process (0 … N-1)")
 
+    study = sub.add_parser(
+        "study",
+        help="configs x seeds trained and evaluated on the same episodes, beside the "
+        "rule-based agent: Table III with intervals, and training curves",
+        description=_STUDY_DOC,
+        formatter_class=_Formatter,
+    )
+    study.add_argument(
+        "--configs",
+        default="paper,default,dqn",
+        help="comma-separated config names in configs/ or TOML paths (one row each)",
+    )
+    study.add_argument("--seeds", type=int, default=5, help="seeds 0 … N-1 per config")
+    study.add_argument(
+        "--episodes", type=int, default=1000, help="greedy evaluation episodes per run"
+    )
+    study.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.FIELD=VALUE",
+        help="override one field of every config (repeatable)",
+    )
+    study.add_argument(
+        "--out", default=None, help="study directory (default: runs/study-<UTC time>)"
+    )
+    study.add_argument(
+        "--smooth", type=int, default=10, help="running mean (episodes) of the curves"
+    )
+    study.add_argument(
+        "--no-png", action="store_true", help="skip curves.png (no matplotlib needed)"
+    )
+    study.add_argument(
+        "--dry-run", action="store_true", help="validate and describe the study; run nothing"
+    )
+    study.add_argument("--quiet", action="store_true", help="no progress bars")
+
     bench = sub.add_parser(
         "bench",
         help="run the benchmark suite (or one of its benchmarks) on this machine",
@@ -258,6 +291,14 @@ memory plan allows; each run is evaluated on the same episodes. Writes results.m
 results.csv (mean, std, 95 % t-interval and IQM across seeds per setting) and runs.json
 (every run). Ctrl-C saves checkpoints (status 130); --resume continues. With several
 processes each trains its slice of the runs and process 0 writes the results."""
+_STUDY_DOC = """Train every config for seeds 0 … N-1 (one sweep over run.seed per
+config, in OUT/<config>/), evaluate every run greedily on the same episodes (the first
+seed's evaluation key), evaluate the rule-based agent on them, and write OUT/study.md
+(the paper's Table III beside ours: collision-free % with a 95 % interval across seeds,
+speed, distance, goal %, collisions per km), OUT/study.json, and the training curves
+(average reward and steps per episode, mean and min-max over seeds) as OUT/curves.png
+and OUT/curves.rrd. Ctrl-C saves checkpoints (status 130); running the same command
+again continues the study."""
 _BENCH_DOC = """Run the benchmark suite of benchmarks/ (a clone of the repository is
 needed): each benchmark prints a Markdown table with the machine it ran on, and
 --out DIR writes DIR/NAME.json and DIR/NAME.md. 'all' runs every benchmark with
@@ -413,21 +454,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def paper_comparison(results: list[dict[str, Any]]) -> str:
-    """The paper's Table III rows beside ours (collision-free with 95 % CI, speed, distance)."""
-    rows = [
-        "| source | agent | episodes | collision-free | avg speed (km/h) | distance (m) |",
-        "| --- | --- | ---: | --- | ---: | ---: |",
-    ]
-    for agent, free, speed, dist in PAPER_TABLE_III:
-        rows.append(f"| paper (CARLA) | {agent} | 10 | {free} | {speed:.2f} | {dist:.1f} |")
-    for r in results:
-        low, high = r["collision_free_ci"]
-        rows.append(
-            f"| drqn_jax | {r['agent']} | {r['num_episodes']} "
-            f"| {100 * r['collision_free_rate']:.1f} % ({100 * low:.1f}–{100 * high:.1f}) "
-            f"| {r['avg_speed_kmh']:.2f} | {r['avg_distance_m']:.1f} |"
-        )
-    return "\n".join(rows)
+    """The paper's Table III rows (with the interval its 10 episodes allow) beside ours."""
+    from drqn_jax.study import baseline_row, paper_rows, study_table
+
+    return study_table(paper_rows() + [baseline_row("drqn_jax", r) for r in results])
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -579,12 +609,38 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_study(args: argparse.Namespace) -> int:
+    from drqn_jax.study import plan_study, run_study
+
+    configs = [c.strip() for c in args.configs.split(",") if c.strip()]
+    if args.smooth < 1:
+        raise ConfigError(f"--smooth {args.smooth}: must be an integer >= 1")
+    arms = plan_study(configs, args.seeds, args.episodes, args.overrides)
+    out = Path(args.out or _default_run_dir("study", "-".join(a.name for a in arms)))
+    for arm in arms:
+        print(f"{arm.name}: {arm.sweep.describe()}", file=sys.stderr)
+    if args.dry_run:
+        return EXIT_OK
+    start = time.perf_counter()
+    outcome = run_study(arms, out, smooth=args.smooth, png=not args.no_png, quiet=args.quiet)
+    if outcome.status == "interrupted":
+        print(
+            f"interrupted; checkpoints saved, continue with the same command (--out {out})",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
+    print(outcome.table)
+    print(f"\nwall time {time.perf_counter() - start:.1f} s; study in {out}")
+    return EXIT_OK
+
+
 COMMANDS = {
     "train": cmd_train,
     "evaluate": cmd_evaluate,
     "reproduce": cmd_reproduce,
     "replay": cmd_replay,
     "sweep": cmd_sweep,
+    "study": cmd_study,
     "bench": cmd_bench,
 }
 

@@ -9,7 +9,9 @@ no viewer is needed to write it):
   :func:`drqn_jax.evaluation.evaluate` does, so recorded episode *i* is the
   evaluated episode *i* (same length, return, collision).
 * :func:`record_training` logs the per-episode training metrics of a run
-  (``drqn_jax.runner.recorded_metrics``) as curves.
+  (``drqn_jax.runner.recorded_metrics``) as curves;
+  :func:`record_study_curves` logs a study's curves over seeds
+  (:mod:`drqn_jax.study`).
 
 Entity layout of an episode recording (timeline ``"step"`` = the env's
 ``state.time``; every episode has its own entity prefix ``episode/<i>``, so
@@ -105,6 +107,7 @@ __all__ = [
     "map_extent",
     "map_regions",
     "record_episodes",
+    "record_study_curves",
     "record_training",
     "running_mean",
     "to_view",
@@ -758,5 +761,43 @@ def record_training(
                     indexes=[rr.TimeColumn(EPISODE_TIMELINE, sequence=episodes)],
                     columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
                 )
+    finally:
+        _close(rec)
+
+
+def record_study_curves(
+    path: str | Path,
+    curves: Mapping[str, Mapping[str, Any]],
+    *,
+    application_id: str = "drqn_jax",
+) -> None:
+    """Save a study's training curves (:func:`drqn_jax.study.load_curves` per config).
+
+    Entities ``curves/<metric>/<config>/{mean,low,high}`` (the running mean's
+    mean and min–max over seeds) and ``curves/<metric>/<config>/seed<k>``
+    (each seed's raw values), on the ``episode`` timeline; one time-series
+    view per metric (``episode_return``, ``length``).
+    """
+    metrics = sorted({m for by_metric in curves.values() for m in by_metric})
+    blueprint = rrb.Blueprint(
+        rrb.Grid(*[rrb.TimeSeriesView(name=m, origin=f"/curves/{m}") for m in metrics]),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", timeline=EPISODE_TIMELINE),
+    )
+    rec = _open(path, application_id, blueprint)
+    try:
+        for name, by_metric in curves.items():
+            for metric, c in by_metric.items():
+                series = {"mean": c.mean, "low": c.low, "high": c.high}
+                series |= {f"seed{k}": values for k, values in enumerate(c.seeds)}
+                for part, values in series.items():
+                    entity = f"curves/{metric}/{name}/{part}"
+                    rec.log(entity, rr.SeriesLines(names=f"{name} {part}"), static=True)
+                    rec.send_columns(
+                        entity,
+                        indexes=[rr.TimeColumn(EPISODE_TIMELINE, sequence=c.episode)],
+                        columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
+                    )
     finally:
         _close(rec)

@@ -28,7 +28,7 @@ import math
 import signal
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -133,13 +133,15 @@ def _finite(state: TrainState) -> jax.Array:
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
 
 
-def recorded_metrics(state: TrainState) -> dict[str, np.ndarray]:
+def recorded_metrics(state: TrainState | Mapping[str, Any]) -> dict[str, np.ndarray]:
     """Host copies of the recorded episodes' metrics, in episode order, plus ``episode``.
 
-    With N parallel environments episodes finish out of order; an episode is
-    recorded once it ended (its ``length`` is then >= 1).
+    ``state`` is a run's ``TrainState`` or its ``metrics`` dict (one run's: leaves
+    ``(num_episodes,)``). With N parallel environments episodes finish out of
+    order; an episode is recorded once it ended (its ``length`` is then >= 1).
     """
-    metrics = {name: np.asarray(v) for name, v in state.metrics.items()}
+    source = state.metrics if isinstance(state, TrainState) else state
+    metrics = {name: np.asarray(v) for name, v in source.items()}
     done = metrics["length"] > 0
     out = {"episode": np.flatnonzero(done)}
     out.update({name: metrics[name][done] for name in METRIC_NAMES})
@@ -154,8 +156,11 @@ def _format(value: Any) -> str:
     return str(value)
 
 
-def metrics_csv(state: TrainState) -> str:
-    """``metrics.csv`` text: ``episode`` then every training metric (SI units)."""
+def metrics_csv(state: TrainState | Mapping[str, Any]) -> str:
+    """``metrics.csv`` text: ``episode`` then every training metric (SI units).
+
+    ``state``: as :func:`recorded_metrics` takes it.
+    """
     rows = recorded_metrics(state)
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")

@@ -52,6 +52,7 @@ __all__ = [
     "STRATEGIES",
     "Sweep",
     "SweepPoint",
+    "build_sweep",
     "load_sweep",
     "shape_key",
     "summarize_sweep",
@@ -196,19 +197,47 @@ def load_sweep(path: str | Path, overrides: Sequence[str] = ()) -> Sweep:
             f"sweep {str(path)!r}: unknown key(s) {', '.join(sorted(unknown))}; "
             "allowed: base, mode, strategy, set, axes"
         )
-    strategy = raw.get("strategy", "auto")
+    base = raw.get("base", "default")
+    base_path = path.parent / base
+    shared = [_override(k, v) for k, v in raw.get("set", {}).items()] + list(overrides)
+    return build_sweep(
+        base,
+        raw.get("axes", {}),
+        shared,
+        mode=raw.get("mode", "product"),
+        strategy=raw.get("strategy", "auto"),
+        base_source=base_path if base_path.is_file() else base,
+    )
+
+
+def build_sweep(
+    base: str,
+    axes: dict[str, Any],
+    overrides: Sequence[str] = (),
+    *,
+    mode: str = "product",
+    strategy: str = "auto",
+    base_source: str | Path | None = None,
+) -> Sweep:
+    """A sweep from its parts, as a sweep file names them (nothing compiles).
+
+    Args:
+        base: a config name in ``configs/`` or a path.
+        axes: ``{"section.field": list | range table}``.
+        overrides: ``section.field=value`` shared by every point.
+        base_source: where to read ``base`` from, when not ``base`` itself.
+    Raises:
+        ConfigError: naming the key, axis or point field at fault.
+    """
     if strategy not in STRATEGIES:
         raise ConfigError(
             f"strategy = {strategy!r}: must be one of {', '.join(map(repr, STRATEGIES))}"
         )
-    base = raw.get("base", "default")
-    base_path = path.parent / base
-    base_source = base_path if base_path.is_file() else base
-    mode = raw.get("mode", "product")
     if mode not in MODES:
         raise ConfigError(f"mode = {mode!r}: must be one of {', '.join(map(repr, MODES))}")
-    shared = [_override(k, v) for k, v in raw.get("set", {}).items()] + list(overrides)
-    axes = {name: _axis_values(name, spec) for name, spec in raw.get("axes", {}).items()}
+    base_source = base if base_source is None else base_source
+    shared = list(overrides)
+    axes = {name: _axis_values(name, spec) for name, spec in axes.items()}
     for name in axes:
         parse_override(f"{name}=0")  # a well-formed section.field
     if mode == "zip":

@@ -21,6 +21,8 @@ Output directory::
     OUT/plan.json                      the points (values, training hash) and processes
     OUT/calls/runs-<first>-<last>/     checkpoint.npz/.json while a call runs,
                                        runs.json once it ended
+    OUT/metrics/run-<index>.csv        each run's training metrics, one row per episode
+                                       (written by the process that trained it)
     OUT/results.md, results.csv        per setting: mean, std, 95 % interval, IQM
     OUT/runs.json                      every run's evaluation and training summary
 
@@ -66,7 +68,7 @@ from drqn_jax.memory import (
     run_memory,
     runs_per_call,
 )
-from drqn_jax.runner import _finite, _progress_bar, _StopRequest, json_ready
+from drqn_jax.runner import _finite, _progress_bar, _StopRequest, json_ready, metrics_csv
 from drqn_jax.sweep import STRATEGIES, Sweep, SweepPoint
 from drqn_jax.train import Trainer, TrainState, make_train
 
@@ -76,6 +78,7 @@ __all__ = [
     "SweepOutcome",
     "evaluate_runs",
     "init_distributed",
+    "metrics_path",
     "plan_calls",
     "run_sweep",
     "train_call",
@@ -423,6 +426,21 @@ def call_results(call: Call, outcome: CallOutcome, eval_key: jax.Array) -> list[
     return results
 
 
+def metrics_path(out: str | Path, index: int) -> Path:
+    """``OUT/metrics/run-NNNN.csv``: the training metrics of the sweep's run ``index``."""
+    return Path(out) / "metrics" / f"run-{index:04d}.csv"
+
+
+def write_training_metrics(out: Path, call: Call, state: TrainState) -> None:
+    """Each run's per-episode training metrics as a ``metrics.csv`` (as ``drqn-jax
+    train`` writes it) at :func:`metrics_path`."""
+    metrics = jax.tree.map(np.asarray, state.metrics)
+    for i, point in enumerate(call.points):
+        path = metrics_path(out, point.index)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, metrics_csv({k: v[i] for k, v in metrics.items()}))
+
+
 # ------------------------------------------------------------------------------ the sweep
 
 
@@ -538,6 +556,7 @@ def run_sweep(
                 return SweepOutcome("interrupted", results, list(calls))
             call_result = call_results(call, outcome, eval_key)
             directory.mkdir(parents=True, exist_ok=True)
+            write_training_metrics(out, call, outcome.state)
             atomic_write_text(saved, json.dumps(call_result, indent=1) + "\n")
             for name in (CHECKPOINT_NPZ, CHECKPOINT_JSON):  # the results replace them
                 (directory / name).unlink(missing_ok=True)

@@ -370,3 +370,16 @@ def test_several_processes_need_all_three_settings(monkeypatch):
         init_distributed(None, 2, None)
     with pytest.raises(ConfigError, match="0 <= process_id < num_processes"):
         init_distributed(None, 2, 2)
+
+
+def test_every_run_writes_its_training_metrics(trained, cli_sweep):
+    """OUT/metrics/run-NNNN.csv: each run's metrics.csv, as ``drqn-jax train`` writes it."""
+    from drqn_jax.runner import metrics_csv
+    from drqn_jax.sweep_runner import metrics_path
+
+    sweep, _, metrics = trained
+    for point in sweep.points:
+        run_metrics = {name: values[point.index] for name, values in metrics.items()}
+        text = metrics_path(cli_sweep, point.index).read_text()
+        assert text == metrics_csv(run_metrics)
+        assert len(text.splitlines()) == 1 + 4  # header + train.num_episodes rows

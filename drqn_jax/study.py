@@ -1,0 +1,424 @@
+"""A study (issue 8): configs × seeds, each evaluated greedily, beside the rule-based agent.
+
+The paper compared one DRQN with the rule-based agent on 10 episodes each
+(Table III) and plotted one training run ("Training performance", §V-F).
+A study trains every config for several seeds and evaluates every agent on
+the same episodes (the evaluation key of the first seed), so that the rows
+differ only by the agent::
+
+    drqn-jax study --configs paper,default,dqn --seeds 5 --episodes 1000 --out studies/table3
+
+Each config is a sweep over ``run.seed`` (:mod:`drqn_jax.sweep`) in
+``OUT/<config>/``: one program per config, run by :func:`~drqn_jax.sweep_runner.run_sweep`
+with its checkpoints, so an interrupted study continues where it stopped
+when the same command runs again. The rule-based agent is evaluated once per
+distinct ``[env]`` section on the same episodes. Then:
+
+* ``OUT/study.md``: the paper's rows beside ours — collision-free % with a 95 %
+  interval (across seeds: Student t; a single policy: Wilson over its
+  episodes), average speed, distance (all and collision-free), goal %,
+  collisions per km;
+* ``OUT/study.json``: the rows and every run's evaluation;
+* ``OUT/curves.png`` (matplotlib, the ``plots`` extra) and ``OUT/curves.rrd``:
+  average reward and steps per episode against training episode, mean and
+  min–max over seeds, as the paper's figure.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import hashlib
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drqn_jax.checkpoint import atomic_write_text
+from drqn_jax.config import Config, ConfigError
+from drqn_jax.evaluation import wilson_interval
+from drqn_jax.recording import running_mean
+from drqn_jax.stats import t_interval
+from drqn_jax.sweep import Sweep, build_sweep
+
+__all__ = [
+    "PAPER_TABLE_III",
+    "Arm",
+    "Curve",
+    "StudyOutcome",
+    "baseline_row",
+    "load_curves",
+    "paper_rows",
+    "plan_study",
+    "plot_curves",
+    "rule_based_results",
+    "run_study",
+    "study_row",
+    "study_table",
+]
+
+#: The paper's Table III: agent, collision-free episodes of 10, avg speed (km/h), distance (m).
+PAPER_TABLE_III = (
+    ("rule-based", 4, 7.79, 82.6),
+    ("DRQN", 7, 6.09, 123.1),
+)
+PAPER_EPISODES = 10
+
+#: The curves of the paper's "Training performance" figure: metrics.csv column, label.
+CURVES = (
+    ("episode_return", "average reward (return per episode)"),
+    ("length", "steps per episode"),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Arm:
+    """One row of the study: a config trained for every seed (a sweep over ``run.seed``)."""
+
+    name: str
+    sweep: Sweep
+
+    @property
+    def config(self) -> Config:
+        """The first seed's resolved config (the others differ only in ``run.seed``)."""
+        return self.sweep.points[0].config
+
+
+def plan_study(
+    configs: Sequence[str], seeds: int, episodes: int, overrides: Sequence[str] = ()
+) -> list[Arm]:
+    """Validate the study before anything compiles: one :class:`Arm` per config.
+
+    Args:
+        configs: config names in ``configs/`` or TOML paths (row names: the file stem).
+        seeds: seeds ``0 … seeds − 1`` per config.
+        episodes: greedy evaluation episodes per run (the same for every agent).
+        overrides: ``section.field=value`` applied to every config.
+    Raises:
+        ConfigError: a bad count, a duplicate name, or a config field at fault.
+    """
+    if not isinstance(seeds, int) or seeds < 1:
+        raise ConfigError(f"--seeds {seeds!r}: must be an integer >= 1")
+    if not isinstance(episodes, int) or episodes < 1:
+        raise ConfigError(f"--episodes {episodes!r}: must be an integer >= 1")
+    names = [Path(c).stem for c in configs]
+    if not names:
+        raise ConfigError("--configs: name at least one config")
+    if len(set(names)) < len(names):
+        raise ConfigError(f"--configs {','.join(configs)}: two configs share a name")
+    shared = [*overrides, f"evaluate.episodes={episodes}"]
+    return [
+        Arm(name, build_sweep(config, {"run.seed": list(range(seeds))}, shared))
+        for name, config in zip(names, configs, strict=True)
+    ]
+
+
+def env_key(config: Config) -> str:
+    """A short digest of a config's ``[env]`` and ``[rule_based]`` sections and its
+    evaluation (episodes, seed): configs that agree share the rule-based baseline."""
+    record = {
+        "env": config["env"],
+        "rule_based": config["rule_based"],
+        "episodes": config["evaluate"]["episodes"],
+        "seed": config["run"]["seed"],
+    }
+    text = json.dumps(record, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+# ----------------------------------------------------------------------------- the table
+
+
+def _mean(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
+    values = [r[metric] for r in runs if r.get(metric) is not None]
+    return float(np.mean(values)) if values else math.nan
+
+
+def _std(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
+    values = [r[metric] for r in runs if r.get(metric) is not None]
+    return float(np.std(values, ddof=1)) if len(values) > 1 else math.nan
+
+
+def study_row(label: str, agent: str, runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """One table row from the evaluations of an agent's runs (one per seed).
+
+    ``runs``: :func:`drqn_jax.evaluation.evaluate` results as JSON (``json_ready``).
+    The collision-free interval is the 95 % Student-t interval of the mean
+    across seeds (it holds the training's variation as well as the episodes');
+    with one run, the Wilson interval over its episodes. Collisions per km are
+    pooled: all collisions over all distance.
+    """
+    if not runs:
+        raise ValueError(f"study_row {label!r}: no runs")
+    rates = np.array([r["collision_free_rate"] for r in runs], np.float64)
+    if len(runs) > 1:
+        interval, interval_kind = t_interval(rates), "t over seeds"
+    else:
+        interval, interval_kind = tuple(runs[0]["collision_free_ci"]), "Wilson over episodes"
+    episodes = [r["num_episodes"] for r in runs]
+    collisions = sum(round(n * (1.0 - r)) for n, r in zip(episodes, rates, strict=True))
+    km = sum(n * r["avg_distance_m"] for n, r in zip(episodes, runs, strict=True)) / 1000.0
+    free = [round(n * r) for n, r in zip(episodes, rates, strict=True)]
+    free_distance = [r.get("avg_distance_collision_free_m") for r in runs]
+    pooled_free = [(k, d) for k, d in zip(free, free_distance, strict=True) if k and d is not None]
+    return {
+        "label": label,
+        "agent": agent,
+        "seeds": len(runs),
+        "episodes": int(episodes[0]),
+        "diverged": sum(bool(r.get("diverged")) for r in runs),
+        "collision_free_rate": float(rates.mean()),
+        "collision_free_ci": (float(interval[0]), float(interval[1])),
+        "interval": interval_kind,
+        "avg_speed_kmh": _mean(runs, "avg_speed_kmh"),
+        "avg_speed_kmh_std": _std(runs, "avg_speed_kmh"),
+        "avg_distance_m": _mean(runs, "avg_distance_m"),
+        "avg_distance_collision_free_m": (
+            sum(k * d for k, d in pooled_free) / sum(k for k, _ in pooled_free)
+            if pooled_free
+            else math.nan
+        ),
+        "goal_rate": _mean(runs, "goal_rate"),
+        "collisions_per_km": collisions / km if km > 0 else math.nan,
+    }
+
+
+def baseline_row(label: str, result: Mapping[str, Any]) -> dict[str, Any]:
+    """A row for a single policy evaluated once (the rule-based agent): Wilson interval."""
+    return study_row(label, result["agent"], [result])
+
+
+def paper_rows() -> list[dict[str, Any]]:
+    """The paper's Table III as rows, with the Wilson interval its 10 episodes allow."""
+    rows = []
+    for agent, free, speed, distance in PAPER_TABLE_III:
+        rows.append(
+            {
+                "label": "paper (CARLA)",
+                "agent": agent,
+                "seeds": 1,
+                "episodes": PAPER_EPISODES,
+                "diverged": 0,
+                "collision_free_rate": free / PAPER_EPISODES,
+                "collision_free_ci": wilson_interval(free, PAPER_EPISODES),
+                "interval": "Wilson over episodes",
+                "avg_speed_kmh": speed,
+                "avg_speed_kmh_std": math.nan,
+                "avg_distance_m": distance,
+                "avg_distance_collision_free_m": math.nan,
+                "goal_rate": math.nan,
+                "collisions_per_km": math.nan,
+            }
+        )
+    return rows
+
+
+def _cell(value: float, spec: str, scale: float = 1.0) -> str:
+    return "–" if value is None or not math.isfinite(value) else format(scale * value, spec)
+
+
+def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown: one row per agent; ``± std`` is across seeds."""
+    header = (
+        "| source | agent | seeds × episodes | collision-free % (95 % interval) "
+        "| avg speed (km/h) | distance (m) | distance, collision-free (m) | goal % "
+        "| collisions / km |"
+    )
+    lines = [header, "| --- | --- | ---: | --- | ---: | ---: | ---: | ---: | ---: |"]
+    for r in rows:
+        low, high = r["collision_free_ci"]
+        speed = _cell(r["avg_speed_kmh"], ".2f")
+        if math.isfinite(r["avg_speed_kmh_std"]):
+            speed += f" ± {r['avg_speed_kmh_std']:.2f}"
+        seeds = f"{r['seeds']} × {r['episodes']}"
+        if r["diverged"]:
+            seeds += f" ({r['diverged']} diverged)"
+        lines.append(
+            f"| {r['label']} | {r['agent']} | {seeds} "
+            f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
+            f"| {speed} | {_cell(r['avg_distance_m'], '.1f')} "
+            f"| {_cell(r['avg_distance_collision_free_m'], '.1f')} "
+            f"| {_cell(r['goal_rate'], '.1f', 100.0)} | {_cell(r['collisions_per_km'], '.2f')} |"
+        )
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- curves
+
+
+@dataclasses.dataclass(frozen=True)
+class Curve:
+    """A training curve over seeds: per training episode (E,) the mean, min and max
+    across seeds of a running mean over ``smooth`` episodes; ``seeds`` (S, E) raw."""
+
+    episode: np.ndarray
+    mean: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    seeds: np.ndarray
+
+
+def _read_csv(path: Path) -> dict[str, np.ndarray]:
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return {}
+    return {name: np.array([float(r[name]) for r in rows]) for name in rows[0]}
+
+
+def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Curve]:
+    """The :data:`CURVES` of one config over its seeds' ``metrics.csv`` files.
+
+    Seeds are cut to the episodes they all recorded. Raises ValueError when a
+    file is missing or empty.
+    """
+    if smooth < 1:
+        raise ValueError(f"smooth = {smooth!r}: must be an integer >= 1")
+    tables = []
+    for path in metrics_files:
+        if not path.is_file():
+            raise ValueError(f"{path}: no training metrics (has the run finished?)")
+        table = _read_csv(path)
+        if not table:
+            raise ValueError(f"{path}: no recorded episodes")
+        tables.append(table)
+    n = min(len(t["episode"]) for t in tables)
+    curves = {}
+    for column, _ in CURVES:
+        raw = np.stack([t[column][:n] for t in tables])
+        smoothed = np.stack([running_mean(x, smooth) for x in raw])
+        curves[column] = Curve(
+            episode=np.arange(n),
+            mean=smoothed.mean(axis=0),
+            low=smoothed.min(axis=0),
+            high=smoothed.max(axis=0),
+            seeds=raw,
+        )
+    return curves
+
+
+def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smooth: int) -> None:
+    """The paper's "Training performance" figure for every config: a PNG at ``path``.
+
+    ``curves``: config name → :func:`load_curves`. Needs matplotlib (the ``plots`` extra).
+    """
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise ConfigError(
+            "the curves' PNG needs matplotlib: pip install 'drqn-jax[plots]' "
+            "(or run the study with --no-png; the .rrd recording needs no extra)"
+        ) from None
+    fig, axes = plt.subplots(1, len(CURVES), figsize=(11, 4), constrained_layout=True)
+    for ax, (column, label) in zip(axes, CURVES, strict=True):
+        for name, by_metric in curves.items():
+            c = by_metric[column]
+            seeds = c.seeds.shape[0]
+            (line,) = ax.plot(c.episode, c.mean, label=f"{name} ({seeds} seeds)")
+            ax.fill_between(c.episode, c.low, c.high, color=line.get_color(), alpha=0.2, lw=0)
+        ax.set_xlabel("training episode")
+        ax.set_ylabel(label)
+        ax.set_title(f"{label}: mean and min–max over seeds (running mean of {smooth})")
+        ax.title.set_fontsize(9)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- running it
+
+
+@dataclasses.dataclass
+class StudyOutcome:
+    """``finished`` (``rows``: the table; ``runs``: config → its runs' results) or
+    ``interrupted`` (checkpoints saved; the same command continues)."""
+
+    status: str
+    rows: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    runs: dict[str, list[dict[str, Any]]] = dataclasses.field(default_factory=dict)
+    table: str = ""
+
+
+def rule_based_results(arms: Sequence[Arm], out: Path) -> list[tuple[str, dict[str, Any]]]:
+    """The rule-based agent on each distinct environment of ``arms``, on the study's
+    episodes: ``(env id, result)``, cached in ``OUT/baselines/``."""
+    from drqn_jax.runner import builtin_agent, evaluate_agents, json_ready
+
+    found: dict[str, tuple[str, dict[str, Any]]] = {}
+    for arm in arms:
+        key = env_key(arm.config)
+        if key in found:
+            continue
+        path = out / "baselines" / f"rule-based-{key}.json"
+        if path.is_file():
+            result = json.loads(path.read_text())
+        else:
+            (result,) = evaluate_agents(arm.config, [builtin_agent("rule-based", arm.config)])
+            result = json_ready(result)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(path, json.dumps(result, indent=1) + "\n")
+        found[key] = (arm.config["env"]["id"], result)
+    return list(found.values())
+
+
+def run_study(
+    arms: Sequence[Arm],
+    out: str | Path,
+    *,
+    smooth: int = 10,
+    png: bool = True,
+    quiet: bool = False,
+) -> StudyOutcome:
+    """Train and evaluate every arm (continuing a study already in ``out``), evaluate
+    the rule-based agent, and write the table and the curves (module docstring)."""
+    from drqn_jax.recording import record_study_curves
+    from drqn_jax.sweep_runner import metrics_path, run_sweep
+
+    out = Path(out)
+    runs: dict[str, list[dict[str, Any]]] = {}
+    for arm in arms:
+        directory = out / arm.name
+        resume = (directory / "plan.json").is_file()
+        outcome = run_sweep(arm.sweep, directory, resume=resume, quiet=quiet)
+        if outcome.status == "interrupted":
+            return StudyOutcome("interrupted")
+        runs[arm.name] = outcome.results
+    rows = paper_rows()
+    rows += [
+        study_row(f"drqn_jax: {arm.name}", arm.config["network"]["kind"], runs[arm.name])
+        for arm in arms
+    ]
+    rows += [baseline_row(f"drqn_jax: {env}", r) for env, r in rule_based_results(arms, out)]
+    curves = {
+        arm.name: load_curves(
+            [metrics_path(out / arm.name, p.index) for p in arm.sweep.points], smooth
+        )
+        for arm in arms
+    }
+    record_study_curves(out / "curves.rrd", curves)
+    if png:
+        plot_curves(curves, out / "curves.png", smooth)
+    table = study_table(rows)
+    atomic_write_text(out / "study.md", table + "\n")
+    record = _finite_json({"rows": rows, "runs": runs, "smooth": smooth})
+    atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
+    return StudyOutcome("finished", rows, runs, table)
+
+
+def _finite_json(value: Any) -> Any:
+    """``value`` with tuples as lists and non-finite floats as None (strict JSON)."""
+    if isinstance(value, dict):
+        return {k: _finite_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite_json(v) for v in value]
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    return value

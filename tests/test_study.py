@@ -1,0 +1,158 @@
+"""Studies (issue 8): rows pooled over seeds with intervals, curves over seeds, the command."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from drqn_jax import cli
+from drqn_jax.config import ConfigError
+from drqn_jax.stats import t_interval
+from drqn_jax.study import (
+    CURVES,
+    baseline_row,
+    load_curves,
+    paper_rows,
+    plan_study,
+    study_row,
+    study_table,
+)
+from drqn_jax.sweep_runner import metrics_path
+
+
+def _run(rate: float, n: int = 100, distance: float = 100.0, free_distance: float = 120.0):
+    return {
+        "agent": "drqn",
+        "num_episodes": n,
+        "collision_free_rate": rate,
+        "collision_free_ci": [rate - 0.05, rate + 0.05],
+        "avg_speed_kmh": 10.0 * rate,
+        "avg_distance_m": distance,
+        "avg_distance_collision_free_m": free_distance,
+        "goal_rate": rate / 2,
+    }
+
+
+def test_paper_rows_show_the_interval_of_ten_episodes():
+    """4 and 7 collision-free episodes of 10: Wilson 95 % intervals that overlap."""
+    rule_based, drqn = paper_rows()
+    assert rule_based["collision_free_rate"] == 0.4 and drqn["collision_free_rate"] == 0.7
+    assert rule_based["collision_free_ci"] == pytest.approx((0.1682, 0.6873), abs=1e-4)
+    assert drqn["collision_free_ci"] == pytest.approx((0.3968, 0.8922), abs=1e-4)
+    assert drqn["collision_free_ci"][0] < rule_based["collision_free_ci"][1]
+
+
+def test_a_row_pools_seeds():
+    runs = [_run(0.9, distance=100.0, free_distance=110.0), _run(0.8, distance=110.0)]
+    runs.append(_run(0.7, distance=120.0, free_distance=130.0))
+    row = study_row("drqn_jax: x", "drqn", runs)
+    assert row["seeds"] == 3 and row["episodes"] == 100
+    assert row["collision_free_rate"] == pytest.approx(0.8)
+    assert row["collision_free_ci"] == pytest.approx(t_interval(np.array([0.9, 0.8, 0.7])))
+    assert row["interval"] == "t over seeds"
+    assert row["avg_speed_kmh"] == pytest.approx(8.0)
+    assert row["avg_speed_kmh_std"] == pytest.approx(1.0)
+    # all collisions (10 + 20 + 30) over all distance (33 km)
+    assert row["collisions_per_km"] == pytest.approx(60 / 33.0)
+    # collision-free distance weighted by collision-free episodes (90, 80, 70)
+    expected = (90 * 110.0 + 80 * 120.0 + 70 * 130.0) / 240
+    assert row["avg_distance_collision_free_m"] == pytest.approx(expected)
+
+
+def test_a_single_policy_keeps_its_wilson_interval():
+    row = baseline_row("drqn_jax: env", _run(0.95))
+    assert row["collision_free_ci"] == pytest.approx((0.9, 1.0))
+    assert row["interval"] == "Wilson over episodes" and math.isnan(row["avg_speed_kmh_std"])
+    table = study_table([*paper_rows(), row])
+    assert "| paper (CARLA) | rule-based | 1 × 10 | 40.0 (16.8–68.7) | 7.79 |" in table
+    assert "| drqn_jax: env | drqn | 1 × 100 | 95.0 (90.0–100.0) | 9.50 |" in table
+
+
+def _write_metrics(path, returns, lengths):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = ["episode,episode_return,length"]
+    lines += [f"{i},{r},{n}" for i, (r, n) in enumerate(zip(returns, lengths, strict=True))]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_curves_are_running_means_over_the_episodes_all_seeds_recorded(tmp_path):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    _write_metrics(a, [1.0, 3.0, 5.0, 7.0], [10, 20, 30, 40])
+    _write_metrics(b, [3.0, 5.0, 7.0], [30, 30, 30])
+    curves = load_curves([a, b], smooth=2)
+    assert set(curves) == {column for column, _ in CURVES}
+    ret = curves["episode_return"]
+    np.testing.assert_array_equal(ret.episode, [0, 1, 2])
+    np.testing.assert_array_equal(ret.seeds, [[1.0, 3.0, 5.0], [3.0, 5.0, 7.0]])
+    # running means of 2: a → 1, 2, 4; b → 3, 4, 6
+    np.testing.assert_allclose(ret.mean, [2.0, 3.0, 5.0])
+    np.testing.assert_allclose(ret.low, [1.0, 2.0, 4.0])
+    np.testing.assert_allclose(ret.high, [3.0, 4.0, 6.0])
+    with pytest.raises(ValueError, match="no training metrics"):
+        load_curves([a, tmp_path / "missing.csv"])
+
+
+def test_a_study_is_validated_before_anything_runs():
+    with pytest.raises(ConfigError, match="--seeds 0"):
+        plan_study(["smoke"], 0, 10)
+    with pytest.raises(ConfigError, match="share a name"):
+        plan_study(["smoke", "configs/smoke.toml"], 2, 10)
+    with pytest.raises(ConfigError, match=r"train\.gamma"):
+        plan_study(["smoke"], 2, 10, ["train.gamma=2.0"])
+
+
+STUDY = ["--configs", "smoke", "--seeds", "2", "--episodes", "4", "--quiet"]
+STUDY += ["--set", "train.num_episodes=4"]
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study") / "out"
+    assert cli.main(["study", *STUDY, "--out", str(out)]) == 0
+    return out
+
+
+def test_the_study_writes_the_table_and_the_curves(study):
+    record = json.loads((study / "study.json").read_text())
+    labels = [(r["label"], r["agent"]) for r in record["rows"]]
+    assert labels == [
+        ("paper (CARLA)", "rule-based"),
+        ("paper (CARLA)", "DRQN"),
+        ("drqn_jax: smoke", "drqn"),
+        ("drqn_jax: UrbanPedestrians-v0", "rule-based"),
+    ]
+    runs = record["runs"]["smoke"]
+    assert [r["values"] for r in runs] == [{"run.seed": 0}, {"run.seed": 1}]
+    drqn = record["rows"][2]
+    assert drqn["seeds"] == 2 and drqn["episodes"] == 4
+    rates = [r["collision_free_rate"] for r in runs]
+    assert drqn["collision_free_rate"] == pytest.approx(np.mean(rates))
+    baseline = json.loads(next((study / "baselines").glob("rule-based-*.json")).read_text())
+    assert baseline["num_episodes"] == 4 and record["rows"][3]["episodes"] == 4
+    table = (study / "study.md").read_text()
+    assert "| drqn_jax: smoke | drqn | 2 × 4 |" in table
+    assert (study / "curves.rrd").stat().st_size > 0
+    assert (study / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_curves_are_the_logged_metrics(study):
+    curves = load_curves([metrics_path(study / "smoke", i) for i in range(2)], smooth=1)
+    for i in range(2):
+        logged = np.loadtxt(metrics_path(study / "smoke", i), delimiter=",", skiprows=1)
+        np.testing.assert_array_equal(curves["length"].seeds[i], logged[:, 2])
+    np.testing.assert_allclose(curves["length"].mean, curves["length"].seeds.mean(axis=0))
+
+
+def test_running_the_study_again_continues_it_without_training(study, monkeypatch):
+    import drqn_jax.sweep_runner as sweep_runner
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("a finished study trained again")
+
+    monkeypatch.setattr(sweep_runner, "train_call", no_training)
+    before = (study / "study.json").read_text()
+    assert cli.main(["study", *STUDY, "--out", str(study), "--no-png"]) == 0
+    assert (study / "study.json").read_text() == before
