@@ -46,15 +46,17 @@ here                       JAX
                            same-step auto-reset, ``step_env``, ``advance``)
 =========================  ===========================================================
 
-Randomness. The JAX env draws exactly one array per ``reset`` and per
+Randomness. The JAX env draws exactly two arrays per ``reset`` and per
 ``step``: ``jax.random.uniform(key, (8, P), float32)`` inside
 ``spawn_pedestrians`` (rows: x, side, y, desired speed, behaviour, jaywalking
-angle, path length, direction). A step uses it to replace the pedestrians
-that are gone, or, when the episode ends, to spawn the next episode's P
-pedestrians (the same array feeds ``info["final_state"]``). Here those
-uniforms are an explicit ``draws`` argument: :func:`jax_draws` returns the
-very array the JAX env draws from a key (so both envs can be compared),
-:func:`numpy_draws` draws one from an ``np.random.Generator`` for standalone
+angle, path length, direction) and ``uniform(fold_in(key, 1), (P,))`` inside
+``occlusion_mask`` (which pedestrians the grid shows). A step uses the first
+to replace the pedestrians that are gone, or, when the episode ends, to spawn
+the next episode's P pedestrians (the same arrays feed ``info["final_state"]``).
+Here those uniforms are an explicit ``draws`` argument of NUM_DRAWS = 9 rows
+(the 8 spawn rows, then the occlusion row): :func:`jax_draws` returns the very
+arrays the JAX env draws from a key (so both envs can be compared),
+:func:`numpy_draws` draws them from an ``np.random.Generator`` for standalone
 use.
 
 Transcendental functions are the one place where bits may differ: XLA's CPU
@@ -102,6 +104,7 @@ from drqn_jax.env.state import (
 
 __all__ = [
     "NUM_DRAWS",
+    "NUM_SPAWN_DRAWS",
     "EgoState",
     "EnvState",
     "NumpyUrbanPedestrians",
@@ -112,7 +115,8 @@ __all__ = [
     "numpy_steps_per_s",
 ]
 
-NUM_DRAWS = 8  # uniforms per pedestrian per spawn (see the module docstring)
+NUM_SPAWN_DRAWS = 8  # uniforms per pedestrian per spawn (see the module docstring)
+NUM_DRAWS = NUM_SPAWN_DRAWS + 1  # and one for its occlusion
 _FAR = 1e6  # stands in for ±infinity in segment bounds
 _EDGE = 1e-3  # m kept between a sidewalk pedestrian's end point and a cross street
 
@@ -149,6 +153,7 @@ class PedestrianState:
     behaviour: Array  # (P,) int32
     waypoints: Array  # (P, W, 2) float32
     waypoint_index: Array  # (P,) int32
+    visible: Array  # (P,) bool
 
     @property
     def done(self) -> Array:
@@ -184,8 +189,9 @@ def jax_draws(key: Any, static: StaticEnvParams) -> Array:
     """The uniforms the JAX env draws from ``key`` (test helper; imports JAX).
 
     ``spawn_pedestrians`` (``reset`` and every ``step``) draws
-    ``jax.random.uniform(key, (NUM_DRAWS, P), float32)``; this returns that
-    array. ``key`` may be a batch of keys (any leading shape), e.g.
+    ``jax.random.uniform(key, (8, P), float32)`` and ``occlusion_mask``
+    ``uniform(fold_in(key, 1), (P,))``; this returns them stacked, (NUM_DRAWS, P).
+    ``key`` may be a batch of keys (any leading shape), e.g.
     ``jax.random.split(key, T)``: the result is then (..., NUM_DRAWS, P).
     """
     import jax
@@ -203,8 +209,13 @@ def _jax_draw_fn(num_pedestrians: int, batch_dims: int) -> Any:
     import jax
     import jax.numpy as jnp
 
+    from drqn_jax.env.pedestrians import OCCLUSION_STREAM
+
     def draw(k: jax.Array) -> jax.Array:
-        return jax.random.uniform(k, (NUM_DRAWS, num_pedestrians), dtype=jnp.float32)
+        spawn = jax.random.uniform(k, (NUM_SPAWN_DRAWS, num_pedestrians), dtype=jnp.float32)
+        k_occlusion = jax.random.fold_in(k, OCCLUSION_STREAM)
+        occlusion = jax.random.uniform(k_occlusion, (1, num_pedestrians), dtype=jnp.float32)
+        return jnp.concatenate([spawn, occlusion])
 
     for _ in range(batch_dims):
         draw = jax.vmap(draw)
@@ -421,10 +432,11 @@ def spawn_pedestrians(
 ) -> PedestrianState:
     """P new pedestrians on the main sidewalks with x in [x_lo, x_hi) (SPEC §3).
 
-    ``draws``: (NUM_DRAWS, P) uniforms, the array the JAX function draws from its key.
+    ``draws``: (NUM_DRAWS, P) uniforms (:func:`jax_draws`); the first 8 rows are
+    the array the JAX function draws from its key.
     """
     num = static.num_pedestrians
-    u_x, u_side, u_y, u_speed, u_behaviour, u_angle, u_len, u_dir = draws
+    u_x, u_side, u_y, u_speed, u_behaviour, u_angle, u_len, u_dir = draws[:NUM_SPAWN_DRAWS]
     one = F32(1.0)
 
     x = sidewalk_x(u_x, x_lo, x_hi, params, static)
@@ -486,7 +498,13 @@ def spawn_pedestrians(
         behaviour=behaviour,
         waypoints=waypoints,
         waypoint_index=np.zeros(num, np.int32),
+        visible=np.ones(num, bool),
     )
+
+
+def occlusion_mask(draws: Array, params: EnvParams) -> Array:
+    """(P,) bool: the pedestrians the grid shows; the last row of ``draws`` (:func:`jax_draws`)."""
+    return draws[NUM_SPAWN_DRAWS] >= params.occlusion_prob
 
 
 def _waits_at_kerb(
@@ -606,6 +624,7 @@ def rasterize_grid(
     """The (rows, cols, 4) float32 observation grid (SPEC §4)."""
     size = static.grid_rows * static.grid_cols
     flat, _ = grid_cell_index(peds.position, ego.s, params, static)
+    flat = np.where(peds.visible, flat, size)
     rel = peds.position - np.array([ego.s, lane_centre_y(params)], F32)
     flat = _nearest_wins(flat, rel[:, 0] * rel[:, 0] + rel[:, 1] * rel[:, 1], size)
     keep = flat < size
@@ -702,7 +721,9 @@ class NumpyUrbanPedestrians:
         """A fresh episode: ego at rest at the start, P pedestrians around it."""
         ego = initial_ego(self.params, self.static)
         lo, hi = self._spawn_range(ego.s, initial=True)
-        peds = spawn_pedestrians(self._draws(draws), lo, hi, self.params, self.static)
+        draws = self._draws(draws)
+        peds = spawn_pedestrians(draws, lo, hi, self.params, self.static)
+        peds.visible = occlusion_mask(draws, self.params)
         return EnvState(
             ego=ego, pedestrians=peds, last_action=np.int32(NO_ACTION), time=np.int32(0)
         )
@@ -745,6 +766,7 @@ class NumpyUrbanPedestrians:
         peds = respawn_pedestrians(
             draws, stepped.pedestrians, gone, lo, hi, self.params, self.static
         )
+        peds = dataclasses.replace(peds, visible=occlusion_mask(draws, self.params))
         return dataclasses.replace(stepped, pedestrians=peds)
 
     def step_env(

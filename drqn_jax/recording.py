@@ -53,7 +53,10 @@ class ids 0, 1, 2 with the behaviour names):
 
 * crossing (legal, on crosswalks): green ``(40, 170, 70)``;
 * jaywalking: red ``(230, 50, 40)``;
-* sidewalk (never enters the road): blue ``(50, 110, 230)``.
+* sidewalk (never enters the road): blue ``(50, 110, 230)``;
+
+faded (alpha :data:`OCCLUDED_ALPHA`) while occluded, i.e. left out of the
+observation grid (``EnvParams.occlusion_prob``).
 
 Entity layout of a training recording (timeline ``"episode"`` = the training
 episode's index): ``training/return``, ``training/length`` (steps),
@@ -99,6 +102,7 @@ __all__ = [
     "COLLISION_RATE_WINDOW",
     "EPISODE_TIMELINE",
     "GRID_CHANNELS",
+    "OCCLUDED_ALPHA",
     "STEP_TIMELINE",
     "EpisodeRecord",
     "MapRegion",
@@ -116,6 +120,7 @@ __all__ = [
 
 STEP_TIMELINE = "step"
 EPISODE_TIMELINE = "episode"
+OCCLUDED_ALPHA = 70  # alpha of a pedestrian the grid leaves out this step
 GRID_CHANNELS = ("occupancy", "heading", "speed", "semantics")  # SPEC §4 channel order
 COLLISION_RATE_WINDOW = 20  # episodes in the running collision/goal rates (as the progress bar)
 
@@ -475,7 +480,9 @@ def _log_episode(
 
     behaviour = peds.behaviour.reshape(-1)
     palette = np.array([BEHAVIOUR_COLOURS[k] for k in sorted(BEHAVIOUR_COLOURS)], np.uint8)
-    colours = palette[behaviour]
+    # pedestrians the grid leaves out this step (EnvParams.occlusion_prob) are faded
+    alpha = np.where(peds.visible.reshape(-1), 255, OCCLUDED_ALPHA).astype(np.uint8)
+    colours = np.concatenate([palette[behaviour], alpha[:, None]], axis=1)
     positions = to_view(peds.position.reshape(-1, 2))
     lengths = [num_peds] * (n + 1)
     # the behaviour names (annotation context) show on hover, not over every pedestrian

@@ -114,6 +114,7 @@ def init_replay(
         velocity=jnp.zeros((m, n_obs, p, 2), f32),
         heading=jnp.zeros((m, n_obs, p), f32),
         speed=jnp.zeros((m, n_obs, p), f32),
+        visible=jnp.zeros((m, n_obs, p), bool),
     )
     return EpisodeReplay(
         records=records,

@@ -45,6 +45,7 @@ RTOL = ATOL = 1e-5
 # Values that are discrete (flags, codes, counters, TTC sample times): compared exactly.
 EXACT = {
     "behaviour",
+    "visible",
     "waypoint_index",
     "pid_count",
     "last_action",
@@ -89,6 +90,9 @@ SCENARIOS = {
         "UrbanPedestriansRealistic-v0", {}, "driving", 2, 250, ("collision", "near_miss")
     ),
     "switches": Scenario("UrbanPedestrians-v0", SWITCHED, "driving", 0, 300, ("collision",)),
+    "occlusion": Scenario(
+        "UrbanPedestrians-v0", {"occlusion_prob": 0.3}, "driving", 1, 250, ("occluded",)
+    ),
     "truncation": Scenario(
         "UrbanPedestrians-v0", {"max_steps": 100}, "random", 3, 250, ("truncated",)
     ),
@@ -249,6 +253,8 @@ def events(rec: dict) -> set[str]:
         found.add("truncated")
     if (rec["info.ttc"] <= 3.0).any():
         found.add("near_miss")
+    if not rec["state.pedestrians.visible"].all():
+        found.add("occluded")
     return found
 
 

@@ -135,3 +135,63 @@ def test_road_is_entered_only_by_crossers_and_jaywalkers(env_params):
     on_road = (cls == ROAD) | (cls == CROSSING_AREA)
     assert on_road.any()  # pedestrians do cross
     assert not np.any(on_road & (behaviour == SIDEWALK))
+
+
+@pytest.fixture(scope="module")
+def occluded_rollout(env_params):
+    """400 steps with ``occlusion_prob`` 0, 0.3 and 1 (one program, params traced):
+    the states and grids, and the grid re-rasterised from a replay record."""
+    from drqn_jax.env.grid import GridInputs, rasterize
+
+    env, _ = env_params
+
+    @jax.jit
+    def run(params):
+        _, state = env.reset(jax.random.key(5), params)
+
+        def body(state, k):
+            obs, state, *_ = env.step(k, state, 0, params)  # ego accelerates
+            replayed = rasterize(GridInputs.of(state.ego, state.pedestrians), params, env.static)
+            return state, (state.pedestrians, obs.grid, replayed)
+
+        return jax.lax.scan(body, state, jax.random.split(jax.random.key(6), 400))[1]
+
+    return {p: run(EnvParams(occlusion_prob=p)) for p in (0.0, 0.3, 1.0)}
+
+
+def test_occlusion_hides_pedestrians_from_the_grid_only(occluded_rollout):
+    """Hidden with probability p per pedestrian and step; the world is the same."""
+    none, some, all_ = (occluded_rollout[p] for p in (0.0, 0.3, 1.0))
+    assert bool(np.all(none[0].visible)) and not bool(np.any(all_[0].visible))
+    hidden = 1.0 - float(np.mean(some[0].visible))
+    assert 0.27 < hidden < 0.33  # 4000 draws: 0.3 ± 3 standard errors
+    # pedestrians walk the same paths whatever the grid shows
+    np.testing.assert_array_equal(some[0].position, none[0].position)
+    assert float(np.asarray(all_[1])[..., 0].sum()) == 0.0  # an empty grid at p = 1
+    occupied = np.asarray(some[1])[..., 0].sum(axis=(1, 2))
+    assert np.all(occupied <= np.asarray(none[1])[..., 0].sum(axis=(1, 2)))
+    assert np.any(occupied < np.asarray(none[1])[..., 0].sum(axis=(1, 2)))
+
+
+def test_the_replay_record_reproduces_the_occluded_grid(occluded_rollout):
+    _, grid, replayed = occluded_rollout[0.3]
+    np.testing.assert_array_equal(replayed, grid)
+
+
+def test_occlusion_draws_apart_from_the_spawns(env_params):
+    """The occlusion uniforms come from ``fold_in(key, 1)``: at p = 0 the env is
+    exactly the env without occlusion (the spawn draws are untouched)."""
+    from drqn_jax.env.pedestrians import OCCLUSION_STREAM, occlusion_mask
+
+    env, params = env_params
+    key = jax.random.key(7)
+    u = jax.random.uniform(jax.random.fold_in(key, OCCLUSION_STREAM), (10,))
+    mask = occlusion_mask(key, EnvParams(occlusion_prob=0.5), env.static)
+    np.testing.assert_array_equal(mask, u >= 0.5)
+    lo, hi = (params.ego_start_s + params.spawn_initial_min, 45.0)
+    assert float(lo) == 0.0 and float(params.ego_start_s + params.spawn_initial_max) == hi
+    spawn = spawn_pedestrians(key, lo, hi, params, env.static)
+    _, state = env.reset(key, params)
+    np.testing.assert_array_equal(state.pedestrians.position, spawn.position)
+    with pytest.raises(ValueError, match="occlusion_prob"):
+        EnvParams(occlusion_prob=1.5)

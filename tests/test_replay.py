@@ -36,6 +36,7 @@ def _record(n, episode, t):
         velocity=jnp.stack([zeros, zeros], -1),
         heading=zeros,
         speed=zeros,
+        visible=zeros > 0,
     )
 
 

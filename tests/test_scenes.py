@@ -159,6 +159,7 @@ def _peds(
         "behaviour": jnp.full((num,), CROSSING, jnp.int32),
         "waypoints": jnp.asarray(np.repeat(tgt[:, None, :], NUM_WAYPOINTS, axis=1)),
         "waypoint_index": jnp.zeros((num,), jnp.int32),
+        "visible": jnp.ones((num,), bool),
     }
     if "speed" in _PED_FIELDS:  # the norm of the velocity, stored where the step knows it
         fields["speed"] = jnp.asarray(np.linalg.norm(vel, axis=-1).astype(np.float32))

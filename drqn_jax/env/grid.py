@@ -13,11 +13,13 @@ forward axis (row 0 at ``x_rel = grid_x_min = −5 m``), columns lateral
    pedestrian's position (``semantic_channel = "pedestrian"``), or the dense
    class map of every cell centre (``"map"``).
 
-Pedestrians outside the window are dropped: indices are pushed out of range
-*before* the scatter (a negative index would wrap around), and the scatter
-uses ``mode="drop"``. When several pedestrians share a cell the one nearest
-to the ego wins (ties: lower index), so the grid is a deterministic function
-of the state whatever order XLA applies scatter updates in.
+Pedestrians outside the window, or occluded (``visible`` false), are
+dropped: indices are pushed out of range *before* the scatter (a negative
+index would wrap around), and the scatter uses ``mode="drop"``. When several
+pedestrians share a cell the one nearest to the ego wins (ties: lower index),
+so the grid is a deterministic function of the state whatever order XLA
+applies scatter updates in. An occluded pedestrian never takes a cell from
+a visible one.
 """
 
 from __future__ import annotations
@@ -100,13 +102,13 @@ def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
 class GridInputs:
     """Everything the grid is rasterised from: a compact record of one step.
 
-    6P + 2 floats (62 for P = 10, against 5400 for the grid), so a replay can
-    store these and rasterise at sample time.
+    6P + 2 floats and P bools (62 numbers and 10 flags for P = 10, against 5400
+    floats for the grid), so a replay can store these and rasterise at sample time.
 
     Attributes:
         s, v: () float32, the ego's arc length (m) and speed (m/s).
-        position, velocity: (P, 2) float32; heading, speed: (P,) float32 —
-            the pedestrians' fields of the same names.
+        position, velocity: (P, 2) float32; heading, speed: (P,) float32;
+            visible: (P,) bool — the pedestrians' fields of the same names.
     """
 
     s: jax.Array
@@ -115,6 +117,7 @@ class GridInputs:
     velocity: jax.Array
     heading: jax.Array
     speed: jax.Array
+    visible: jax.Array
 
     @classmethod
     def of(cls, ego: EgoState, peds: PedestrianState) -> GridInputs:
@@ -125,6 +128,7 @@ class GridInputs:
             velocity=peds.velocity,
             heading=peds.heading,
             speed=peds.speed,
+            visible=peds.visible,
         )
 
 
@@ -143,6 +147,7 @@ def rasterize(g: GridInputs, params: EnvParams, static: StaticEnvParams) -> jax.
     """:func:`rasterize_grid` from a :class:`GridInputs` record: (rows, cols, 4) float32."""
     size = static.grid_rows * static.grid_cols
     flat, _ = grid_cell_index(g.position, g, params, static)
+    flat = jnp.where(g.visible, flat, size)  # occluded: dropped, and never blocks a cell
     rel = g.position - jnp.stack([g.s, lane_centre_y(params)])
     flat = _nearest_wins(flat, jnp.sum(rel * rel, axis=-1), size)
 

@@ -168,6 +168,12 @@ class EnvParams:
     semantic_channel: int = param("pedestrian", choices=SEMANTIC_CHANNELS)
     speed_norm_pedestrian: float = param(2.0, low=0.0, low_open=True, doc="m/s")
     speed_norm_relative: float = param(6.0, low=0.0, low_open=True, doc="m/s")
+    occlusion_prob: float = param(
+        0.0,
+        low=0.0,
+        high=1.0,
+        doc="per pedestrian and step: left out of the grid (partial observability; paper: 0)",
+    )
     # --- Reward and TTC (SPEC §5) --------------------------------------
     v_ref: float = param(15.0 * KMH, low=0.0, low_open=True, doc="m/s; speed limit")
     stopped_speed: float = param(0.1, low=0.0, doc="m/s; below it the ego counts as stopped")

@@ -16,7 +16,9 @@ Each step a pedestrian walks straight to its next waypoint at its desired
 speed, unless its next position would overlap the ego's footprint inflated
 by ``ped_clearance`` (then it stands still), or gap acceptance makes it wait
 at the kerb. Pedestrians far behind, far ahead or done are replaced by new
-ones spawned ahead of the ego.
+ones spawned ahead of the ego. Optionally (``occlusion_prob`` > 0) each
+pedestrian is left out of the observation grid with that probability per
+step (:func:`occlusion_mask`), for studies of partial observability.
 """
 
 from __future__ import annotations
@@ -39,7 +41,14 @@ from drqn_jax.env.state import (
 _FAR = 1e6  # stands in for ±infinity in segment bounds
 _EDGE = 1e-3  # m kept between a sidewalk pedestrian's end point and a cross street
 
-__all__ = ["despawn_mask", "sidewalk_x", "spawn_pedestrians", "step_pedestrians"]
+__all__ = [
+    "OCCLUSION_STREAM",
+    "despawn_mask",
+    "occlusion_mask",
+    "sidewalk_x",
+    "spawn_pedestrians",
+    "step_pedestrians",
+]
 
 
 def sidewalk_x(
@@ -162,7 +171,26 @@ def spawn_pedestrians(
         behaviour=behaviour,
         waypoints=waypoints.astype(jnp.float32),
         waypoint_index=jnp.zeros((num,), jnp.int32),
+        visible=jnp.ones((num,), bool),
     )
+
+
+#: ``fold_in`` data of the key that draws the occlusion of a step (the step's key
+#: itself draws the spawns, so those stay what they were without occlusion).
+OCCLUSION_STREAM = 1
+
+
+def occlusion_mask(key: jax.Array, params: EnvParams, static: StaticEnvParams) -> jax.Array:
+    """(P,) bool: which pedestrians the grid shows this step (``PedestrianState.visible``).
+
+    Each is hidden with probability ``occlusion_prob``, independently per
+    pedestrian and step, from ``fold_in(key, OCCLUSION_STREAM)``: a uniform
+    ``u`` in [0, 1) shows it when ``u >= occlusion_prob`` (always at 0, never at 1).
+    """
+    u = jax.random.uniform(
+        jax.random.fold_in(key, OCCLUSION_STREAM), (static.num_pedestrians,), jnp.float32
+    )
+    return u >= params.occlusion_prob
 
 
 def _waits_at_kerb(

@@ -69,6 +69,11 @@ class PedestrianState:
         behaviour: (P,) int32, CROSSING | JAYWALKING | SIDEWALK.
         waypoints: (P, W, 2) float32, the path computed at spawn.
         waypoint_index: (P,) int32, next waypoint; ``W`` means done.
+        visible: (P,) bool, in the observation grid this step: each pedestrian is
+            left out with probability ``EnvParams.occlusion_prob`` per step
+            (partial observability; all visible by default, as in the paper).
+            Only the observation depends on it: collisions, TTC and the
+            rule-based agent see every pedestrian.
     """
 
     position: jax.Array
@@ -79,6 +84,7 @@ class PedestrianState:
     behaviour: jax.Array
     waypoints: jax.Array
     waypoint_index: jax.Array
+    visible: jax.Array
 
     @property
     def done(self) -> jax.Array:

@@ -33,6 +33,7 @@ from drqn_jax.env.grid import GRID_HIGH, GRID_LOW, rasterize_grid
 from drqn_jax.env.params import EnvParams, StaticEnvParams, check_compatible
 from drqn_jax.env.pedestrians import (
     despawn_mask,
+    occlusion_mask,
     respawn_pedestrians,
     spawn_pedestrians,
     step_pedestrians,
@@ -109,9 +110,10 @@ class UrbanPedestrians:
         params = _opaque(params)
         ego = initial_ego(params, self.static)
         lo, hi = self._spawn_range(ego.s, params, jnp.asarray(True))
+        peds = spawn_pedestrians(key, lo, hi, params, self.static)
         return EnvState(
             ego=ego,
-            pedestrians=spawn_pedestrians(key, lo, hi, params, self.static),
+            pedestrians=peds.replace(visible=occlusion_mask(key, params, self.static)),
             last_action=jnp.asarray(NO_ACTION, jnp.int32),
             time=jnp.zeros((), jnp.int32),
         )
@@ -165,7 +167,8 @@ class UrbanPedestrians:
     def _next_state(
         self, key: jax.Array, stepped: EnvState, params: EnvParams, reset: jax.Array
     ) -> EnvState:
-        """Finish a step: replace pedestrians far behind, far ahead or done (SPEC §3).
+        """Finish a step: replace pedestrians far behind, far ahead or done (SPEC §3),
+        and draw which pedestrians the grid shows (``occlusion_prob``).
 
         With ``reset`` (() bool) the episode restarts instead: ego at the start
         and all P pedestrians drawn from ``key`` exactly as ``reset_state`` does.
@@ -177,6 +180,7 @@ class UrbanPedestrians:
         gone = reset | despawn_mask(stepped.pedestrians, stepped.ego, params)
         lo, hi = self._spawn_range(ego.s, params, reset)
         peds = respawn_pedestrians(key, stepped.pedestrians, gone, lo, hi, params, self.static)
+        peds = peds.replace(visible=occlusion_mask(key, params, self.static))
         return EnvState(
             ego=ego,
             pedestrians=peds,
