@@ -239,7 +239,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="override one field of every config (repeatable)",
     )
     study.add_argument(
-        "--out", default=None, help="study directory (default: runs/study-<UTC time>)"
+        "--out",
+        default=None,
+        help="study directory (default: runs/study-<config names>, so that running the "
+        "command again continues it)",
     )
     study.add_argument(
         "--smooth", type=int, default=10, help="running mean (episodes) of the curves"
@@ -610,15 +613,17 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_study(args: argparse.Namespace) -> int:
-    from drqn_jax.study import plan_study, run_study
+    from drqn_jax.study import plan_study, require_matplotlib, run_study
 
     configs = [c.strip() for c in args.configs.split(",") if c.strip()]
     if args.smooth < 1:
         raise ConfigError(f"--smooth {args.smooth}: must be an integer >= 1")
     arms = plan_study(configs, args.seeds, args.episodes, args.overrides)
-    out = Path(args.out or _default_run_dir("study", "-".join(a.name for a in arms)))
+    out = Path(args.out or Path("runs") / f"study-{'-'.join(a.name for a in arms)}")
     for arm in arms:
         print(f"{arm.name}: {arm.sweep.describe()}", file=sys.stderr)
+    if not args.no_png:
+        require_matplotlib()  # before hours of training, not after
     if args.dry_run:
         return EXIT_OK
     start = time.perf_counter()

@@ -54,6 +54,7 @@ __all__ = [
     "paper_rows",
     "plan_study",
     "plot_curves",
+    "require_matplotlib",
     "rule_based_results",
     "run_study",
     "study_row",
@@ -300,11 +301,8 @@ def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Cu
     return curves
 
 
-def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smooth: int) -> None:
-    """The paper's "Training performance" figure for every config: a PNG at ``path``.
-
-    ``curves``: config name → :func:`load_curves`. Needs matplotlib (the ``plots`` extra).
-    """
+def require_matplotlib() -> Any:
+    """``matplotlib.pyplot`` on the Agg backend; a ConfigError naming the extra if missing."""
     try:
         import matplotlib
 
@@ -315,6 +313,15 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
             "the curves' PNG needs matplotlib: pip install 'drqn-jax[plots]' "
             "(or run the study with --no-png; the .rrd recording needs no extra)"
         ) from None
+    return plt
+
+
+def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smooth: int) -> None:
+    """The paper's "Training performance" figure for every config: a PNG at ``path``.
+
+    ``curves``: config name → :func:`load_curves`. Needs matplotlib (the ``plots`` extra).
+    """
+    plt = require_matplotlib()
     fig, axes = plt.subplots(1, len(CURVES), figsize=(11, 4), constrained_layout=True)
     for ax, (column, label) in zip(axes, CURVES, strict=True):
         for name, by_metric in curves.items():
@@ -403,13 +410,13 @@ def run_study(
         )
         for arm in arms
     }
-    record_study_curves(out / "curves.rrd", curves)
-    if png:
-        plot_curves(curves, out / "curves.png", smooth)
     table = study_table(rows)
     atomic_write_text(out / "study.md", table + "\n")
     record = _finite_json({"rows": rows, "runs": runs, "smooth": smooth})
     atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
+    record_study_curves(out / "curves.rrd", curves)
+    if png:
+        plot_curves(curves, out / "curves.png", smooth)
     return StudyOutcome("finished", rows, runs, table)
 
 

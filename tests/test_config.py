@@ -18,6 +18,17 @@ def test_shipped_configs_load():
         config.train_config()  # builds every object
 
 
+def test_shipped_sweep_files_validate():
+    """Every sweep file in configs/ (a top-level [axes]) names valid points."""
+    from drqn_jax.config import CONFIG_DIR, _is_sweep_file
+    from drqn_jax.sweep import load_sweep
+
+    sweeps = [p for p in sorted(CONFIG_DIR.glob("*.toml")) if _is_sweep_file(p)]
+    assert {p.stem for p in sweeps} >= {"sweep", "reward", "occlusion"}
+    for path in sweeps:
+        assert load_sweep(path).points
+
+
 def test_paper_config_is_the_papers_protocol():
     """paper.toml is SPEC §7's protocol: TrainConfig's defaults, which cite Table II."""
     config = load_config("paper")
