@@ -148,15 +148,16 @@ def study_row(label: str, agent: str, runs: Sequence[Mapping[str, Any]]) -> dict
 
     ``runs``: :func:`drqn_jax.evaluation.evaluate` results as JSON (``json_ready``).
     The collision-free interval is the 95 % Student-t interval of the mean
-    across seeds (it holds the training's variation as well as the episodes');
-    with one run, the Wilson interval over its episodes. Collisions per km are
+    across seeds (it holds the training's variation as well as the episodes'),
+    cut to [0, 1]; with one run, the Wilson interval over its episodes. Collisions per km are
     pooled: all collisions over all distance.
     """
     if not runs:
         raise ValueError(f"study_row {label!r}: no runs")
     rates = np.array([r["collision_free_rate"] for r in runs], np.float64)
     if len(runs) > 1:
-        interval, interval_kind = t_interval(rates), "t over seeds"
+        low, high = t_interval(rates)
+        interval, interval_kind = (max(low, 0.0), min(high, 1.0)), "t over seeds"
     else:
         interval, interval_kind = tuple(runs[0]["collision_free_ci"]), "Wilson over episodes"
     episodes = [r["num_episodes"] for r in runs]
@@ -244,6 +245,13 @@ def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
             f"| {_cell(r['avg_distance_collision_free_m'], '.1f')} "
             f"| {_cell(r['goal_rate'], '.1f', 100.0)} | {_cell(r['collisions_per_km'], '.2f')} |"
         )
+    lines += [
+        "",
+        "Collision-free interval: 95 % Student t of the mean across seeds for a trained "
+        "config (training and episodes vary; cut to 0–100 %); Wilson over the episodes "
+        "for one policy (the rule-based agent, the paper's 10-episode rows). ± is the "
+        "standard deviation across seeds.",
+    ]
     return "\n".join(lines)
 
 
