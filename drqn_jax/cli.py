@@ -253,6 +253,11 @@ def build_parser() -> argparse.ArgumentParser:
     study.add_argument(
         "--dry-run", action="store_true", help="validate and describe the study; run nothing"
     )
+    study.add_argument(
+        "--report-only",
+        action="store_true",
+        help="train nothing: the table and curves of the runs that have finished so far",
+    )
     study.add_argument("--quiet", action="store_true", help="no progress bars")
 
     bench = sub.add_parser(
@@ -627,7 +632,14 @@ def cmd_study(args: argparse.Namespace) -> int:
     if args.dry_run:
         return EXIT_OK
     start = time.perf_counter()
-    outcome = run_study(arms, out, smooth=args.smooth, png=not args.no_png, quiet=args.quiet)
+    outcome = run_study(
+        arms,
+        out,
+        smooth=args.smooth,
+        png=not args.no_png,
+        quiet=args.quiet,
+        train=not args.report_only,
+    )
     if outcome.status == "interrupted":
         print(
             f"interrupted; checkpoints saved, continue with the same command (--out {out})",

@@ -50,6 +50,7 @@ __all__ = [
     "Curve",
     "StudyOutcome",
     "baseline_row",
+    "finished_results",
     "load_curves",
     "paper_rows",
     "plan_study",
@@ -384,6 +385,14 @@ def rule_based_results(arms: Sequence[Arm], out: Path) -> list[tuple[str, dict[s
     return list(found.values())
 
 
+def finished_results(directory: Path) -> list[dict[str, Any]]:
+    """The runs of a config's sweep whose call has ended (``calls/*/runs.json``), by index."""
+    results: list[dict[str, Any]] = []
+    for path in sorted((directory / "calls").glob("*/runs.json")):
+        results += json.loads(path.read_text())
+    return sorted(results, key=lambda r: r["index"])
+
+
 def run_study(
     arms: Sequence[Arm],
     out: str | Path,
@@ -391,9 +400,15 @@ def run_study(
     smooth: int = 10,
     png: bool = True,
     quiet: bool = False,
+    train: bool = True,
 ) -> StudyOutcome:
     """Train and evaluate every arm (continuing a study already in ``out``), evaluate
-    the rule-based agent, and write the table and the curves (module docstring)."""
+    the rule-based agent, and write the table and the curves (module docstring).
+
+    With ``train=False`` nothing trains: the report covers the runs that have
+    finished so far (a config with none is left out), e.g. of a long study
+    interrupted to go on later.
+    """
     from drqn_jax.recording import record_study_curves
     from drqn_jax.sweep_runner import metrics_path, run_sweep
 
@@ -401,30 +416,35 @@ def run_study(
     runs: dict[str, list[dict[str, Any]]] = {}
     for arm in arms:
         directory = out / arm.name
+        if not train:
+            runs[arm.name] = finished_results(directory)
+            continue
         resume = (directory / "plan.json").is_file()
         outcome = run_sweep(arm.sweep, directory, resume=resume, quiet=quiet)
         if outcome.status == "interrupted":
             return StudyOutcome("interrupted")
         runs[arm.name] = outcome.results
+    done = [arm for arm in arms if runs[arm.name]]
     rows = paper_rows()
     rows += [
         study_row(f"drqn_jax: {arm.name}", arm.config["network"]["kind"], runs[arm.name])
-        for arm in arms
+        for arm in done
     ]
     rows += [baseline_row(f"drqn_jax: {env}", r) for env, r in rule_based_results(arms, out)]
     curves = {
         arm.name: load_curves(
-            [metrics_path(out / arm.name, p.index) for p in arm.sweep.points], smooth
+            [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth
         )
-        for arm in arms
+        for arm in done
     }
     table = study_table(rows)
     atomic_write_text(out / "study.md", table + "\n")
     record = _finite_json({"rows": rows, "runs": runs, "smooth": smooth})
     atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
-    record_study_curves(out / "curves.rrd", curves)
-    if png:
-        plot_curves(curves, out / "curves.png", smooth)
+    if curves:
+        record_study_curves(out / "curves.rrd", curves)
+        if png:
+            plot_curves(curves, out / "curves.png", smooth)
     return StudyOutcome("finished", rows, runs, table)
 
 

@@ -193,6 +193,10 @@ def plan_calls(
 ) -> list[Call]:
     """This process's calls, in order: its slice of every program, cut to fit in memory.
 
+    With ``map`` a call holds one run per device: its runs would take as long
+    together as one after another, and a call's results are saved when it
+    ends, so runs finish (and survive an interruption) one by one.
+
     Args:
         devices: local device count (each call's size is a multiple of it).
         budget: bytes available to one call (default: :func:`available_memory`).
@@ -212,6 +216,8 @@ def plan_calls(
         memory = run_memory(mine[0].config)
         batched = strategy == "vmap"
         most = runs_per_call(memory, len(mine), devices, budget, memory_source, batched=batched)
+        if not batched:  # one after another gains nothing from a bigger call, and a call's
+            most = min(most, devices)  # runs save their results only when all have ended
         count = math.ceil(len(mine) / most)  # calls of near-equal size: one compile
         per_call = math.ceil(len(mine) / count)
         size = call_size(per_call, devices, strategy, most // devices)
@@ -236,13 +242,27 @@ def call_size(runs: int, devices: int, strategy: str = "vmap", most_per_device: 
 
 
 def describe_plan(calls: Sequence[Call], devices: int, dist: Distributed) -> str:
-    """One line per call: its runs, padding, strategy, memory in all and per run."""
+    """One line per call (consecutive alike calls of a program share one): its
+    runs, padding, strategy, memory in all and per run."""
     where = f"process {dist.process} of {dist.processes}, " if dist.processes > 1 else ""
     lines = [f"memory plan ({where}{devices} device(s)):"]
+    groups: list[list[Call]] = []
     for call in calls:
+        alike = (call.program, len(call.points), call.size, call.strategy)
+        last = groups[-1][-1] if groups else None
+        if last is not None and (last.program, len(last.points), last.size, last.strategy) == alike:
+            groups[-1].append(call)
+        else:
+            groups.append([call])
+    for group in groups:
+        call = group[0]
         pad = call.size - len(call.points)
-        line = f"  program {call.program}, {call.name}: {len(call.points)} run(s)"
+        names = (
+            call.name if len(group) == 1 else f"{len(group)} calls {call.name} … {group[-1].name}"
+        )
+        line = f"  program {call.program}, {names}: {len(call.points)} run(s)"
         line += f" + {pad} padding" if pad else ""
+        line += " each" if len(group) > 1 else ""
         line += f", {call.strategy}"
         if call.strategy == "vmap" and call.size == devices:
             line += " (1 per device: rounds unlike batched runs)"

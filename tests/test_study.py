@@ -158,3 +158,20 @@ def test_running_the_study_again_continues_it_without_training(study, monkeypatc
     before = (study / "study.json").read_text()
     assert cli.main(["study", *STUDY, "--out", str(study), "--no-png"]) == 0
     assert (study / "study.json").read_text() == before
+
+
+def test_a_report_covers_the_runs_that_have_finished(study, tmp_path, monkeypatch):
+    """--report-only trains nothing; with a run's call not ended, the row has one seed."""
+    import shutil
+
+    import drqn_jax.sweep_runner as sweep_runner
+
+    monkeypatch.setattr(sweep_runner, "run_sweep", None)  # must not be called
+    partial = tmp_path / "partial"
+    shutil.copytree(study, partial)
+    (call,) = [p for p in (partial / "smoke" / "calls").iterdir() if "0001" in p.name]
+    shutil.rmtree(call)  # on the CPU each call holds one run: run 1 has not finished
+    assert cli.main(["study", *STUDY, "--out", str(partial), "--report-only"]) == 0
+    record = json.loads((partial / "study.json").read_text())
+    assert [r["index"] for r in record["runs"]["smoke"]] == [0]
+    assert "| drqn_jax: smoke | drqn | 1 × 4 |" in (partial / "study.md").read_text()

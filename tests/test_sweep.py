@@ -230,7 +230,8 @@ def test_cli_sweep_writes_tables(sweep_file, cli_sweep, capsys):
     assert cli.main(["sweep", str(sweep_file), "--dry-run"]) == 0
     err = capsys.readouterr().err
     assert "sweep over 4 runs" in err and "memory plan (1 device(s))" in err
-    assert "4 run(s), map," in err  # auto on the CPU
+    # auto on the CPU: map, one run per call
+    assert "4 calls runs-0000-0000 … runs-0003-0003: 1 run(s) each, map," in err
     assert cli.main(["sweep", str(sweep_file), "--dry-run", "--strategy", "vmap"]) == 0
     assert "4 run(s), vmap," in capsys.readouterr().err
     runs = json.loads((cli_sweep / "runs.json").read_text())
@@ -326,9 +327,12 @@ def test_the_memory_plan_splits_or_refuses(sweep_file, capsys):
     one_by_one = int((per_run.activations + 2 * 2.5 * state) / USABLE_FRACTION)  # map
     for strategy, budget in [("vmap", batched), ("map", one_by_one)]:
         calls = plan_calls(sweep, 1, budget=budget, strategy=strategy)
-        assert [len(c.points) for c in calls] == [2, 2] and all(c.size == 2 for c in calls)
+        per_call = 2 if strategy == "vmap" else 1  # map: one run per device and call
+        assert [len(c.points) for c in calls] == [per_call] * (4 // per_call)
+        assert all(c.size == per_call for c in calls)
         assert [p.index for c in calls for p in c.points] == [0, 1, 2, 3]
-        assert [len(c.points) for c in plan_calls(sweep, 1, budget=10**12)] == [4]
+    assert [len(c.points) for c in plan_calls(sweep, 1, budget=10**12, strategy="vmap")] == [4]
+    assert [len(c.points) for c in plan_calls(sweep, 1, budget=10**12)] == [1, 1, 1, 1]  # map
     code = cli.main(["sweep", str(sweep_file), "--memory-gb", "0.001", "--dry-run"])
     assert code == 2
     err = capsys.readouterr().err
