@@ -336,7 +336,8 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
         for name, by_metric in curves.items():
             c = by_metric[column]
             seeds = c.seeds.shape[0]
-            (line,) = ax.plot(c.episode, c.mean, label=f"{name} ({seeds} seeds)")
+            plural = "s" if seeds > 1 else ""
+            (line,) = ax.plot(c.episode, c.mean, label=f"{name} ({seeds} seed{plural})")
             ax.fill_between(c.episode, c.low, c.high, color=line.get_color(), alpha=0.2, lw=0)
         ax.set_xlabel("training episode")
         ax.set_ylabel(label)
