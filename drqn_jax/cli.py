@@ -55,13 +55,17 @@ def _config_options(parser: argparse.ArgumentParser, default: str) -> None:
         default=default,
         help=f"TOML file, or a name in configs/ ({', '.join(config_names())})",
     )
+    _set_option(parser, "override one field (repeatable), e.g. --set train.learning_rate=3e-4")
+
+
+def _set_option(parser: argparse.ArgumentParser, help_text: str) -> None:
     parser.add_argument(
         "--set",
         dest="overrides",
         action="append",
         default=[],
         metavar="SECTION.FIELD=VALUE",
-        help="override one field (repeatable), e.g. --set train.learning_rate=3e-4",
+        help=help_text,
     )
 
 
@@ -175,14 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=_Formatter,
     )
     sweep.add_argument("sweep_file", help="the sweep TOML (base config, [set], [axes])")
-    sweep.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="SECTION.FIELD=VALUE",
-        help="override one field of every point (repeatable)",
-    )
+    _set_option(sweep, "override one field of every point (repeatable)")
     sweep.add_argument(
         "--out", default=None, help="results directory (default: runs/sweep-<file>-<UTC time>)"
     )
@@ -230,14 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     study.add_argument(
         "--episodes", type=int, default=1000, help="greedy evaluation episodes per run"
     )
-    study.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="SECTION.FIELD=VALUE",
-        help="override one field of every config (repeatable)",
-    )
+    _set_option(study, "override one field of every config (repeatable)")
     study.add_argument(
         "--out",
         default=None,

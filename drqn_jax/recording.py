@@ -751,25 +751,36 @@ def record_training(
         curves["distance"] = m["distance"]
     if "mean_speed" in m:
         curves["mean_speed_kmh"] = m["mean_speed"].astype(np.float64) * 3.6
-    blueprint = rrb.Blueprint(
-        rrb.Grid(*[rrb.TimeSeriesView(name=name, origin=f"/training/{name}") for name in curves]),
+    blueprint = _series_blueprint({name: f"/training/{name}" for name in curves})
+    rec = _open(path, application_id, blueprint)
+    try:
+        for name, values in curves.items():
+            _send_series(rec, f"training/{name}", name, episodes, values)
+    finally:
+        _close(rec)
+
+
+def _series_blueprint(views: Mapping[str, str]) -> rrb.Blueprint:
+    """One time-series view per ``name → origin entity``, on the episode timeline."""
+    return rrb.Blueprint(
+        rrb.Grid(*[rrb.TimeSeriesView(name=name, origin=o) for name, o in views.items()]),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(state="collapsed", timeline=EPISODE_TIMELINE),
     )
-    rec = _open(path, application_id, blueprint)
-    try:
-        for name, values in curves.items():
-            entity = f"training/{name}"
-            rec.log(entity, rr.SeriesLines(names=name), static=True)
-            if len(episodes):
-                rec.send_columns(
-                    entity,
-                    indexes=[rr.TimeColumn(EPISODE_TIMELINE, sequence=episodes)],
-                    columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
-                )
-    finally:
-        _close(rec)
+
+
+def _send_series(
+    rec: rr.RecordingStream, entity: str, name: str, episodes: np.ndarray, values: np.ndarray
+) -> None:
+    """A line named ``name`` at ``entity``: ``values`` (E,) at the ``episodes`` (E,)."""
+    rec.log(entity, rr.SeriesLines(names=name), static=True)
+    if len(episodes):
+        rec.send_columns(
+            entity,
+            indexes=[rr.TimeColumn(EPISODE_TIMELINE, sequence=episodes)],
+            columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
+        )
 
 
 def record_study_curves(
@@ -786,13 +797,7 @@ def record_study_curves(
     view per metric (``episode_return``, ``length``).
     """
     metrics = sorted({m for by_metric in curves.values() for m in by_metric})
-    blueprint = rrb.Blueprint(
-        rrb.Grid(*[rrb.TimeSeriesView(name=m, origin=f"/curves/{m}") for m in metrics]),
-        rrb.BlueprintPanel(state="collapsed"),
-        rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(state="collapsed", timeline=EPISODE_TIMELINE),
-    )
-    rec = _open(path, application_id, blueprint)
+    rec = _open(path, application_id, _series_blueprint({m: f"/curves/{m}" for m in metrics}))
     try:
         for name, by_metric in curves.items():
             for metric, c in by_metric.items():
@@ -800,11 +805,6 @@ def record_study_curves(
                 series |= {f"seed{k}": values for k, values in enumerate(c.seeds)}
                 for part, values in series.items():
                     entity = f"curves/{metric}/{name}/{part}"
-                    rec.log(entity, rr.SeriesLines(names=f"{name} {part}"), static=True)
-                    rec.send_columns(
-                        entity,
-                        indexes=[rr.TimeColumn(EPISODE_TIMELINE, sequence=c.episode)],
-                        columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
-                    )
+                    _send_series(rec, entity, f"{name} {part}", c.episode, values)
     finally:
         _close(rec)
