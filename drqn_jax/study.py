@@ -50,6 +50,7 @@ __all__ = [
     "Curve",
     "StudyOutcome",
     "baseline_row",
+    "compare",
     "finished_results",
     "load_curves",
     "paper_rows",
@@ -364,9 +365,9 @@ class StudyOutcome:
     table: str = ""
 
 
-def rule_based_results(arms: Sequence[Arm], out: Path) -> list[tuple[str, dict[str, Any]]]:
+def rule_based_results(arms: Sequence[Arm], out: Path) -> dict[str, tuple[str, dict[str, Any]]]:
     """The rule-based agent on each distinct environment of ``arms``, on the study's
-    episodes: ``(env id, result)``, cached in ``OUT/baselines/``."""
+    episodes: ``{env_key: (env id, result)}``, cached in ``OUT/baselines/``."""
     from drqn_jax.runner import builtin_agent, evaluate_agents, json_ready
 
     found: dict[str, tuple[str, dict[str, Any]]] = {}
@@ -383,7 +384,19 @@ def rule_based_results(arms: Sequence[Arm], out: Path) -> list[tuple[str, dict[s
             path.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_text(path, json.dumps(result, indent=1) + "\n")
         found[key] = (arm.config["env"]["id"], result)
-    return list(found.values())
+    return found
+
+
+def compare(row: Mapping[str, Any], baseline: Mapping[str, Any]) -> str:
+    """Whether ``row``'s collision-free interval lies above, below or overlaps ``baseline``'s,
+    as a sentence for the report."""
+    (low, high), (b_low, b_high) = row["collision_free_ci"], baseline["collision_free_ci"]
+    verdict = "above" if low > b_high else "below" if high < b_low else "overlapping"
+    return (
+        f"{row['label']} ({row['agent']}) against {baseline['label']} ({baseline['agent']}): "
+        f"collision-free interval {verdict} ({100 * low:.1f}–{100 * high:.1f} % against "
+        f"{100 * b_low:.1f}–{100 * b_high:.1f} %)"
+    )
 
 
 def finished_results(directory: Path) -> list[dict[str, Any]]:
@@ -426,21 +439,27 @@ def run_study(
             return StudyOutcome("interrupted")
         runs[arm.name] = outcome.results
     done = [arm for arm in arms if runs[arm.name]]
-    rows = paper_rows()
-    rows += [
-        study_row(f"drqn_jax: {arm.name}", arm.config["network"]["kind"], runs[arm.name])
+    trained = {
+        arm.name: study_row(f"drqn_jax: {arm.name}", arm.config["network"]["kind"], runs[arm.name])
         for arm in done
-    ]
-    rows += [baseline_row(f"drqn_jax: {env}", r) for env, r in rule_based_results(arms, out)]
+    }
+    baselines = {
+        key: baseline_row(f"drqn_jax: {env}", r)
+        for key, (env, r) in rule_based_results(arms, out).items()
+    }
+    rows = [*paper_rows(), *trained.values(), *baselines.values()]
+    comparisons = [compare(trained[a.name], baselines[env_key(a.config)]) for a in done]
     curves = {
         arm.name: load_curves(
             [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth
         )
         for arm in done
     }
-    table = study_table(rows)
+    table = "\n\n".join([study_table(rows), "\n".join(f"* {c}" for c in comparisons)])
     atomic_write_text(out / "study.md", table + "\n")
-    record = _finite_json({"rows": rows, "runs": runs, "smooth": smooth})
+    record = _finite_json(
+        {"rows": rows, "comparisons": comparisons, "runs": runs, "smooth": smooth}
+    )
     atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
     if curves:
         record_study_curves(out / "curves.rrd", curves)

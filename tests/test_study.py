@@ -73,6 +73,16 @@ def test_a_single_policy_keeps_its_wilson_interval():
     assert "| drqn_jax: env | drqn | 1 × 100 | 95.0 (90.0–100.0) | 9.50 |" in table
 
 
+def test_compare_says_where_the_interval_lies():
+    from drqn_jax.study import compare
+
+    rule_based, drqn = paper_rows()
+    assert "interval overlapping (39.7–89.2 % against 16.8–68.7 %)" in compare(drqn, rule_based)
+    safe = baseline_row("drqn_jax: env", {**_run(1.0), "collision_free_ci": [0.996, 1.0]})
+    assert "interval below" in compare(rule_based, safe)
+    assert "interval above" in compare(safe, rule_based)
+
+
 def _write_metrics(path, returns, lengths):
     path.parent.mkdir(parents=True, exist_ok=True)
     lines = ["episode,episode_return,length"]
@@ -136,6 +146,8 @@ def test_the_study_writes_the_table_and_the_curves(study):
     assert baseline["num_episodes"] == 4 and record["rows"][3]["episodes"] == 4
     table = (study / "study.md").read_text()
     assert "| drqn_jax: smoke | drqn | 2 × 4 |" in table
+    assert "* drqn_jax: smoke (drqn) against drqn_jax: UrbanPedestrians-v0 (rule-based)" in table
+    assert record["comparisons"] == [line[2:] for line in table.splitlines() if line[:2] == "* "]
     assert (study / "curves.rrd").stat().st_size > 0
     assert (study / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
