@@ -18,8 +18,13 @@
 episodes (an episode keeps the ε it started with); during the first
 ``explore_bias_fraction`` of episodes a random action is drawn with
 ``explore_bias_probs`` (accelerate 0.4, slow_down 0.1, brake 0.1, steer 0.4),
-uniformly afterwards. The acting LSTM advances on every step and is zeroed
-when its environment starts a new episode.
+uniformly afterwards. With ``explore_guide`` = g > 0 (the project's, not the
+paper's) an exploratory action is, with probability g, the rule-based agent's
+(SPEC §6) instead: the replay then holds episodes of braking and waiting for
+pedestrians, which uniform random actions rarely produce; learning stays
+off-policy Q-learning and the agent acts greedily on its own at evaluation.
+The acting LSTM advances on every step and is zeroed when its environment
+starts a new episode.
 
 Shape-setting choices live in the hashable :class:`TrainConfig`; the rest
 (learning rate, γ, ε schedule, target period, clip mode, …) in the traced
@@ -36,6 +41,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
 from drqn_jax.env.grid import GridInputs
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.state import NUM_ACTIONS, Observation
@@ -55,6 +61,12 @@ from drqn_jax.replay import (
 )
 
 __all__ = ["Hyperparams", "TrainConfig", "TrainState", "Trainer", "make_train"]
+
+#: ``fold_in`` index of the draw that picks a guided exploratory action: a
+#: stream of its own, so that ``explore_guide = 0`` leaves every other draw,
+#: and hence every run, as it was.
+GUIDE_STREAM = 1
+RULE_BASED_GUIDE = RuleBasedParams()
 
 METRIC_NAMES = (
     "episode_return",
@@ -91,6 +103,13 @@ class Hyperparams:
     explore_slow_down: float = param(0.1, low=0.0, high=1.0)
     explore_brake: float = param(0.1, low=0.0, high=1.0)
     explore_steer: float = param(0.4, low=0.0, high=1.0)
+    explore_guide: float = param(
+        0.0,
+        low=0.0,
+        high=1.0,
+        doc="share of exploratory actions taken from the rule-based agent (SPEC §6) "
+        "instead of at random; 0 = the paper",
+    )
     target_period: int = param(10_000, low=1, doc="gradient steps between target copies")
     learning_starts: int = param(4, low=1, doc="complete episodes in replay before learning")
     clip: int = param("huber", choices=CLIP_MODES)
@@ -213,6 +232,7 @@ class Trainer(NamedTuple):
     env_params: EnvParams
     network: Network
     init: Callable[..., TrainState]
+    act: Callable[[TrainState, jax.Array], tuple[jax.Array, Any]]
     run: Callable[[TrainState, int], TrainState]
     train: Callable[..., tuple[Any, dict[str, jax.Array]]]
     gradient_update: Callable[..., tuple[tuple, jax.Array]]
@@ -310,6 +330,11 @@ def _make_train(config: TrainConfig) -> Trainer:
         )
         probs = jnp.where(biased[:, None], bias, 1.0 / NUM_ACTIONS)
         random_action = jax.random.categorical(k_random, jnp.log(probs)).astype(jnp.int32)
+        guided = jax.random.uniform(jax.random.fold_in(k_random, GUIDE_STREAM), (n_env,))
+        guide_action = jax.vmap(rule_based_action, (0, None, None, None))(
+            state.env_state, state.env_params, RULE_BASED_GUIDE, env.static
+        )
+        random_action = jnp.where(guided < hp.explore_guide, guide_action, random_action)
         explore = jax.random.uniform(k_explore, (n_env,)) < state.epsilon
         return jnp.where(explore, random_action, greedy), carry
 
@@ -474,6 +499,7 @@ def _make_train(config: TrainConfig) -> Trainer:
         env_params=default_env_params,
         network=network,
         init=init,
+        act=act,
         run=run,
         train=train,
         gradient_update=gradient_update,

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import drqn_jax
+from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.train import Hyperparams, TrainConfig, annealed, make_train
 from tests.helpers import assert_tree_equal, take, tiny_train_config
@@ -75,6 +76,33 @@ def test_chunked_equals_one_shot(tiny, tiny_run):
     assert chunks > 3
     assert_tree_equal((state.online, state.metrics), tiny_run)
     assert int(state.recorded) == 6 and int(state.grad_steps) > 0
+
+
+def test_guided_exploration_takes_the_rule_based_action(tiny):
+    """explore_guide = 1 with ε = 1: every action is the rule-based agent's on the
+    true state; explore_guide = 0: the random actions of the paper's exploration."""
+    trainer, _ = tiny
+    init = jax.jit(trainer.init)
+    run = jax.jit(trainer.run, static_argnums=1)
+    act = jax.jit(trainer.act)
+    rule_based = jax.jit(jax.vmap(rule_based_action, (0, None, None, None)), static_argnums=3)
+    always = dict(epsilon_start=1.0, epsilon_end=1.0)
+    guided_hp = TINY.hyperparams.replace(explore_guide=1.0, **always)
+    random_hp = TINY.hyperparams.replace(**always)
+    state = init(jax.random.key(5), guided_hp)
+    guided, random, expected = [], [], []
+    for i in range(12):
+        state = run(state, 2)
+        key = jax.random.key(100 + i)
+        guided.append(act(state, key)[0])
+        random.append(act(state.replace(hparams=random_hp), key)[0])
+        expected.append(
+            rule_based(state.env_state, state.env_params, RuleBasedParams(), trainer.env.static)
+        )
+    guided, random, expected = (np.concatenate(a) for a in (guided, random, expected))
+    np.testing.assert_array_equal(guided, expected)
+    assert np.any(random != expected)
+    assert len(np.unique(random)) == 4
 
 
 def test_vmap_over_seeds_equals_separate_runs(tiny):
