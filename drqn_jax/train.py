@@ -20,9 +20,10 @@ episodes (an episode keeps the ε it started with); during the first
 ``explore_bias_probs`` (accelerate 0.4, slow_down 0.1, brake 0.1, steer 0.4),
 uniformly afterwards. With ``explore_guide`` = g > 0 (the project's, not the
 paper's) an exploratory action is, with probability g, the rule-based agent's
-(SPEC §6) instead: the replay then holds episodes of braking and waiting for
-pedestrians, which uniform random actions rarely produce; learning stays
-off-policy Q-learning and the agent acts greedily on its own at evaluation.
+(SPEC §6, its default thresholds ``RULE_BASED_GUIDE``) instead: the replay
+then holds episodes of braking and waiting for pedestrians, which uniform
+random actions rarely produce; learning stays off-policy Q-learning and the
+agent acts greedily on its own at evaluation.
 The acting LSTM advances on every step and is zeroed when its environment
 starts a new episode.
 
