@@ -46,11 +46,13 @@ here                       JAX
                            same-step auto-reset, ``step_env``, ``advance``)
 =========================  ===========================================================
 
-Randomness. The JAX env draws exactly two arrays per ``reset`` and per
-``step``: ``jax.random.uniform(key, (8, P), float32)`` inside
+Randomness. The JAX env takes exactly two arrays from the key of a ``reset``
+or a ``step``: ``jax.random.uniform(key, (8, P), float32)`` inside
 ``spawn_pedestrians`` (rows: x, side, y, desired speed, behaviour, jaywalking
 angle, path length, direction) and ``uniform(fold_in(key, 1), (P,))`` inside
-``occlusion_mask`` (which pedestrians the grid shows). A step uses the first
+``occlusion_mask`` (which pedestrians the grid shows); it computes the first in
+a step only where a pedestrian is replaced, and the second only when
+``occlusion_prob > 0`` (at 0 it shows every pedestrian). A step uses the first
 to replace the pedestrians that are gone, or, when the episode ends, to spawn
 the next episode's P pedestrians (the same arrays feed ``info["final_state"]``).
 Here those uniforms are an explicit ``draws`` argument of NUM_DRAWS = 9 rows

@@ -13,8 +13,9 @@ over T steps of ``jax.vmap`` of that stage alone on N env states, like
 * **ego**: action → setpoint → PID → plant (``ego_step``); the action cycles
   through the four actions, different per env (no random draw);
 * **pedestrians**: ``step_pedestrians``, then ``despawn_mask`` and
-  ``respawn_pedestrians`` with a fresh draw per env and step (P new
-  pedestrians drawn, the gone ones replaced), as ``UrbanPedestrians._next_state``
+  ``respawn_pedestrians`` with a fresh key per env and step (P new
+  pedestrians drawn in the envs where one is gone, and taken there; the
+  draw is skipped elsewhere), as ``UrbanPedestrians._next_state``
   does while the episode goes on; the ego drives on meanwhile (``s += v·dt``);
 * **grid**: ``rasterize_grid`` → the (45, 30, 4) float32 observation grid;
 * **TTC**: ``time_to_collision``;
@@ -198,7 +199,7 @@ def make_stages(env: drqn_jax.UrbanPedestrians, num_envs: int) -> dict[str, Stag
         Stage("ego", "action → setpoint → PID → plant (ego_step)", ego_init, ego_stage),
         Stage(
             "pedestrians",
-            "step_pedestrians + despawn_mask + respawn_pedestrians (a fresh draw per env)",
+            "step_pedestrians + despawn_mask + respawn_pedestrians (drawn where one is gone)",
             peds_init,
             peds_stage,
         ),

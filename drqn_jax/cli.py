@@ -260,8 +260,9 @@ def build_parser() -> argparse.ArgumentParser:
         "name",
         nargs="?",
         default="all",
-        choices=("all", "quick", *SUITE),
-        help="a benchmark of the suite, 'all' of them, or 'quick' (figures of one config)",
+        choices=("all", "quick", *SUITE, *TOOLS),
+        help="a benchmark of the suite, 'all' of them, 'quick' (figures of one config), "
+        "or 'profile' (where a program's time goes, op by op)",
     )
     bench.add_argument(
         "args",
@@ -314,6 +315,8 @@ SUITE = (
     "evaluation",
     "sweep_throughput",
 )
+#: Benchmark tools run by name only (not by ``all``): the op-by-op profile.
+TOOLS = ("profile",)
 
 
 def _default_run_dir(prefix: str, config_name: str) -> Path:

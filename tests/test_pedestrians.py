@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 from drqn_jax.env.params import EnvParams
-from drqn_jax.env.pedestrians import despawn_mask, sidewalk_x, spawn_pedestrians
+from drqn_jax.env.pedestrians import (
+    RESPAWN_GATHER_SHARE,
+    despawn_mask,
+    respawn_pedestrians,
+    sidewalk_x,
+    spawn_pedestrians,
+)
 from drqn_jax.env.road_map import CROSSING_AREA, ROAD, WALKWAY, semantic_class
 from drqn_jax.env.state import CROSSING, JAYWALKING, NUM_WAYPOINTS, SIDEWALK
 
@@ -195,3 +201,58 @@ def test_occlusion_draws_apart_from_the_spawns(env_params):
     np.testing.assert_array_equal(state.pedestrians.position, spawn.position)
     with pytest.raises(ValueError, match="occlusion_prob"):
         EnvParams(occlusion_prob=1.5)
+
+
+def _respawn_every_env(keys, peds, replace, lo, hi, params, static):
+    """The reference: every env draws P new pedestrians, taken where ``replace`` is set."""
+    fresh = jax.vmap(spawn_pedestrians, (0, 0, 0, None, None))(keys, lo, hi, params, static)
+
+    def pick(new, old):
+        return jnp.where(replace.reshape(replace.shape + (1,) * (old.ndim - 2)), new, old)
+
+    return jax.tree.map(pick, fresh, peds)
+
+
+_ENVS = (0, 0, 0, 0, 0, None, None)
+_respawn_one = jax.jit(respawn_pedestrians, static_argnums=6)
+_respawn_envs = jax.jit(jax.vmap(respawn_pedestrians, _ENVS), static_argnums=6)
+# Runs (params batched) × envs, as a vmapped sweep does.
+_respawn_runs = jax.jit(
+    jax.vmap(jax.vmap(respawn_pedestrians, _ENVS), (None,) * 5 + (0, None)), static_argnums=6
+)
+
+
+@pytest.mark.parametrize("num_needing", [0, 1, 3, 40])
+def test_batched_respawn_equals_drawing_in_every_env(env_params, num_needing):
+    # 64 envs: one gather pass takes 64 // RESPAWN_GATHER_SHARE = 2 envs, so 3 and 40
+    # envs needing new pedestrians take 2 and 20 passes.
+    env, params = env_params
+    num_envs = 64
+    assert num_envs // RESPAWN_GATHER_SHARE == 2
+    k_old, k_new, k_mask = jax.random.split(jax.random.key(7), 3)
+    keys = jax.random.split(k_new, num_envs)
+    lo = jnp.linspace(0.0, 60.0, num_envs, dtype=jnp.float32)
+    hi = lo + 40.0
+    old = jax.vmap(spawn_pedestrians, (0, 0, 0, None, None))(
+        jax.random.split(k_old, num_envs), lo, hi, params, env.static
+    )
+    envs = jax.random.permutation(k_mask, num_envs)[:num_needing]
+    replace = jnp.zeros((num_envs, env.static.num_pedestrians), bool)
+    replace = replace.at[envs, envs % env.static.num_pedestrians].set(True)
+    replace = replace.at[envs, 0].set(True)
+    expected = _respawn_every_env(keys, old, replace, lo, hi, params, env.static)
+    changed = np.asarray(jnp.any(expected.position != old.position, axis=(1, 2)))
+    assert changed.sum() == num_needing
+
+    def assert_equal(got, want):
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+    assert_equal(_respawn_envs(keys, old, replace, lo, hi, params, env.static), expected)
+    runs = jax.tree.map(lambda x: jnp.stack([x, x]), params)
+    nested = _respawn_runs(keys, old, replace, lo, hi, runs, env.static)
+    assert_equal(nested, jax.tree.map(lambda x: jnp.stack([x, x]), expected))
+    for e in (0, 9, 63):  # one env alone (the cond)
+        env_e = jax.tree.map(lambda x, e=e: x[e], (keys, old, replace, lo, hi))
+        single = _respawn_one(*env_e, params, env.static)
+        assert_equal(single, jax.tree.map(lambda x, e=e: x[e], expected))

@@ -27,6 +27,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from drqn_jax.env.collision import squared_length
 from drqn_jax.env.params import (
     SEMANTIC_MAP,
     SPEED_RELATIVE,
@@ -88,13 +89,19 @@ def grid_cell_index(
 
 def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
     """Push every pedestrian that loses its cell to a nearer one out of range."""
+    # Of two pedestrians j < i in one cell, j keeps it when at least as near
+    # (ties: the lower index), else i does. Each pair is compared once, written
+    # out elementwise (a reduction over a short minor axis vectorises poorly on
+    # XLA:CPU); the same booleans as comparing every i with every j.
     num = flat.shape[0]
-    order = jnp.arange(num)
-    same = flat[:, None] == flat[None, :]
-    nearer = (dist2[None, :] < dist2[:, None]) | (
-        (dist2[None, :] == dist2[:, None]) & (order[None, :] < order[:, None])
-    )
-    loses = jnp.any(same & nearer, axis=1)
+    loses = [jnp.zeros((), bool)] * num
+    for i in range(num):
+        for j in range(i):
+            same = flat[i] == flat[j]
+            j_first = dist2[j] <= dist2[i]
+            loses[i] = loses[i] | (same & j_first)
+            loses[j] = loses[j] | (same & ~j_first)
+    loses = jnp.stack(loses)
     return jnp.where(loses, size, flat)
 
 
@@ -149,7 +156,7 @@ def rasterize(g: GridInputs, params: EnvParams, static: StaticEnvParams) -> jax.
     flat, _ = grid_cell_index(g.position, g, params, static)
     flat = jnp.where(g.visible, flat, size)  # occluded: dropped, and never blocks a cell
     rel = g.position - jnp.stack([g.s, lane_centre_y(params)])
-    flat = _nearest_wins(flat, jnp.sum(rel * rel, axis=-1), size)
+    flat = _nearest_wins(flat, squared_length(rel), size)
 
     # Headings come from atan2, in [-pi, pi]: wrap pi to -pi. The ego heading is 0.
     # No multiply-add here (nor for the speed): XLA may fuse those into FMAs
@@ -158,7 +165,7 @@ def rasterize(g: GridInputs, params: EnvParams, static: StaticEnvParams) -> jax.
     heading = jnp.where(g.heading >= jnp.pi, g.heading - 2.0 * jnp.pi, g.heading)
     speed_ped = g.speed * (1.0 / params.speed_norm_pedestrian)
     rel_v = g.velocity - jnp.stack([g.v, jnp.zeros_like(g.v)])
-    speed_rel = jnp.sqrt(jnp.sum(rel_v**2, axis=-1)) * (1.0 / params.speed_norm_relative)
+    speed_rel = jnp.sqrt(squared_length(rel_v)) * (1.0 / params.speed_norm_relative)
     speed = jnp.where(params.speed_channel == SPEED_RELATIVE, speed_rel, speed_ped)
     use_map = params.semantic_channel == SEMANTIC_MAP
     semantic = semantic_class(g.position, params, static).astype(jnp.float32) / 3.0

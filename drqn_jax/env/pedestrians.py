@@ -23,10 +23,14 @@ step (:func:`occlusion_mask`), for studies of partial observability.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
+
 import jax
 import jax.numpy as jnp
+from jax.custom_batching import custom_vmap
 
-from drqn_jax.env.collision import box_disc_overlap, ego_box
+from drqn_jax.env.collision import box_disc_overlap, ego_box, squared_length
 from drqn_jax.env.params import EnvParams, StaticEnvParams
 from drqn_jax.env.road_map import crosswalk_centres, intersection_centres
 from drqn_jax.env.state import (
@@ -187,10 +191,14 @@ def occlusion_mask(key: jax.Array, params: EnvParams, static: StaticEnvParams) -
     pedestrian and step, from ``fold_in(key, OCCLUSION_STREAM)``: a uniform
     ``u`` in [0, 1) shows it when ``u >= occlusion_prob`` (always at 0, never at 1).
     """
-    u = jax.random.uniform(
-        jax.random.fold_in(key, OCCLUSION_STREAM), (static.num_pedestrians,), jnp.float32
-    )
-    return u >= params.occlusion_prob
+    num = static.num_pedestrians
+
+    def draw() -> jax.Array:
+        u = jax.random.uniform(jax.random.fold_in(key, OCCLUSION_STREAM), (num,), jnp.float32)
+        return u >= params.occlusion_prob
+
+    # At 0 every u passes: skip the draw (a real branch unless the probability is batched).
+    return jax.lax.cond(params.occlusion_prob > 0.0, draw, lambda: jnp.ones((num,), bool))
 
 
 def _waits_at_kerb(
@@ -224,7 +232,7 @@ def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) ->
     idx = jnp.minimum(peds.waypoint_index, num_wp - 1)
     target = jnp.take_along_axis(peds.waypoints, idx[:, None, None], axis=1)[:, 0]  # (P, 2)
     delta = target - peds.position
-    dist = jnp.sqrt(jnp.sum(delta * delta, axis=-1))
+    dist = jnp.sqrt(squared_length(delta))
     step = peds.desired_speed * params.dt
     reach = dist <= step
     unit = delta / jnp.where(dist > 0.0, dist, 1.0)[:, None]
@@ -253,6 +261,13 @@ def despawn_mask(peds: PedestrianState, ego: EgoState, params: EnvParams) -> jax
     return behind | ahead | peds.done
 
 
+#: Under ``vmap`` over N envs, the envs that replace a pedestrian this step are
+#: gathered and only they draw new ones, ``max(1, N // RESPAWN_GATHER_SHARE)``
+#: envs per pass (a few per thousand env-steps need one, so one pass at most
+#: nearly always). Speed only: the result is the same whatever the share.
+RESPAWN_GATHER_SHARE = 32
+
+
 def respawn_pedestrians(
     key: jax.Array,
     peds: PedestrianState,
@@ -262,10 +277,71 @@ def respawn_pedestrians(
     params: EnvParams,
     static: StaticEnvParams,
 ) -> PedestrianState:
-    """Replace the pedestrians flagged in ``replace`` (P,) by new ones in [x_lo, x_hi)."""
+    """Replace the pedestrians flagged in ``replace`` (P,) by new ones in [x_lo, x_hi).
+
+    The new ones are ``spawn_pedestrians(key, x_lo, x_hi, …)``, taken where
+    ``replace`` is set. Since only a few envs in a thousand replace one in a
+    step, the draw is skipped where none is replaced: by a ``cond`` for one env,
+    and under ``vmap`` by gathering the envs that need it (see
+    :data:`RESPAWN_GATHER_SHARE`). A draw depends on its own env's inputs
+    only, so the result is bit for bit that of drawing in every env.
+    """
+    return _respawn(static)(key, peds, replace, x_lo, x_hi, params)
+
+
+def _respawn_all(
+    key: jax.Array,
+    peds: PedestrianState,
+    replace: jax.Array,
+    x_lo: jax.Array,
+    x_hi: jax.Array,
+    params: EnvParams,
+    static: StaticEnvParams,
+) -> PedestrianState:
+    """The plain respawn: draw P new pedestrians, take them where ``replace`` is set."""
     fresh = spawn_pedestrians(key, x_lo, x_hi, params, static)
 
     def pick(new, old):
         return jnp.where(replace.reshape(replace.shape + (1,) * (old.ndim - 1)), new, old)
 
     return jax.tree.map(pick, fresh, peds)
+
+
+@functools.cache
+def _respawn(static: StaticEnvParams) -> Callable[..., PedestrianState]:
+    """:func:`respawn_pedestrians` for ``static``, with its batching rule."""
+    respawn_all = functools.partial(_respawn_all, static=static)
+
+    @custom_vmap
+    def respawn(key, peds, replace, x_lo, x_hi, params):
+        args = (key, peds, replace, x_lo, x_hi, params)
+        return jax.lax.cond(jnp.any(replace), respawn_all, lambda *_: peds, *args)
+
+    @respawn.def_vmap
+    def respawn_batched(num_envs, in_batched, key, peds, replace, x_lo, x_hi, params):
+        args = (key, peds, replace, x_lo, x_hi, params)
+        in_batched = tuple(in_batched)
+        every_env = jax.vmap(respawn_all, jax.tree.map(lambda b: 0 if b else None, in_batched))
+        peds, replace = jax.tree.map(
+            lambda x, b: x if b else jnp.broadcast_to(x, (num_envs, *x.shape)),
+            (peds, replace),
+            in_batched[1:3],
+        )
+        needs = jnp.any(replace, axis=-1)  # (N,)
+        count = jnp.sum(needs)
+        chunk = max(1, num_envs // RESPAWN_GATHER_SHARE)
+        passes = -(-num_envs // chunk)
+        # The envs that need a draw first, then out-of-range fill (dropped below).
+        (order,) = jnp.nonzero(needs, size=passes * chunk, fill_value=num_envs)
+
+        def one_pass(carry):
+            i, out = carry
+            idx = jax.lax.dynamic_slice(order, (i * chunk,), (chunk,))
+            take = jnp.minimum(idx, num_envs - 1)
+            new = every_env(*jax.tree.map(lambda x, b: x[take] if b else x, args, in_batched))
+            return i + 1, jax.tree.map(lambda o, n: o.at[idx].set(n, mode="drop"), out, new)
+
+        _, out = jax.lax.while_loop(lambda c: c[0] * chunk < count, one_pass, (0, peds))
+        return out, jax.tree.map(lambda _: True, out)
+
+    return respawn

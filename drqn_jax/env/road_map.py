@@ -49,10 +49,13 @@ def semantic_class(xy: jax.Array, params: EnvParams, static: StaticEnvParams) ->
     """
     x, y = xy[..., 0], xy[..., 1]
     ay = jnp.abs(y)
-    dx = jnp.abs(x[..., None] - intersection_centres(params, static))  # (..., I)
+    centres = intersection_centres(params, static)  # (I,)
     half_street = 0.5 * params.cross_street_width
-    # Distance along x to the nearest cross street's centre line.
-    dx_min = jnp.min(dx, axis=-1)
+    # Distance along x to the nearest cross street's centre line (a min written
+    # out over the few intersections: exact in any order, and it fuses).
+    dx_min = jnp.abs(x - centres[0])
+    for k in range(1, static.num_intersections):
+        dx_min = jnp.minimum(dx_min, jnp.abs(x - centres[k]))
     in_street = dx_min < half_street
     on_main = ay < params.lane_width
     on_side = (ay >= params.lane_width) & (ay <= params.lane_width + params.sidewalk_width)

@@ -212,10 +212,11 @@ class UrbanPedestrians:
         ends (terminated or truncated) the returned state and observation are
         exactly ``reset(key, params)``'s, and the state and observation
         ``step_env`` would have returned are ``info["final_state"]`` and
-        ``info["final_observation"]``. One set of
-        pedestrians is drawn per step (for respawn or for the new episode), and
-        the observation is rasterised once; the final observation costs a
-        second draw and raster only when the caller uses it.
+        ``info["final_observation"]``. One set of pedestrians is drawn per step
+        (for respawn or for the new episode; only where a pedestrian is
+        replaced, see ``respawn_pedestrians``), and the observation is
+        rasterised once; the final observation costs a second draw and raster
+        only when the caller uses it.
         """
         params = _opaque(self.default_params if params is None else params)
         stepped, r, terminated, truncated, info = self.advance(state, action, params)
