@@ -477,6 +477,23 @@ def test_grid_nearest_pedestrian_wins_shared_cell(params, static, raster, nearer
     assert int(np.count_nonzero(grid[..., 0])) == 1
 
 
+def test_nearest_wins_pairwise_equals_the_mask_form(monkeypatch):
+    # P = 12 pedestrians in 4 cells with many exact distance ties: the pairwise
+    # form (P <= PAIRWISE_MAX_PEDESTRIANS) and the (P, P) mask form agree.
+    from drqn_jax.env import grid
+
+    rng = np.random.default_rng(0)
+    flat = jnp.asarray(rng.integers(0, 4, (50, 12)), jnp.int32)
+    dist2 = jnp.asarray(rng.integers(0, 3, (50, 12)), jnp.float32)
+    pairwise = jax.vmap(grid._nearest_wins, (0, 0, None))(flat, dist2, 1350)
+    monkeypatch.setattr(grid, "PAIRWISE_MAX_PEDESTRIANS", 0)
+    mask = jax.vmap(grid._nearest_wins, (0, 0, None))(flat, dist2, 1350)
+    np.testing.assert_array_equal(np.asarray(pairwise), np.asarray(mask))
+    kept = np.asarray(pairwise) < 1350
+    for row in range(50):  # one winner per occupied cell
+        assert sorted(np.asarray(flat)[row][kept[row]]) == sorted(set(np.asarray(flat)[row]))
+
+
 def test_grid_semantic_map_channel(static, raster):
     params = EnvParams(semantic_channel="map")
     ego, peds = _grid_scene(params, static, [(20.0 + 0.5, LANE_Y + 6.5)])  # on the sidewalk

@@ -15,7 +15,7 @@ from drqn_jax.env.params import EnvParams, StaticEnvParams
 from drqn_jax.env.road_map import lane_centre_y
 from drqn_jax.env.state import EgoState, PedestrianState
 
-__all__ = ["box_disc_overlap", "collision", "ego_box", "time_to_collision"]
+__all__ = ["box_disc_overlap", "collision", "ego_box", "squared_length", "time_to_collision"]
 
 
 def ego_box(s: jax.Array, params: EnvParams, inflate: float | jax.Array = 0.0):

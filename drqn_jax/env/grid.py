@@ -87,13 +87,28 @@ def grid_cell_index(
     return flat.astype(jnp.int32), inside
 
 
+#: Up to this many pedestrians, :func:`_nearest_wins` compares pairs written out
+#: one by one (fast on XLA:CPU); beyond it, as one (P, P) mask (compiles faster).
+PAIRWISE_MAX_PEDESTRIANS = 32
+
+
 def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
-    """Push every pedestrian that loses its cell to a nearer one out of range."""
-    # Of two pedestrians j < i in one cell, j keeps it when at least as near
-    # (ties: the lower index), else i does. Each pair is compared once, written
-    # out elementwise (a reduction over a short minor axis vectorises poorly on
-    # XLA:CPU); the same booleans as comparing every i with every j.
+    """Push every pedestrian that loses its cell to a nearer one out of range.
+
+    Of two pedestrians j < i in one cell, j keeps it when at least as near
+    (ties: the lower index), else i does.
+    """
     num = flat.shape[0]
+    if num > PAIRWISE_MAX_PEDESTRIANS:
+        order = jnp.arange(num)
+        same = flat[:, None] == flat[None, :]
+        nearer = (dist2[None, :] < dist2[:, None]) | (
+            (dist2[None, :] == dist2[:, None]) & (order[None, :] < order[:, None])
+        )
+        return jnp.where(jnp.any(same & nearer, axis=1), size, flat)
+    # Each pair compared once, elementwise: the same booleans, but a reduction
+    # over a short minor axis vectorises poorly on XLA:CPU (0.7 ms of a 6 ms
+    # step at 4096 envs, against under 0.15 written out).
     loses = [jnp.zeros((), bool)] * num
     for i in range(num):
         for j in range(i):
