@@ -116,21 +116,14 @@ def _env_program(args: argparse.Namespace) -> tuple[jax.stages.Compiled, tuple, 
 
 
 def _update_program(args: argparse.Namespace) -> tuple[jax.stages.Compiled, tuple, int, str]:
-    from benchmarks.train_throughput import fill_replay, make_updates
+    from benchmarks.train_throughput import fill_replay, make_updates, update_args
     from drqn_jax.train import TrainConfig, make_train
 
     trainer = make_train(TrainConfig())
     fill_run = jax.jit(trainer.run, static_argnums=1, donate_argnums=0)
     state, _ = fill_replay(trainer, jax.random.key(args.seed), args.fill_episodes, fill_run)
     updates = jax.jit(make_updates(trainer.gradient_update, args.updates))
-    carry = (state.online, state.target, state.opt_state, state.grad_steps)
-    call_args = (
-        carry,
-        jax.random.key(args.seed + 1),
-        state.replay,
-        state.hparams,
-        trainer.env_params,
-    )
+    call_args = update_args(trainer, state, jax.random.key(args.seed + 1))
     compiled = updates.lower(*call_args).compile()
     what = f"{args.updates} gradient updates of the paper preset in one `lax.scan`"
     return compiled, call_args, args.updates, what

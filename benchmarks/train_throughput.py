@@ -238,6 +238,13 @@ def batched(fn: Callable, runs: int, in_axes: Any = 0) -> Callable:
     return fn if runs == 1 else jax.vmap(fn, in_axes=in_axes)
 
 
+def update_args(trainer: Trainer, state: TrainState, key: jax.Array) -> tuple:
+    """The arguments of ``trainer.gradient_update`` taken from ``state``:
+    ``((online, target, opt_state, grad_steps), key, replay, hparams, env_params)``."""
+    learner = (state.online, state.target, state.opt_state, state.grad_steps)
+    return learner, key, state.replay, state.hparams, trainer.env_params
+
+
 def make_updates(update: Callable, num_updates: int) -> Callable:
     """``num_updates`` updates in one ``lax.scan`` (fresh windows each)."""
 
@@ -321,8 +328,7 @@ def bench_runs(
     # (a) gradient updates in isolation
     update = trainer.gradient_update
     updates = batched(make_updates(update, args.updates), runs, (0, 0, 0, 0, None))
-    carry = (state.online, state.target, state.opt_state, state.grad_steps)
-    statics = (state.replay, state.hparams, trainer.env_params)
+    carry, _, *statics = update_args(trainer, state, key)
     compiled, lower_s, xla_s = compile_timed(jax.jit(updates), carry, key, *statics)
     before = np.asarray(carry[3]).copy()
     carry, t = time_calls(lambda c: compiled(c, key, *statics)[0], carry, args.repeats)
@@ -649,13 +655,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     # counted FLOPs (unbatched: one run)
     one = fills[0][0]
     update = trainer.gradient_update
-    upd_args = (
-        (one.online, one.target, one.opt_state, one.grad_steps),
-        jax.random.key(0),
-        one.replay,
-        one.hparams,
-        trainer.env_params,
-    )
+    upd_args = update_args(trainer, one, jax.random.key(0))
     update_counted = count_flops(jax.make_jaxpr(update)(*upd_args).jaxpr)
     iteration_counted = count_flops(jax.make_jaxpr(lambda s: trainer.run(s, 1))(one).jaxpr)
     update_xla = xla_flops(jax.jit(update).lower(*upd_args).compile())

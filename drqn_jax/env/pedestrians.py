@@ -289,28 +289,18 @@ def respawn_pedestrians(
     return _respawn(static)(key, peds, replace, x_lo, x_hi, params)
 
 
-def _respawn_all(
-    key: jax.Array,
-    peds: PedestrianState,
-    replace: jax.Array,
-    x_lo: jax.Array,
-    x_hi: jax.Array,
-    params: EnvParams,
-    static: StaticEnvParams,
-) -> PedestrianState:
-    """The plain respawn: draw P new pedestrians, take them where ``replace`` is set."""
-    fresh = spawn_pedestrians(key, x_lo, x_hi, params, static)
-
-    def pick(new, old):
-        return jnp.where(replace.reshape(replace.shape + (1,) * (old.ndim - 1)), new, old)
-
-    return jax.tree.map(pick, fresh, peds)
-
-
 @functools.cache
 def _respawn(static: StaticEnvParams) -> Callable[..., PedestrianState]:
     """:func:`respawn_pedestrians` for ``static``, with its batching rule."""
-    respawn_all = functools.partial(_respawn_all, static=static)
+
+    def respawn_all(key, peds, replace, x_lo, x_hi, params):
+        """The plain respawn: draw P new pedestrians, take them where ``replace`` is set."""
+        fresh = spawn_pedestrians(key, x_lo, x_hi, params, static)
+
+        def pick(new, old):
+            return jnp.where(replace.reshape(replace.shape + (1,) * (old.ndim - 1)), new, old)
+
+        return jax.tree.map(pick, fresh, peds)
 
     @custom_vmap
     def respawn(key, peds, replace, x_lo, x_hi, params):
