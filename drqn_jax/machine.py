@@ -70,6 +70,8 @@ def machine_info() -> dict[str, Any]:
         "fma_disabled": fma_disabled(),
         "xla_cpu_threads": cpu_thread_pool_size(),
         "drqn_jax_allow_fma": os.environ.get("DRQN_JAX_ALLOW_FMA", "(unset)"),
+        # Set, compile times of programs compiled before may be cache loads.
+        "compilation_cache_dir": jax.config.jax_compilation_cache_dir or "(off)",
         "drqn_jax_version": drqn_jax.__version__,
         "git_commit": git_commit(),
         "python_version": platform.python_version(),
@@ -91,6 +93,8 @@ def machine_lines(info: dict[str, Any]) -> list[str]:
         f" DRQN_JAX_ALLOW_FMA: {info['drqn_jax_allow_fma']})",
         f"- XLA:CPU thread pool: {info['xla_cpu_threads']} threads (PJRT_NPROC: "
         f"{os.environ.get('PJRT_NPROC', '(unset)')})",
+        f"- JAX persistent compilation cache: {info.get('compilation_cache_dir', '(off)')}"
+        " (when on, a compile time may be the load of an earlier compile)",
         f"- drqn_jax {info['drqn_jax_version']}, git commit {info['git_commit']}",
         f"- Python {info['python_version']}",
         f"- date (UTC): {info['date']}",

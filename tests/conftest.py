@@ -1,8 +1,43 @@
-"""Shared fixtures. drqn_jax is imported first so its XLA flags take effect."""
+"""Shared fixtures. drqn_jax is imported first so its XLA flags take effect.
 
+The suite compiles the same programs in several processes (pytest-xdist
+workers, the command-line tests' subprocesses, the forced-device and
+multi-process sweeps), so it shares JAX's persistent compilation cache
+between them: a directory made for the session (removed at its end) unless
+``JAX_COMPILATION_CACHE_DIR`` is already set, in which case that one is used
+and kept. A cache hit loads the very executable an earlier compile produced
+(the key holds the program, the XLA flags and the JAX version), so results
+are the same bits; only compile time is saved.
+"""
+
+import os
+import shutil
+import tempfile
+
+import jax
 import pytest
 
 import drqn_jax
+
+_CACHE_VARIABLE = "JAX_COMPILATION_CACHE_DIR"
+_made_cache = pytest.StashKey[str]()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    # The controller (or the only process) makes the directory; xdist workers and
+    # subprocesses inherit the variable.
+    if _CACHE_VARIABLE not in os.environ:
+        path = tempfile.mkdtemp(prefix="drqn-jax-test-xla-cache-")
+        os.environ[_CACHE_VARIABLE] = path
+        config.stash[_made_cache] = path
+    # jax was imported (by drqn_jax) before the variable was set in this process.
+    jax.config.update("jax_compilation_cache_dir", os.environ[_CACHE_VARIABLE])
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    path = config.stash.get(_made_cache, None)
+    if path is not None:
+        shutil.rmtree(path, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")

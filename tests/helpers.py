@@ -12,7 +12,7 @@ import numpy as np
 from drqn_jax.env.road_map import WALKWAY, semantic_class
 from drqn_jax.env.state import SIDEWALK
 from drqn_jax.networks import NetworkConfig
-from drqn_jax.train import Hyperparams, TrainConfig
+from drqn_jax.train import Hyperparams, TrainConfig, make_train
 
 
 def tree_equal(a, b) -> bool:
@@ -162,6 +162,16 @@ def invariant_rollout(env, params, keys, num_steps: int):
 SMALL_NET = NetworkConfig(
     conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=16, hidden=16
 )
+
+
+def train_alone(point: Any) -> tuple[Any, dict[str, jax.Array]]:
+    """A sweep point trained alone: ``jit(train)`` on its key, hyperparameters and
+    env params, the last two as arguments (as in a sweep, and as ``drqn-jax train``
+    carries them in the state), so every point of a shape shares one program
+    (compiled once per process, then loaded from the persistent cache)."""
+    trainer = make_train(point.config.train_config())
+    hp, env_params = trainer.config.hyperparams, trainer.env_params
+    return jax.jit(trainer.train)(point.config.keys()[0], hp, env_params)
 
 
 def tiny_train_config(max_steps: int = 30, **changes: Any) -> TrainConfig:

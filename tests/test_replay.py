@@ -167,9 +167,10 @@ def test_memory_of_the_paper_replay_fits_target():
 def test_rasterised_observation_equals_the_envs(env_params):
     env, params = env_params
     obs, state = env.reset(jax.random.key(0), params)
+    step = jax.jit(env.step_env)
     for t in range(30):
-        obs, state, *_ = env.step_env(jax.random.key(t), state, 0, params)
+        obs, state, *_ = step(jax.random.key(t), state, 0, params)
     record = GridInputs.of(state.ego, state.pedestrians)
-    rebuilt = observations(record, state.last_action, params, env.static)
+    rebuilt = jax.jit(observations, static_argnums=3)(record, state.last_action, params, env.static)
     assert np.array_equal(np.asarray(rebuilt.grid), np.asarray(obs.grid))
     assert np.array_equal(np.asarray(rebuilt.speed), np.asarray(obs.speed))

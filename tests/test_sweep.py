@@ -21,8 +21,7 @@ from drqn_jax.runner import _StopRequest
 from drqn_jax.stats import interquartile_mean
 from drqn_jax.sweep import load_sweep, summarize_sweep
 from drqn_jax.sweep_runner import Call, call_size, plan_calls, run_sweep, train_call, train_runs
-from drqn_jax.train import make_train
-from tests.helpers import assert_tree_equal
+from tests.helpers import assert_tree_equal, train_alone
 
 SWEEP = """
 base = "smoke"
@@ -99,8 +98,7 @@ def test_ranges_zip_mode_and_errors(tmp_path):
 def test_each_run_is_bit_identical_to_the_run_alone(trained):
     sweep, params, metrics = trained
     point = sweep.points[3]  # the last run: seed and learning rate (traced) differ from run 0
-    trainer = make_train(point.config.train_config())
-    alone = jax.jit(trainer.train)(point.config.keys()[0])
+    alone = train_alone(point)
     assert_tree_equal(alone, jax.tree.map(lambda x: x[3], (params, metrics)))
 
 
@@ -122,14 +120,11 @@ def _train_on_forced_devices(
         import drqn_jax
         from drqn_jax.sweep import load_sweep
         from drqn_jax.sweep_runner import train_runs
-        from drqn_jax.train import make_train
+        from tests.helpers import train_alone
         assert len(jax.devices()) == {devices}, jax.devices()
         points = load_sweep({str(sweep_file)!r}).points[:{runs}]
         if {alone}:
-            results = [
-                jax.jit(make_train(p.config.train_config()).train)(p.config.keys()[0])
-                for p in points
-            ]
+            results = [train_alone(p) for p in points]
             params, metrics = jax.tree.map(lambda *x: np.stack(x), *results)
         else:
             _, params, metrics = train_runs(points, strategy={strategy!r})
