@@ -70,7 +70,7 @@ def machine_info() -> dict[str, Any]:
         "fma_disabled": fma_disabled(),
         "xla_cpu_threads": cpu_thread_pool_size(),
         "drqn_jax_allow_fma": os.environ.get("DRQN_JAX_ALLOW_FMA", "(unset)"),
-        # Set, compile times of programs compiled before may be cache loads.
+        # When set, the compile time of a program compiled before may be a cache load.
         "compilation_cache_dir": jax.config.jax_compilation_cache_dir or "(off)",
         "drqn_jax_version": drqn_jax.__version__,
         "git_commit": git_commit(),
@@ -93,7 +93,7 @@ def machine_lines(info: dict[str, Any]) -> list[str]:
         f" DRQN_JAX_ALLOW_FMA: {info['drqn_jax_allow_fma']})",
         f"- XLA:CPU thread pool: {info['xla_cpu_threads']} threads (PJRT_NPROC: "
         f"{os.environ.get('PJRT_NPROC', '(unset)')})",
-        f"- JAX persistent compilation cache: {info.get('compilation_cache_dir', '(off)')}"
+        f"- JAX persistent compilation cache: {info['compilation_cache_dir']}"
         " (when on, a compile time may be the load of an earlier compile)",
         f"- drqn_jax {info['drqn_jax_version']}, git commit {info['git_commit']}",
         f"- Python {info['python_version']}",
