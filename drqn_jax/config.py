@@ -60,6 +60,10 @@ CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 #: The sections a training checkpoint depends on (the rest may change on resume).
 TRAINING_SECTIONS = ("run.seed", "env", "network", "train")
 
+#: Fields added after run directories existed, with the value those runs had:
+#: left out of :meth:`Config.training_dict` at that value, so the runs resume.
+ADDED_LATER = {("train", "n_step"): 1}
+
 TRAIN_SIZES = tuple(
     f.name
     for f in dataclasses.fields(TrainConfig)
@@ -397,7 +401,14 @@ class Config:
         out: dict[str, Any] = {}
         for entry in TRAINING_SECTIONS:
             section, _, name = entry.partition(".")
-            out[entry] = self[section][name] if name else dict(self[section])
+            if name:
+                out[entry] = self[section][name]
+            else:
+                out[entry] = {
+                    field: value
+                    for field, value in self[section].items()
+                    if (section, field) not in ADDED_LATER or ADDED_LATER[(section, field)] != value
+                }
         return out
 
     def training_hash(self) -> str:

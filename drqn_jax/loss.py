@@ -5,7 +5,15 @@ from a zero state. For transition t the target is
 
     y_t = r_t + γ (1 − terminated_t) Q_target(s_{t+1}, argmax_a Q_online(s_{t+1}, a))
 
-— it bootstraps through truncation, never through termination. The TD error
+— it bootstraps through truncation, never through termination. With
+``n_step`` = n > 1 (not in the paper; R2D2-style, Kapturowski et al. 2019)
+the target sums up to n rewards of the window before bootstrapping,
+
+    y_t = Σ_{k<m} γ^k r_{t+k} + γ^m (1 − terminated) Q_target(s_{t+m}, a*_{t+m}),
+    a*_j = argmax_a Q_online(s_j, a),
+
+where m ≤ n stops at the episode's end (its last real transition) and at
+the window's end; n = 1 is the one-step target above. The TD error
 is clipped as the paper says ("limiting the error term to [−1, 1]"): Huber
 loss with δ = 1 (``clip = "huber"``), or the authors' code, MSE with the
 gradient clamped element-wise (``clip = "grad"``, see
@@ -25,7 +33,7 @@ from drqn_jax.replay import Windows
 CLIP_MODES = ("huber", "grad")
 CLIP_HUBER, CLIP_GRAD = 0, 1
 
-__all__ = ["CLIP_MODES", "double_dqn_targets", "huber", "sequence_loss"]
+__all__ = ["CLIP_MODES", "double_dqn_targets", "huber", "n_step_targets", "sequence_loss"]
 
 
 def huber(x: jax.Array, delta: float = 1.0) -> jax.Array:
@@ -47,6 +55,51 @@ def double_dqn_targets(
     return reward + gamma * (1.0 - terminated.astype(jnp.float32)) * q_next
 
 
+def n_step_targets(
+    q_online_next: jax.Array,
+    q_target_next: jax.Array,
+    reward: jax.Array,
+    terminated: jax.Array,
+    mask: jax.Array,
+    gamma: float | jax.Array,
+    n_step: int,
+) -> jax.Array:
+    """n-step Double DQN targets (W, B) of a window (see the module docstring).
+
+    Args:
+        q_online_next, q_target_next: (W, B, A) Q-values at observations 1 … W.
+        reward, terminated, mask: (W, B); ``mask`` is false on padding.
+        n_step: static n ≥ 1 (n = 1: :func:`double_dqn_targets`).
+    Returns:
+        (W, B) float32 targets; those of padded steps are finite and meaningless.
+    """
+    if n_step == 1:
+        return double_dqn_targets(q_online_next, q_target_next, reward, terminated, gamma)
+    steps = reward.shape[0]
+    best = jnp.argmax(q_online_next, axis=-1)
+    value = jnp.take_along_axis(q_target_next, best[..., None], axis=-1)[..., 0]  # (W, B)
+
+    def ahead(x: jax.Array, k: int, fill) -> jax.Array:  # x[t + k], ``fill`` past the end
+        return jnp.concatenate([x[k:], jnp.full((k, *x.shape[1:]), fill, x.dtype)])
+
+    gamma = jnp.asarray(gamma, jnp.float32)
+    ret = jnp.zeros_like(reward)
+    discount = jnp.ones_like(reward)  # γ^m of the steps taken so far
+    alive = jnp.ones(reward.shape, bool)  # step t + k is still in the episode
+    done = jnp.zeros(reward.shape, bool)  # the steps taken ended in termination
+    last = jnp.zeros(reward.shape, jnp.int32)  # index of the next observation - 1
+    for k in range(n_step):
+        take = alive & ahead(mask, k, False)
+        term_k = ahead(terminated, k, False)
+        ret = jnp.where(take, ret + discount * ahead(reward, k, 0.0), ret)
+        discount = jnp.where(take, discount * gamma, discount)
+        done = done | (take & term_k)
+        last = jnp.where(take, jnp.arange(steps)[:, None] + k, last)
+        alive = take & ~term_k
+    boot = jnp.take_along_axis(value, last, axis=0)
+    return ret + discount * (1.0 - done.astype(jnp.float32)) * boot
+
+
 def sequence_loss(
     online: Any,
     target: Any,
@@ -54,6 +107,7 @@ def sequence_loss(
     network: Network,
     gamma: float | jax.Array,
     clip_mode: int | jax.Array = CLIP_HUBER,
+    n_step: int = 1,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Mean masked TD loss of a window batch, and diagnostics.
 
@@ -61,6 +115,7 @@ def sequence_loss(
         online, target: network parameters (gradients flow to ``online`` only).
         windows: time-major batch (W + 1 observations, W transitions, B windows).
         clip_mode: ``CLIP_HUBER`` (0) or ``CLIP_GRAD`` (1, MSE ½δ²).
+        n_step: static number of rewards per target (1 = the paper).
     Returns:
         () float32 loss, and ``{"td_abs": mean |δ|, "q_mean": mean Q(s, a)}``.
     """
@@ -70,7 +125,15 @@ def sequence_loss(
     q_online, _ = network.unroll(online, windows.obs, carry, resets)  # (W + 1, B, A)
     q_target, _ = network.unroll(target, windows.obs, carry, resets)
     q_taken = jnp.take_along_axis(q_online[:-1], windows.action[..., None], axis=-1)[..., 0]
-    y = double_dqn_targets(q_online[1:], q_target[1:], windows.reward, windows.terminated, gamma)
+    y = n_step_targets(
+        q_online[1:],
+        q_target[1:],
+        windows.reward,
+        windows.terminated,
+        windows.mask,
+        gamma,
+        n_step,
+    )
     td = q_taken - jax.lax.stop_gradient(y)
     per_step = jnp.where(clip_mode == CLIP_GRAD, 0.5 * td * td, huber(td))
     weight = windows.mask.astype(jnp.float32)

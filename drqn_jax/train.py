@@ -150,6 +150,10 @@ class TrainConfig:
     replay_episodes: int = 50
     batch_size: int = 32
     window: int = 8
+    n_step: int = dataclasses.field(
+        default=1,
+        metadata={"doc": "rewards summed per TD target, <= window (1 = the paper)"},
+    )
     updates_per_step: int = 1
     chunk_iterations: int = 1000
     hyperparams: Hyperparams = dataclasses.field(default_factory=Hyperparams)
@@ -161,12 +165,18 @@ class TrainConfig:
             "replay_episodes",
             "batch_size",
             "window",
+            "n_step",
             "updates_per_step",
             "chunk_iterations",
         ):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"TrainConfig.{name} = {value!r}: must be an integer >= 1")
+        if self.n_step > self.window:
+            raise ValueError(
+                f"TrainConfig.n_step = {self.n_step}: must be <= window ({self.window}); "
+                "an n-step target sums rewards inside one window"
+            )
         if self.replay_episodes < 2 * self.num_envs:
             raise ValueError(
                 f"TrainConfig.replay_episodes = {self.replay_episodes}: must be >= 2 × num_envs "
@@ -352,7 +362,7 @@ def _make_train(config: TrainConfig) -> Trainer:
             replay, key, config.batch_size, config.window, env_params, env.static
         )
         (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
-            online, target, windows, network, hp.gamma, hp.clip
+            online, target, windows, network, hp.gamma, hp.clip, config.n_step
         )
         clamped, _ = clip(1.0).update(grads, ())
         grads = jax.tree.map(lambda c, g: jnp.where(hp.clip == CLIP_GRAD, c, g), clamped, grads)

@@ -6,7 +6,14 @@ import dataclasses
 
 import pytest
 
-from drqn_jax.config import SCHEMA, ConfigError, config_names, load_config, parse_override
+from drqn_jax.config import (
+    ADDED_LATER,
+    SCHEMA,
+    ConfigError,
+    config_names,
+    load_config,
+    parse_override,
+)
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.train import TrainConfig
 
@@ -71,6 +78,8 @@ def test_set_overrides_and_parsing():
     [
         ("train.learning_rate=-3e-4", r"train\.learning_rate = -0\.0003: out of range"),
         ("train.window=31", r"train\.window = 31: must be <= env\.max_steps \(30\)"),
+        ("train.n_step=0", r"train\.n_step = 0: must be an integer >= 1"),
+        ("train.n_step=5", r"train\.n_step = 5: must be <= window \(4\)"),
         ("train.batch_size=5", r"train\.batch_size = 5: must be <= train\.replay_episodes \(4\)"),
         ("train.learning_starts=3", r"train\.learning_starts = 3: must be <= 2"),
         ("train.num_envs=2.5", r"train\.num_envs = 2\.5: must be an integer"),
@@ -127,8 +136,24 @@ def test_training_hash_tracks_training_fields_only():
     assert (
         load_config("smoke", ["run.checkpoint_every_s=9"]).training_hash() == base.training_hash()
     )
-    for override in ("train.gamma=0.5", "env.max_steps=31", "network.hidden=8", "run.seed=1"):
+    for override in (
+        "train.gamma=0.5",
+        "env.max_steps=31",
+        "network.hidden=8",
+        "run.seed=1",
+        "train.n_step=3",
+    ):
         assert load_config("smoke", [override]).training_hash() != base.training_hash(), override
+
+
+def test_fields_added_later_keep_older_runs_resumable():
+    """A field added after run directories existed is hashed only away from the
+    value those runs had, so their checkpoints still match."""
+    config = load_config("smoke")
+    for (section, name), old_value in ADDED_LATER.items():
+        assert config[section][name] == old_value
+        assert name not in config.training_dict()[section]
+    assert "n_step" in load_config("smoke", ["train.n_step=2"]).training_dict()["train"]
 
 
 def test_env_overrides_are_the_difference_from_the_preset():

@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 from drqn_jax.env.state import Observation
-from drqn_jax.loss import CLIP_GRAD, CLIP_HUBER, double_dqn_targets, huber, sequence_loss
+from drqn_jax.loss import (
+    CLIP_GRAD,
+    CLIP_HUBER,
+    double_dqn_targets,
+    huber,
+    n_step_targets,
+    sequence_loss,
+)
 from drqn_jax.networks import NetworkConfig, make_network
 from drqn_jax.optim import clip
 from drqn_jax.replay import Windows
@@ -26,6 +33,63 @@ def test_double_dqn_target_hand_computed():
     np.testing.assert_allclose(np.asarray(y), [1.0 + 0.9 * 2.0, -1.0, 0.5 + 0.9 * -3.0])
     # not plain DQN: max of the target would give 1 + 0.9·9 for step 0
     assert float(y[0]) != pytest.approx(1.0 + 0.9 * 9.0)
+
+
+def _n_step_reference(q_online_next, q_target_next, reward, terminated, mask, gamma, n):
+    """n-step Double DQN targets by hand, in float64: sum rewards until n steps, the
+    episode's end (termination or the last real step) or the window's end."""
+    steps, batch = reward.shape
+    y = np.zeros((steps, batch))
+    for b in range(batch):
+        for t in range(steps):
+            if not mask[t, b]:
+                continue
+            ret, discount, j, done = 0.0, 1.0, t, False
+            while j < steps and j < t + n and mask[j, b]:
+                ret += discount * reward[j, b]
+                discount *= gamma
+                j += 1
+                if terminated[j - 1, b]:
+                    done = True
+                    break
+            # observation j is q[..][j - 1]
+            a_star = np.argmax(q_online_next[j - 1, b])
+            y[t, b] = ret + (0.0 if done else discount * q_target_next[j - 1, b, a_star])
+    return y
+
+
+def test_n_step_targets_match_hand_computation():
+    """Windows of 6 steps: b0 runs to the window's end, b1 terminates at step 3,
+    b2 is truncated after step 2 (not terminated: it bootstraps), b3 terminates at
+    step 0; after an episode's end comes padding with garbage rewards."""
+    rng = np.random.default_rng(0)
+    steps, batch = 6, 4
+    q_online_next = rng.normal(size=(steps, batch, 4)).astype(np.float32)
+    q_target_next = rng.normal(size=(steps, batch, 4)).astype(np.float32)
+    reward = rng.normal(size=(steps, batch)).astype(np.float32)
+    length = np.array([6, 4, 3, 1])
+    mask = np.arange(steps)[:, None] < length
+    terminated = np.zeros((steps, batch), bool)
+    terminated[3, 1] = terminated[0, 3] = True
+    args = [jnp.asarray(x) for x in (q_online_next, q_target_next, reward, terminated, mask)]
+    for n in (1, 2, 3, 6):
+        y = np.asarray(n_step_targets(*args, 0.9, n))
+        ref = _n_step_reference(q_online_next, q_target_next, reward, terminated, mask, 0.9, n)
+        np.testing.assert_allclose(y[mask], ref[mask], rtol=1e-5, atol=1e-6, err_msg=f"n={n}")
+        assert np.all(np.isfinite(y))
+    # n = 1 is the paper's one-step target, bit for bit
+    np.testing.assert_array_equal(
+        np.asarray(n_step_targets(*args, 0.9, 1)),
+        np.asarray(double_dqn_targets(*args[:4], 0.9)),
+    )
+    # spot checks: b3 terminates at once, so its target is its reward for any n;
+    # b2's last real step bootstraps from observation 3 with γ
+    y3 = np.asarray(n_step_targets(*args, 0.9, 3))
+    assert y3[0, 3] == pytest.approx(reward[0, 3])
+    a_star = np.argmax(q_online_next[2, 2])
+    assert y3[2, 2] == pytest.approx(reward[2, 2] + 0.9 * q_target_next[2, 2, a_star], rel=1e-6)
+    # n-step differs from one-step where more than one real step lies ahead
+    assert not np.allclose(y3[0, 0], np.asarray(n_step_targets(*args, 0.9, 1))[0, 0])
 
 
 def test_huber():
@@ -76,6 +140,27 @@ def test_sequence_loss_matches_hand_unrolled(small_net):
             td = q_on[t, b, int(w.action[t, b])] - (float(w.reward[t, b]) + boot)
             total += 0.5 * td**2 if abs(td) <= 1 else abs(td) - 0.5
     assert float(loss) == pytest.approx(total / 12, rel=1e-5)
+
+
+def test_n_step_sequence_loss_matches_hand_unrolled(small_net):
+    net, online, target = small_net
+    mask = jnp.ones((4, 3), bool).at[3:, 1].set(False).at[2:, 2].set(False)
+    w = _windows(jax.random.key(5), mask=mask)
+    loss, _ = sequence_loss(online, target, w, net, 0.9, CLIP_HUBER, n_step=3)
+    resets = jnp.zeros((5, 3), bool)
+    q_on, _ = net.unroll(online, w.obs, net.initial_carry((3,)), resets)
+    q_tg, _ = net.unroll(target, w.obs, net.initial_carry((3,)), resets)
+    q_on, q_tg = np.asarray(q_on, np.float64), np.asarray(q_tg, np.float64)
+    m = np.asarray(w.mask)
+    y = _n_step_reference(
+        q_on[1:], q_tg[1:], np.asarray(w.reward), np.asarray(w.terminated), m, 0.9, 3
+    )
+    q_taken = np.take_along_axis(q_on[:-1], np.asarray(w.action)[..., None], -1)[..., 0]
+    td = (q_taken - y)[m]
+    per_step = np.where(np.abs(td) <= 1, 0.5 * td**2, np.abs(td) - 0.5)
+    assert float(loss) == pytest.approx(per_step.mean(), rel=1e-5)
+    one_step, _ = sequence_loss(online, target, w, net, 0.9, CLIP_HUBER)
+    assert float(loss) != pytest.approx(float(one_step), rel=1e-5)
 
 
 def test_padding_is_masked_out(small_net):

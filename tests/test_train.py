@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -9,7 +11,9 @@ import pytest
 
 import drqn_jax
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
+from drqn_jax.loss import sequence_loss
 from drqn_jax.networks import NetworkConfig
+from drqn_jax.replay import sample_windows
 from drqn_jax.train import Hyperparams, TrainConfig, annealed, make_train
 from tests.helpers import assert_tree_equal, take, tiny_train_config
 
@@ -64,18 +68,50 @@ def test_same_key_bit_identical(tiny, tiny_run):
     )
 
 
-def test_chunked_equals_one_shot(tiny, tiny_run):
+@pytest.fixture(scope="module")
+def tiny_chunked(tiny):
+    """The run of ``tiny_run`` in chunks of 2 iterations: (final state, chunks)."""
     trainer, _ = tiny
     init = jax.jit(trainer.init)
     run = jax.jit(trainer.run, static_argnums=1)
     state = init(jax.random.key(0))
     chunks = 0
     while not bool(state.finished):
-        state = run(state, 2)  # the chunk of the next test: one program for both
+        state = run(state, 2)  # the chunk of the guided test: one program for both
         chunks += 1
+    return state, chunks
+
+
+def test_chunked_equals_one_shot(tiny_chunked, tiny_run):
+    state, chunks = tiny_chunked
     assert chunks > 3
     assert_tree_equal((state.online, state.metrics), tiny_run)
     assert int(state.recorded) == 6 and int(state.grad_steps) > 0
+
+
+def test_n_step_reaches_the_gradient_update(tiny_chunked):
+    """train.n_step is the loss's: the update's loss is sequence_loss with n = 3 on
+    the windows it samples (and differs from the one-step loss)."""
+    state, _ = tiny_chunked
+    trainer = make_train(dataclasses.replace(TINY, n_step=3))
+    learner = (state.online, state.target, state.opt_state, state.grad_steps)
+    key = jax.random.key(11)
+    args = (learner, key, state.replay, state.hparams, state.env_params)
+    _, loss = jax.jit(trainer.gradient_update)(*args)
+
+    @jax.jit
+    def losses(state, key):  # n = 3 and n = 1 on the windows the update samples
+        hp = state.hparams
+        w = sample_windows(state.replay, key, 4, 4, state.env_params, trainer.env.static)
+        net = trainer.network
+        return [
+            sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, n)[0]
+            for n in (3, 1)
+        ]
+
+    three, one = losses(state, key)
+    assert float(loss) == pytest.approx(float(three), rel=1e-5)
+    assert float(three) != pytest.approx(float(one), rel=1e-5)
 
 
 def test_guided_exploration_takes_the_rule_based_action(tiny):
