@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import functools
 import io
 import json
 import math
@@ -217,7 +218,11 @@ def train_run(
     run_dir = Path(run_dir)
     trainer = make_train(config.train_config())
     train_key, _ = config.keys()
-    init = jax.jit(trainer.init)
+    # hyperparameters and env params as arguments, not constants: one init program
+    # per shape, which the persistent compilation cache can serve to other values
+    init = functools.partial(
+        jax.jit(trainer.init), hparams=trainer.config.hyperparams, env_params=trainer.env_params
+    )
     wall_before, chunks = 0.0, 0
     if resume:
         expected = {"config": config.training_dict(), "config_hash": config.training_hash()}

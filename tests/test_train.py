@@ -89,6 +89,19 @@ def test_chunked_equals_one_shot(tiny_chunked, tiny_run):
     assert int(state.recorded) == 6 and int(state.grad_steps) > 0
 
 
+def test_init_with_hyperparameters_as_arguments_is_bit_identical(tiny):
+    """The runner passes hyperparameters and env params to init as arguments (one
+    program for all values); the state is the one they give as constants."""
+    trainer, _ = tiny
+    init = jax.jit(trainer.init)
+    key = jax.random.key(0)
+
+    def plain(state):
+        return state.replace(key=jax.random.key_data(state.key))
+
+    assert_tree_equal(plain(init(key)), plain(init(key, TINY.hyperparams, trainer.env_params)))
+
+
 def test_n_step_reaches_the_gradient_update(tiny_chunked):
     """train.n_step is the loss's: the update's loss is sequence_loss with n = 3 on
     the windows it samples (and differs from the one-step loss)."""
