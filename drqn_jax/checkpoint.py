@@ -55,6 +55,7 @@ import os
 import re
 import secrets
 import zipfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -308,7 +309,10 @@ def save_checkpoint(run_dir: str | os.PathLike, state: Any, meta: dict[str, Any]
 
 
 def load_checkpoint(
-    run_dir: str | os.PathLike, template: Any, expected_meta: dict[str, Any] | None = None
+    run_dir: str | os.PathLike,
+    template: Any,
+    expected_meta: dict[str, Any] | None = None,
+    fill: Mapping[str, Any] | None = None,
 ) -> tuple[Any, dict[str, Any]]:
     """Load the checkpoint in ``run_dir`` into the structure of ``template``.
 
@@ -324,6 +328,9 @@ def load_checkpoint(
             the same key path with the same shape and dtype, and vice versa.
         expected_meta: optional; if it and the checkpoint both have a
             ``config_hash``, they must be equal. Other keys are not checked.
+        fill: optional values of leaves added to the state after the
+            checkpoint was written (key path -> array of the template's shape
+            and dtype), used where the checkpoint lacks them.
 
     Returns:
         ``(state, meta)``: the state (``jax.Array`` leaves, typed keys
@@ -358,8 +365,10 @@ def load_checkpoint(
     manifest = _read_manifest(npz_path, archive)
     if expected_meta is not None:
         _check_config(run_dir, manifest, expected_meta)
-    entries = _check_template(run_dir, manifest["leaves"], template)
-    leaves = [_decode(npz_path, archive, entry) for entry in entries]
+    entries = _check_template(run_dir, manifest["leaves"], template, fill or {})
+    leaves = [
+        _decode(npz_path, archive, entry) if isinstance(entry, dict) else entry for entry in entries
+    ]
     treedef = jax.tree.structure(template)
     meta = {k: v for k, v in manifest.items() if k != "leaves"}
     return jax.tree.unflatten(treedef, leaves), meta
@@ -439,8 +448,11 @@ def _describe(shape: Any, dtype: Any) -> str:
     return f"{tuple(shape)} {dtype}"
 
 
-def _check_template(run_dir: Path, saved: list[dict[str, Any]], template: Any) -> list[dict]:
-    """The saved entries in ``template``'s leaf order; raise if any leaf does not fit."""
+def _check_template(
+    run_dir: Path, saved: list[dict[str, Any]], template: Any, fill: Mapping[str, Any]
+) -> list[dict[str, Any] | jax.Array]:
+    """The saved entries in ``template``'s leaf order (or, for a leaf the checkpoint
+    lacks, its value in ``fill``); raise if any leaf does not fit."""
     by_path = {entry["path"]: entry for entry in saved}
     wanted, _ = jax.tree_util.tree_flatten_with_path(template)
     problems: list[str] = []
@@ -449,6 +461,9 @@ def _check_template(run_dir: Path, saved: list[dict[str, Any]], template: Any) -
         keystr = jax.tree_util.keystr(path)
         shape, dtype = _shape_dtype(leaf)
         entry = by_path.pop(keystr, None)
+        if entry is None and keystr in fill:
+            entries.append(jnp.broadcast_to(jnp.asarray(fill[keystr], dtype), shape))
+            continue
         if entry is None:
             problems.append(f"{keystr}: not in the checkpoint, expected {_describe(shape, dtype)}")
             continue

@@ -44,10 +44,12 @@ from drqn_jax.registry import make, preset, registered_envs
 from drqn_jax.train import Hyperparams, TrainConfig
 
 __all__ = [
+    "ADDED_LATER",
     "CONFIG_DIR",
     "TRAIN_SIZES",
     "Config",
     "ConfigError",
+    "added_leaves",
     "config_names",
     "load_config",
     "parse_override",
@@ -62,7 +64,20 @@ TRAINING_SECTIONS = ("run.seed", "env", "network", "train")
 
 #: Fields added after run directories existed, with the value those runs had:
 #: left out of :meth:`Config.training_dict` at that value, so the runs resume.
-ADDED_LATER = {("train", "n_step"): 1}
+ADDED_LATER = {("train", "n_step"): 1, ("train", "window_start"): "inside"}
+
+
+def added_leaves(hparams: Hyperparams) -> dict[str, Any]:
+    """The ``TrainState`` leaves that checkpoints written before the
+    ``ADDED_LATER`` fields lack (key path -> value, from ``hparams``: the run's,
+    whose training hash the checkpoint's matched), for ``load_checkpoint(fill=…)``."""
+    traced = {f.name for f in dataclasses.fields(Hyperparams)}
+    return {
+        f".hparams.{name}": getattr(hparams, name)
+        for section, name in ADDED_LATER
+        if section == "train" and name in traced
+    }
+
 
 TRAIN_SIZES = tuple(
     f.name

@@ -29,6 +29,7 @@ from drqn_jax.env.state import NO_ACTION, Observation
 from drqn_jax.pytree import pytree_dataclass
 
 __all__ = [
+    "WINDOW_STARTS",
     "EpisodeReplay",
     "Windows",
     "add_transition",
@@ -39,6 +40,11 @@ __all__ = [
     "replay_bytes",
     "sample_windows",
 ]
+
+#: Where a replay window may start (``train.window_start``): inside the episode
+#: (SPEC §7) or at any of its steps, padded past its end.
+WINDOW_STARTS = ("inside", "anywhere")
+WINDOW_INSIDE, WINDOW_ANYWHERE = 0, 1
 
 
 @pytree_dataclass
@@ -228,17 +234,24 @@ def sample_windows(
     window: int,
     params: EnvParams,
     static: StaticEnvParams,
+    window_start: int | jax.Array = WINDOW_INSIDE,
 ) -> Windows:
     """Draw ``batch`` windows of ``window`` transitions from complete episodes.
 
     Episodes are drawn uniformly with replacement among complete slots (call
-    only once one is complete); the start is uniform in ``[0, max(n − W, 0)]``.
+    only once one is complete). The start is uniform in ``[0, max(n − W, 0)]``
+    with ``window_start = WINDOW_INSIDE`` (SPEC §7: windows lie inside the
+    episode, so its last W − 1 steps are in fewer windows than the others, its
+    last step in 1 of every n − W + 1), or in ``[0, n − 1]`` with
+    ``WINDOW_ANYWHERE`` (windows run into masked padding past the episode's end,
+    and every step from the W-th on is in W of every n).
     """
     key_slot, key_start = jax.random.split(key)
     logits = jnp.where(replay.complete, 0.0, -jnp.inf)
     slot = jax.random.categorical(key_slot, logits, shape=(batch,)).astype(jnp.int32)
     n = replay.length[slot]
-    start = jax.random.randint(key_start, (batch,), 0, jnp.maximum(n - window, 0) + 1)
+    last = jnp.where(window_start == WINDOW_ANYWHERE, n - 1, jnp.maximum(n - window, 0))
+    start = jax.random.randint(key_start, (batch,), 0, last + 1)
     t = start[None, :] + jnp.arange(window, dtype=jnp.int32)[:, None]  # (W, B)
     mask = t < n[None, :]
     t_obs = jnp.concatenate([t, t[-1:] + 1], axis=0)  # (W + 1, B)

@@ -46,7 +46,7 @@ from drqn_jax.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from drqn_jax.config import Config, load_config
+from drqn_jax.config import Config, added_leaves, load_config
 from drqn_jax.evaluation import evaluate
 from drqn_jax.networks import Network
 from drqn_jax.train import METRIC_NAMES, TrainConfig, Trainer, TrainState, make_train
@@ -226,7 +226,8 @@ def train_run(
     wall_before, chunks = 0.0, 0
     if resume:
         expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
-        state, meta = load_checkpoint(run_dir, jax.eval_shape(init, train_key), expected)
+        template, fill = jax.eval_shape(init, train_key), added_leaves(trainer.config.hyperparams)
+        state, meta = load_checkpoint(run_dir, template, expected, fill)
         wall_before, chunks = float(meta["wall_time_s"]), int(meta["chunks"])
     else:
         if (run_dir / CHECKPOINT_NPZ).exists():
@@ -332,7 +333,8 @@ def load_trained_network(
     trainer = make_train(config.train_config())
     template = jax.eval_shape(trainer.init, config.keys()[0])
     expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
-    state, meta = load_checkpoint(run_dir, template, expected)
+    fill = added_leaves(trainer.config.hyperparams)
+    state, meta = load_checkpoint(run_dir, template, expected, fill)
     return trainer.network, state.online, meta
 
 

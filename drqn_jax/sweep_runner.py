@@ -58,7 +58,7 @@ from drqn_jax.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from drqn_jax.config import ConfigError
+from drqn_jax.config import ConfigError, added_leaves
 from drqn_jax.evaluation import evaluate
 from drqn_jax.memory import (
     RunMemory,
@@ -381,7 +381,8 @@ def train_call(
     checkpoint = directory is not None and (directory / CHECKPOINT_NPZ).exists()
     if checkpoint:
         template = jax.eval_shape(init, *args)
-        state, _ = load_checkpoint(directory, template, {"config_hash": call.fingerprint()})
+        expected, fill = {"config_hash": call.fingerprint()}, added_leaves(args[1])
+        state, _ = load_checkpoint(directory, template, expected, fill)
         state = jax.device_put(state, sharding)
     else:
         state = init(*args)

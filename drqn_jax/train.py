@@ -53,6 +53,7 @@ from drqn_jax.optim import adam, apply_updates, clip
 from drqn_jax.pytree import check_sums_to_one, param, pytree_dataclass, validate
 from drqn_jax.registry import make
 from drqn_jax.replay import (
+    WINDOW_STARTS,
     EpisodeReplay,
     add_transition,
     begin_episodes,
@@ -114,6 +115,12 @@ class Hyperparams:
     target_period: int = param(10_000, low=1, doc="gradient steps between target copies")
     learning_starts: int = param(4, low=1, doc="complete episodes in replay before learning")
     clip: int = param("huber", choices=CLIP_MODES)
+    window_start: int = param(
+        "inside",
+        choices=WINDOW_STARTS,
+        doc="where a replay window may start: 'inside' the episode (SPEC §7; its last "
+        "steps are in fewer windows) or 'anywhere', padded past its end",
+    )
 
     def __post_init__(self) -> None:
         validate(self)
@@ -359,7 +366,13 @@ def _make_train(config: TrainConfig) -> Trainer:
         online, target, opt_state, grad_steps = learner
         opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
         windows = sample_windows(
-            replay, key, config.batch_size, config.window, env_params, env.static
+            replay,
+            key,
+            config.batch_size,
+            config.window,
+            env_params,
+            env.static,
+            hp.window_start,
         )
         (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
             online, target, windows, network, hp.gamma, hp.clip, config.n_step

@@ -25,6 +25,7 @@ from drqn_jax.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from drqn_jax.config import added_leaves
 from drqn_jax.train import Hyperparams, make_train
 from tests.helpers import assert_tree_equal, tiny_train_config
 
@@ -314,6 +315,23 @@ def test_template_of_another_shape(tmp_path, tiny, template):
         r"\.metrics\['extra'\]: not in the checkpoint, expected \(3,\) int32$",
     ):
         load_checkpoint(tmp_path, changed)
+
+
+def test_leaves_added_later_are_filled(tmp_path, tiny, template):
+    """A leaf the state gained after the checkpoint was written loads from ``fill``;
+    the runner fills the hyperparameters of ``ADDED_LATER`` from the run's config."""
+    state5 = tiny[3]
+    save_checkpoint(tmp_path, state5, {})
+    extra = jax.ShapeDtypeStruct((3,), jnp.int32)
+    grown = template.replace(metrics={**template.metrics, "extra": extra})
+    fill = {".metrics['extra']": np.int32(7)}
+    state, _ = load_checkpoint(tmp_path, grown, fill=fill)
+    np.testing.assert_array_equal(np.asarray(state.metrics["extra"]), [7, 7, 7])
+    assert_state_equal(state.replace(metrics=state5.metrics), state5)
+    paths = {jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_leaves_with_path(template)}
+    fills = added_leaves(TINY.hyperparams)
+    assert fills and set(fills) <= paths
+    assert all(int(v) == 0 for v in fills.values())  # n_step is static; window_start "inside"
 
 
 def test_config_mismatch_names_the_field(tmp_path, tiny, template):

@@ -78,6 +78,7 @@ def test_set_overrides_and_parsing():
     [
         ("train.learning_rate=-3e-4", r"train\.learning_rate = -0\.0003: out of range"),
         ("train.window=31", r"train\.window = 31: must be <= env\.max_steps \(30\)"),
+        ("train.window_start=end", r"train\.window_start = 'end': must be one of 'inside'"),
         ("train.n_step=0", r"train\.n_step = 0: must be an integer >= 1"),
         ("train.n_step=5", r"train\.n_step = 5: must be <= window \(4\)"),
         ("train.batch_size=5", r"train\.batch_size = 5: must be <= train\.replay_episodes \(4\)"),
@@ -142,6 +143,7 @@ def test_training_hash_tracks_training_fields_only():
         "network.hidden=8",
         "run.seed=1",
         "train.n_step=3",
+        "train.window_start=anywhere",
     ):
         assert load_config("smoke", [override]).training_hash() != base.training_hash(), override
 
@@ -154,6 +156,8 @@ def test_fields_added_later_keep_older_runs_resumable():
         assert config[section][name] == old_value
         assert name not in config.training_dict()[section]
     assert "n_step" in load_config("smoke", ["train.n_step=2"]).training_dict()["train"]
+    anywhere = load_config("smoke", ["train.window_start=anywhere"])
+    assert anywhere.training_dict()["train"]["window_start"] == "anywhere"
 
 
 def test_env_overrides_are_the_difference_from_the_preset():

@@ -12,6 +12,8 @@ from hypothesis import strategies as st
 from drqn_jax.env.grid import GridInputs
 from drqn_jax.env.params import StaticEnvParams
 from drqn_jax.replay import (
+    WINDOW_ANYWHERE,
+    WINDOW_INSIDE,
     add_transition,
     begin_episodes,
     end_episodes,
@@ -75,10 +77,10 @@ def _fill(replay, lengths, episode_ids):
     return replay
 
 
-def _sample(replay, key):
+def _sample(replay, key, window_start=WINDOW_INSIDE):
     from drqn_jax.env.params import EnvParams
 
-    return sample_windows(replay, key, BATCH, WINDOW, EnvParams(), STATIC)
+    return sample_windows(replay, key, BATCH, WINDOW, EnvParams(), STATIC, window_start)
 
 
 sample = jax.jit(_sample)
@@ -91,15 +93,18 @@ sample = jax.jit(_sample)
     episodes=st.integers(2, 9),
     lengths=st.lists(st.integers(1, MAX_LEN), min_size=27, max_size=27),
     seed=st.integers(0, 10_000),
+    window_start=st.sampled_from([WINDOW_INSIDE, WINDOW_ANYWHERE]),
 )
-def test_windows_stay_inside_one_complete_episode(writers, capacity, episodes, lengths, seed):
+def test_windows_stay_inside_one_complete_episode(
+    writers, capacity, episodes, lengths, seed, window_start
+):
     capacity = max(capacity, 2 * writers)
     lengths = np.array(lengths[: episodes * writers]).reshape(episodes, writers)
     ids = np.arange(episodes * writers).reshape(episodes, writers) + 1
     replay = _fill(init_replay(capacity, MAX_LEN, writers, STATIC), lengths, ids)
     # sampling needs a complete episode (training starts learning only then)
     assume(bool(np.asarray(replay.complete).any()))
-    w = sample(replay, jax.random.key(seed))
+    w = sample(replay, jax.random.key(seed), window_start)
     s = np.asarray(w.obs.speed)  # unused here; shape check
     assert s.shape == (WINDOW + 1, BATCH)
     slot = np.asarray(w.slot)
@@ -110,6 +115,9 @@ def test_windows_stay_inside_one_complete_episode(writers, capacity, episodes, l
     start = np.asarray(w.start)
     n = np.asarray(replay.length)[slot]
     mask = np.asarray(w.mask)
+    # inside: the window lies in the episode where it can; anywhere: any step
+    last = n - 1 if window_start == WINDOW_ANYWHERE else np.maximum(n - WINDOW, 0)
+    assert np.all((start >= 0) & (start <= last))
     for b in range(BATCH):
         valid_obs = min(WINDOW, n[b] - start[b]) + 1
         codes = stored_s[slot[b], start[b] : start[b] + valid_obs]
@@ -125,6 +133,24 @@ def test_windows_stay_inside_one_complete_episode(writers, capacity, episodes, l
         assert slot[b] // per_writer < writers
     assert not np.any(np.asarray(w.reward)[~mask]), "padding leaks rewards"
     assert not np.any(np.asarray(w.terminated)[~mask])
+
+
+def test_window_start_anywhere_covers_the_last_steps_as_often_as_the_others():
+    """One complete 20-step episode: inside, its last step is in 1 window of every
+    13 and a middle step in 8 of 13; anywhere, both are in 8 of every 20."""
+    replay = _fill(init_replay(2, MAX_LEN, 1, STATIC), np.array([[20], [1]]), np.array([[1], [2]]))
+    for window_start, expected_last, expected_middle in (
+        (WINDOW_INSIDE, 1 / 13, 8 / 13),
+        (WINDOW_ANYWHERE, 8 / 20, 8 / 20),
+    ):
+        covered = np.zeros(MAX_LEN)
+        for i in range(40):  # 40 × 64 windows
+            w = sample(replay, jax.random.key(i), window_start)
+            t = np.asarray(w.start)[None, :] + np.arange(WINDOW)[:, None]
+            np.add.at(covered, t[np.asarray(w.mask)], 1)
+        share = covered / (40 * BATCH)
+        assert share[19] == pytest.approx(expected_last, abs=0.03), window_start
+        assert share[10] == pytest.approx(expected_middle, abs=0.04), window_start
 
 
 def test_only_whole_episodes_are_sampled_and_oldest_are_replaced():

@@ -13,7 +13,7 @@ import drqn_jax
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
 from drqn_jax.loss import sequence_loss
 from drqn_jax.networks import NetworkConfig
-from drqn_jax.replay import sample_windows
+from drqn_jax.replay import WINDOW_ANYWHERE, sample_windows
 from drqn_jax.train import Hyperparams, TrainConfig, annealed, make_train
 from tests.helpers import assert_tree_equal, take, tiny_train_config
 
@@ -102,10 +102,12 @@ def test_init_with_hyperparameters_as_arguments_is_bit_identical(tiny):
     assert_tree_equal(plain(init(key)), plain(init(key, TINY.hyperparams, trainer.env_params)))
 
 
-def test_n_step_reaches_the_gradient_update(tiny_chunked):
-    """train.n_step is the loss's: the update's loss is sequence_loss with n = 3 on
-    the windows it samples (and differs from the one-step loss)."""
+def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked):
+    """train.n_step is the loss's and train.window_start the sampler's: the update's
+    loss is sequence_loss with n = 3 on the windows it samples from anywhere in the
+    episodes (and differs from the one-step loss)."""
     state, _ = tiny_chunked
+    state = state.replace(hparams=state.hparams.replace(window_start=WINDOW_ANYWHERE))
     trainer = make_train(dataclasses.replace(TINY, n_step=3))
     learner = (state.online, state.target, state.opt_state, state.grad_steps)
     key = jax.random.key(11)
@@ -115,7 +117,8 @@ def test_n_step_reaches_the_gradient_update(tiny_chunked):
     @jax.jit
     def losses(state, key):  # n = 3 and n = 1 on the windows the update samples
         hp = state.hparams
-        w = sample_windows(state.replay, key, 4, 4, state.env_params, trainer.env.static)
+        static = trainer.env.static
+        w = sample_windows(state.replay, key, 4, 4, state.env_params, static, hp.window_start)
         net = trainer.network
         return [
             sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, n)[0]
