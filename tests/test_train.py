@@ -70,11 +70,14 @@ def test_same_key_bit_identical(tiny, tiny_run):
 
 @pytest.fixture(scope="module")
 def tiny_chunked(tiny):
-    """The run of ``tiny_run`` in chunks of 2 iterations: (final state, chunks)."""
+    """The run of ``tiny_run`` in chunks of 2 iterations: (final state, chunks).
+
+    Like the runner, it passes hyperparameters and env params to init as
+    arguments (``tiny_run`` has them as constants inside ``train``)."""
     trainer, _ = tiny
     init = jax.jit(trainer.init)
     run = jax.jit(trainer.run, static_argnums=1)
-    state = init(jax.random.key(0))
+    state = init(jax.random.key(0), TINY.hyperparams, trainer.env_params)
     chunks = 0
     while not bool(state.finished):
         state = run(state, 2)  # the chunk of the guided test: one program for both
@@ -83,23 +86,12 @@ def tiny_chunked(tiny):
 
 
 def test_chunked_equals_one_shot(tiny_chunked, tiny_run):
+    """Chunks of 2 iterations from an init with hyperparameters as arguments end
+    bit-identical to one ``train`` call with them as constants."""
     state, chunks = tiny_chunked
     assert chunks > 3
     assert_tree_equal((state.online, state.metrics), tiny_run)
     assert int(state.recorded) == 6 and int(state.grad_steps) > 0
-
-
-def test_init_with_hyperparameters_as_arguments_is_bit_identical(tiny):
-    """The runner passes hyperparameters and env params to init as arguments (one
-    program for all values); the state is the one they give as constants."""
-    trainer, _ = tiny
-    init = jax.jit(trainer.init)
-    key = jax.random.key(0)
-
-    def plain(state):
-        return state.replace(key=jax.random.key_data(state.key))
-
-    assert_tree_equal(plain(init(key)), plain(init(key, TINY.hyperparams, trainer.env_params)))
 
 
 def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked):
@@ -141,7 +133,7 @@ def test_guided_exploration_takes_the_rule_based_action(tiny):
     always = dict(epsilon_start=1.0, epsilon_end=1.0)
     guided_hp = TINY.hyperparams.replace(explore_guide=1.0, **always)
     random_hp = TINY.hyperparams.replace(**always)
-    state = init(jax.random.key(5), guided_hp)
+    state = init(jax.random.key(5), guided_hp, trainer.env_params)  # the program of tiny_chunked
     guided, random, expected = [], [], []
     for i in range(12):
         state = run(state, 2)
