@@ -381,7 +381,8 @@ def train_call(
     checkpoint = directory is not None and (directory / CHECKPOINT_NPZ).exists()
     if checkpoint:
         template = jax.eval_shape(init, *args)
-        expected, fill = {"config_hash": call.fingerprint()}, added_leaves(args[1])
+        _, hparams, _ = args
+        expected, fill = {"config_hash": call.fingerprint()}, added_leaves(hparams)
         state, _ = load_checkpoint(directory, template, expected, fill)
         state = jax.device_put(state, sharding)
     else:

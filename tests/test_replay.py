@@ -77,7 +77,7 @@ def _fill(replay, lengths, episode_ids):
     return replay
 
 
-def _sample(replay, key, window_start=WINDOW_INSIDE):
+def _sample(replay, key, window_start):  # always traced: one program for both modes
     from drqn_jax.env.params import EnvParams
 
     return sample_windows(replay, key, BATCH, WINDOW, EnvParams(), STATIC, window_start)
@@ -160,7 +160,7 @@ def test_only_whole_episodes_are_sampled_and_oldest_are_replaced():
     # episodes 2 and 3 are complete (1 was replaced by 3); episode 4 is in progress in
     # the slot that held 2, so only episode 3 can be drawn
     assert np.asarray(replay.complete).tolist() == [True, False]
-    w = sample(replay, jax.random.key(0))
+    w = sample(replay, jax.random.key(0), WINDOW_INSIDE)
     codes = np.asarray(replay.records.s)[np.asarray(w.slot), np.asarray(w.start)]
     assert set((codes // 1000).tolist()) == {3}
     assert np.all(np.asarray(replay.length)[np.asarray(w.slot)] == 7)
@@ -168,7 +168,7 @@ def test_only_whole_episodes_are_sampled_and_oldest_are_replaced():
 
 def test_last_action_and_terminal_flags():
     replay = _fill(init_replay(2, MAX_LEN, 1, STATIC), np.array([[5], [1]]), np.array([[1], [2]]))
-    w = sample(replay, jax.random.key(1))
+    w = sample(replay, jax.random.key(1), WINDOW_INSIDE)
     b = 0
     assert int(w.start[b]) == 0  # 5 < window: the window starts at 0, padded
     # the 6 observations of the 5-step episode; the rest is masked padding
