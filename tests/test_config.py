@@ -19,7 +19,7 @@ from drqn_jax.train import TrainConfig
 
 
 def test_shipped_configs_load():
-    assert {"paper", "default", "realistic", "smoke"} <= set(config_names())
+    assert {"paper", "budget", "default", "realistic", "smoke"} <= set(config_names())
     for name in config_names():
         config = load_config(name)
         config.train_config()  # builds every object
@@ -46,11 +46,32 @@ def test_paper_config_is_the_papers_protocol():
     assert config["env"]["max_steps"] == 1000 and config.env_overrides() == {}
 
 
+def test_default_is_the_budget_with_the_safety_recipe():
+    """default.toml = budget.toml + the seven departures of docs/results.md §5, no others."""
+    budget, default = load_config("budget").training_dict(), load_config("default").training_dict()
+    changed = {
+        (section, key): (budget[section][key], default[section][key])
+        for section in ("env", "network", "train")
+        for key in budget[section]
+        if budget[section][key] != default[section][key]
+    }
+    assert changed == {
+        ("env", "reward_collision"): (-10.0, -100.0),
+        ("env", "reward_stopped"): (-1.0, -0.1),
+        ("env", "reward_overspeed"): (-0.5, -2.0),
+        ("train", "clip"): ("huber", "grad"),
+        ("train", "explore_guide"): (0.0, 0.5),
+        ("train", "target_period"): (1000, 100),
+        ("train", "gamma"): (0.9, 0.99),
+    }
+
+
 def test_realistic_extends_default_with_walking_speeds():
     default, realistic = load_config("default"), load_config("realistic")
     assert realistic["env"]["id"] == "UrbanPedestriansRealistic-v0"
     assert realistic["env"]["ped_speed_max"] == 1.5 and default["env"]["ped_speed_max"] < 0.5
     assert realistic["train"] == default["train"] and realistic["network"] == default["network"]
+    assert realistic["env"]["reward_collision"] == default["env"]["reward_collision"] == -100.0
 
 
 def test_set_overrides_and_parsing():
@@ -162,7 +183,9 @@ def test_fields_added_later_keep_older_runs_resumable():
 
 def test_env_overrides_are_the_difference_from_the_preset():
     config = load_config("realistic", ["env.max_steps=300"])
-    assert config.env_overrides() == {"max_steps": 300}
+    recipe = {"reward_collision": -100.0, "reward_stopped": -0.1, "reward_overspeed": -2.0}
+    assert config.env_overrides() == {"max_steps": 300, **recipe}
     env, params = config.make_env()
     assert env.static.max_steps == 300 and float(params.ped_speed_max) == 1.5
+    assert float(params.reward_collision) == -100.0
     assert dataclasses.asdict(env.static)["num_pedestrians"] == 10
