@@ -47,7 +47,7 @@ def test_paper_config_is_the_papers_protocol():
 
 
 def test_default_is_the_budget_with_the_safety_recipe():
-    """default.toml = budget.toml + the seven departures of docs/results.md §5, no others."""
+    """default.toml = budget.toml + the eight departures of docs/results.md §5, no others."""
     budget, default = load_config("budget").training_dict(), load_config("default").training_dict()
     changed = {
         (section, key): (budget[section][key], default[section][key])
@@ -63,6 +63,7 @@ def test_default_is_the_budget_with_the_safety_recipe():
         ("train", "explore_guide"): (0.0, 0.5),
         ("train", "target_period"): (1000, 100),
         ("train", "gamma"): (0.9, 0.99),
+        ("train", "learning_rate_end"): (1.0, 0.1),
     }
 
 
