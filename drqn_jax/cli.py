@@ -41,6 +41,7 @@ from drqn_jax.runner import (
     write_evaluation,
 )
 from drqn_jax.sweep import STRATEGIES
+from drqn_jax.train import selection
 
 __all__ = ["main"]
 
@@ -390,7 +391,7 @@ def _train_and_evaluate(
 
 
 def _trained(result: Any) -> Any:
-    return drqn_agent(result.trainer.network, result.state.online)
+    return drqn_agent(result.trainer.network, result.trainer.agent_params(result.state))
 
 
 def _run_summary(result: Any) -> dict[str, Any]:
@@ -402,6 +403,7 @@ def _run_summary(result: Any) -> dict[str, Any]:
         "episodes": int(state.recorded),
         "env_steps": int(state.env_steps),
         "grad_steps": int(state.grad_steps),
+        **selection(state.validation),
     }
 
 

@@ -64,7 +64,12 @@ TRAINING_SECTIONS = ("run.seed", "env", "network", "train")
 
 #: Fields added after run directories existed, with the value those runs had:
 #: left out of :meth:`Config.training_dict` at that value, so the runs resume.
-ADDED_LATER = {("train", "n_step"): 1, ("train", "window_start"): "inside"}
+ADDED_LATER = {
+    ("train", "n_step"): 1,
+    ("train", "window_start"): "inside",
+    ("train", "snapshots"): 0,
+    ("train", "validation_episodes"): 100,
+}
 
 
 def added_leaves(hparams: Hyperparams) -> dict[str, Any]:

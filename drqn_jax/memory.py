@@ -64,7 +64,7 @@ class RunMemory:
     """Bytes of one training run, by what holds them."""
 
     replay: int
-    params: int  # online + target networks
+    params: int  # online + target networks (+ the snapshots of train.snapshots)
     optimiser: int  # Adam's two moments
     other_state: int  # env states, observations, LSTM carries, metrics, counters
     activations: int  # temporaries of one gradient update (estimated)
@@ -133,7 +133,8 @@ def run_memory(config: Config) -> RunMemory:
 
     trainer = make_train(config.train_config())
     state = jax.eval_shape(trainer.init, config.keys()[0])
-    replay, params = _nbytes(state.replay), _nbytes((state.online, state.target))
+    replay = _nbytes(state.replay)
+    params = _nbytes((state.online, state.target, state.snapshots))
     optimiser = _nbytes(state.opt_state)
     other = _nbytes(state) - replay - params - optimiser
     activations = activation_bytes(config) + PARAM_TEMPORARIES * _nbytes(state.online)

@@ -61,6 +61,7 @@ __all__ = [
     "metrics_csv",
     "recorded_metrics",
     "train_run",
+    "validated",
     "write_evaluation",
 ]
 
@@ -251,6 +252,8 @@ def train_run(
             return wall_before + time.perf_counter() - start
 
         status, state, chunks = _chunks(config, run, state, chunks, stop, quiet, run_dir, elapsed)
+        if status == "finished":
+            state = validated(trainer, state)
     wall = elapsed()
     if status != "diverged":
         _save(run_dir, config, state, wall, chunks)
@@ -263,6 +266,18 @@ def train_run(
         f"(chunk {chunks + 1}); the last good checkpoint in {run_dir} is kept",
     }[status]
     return RunResult(status, state, trainer, run_dir, wall, compile_s, message)
+
+
+_VALIDATE: dict[TrainConfig, Any] = {}
+
+
+def validated(trainer: Trainer, state: TrainState) -> TrainState:
+    """A finished run's ``state`` with its candidates' validation returns filled in
+    (``train.snapshots`` > 0; :func:`~drqn_jax.train.make_train`); else unchanged."""
+    if not trainer.config.snapshots or not bool(jnp.any(jnp.isnan(state.validation))):
+        return state
+    fn = _VALIDATE.setdefault(trainer.config, jax.jit(trainer.validation_returns))
+    return state.replace(validation=fn(state))
 
 
 def _chunks(
@@ -329,13 +344,15 @@ def load_run(run_dir: str | Path, overrides: tuple[str, ...] = ()) -> Config:
 def load_trained_network(
     config: Config, run_dir: str | Path
 ) -> tuple[Network, Any, dict[str, Any]]:
-    """The network, online parameters and metadata of a run directory's last checkpoint."""
+    """The network, the run's agent parameters (``Trainer.agent_params``: the final
+    online parameters, or the validated choice among snapshots) and the metadata
+    of a run directory's last checkpoint."""
     trainer = make_train(config.train_config())
     template = jax.eval_shape(trainer.init, config.keys()[0])
     expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
     fill = added_leaves(trainer.config.hyperparams)
     state, meta = load_checkpoint(run_dir, template, expected, fill)
-    return trainer.network, state.online, meta
+    return trainer.network, trainer.agent_params(state), meta
 
 
 def builtin_agent(name: str, config: Config) -> Agent:

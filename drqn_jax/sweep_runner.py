@@ -70,7 +70,7 @@ from drqn_jax.memory import (
 )
 from drqn_jax.runner import _finite, _progress_bar, _StopRequest, json_ready, metrics_csv
 from drqn_jax.sweep import STRATEGIES, Sweep, SweepPoint
-from drqn_jax.train import Trainer, TrainState, make_train
+from drqn_jax.train import Trainer, TrainState, make_train, selection
 
 __all__ = [
     "Call",
@@ -349,6 +349,38 @@ def call_programs(
     return _COMPILED[cache_key]
 
 
+def validation_program(
+    trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
+) -> Callable:
+    """``validate(states, real) -> (size, K + 1)`` validation returns of a call's
+    finished runs (``train.snapshots`` = K > 0), sharded and batched as its ``run``;
+    padding rows are skipped (NaN) when the runs go one after another."""
+    cache_key = (trainer.config, size, tuple(devices), strategy, "validate")
+    if cache_key not in _VALIDATE:
+        mesh = Mesh(np.asarray(devices), ("runs",))
+        runs = PartitionSpec("runs")
+        nan = jnp.full((trainer.config.snapshots + 1,), jnp.nan, jnp.float32)
+
+        def batched(states: TrainState, real: jax.Array) -> jax.Array:
+            return jax.vmap(trainer.validation_returns)(states)
+
+        def one_by_one(states: TrainState, real: jax.Array) -> jax.Array:
+            def one(args):
+                state, is_real = args
+                return jax.lax.cond(is_real, trainer.validation_returns, lambda s: nan, state)
+
+            return jax.lax.map(one, (states, real))
+
+        body = batched if strategy == "vmap" else one_by_one
+        _VALIDATE[cache_key] = jax.jit(
+            jax.shard_map(body, mesh=mesh, in_specs=(runs, runs), out_specs=runs, check_vma=False)
+        )
+    return _VALIDATE[cache_key]
+
+
+_VALIDATE: dict[tuple, Callable] = {}
+
+
 @dataclasses.dataclass
 class CallOutcome:
     """How a call ended: ``finished`` or ``interrupted`` (checkpoint saved)."""
@@ -398,6 +430,9 @@ def train_call(
         if directory is not None and time.perf_counter() - last_save >= checkpoint_every_s:
             _save_call(directory, call, state)
             last_save = time.perf_counter()
+    if trainer.config.snapshots:
+        validate = validation_program(trainer, call.size, devices, call.strategy)
+        state = state.replace(validation=validate(state, real))
     return CallOutcome("finished", trainer, state)
 
 
@@ -429,12 +464,16 @@ def call_results(call: Call, outcome: CallOutcome, eval_key: jax.Array) -> list[
     """Per run: its index and axis values, the evaluation, the final training
     return (mean of the last 10 % of episodes) and whether it diverged."""
     n = len(call.points)
-    params = jax.tree.map(lambda x: np.asarray(x)[:n], outcome.state.online)
+    chosen = jax.vmap(outcome.trainer.agent_params)(outcome.state)
+    params = jax.tree.map(lambda x: np.asarray(x)[:n], chosen)
     returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
     finite = np.asarray(jax.vmap(_finite)(outcome.state))[:n]
+    validation = outcome.state.validation
+    validation = [None] * n if validation is None else np.asarray(validation)[:n]
     evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key)
     results = []
-    for point, evaluation, ret, ok in zip(call.points, evaluations, returns, finite, strict=True):
+    rows = zip(call.points, evaluations, returns, finite, validation, strict=True)
+    for point, evaluation, ret, ok, val in rows:
         tail = max(1, len(ret) // 10)
         results.append(
             {
@@ -442,6 +481,7 @@ def call_results(call: Call, outcome: CallOutcome, eval_key: jax.Array) -> list[
                 "values": point.values,
                 "final_train_return": float(np.mean(ret[-tail:])),
                 "diverged": not bool(ok),
+                **selection(val),
                 **json_ready(evaluation),
             }
         )
@@ -619,7 +659,6 @@ def train_runs(
     size = call_size(len(points), len(devices), strategy)
     outcome = train_call(Call(0, tuple(points), size, strategy), devices)
     n = len(points)
-    params, metrics = jax.tree.map(
-        lambda x: np.asarray(x)[:n], (outcome.state.online, outcome.state.metrics)
-    )
+    chosen = jax.vmap(outcome.trainer.agent_params)(outcome.state)
+    params, metrics = jax.tree.map(lambda x: np.asarray(x)[:n], (chosen, outcome.state.metrics))
     return outcome.trainer, params, metrics

@@ -12,7 +12,18 @@
   chunks of any size ends bit-identical to a one-shot run;
 * ``train(key, hparams=None, env_params=None) -> (params, metrics)``: init,
   then chunks in a ``lax.while_loop`` until ``num_episodes`` episodes are
-  recorded. ``jax.jit(jax.vmap(train))(keys)`` runs several seeds at once.
+  recorded, then the choice of the run's agent (below).
+  ``jax.jit(jax.vmap(train))(keys)`` runs several seeds at once.
+
+Choosing the run's agent on validation episodes (the project's, not the
+paper's, which keeps the last parameters): with ``snapshots`` = K > 0 the
+state keeps the online parameters as they were when the recorded episodes
+reached k · num_episodes / (K + 1), k = 1 … K. ``validation_returns(state)``
+plays each of these K candidates and the final parameters greedily on
+``validation_episodes`` episodes of a key of their own (not the evaluation
+key), and ``agent_params(state)`` is the candidate with the best mean return
+once they are stored in ``state.validation``. Training itself is unchanged:
+its every other leaf is bit-identical to a run with K = 0.
 
 ε falls linearly from ``epsilon_start`` to ``epsilon_end`` over the training
 episodes (an episode keeps the ε it started with); during the first
@@ -42,11 +53,13 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from drqn_jax.agents.drqn import drqn_agent
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
 from drqn_jax.env.grid import GridInputs
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.state import NUM_ACTIONS, Observation
 from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.evaluation import episode_keys, map_episodes, rollout_episode
 from drqn_jax.loss import CLIP_GRAD, CLIP_MODES, sequence_loss
 from drqn_jax.networks import Network, NetworkConfig, make_network
 from drqn_jax.optim import adam, apply_updates, clip
@@ -68,6 +81,8 @@ __all__ = ["Hyperparams", "TrainConfig", "TrainState", "Trainer", "make_train"]
 #: stream of its own, so that ``explore_guide = 0`` leaves every other draw,
 #: and hence every run, as it was.
 GUIDE_STREAM = 1
+#: ``fold_in`` index of the validation episodes' key (from the finished state's key).
+VALIDATION_STREAM = 2
 RULE_BASED_GUIDE = RuleBasedParams()
 
 METRIC_NAMES = (
@@ -163,6 +178,17 @@ class TrainConfig:
     )
     updates_per_step: int = 1
     chunk_iterations: int = 1000
+    snapshots: int = dataclasses.field(
+        default=0,
+        metadata={
+            "doc": "parameter snapshots kept during training, the agent then chosen among them "
+            "and the final parameters on validation episodes (0 = the paper: the final ones)"
+        },
+    )
+    validation_episodes: int = dataclasses.field(
+        default=100,
+        metadata={"doc": "greedy episodes per candidate when snapshots > 0"},
+    )
     hyperparams: Hyperparams = dataclasses.field(default_factory=Hyperparams)
 
     def __post_init__(self) -> None:
@@ -175,6 +201,7 @@ class TrainConfig:
             "n_step",
             "updates_per_step",
             "chunk_iterations",
+            "validation_episodes",
         ):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
@@ -183,6 +210,15 @@ class TrainConfig:
             raise ValueError(
                 f"TrainConfig.n_step = {self.n_step}: must be <= window ({self.window}); "
                 "an n-step target sums rewards inside one window"
+            )
+        if not isinstance(self.snapshots, int) or isinstance(self.snapshots, bool):
+            raise ValueError(f"TrainConfig.snapshots = {self.snapshots!r}: must be an integer")
+        most = self.num_episodes // self.num_envs - 1
+        if not 0 <= self.snapshots <= most:
+            raise ValueError(
+                f"TrainConfig.snapshots = {self.snapshots}: must be in [0, {most}] "
+                f"(num_episodes // num_envs - 1): snapshots are taken at least num_envs "
+                "episodes apart, the most that end in one iteration"
             )
         if self.replay_episodes < 2 * self.num_envs:
             raise ValueError(
@@ -236,6 +272,8 @@ class TrainState:
     grad_steps: jax.Array
     env_steps: jax.Array
     metrics: dict[str, jax.Array]
+    snapshots: Any = None  # [K, ...] online parameters during training; None when K = 0
+    validation: Any = None  # (K + 1,) float32 mean validation returns, NaN until validated
 
     @property
     def finished(self) -> jax.Array:
@@ -254,6 +292,8 @@ class Trainer(NamedTuple):
     run: Callable[[TrainState, int], TrainState]
     train: Callable[..., tuple[Any, dict[str, jax.Array]]]
     gradient_update: Callable[..., tuple[tuple, jax.Array]]
+    validation_returns: Callable[[TrainState], jax.Array]
+    agent_params: Callable[[TrainState], Any]
 
 
 def _tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
@@ -268,7 +308,29 @@ def _tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
 def _small_leaves(state: TrainState) -> TrainState:
     """``state`` with its large buffers (replay, networks, optimiser, metrics) emptied,
     for cheap leaf-wise selection of everything else."""
-    return state.replace(replay=None, online=None, target=None, opt_state=None, metrics=None)
+    return state.replace(
+        replay=None, online=None, target=None, opt_state=None, metrics=None, snapshots=None
+    )
+
+
+def selection(validation: Any) -> dict[str, Any]:
+    """Host-side record of a run's choice: ``{}`` without snapshots, else
+    ``validation_returns`` (K + 1 floats, the last the final parameters'; NaN
+    before validation) and ``selected`` (the chosen candidate's index, K = final)."""
+    if validation is None:
+        return {}
+    returns = [float(r) for r in validation]
+    last = len(returns) - 1
+    pending = any(r != r for r in returns)
+    best = last if pending else last - returns[::-1].index(max(returns))  # ties: the latest
+    return {"validation_returns": returns, "selected": best}
+
+
+def snapshot_thresholds(config: TrainConfig) -> tuple[int, ...]:
+    """Recorded-episode counts at which snapshots 1 … K are taken:
+    ``k · num_episodes // (K + 1)``, at least ``num_envs`` apart."""
+    k_plus_1 = config.snapshots + 1
+    return tuple(k * config.num_episodes // k_plus_1 for k in range(1, k_plus_1))
 
 
 def make_train(config: TrainConfig | None = None) -> Trainer:
@@ -286,6 +348,7 @@ def _make_train(config: TrainConfig) -> Trainer:
     network = make_network(dataclasses.replace(config.network, grid_shape=env.static.grid_shape))
     n_env, n_episodes = config.num_envs, config.num_episodes
     max_steps = env.static.max_steps
+    n_snapshots = config.snapshots
 
     def epsilon_of(episode: jax.Array, hp: Hyperparams) -> jax.Array:
         frac = jnp.clip(episode * (1.0 / max(n_episodes - 1, 1)), 0.0, 1.0)
@@ -312,6 +375,10 @@ def _make_train(config: TrainConfig) -> Trainer:
             for name in METRIC_NAMES
         }
         metrics["length"] = jnp.zeros((n_episodes,), jnp.int32)
+        snapshots = validation = None
+        if n_snapshots:
+            snapshots = jax.tree.map(lambda p: jnp.stack([p] * n_snapshots), online)
+            validation = jnp.full((n_snapshots + 1,), jnp.nan, jnp.float32)
         return TrainState(
             key=key,
             hparams=hp,
@@ -334,6 +401,8 @@ def _make_train(config: TrainConfig) -> Trainer:
             grad_steps=jnp.zeros((), jnp.int32),
             env_steps=jnp.zeros((), jnp.int32),
             metrics=metrics,
+            snapshots=snapshots,
+            validation=validation,
         )
 
     def act(state: TrainState, key: jax.Array) -> tuple[jax.Array, Any]:
@@ -496,6 +565,26 @@ def _make_train(config: TrainConfig) -> Trainer:
             opt_state=opt_state,
             grad_steps=grad_steps,
             metrics=metrics,
+            snapshots=take_snapshot(state.snapshots, online, state.recorded, moved.recorded),
+        )
+
+    def take_snapshot(snapshots: Any, online: Any, before: jax.Array, after: jax.Array) -> Any:
+        """``snapshots`` with ``online`` written to slot k when the recorded episodes
+        cross threshold k in this iteration (at most one: they are ``num_envs`` apart).
+
+        One slot is read and written whether or not it changes, so the cost does
+        not grow with K and stays small under ``vmap`` (a ``cond`` would become a
+        select of the whole stack).
+        """
+        if not n_snapshots:
+            return snapshots
+        thresholds = jnp.asarray(snapshot_thresholds(config), jnp.int32)
+        crossed_before = jnp.sum(thresholds <= before)
+        crossed = jnp.sum(thresholds <= after)
+        slot = jnp.maximum(crossed - 1, 0)
+        write = crossed > crossed_before
+        return jax.tree.map(
+            lambda s, o: s.at[slot].set(jnp.where(write, o, s[slot])), snapshots, online
         )
 
     def run(state: TrainState, num_iterations: int) -> TrainState:
@@ -515,7 +604,44 @@ def _make_train(config: TrainConfig) -> Trainer:
         state = jax.lax.while_loop(
             lambda s: ~s.finished, lambda s: run(s, config.chunk_iterations), state
         )
-        return state.online, state.metrics
+        if n_snapshots:
+            state = state.replace(validation=validation_returns(state))
+        return agent_params(state), state.metrics
+
+    def candidates(state: TrainState) -> Any:
+        """The K snapshots and the final online parameters, stacked: leaves [K + 1, ...]."""
+        return jax.tree.map(
+            lambda s, o: jnp.concatenate([s, o[None]]), state.snapshots, state.online
+        )
+
+    def validation_returns(state: TrainState) -> jax.Array:
+        """(K + 1,) float32: each candidate's mean greedy return over
+        ``validation_episodes`` episodes of ``fold_in(state.key, VALIDATION_STREAM)``
+        (the same episodes for every candidate). Needs K > 0."""
+        if not n_snapshots:
+            raise ValueError("validation_returns: the run keeps no snapshots (train.snapshots = 0)")
+        keys = episode_keys(
+            jax.random.fold_in(state.key, VALIDATION_STREAM), config.validation_episodes
+        )
+
+        def mean_return(params: Any) -> jax.Array:
+            agent = drqn_agent(network, params)
+            episodes = map_episodes(
+                lambda k: rollout_episode(agent, k, env, state.env_params), keys
+            )
+            return jnp.mean(episodes.episode_return)
+
+        return jax.lax.map(mean_return, candidates(state))
+
+    def agent_params(state: TrainState) -> Any:
+        """The run's agent: the final online parameters, or with K > 0 and
+        ``state.validation`` filled in, the candidate of the best mean return
+        (of equal ones, the latest)."""
+        if not n_snapshots:
+            return state.online
+        latest_best = n_snapshots - jnp.argmax(state.validation[::-1])  # ties: the latest
+        best = jnp.where(jnp.any(jnp.isnan(state.validation)), n_snapshots, latest_best)
+        return jax.tree.map(lambda c: c[best], candidates(state))
 
     return Trainer(
         config=config,
@@ -527,4 +653,6 @@ def _make_train(config: TrainConfig) -> Trainer:
         run=run,
         train=train,
         gradient_update=gradient_update,
+        validation_returns=validation_returns,
+        agent_params=agent_params,
     )

@@ -27,6 +27,8 @@ SWEEP = """
 base = "smoke"
 [set]
 "train.num_episodes" = 4
+"train.snapshots" = 1
+"train.validation_episodes" = 2
 [axes]
 "run.seed" = { start = 0, stop = 2 }
 "train.learning_rate" = [1e-3, 3e-4]
@@ -217,6 +219,8 @@ def test_cli_sweep_writes_tables(sweep_file, cli_sweep, capsys):
     runs = json.loads((cli_sweep / "runs.json").read_text())
     assert [r["index"] for r in runs] == [0, 1, 2, 3]
     assert all(r["num_episodes"] == 2 and r["diverged"] is False for r in runs)
+    # each run's agent chosen between its snapshot and its final parameters
+    assert all(len(r["validation_returns"]) == 2 and r["selected"] in (0, 1) for r in runs)
     csv = (cli_sweep / "results.csv").read_text().splitlines()
     assert csv[0].startswith("train.learning_rate,runs,diverged,collision_free_rate_mean")
     assert len(csv) == 3
@@ -282,7 +286,8 @@ def test_an_interrupted_call_resumes_bit_identically(sweep_file, trained, tmp_pa
     assert not bool(jax.numpy.all(first.state.finished))
     resumed = train_call(call, jax.devices(), directory=tmp_path)
     assert resumed.status == "finished"
-    assert_tree_equal((resumed.state.online, resumed.state.metrics), (params, metrics))
+    chosen = jax.vmap(resumed.trainer.agent_params)(resumed.state)  # the sweep keeps a snapshot
+    assert_tree_equal((chosen, resumed.state.metrics), (params, metrics))
 
 
 def test_resume_skips_finished_calls_and_refuses_another_sweep(sweep_file, cli_sweep, capsys):
