@@ -349,6 +349,9 @@ def call_programs(
     return _COMPILED[cache_key]
 
 
+_VALIDATE: dict[tuple, Callable] = {}
+
+
 def validation_program(
     trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
 ) -> Callable:
@@ -376,9 +379,6 @@ def validation_program(
             jax.shard_map(body, mesh=mesh, in_specs=(runs, runs), out_specs=runs, check_vma=False)
         )
     return _VALIDATE[cache_key]
-
-
-_VALIDATE: dict[tuple, Callable] = {}
 
 
 @dataclasses.dataclass
