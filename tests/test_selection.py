@@ -29,7 +29,8 @@ from tests.helpers import assert_tree_equal, take
 
 SMOKE = ["train.snapshots=2", "train.validation_episodes=2"]
 #: smoke.toml (2 envs, 6 episodes of at most 30 steps) with two snapshots: the
-#: runner's test below trains the same configuration and shares its programs.
+#: runner's test below trains the same configuration and reuses the validation
+#: program compiled here (``runner.validated``).
 SNAP = load_config("smoke", SMOKE).train_config()
 
 
