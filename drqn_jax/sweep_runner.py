@@ -303,6 +303,37 @@ def _init_args(points: Sequence[SweepPoint], size: int) -> tuple[Any, Any, Any]:
     return _pad((keys, hparams, env_params), size)
 
 
+def _over_runs(
+    fn: Callable[[TrainState], Any],
+    skipped: Callable[[TrainState, jax.Array], Any],
+    devices: Sequence[Any],
+    strategy: str,
+    **jit_options: Any,
+) -> Callable:
+    """``program(states, real)``: ``fn`` on every run of a call, each device on
+    its shard of the run axis (``shard_map``), batched (``vmap``) or one after
+    another (``map``, where a run that ``skipped(state, is_real)`` says to skip
+    costs nothing: ``lax.cond`` with the identity or a placeholder result)."""
+    runs = PartitionSpec("runs")
+
+    def batched(states: TrainState, real: jax.Array) -> Any:
+        return jax.vmap(fn)(states)
+
+    def one_by_one(states: TrainState, real: jax.Array) -> Any:
+        def one(args):
+            state, is_real = args
+            return skipped(state, is_real)
+
+        return jax.lax.map(one, (states, real))
+
+    body = batched if strategy == "vmap" else one_by_one
+    mesh = Mesh(np.asarray(devices), ("runs",))
+    # no collectives: each device's runs are independent (check_vma off, as
+    # the env's lax.cond branches mix per-device and replicated values)
+    program = jax.shard_map(body, mesh=mesh, in_specs=(runs, runs), out_specs=runs, check_vma=False)
+    return jax.jit(program, **jit_options)
+
+
 _COMPILED: dict[tuple, tuple[Callable, Callable]] = {}
 
 
@@ -320,31 +351,16 @@ def call_programs(
     """
     cache_key = (trainer.config, size, tuple(devices), strategy)
     if cache_key not in _COMPILED:
-        mesh = Mesh(np.asarray(devices), ("runs",))
-        runs = PartitionSpec("runs")
         chunk = trainer.config.chunk_iterations
 
         def advance(state: TrainState) -> TrainState:
             return trainer.run(state, chunk)
 
-        def batched(states: TrainState, real: jax.Array) -> TrainState:
-            return jax.vmap(advance)(states)
+        def advance_unless_done(state: TrainState, is_real: jax.Array) -> TrainState:
+            return jax.lax.cond(is_real & ~state.finished, advance, lambda s: s, state)
 
-        def one_by_one(states: TrainState, real: jax.Array) -> TrainState:
-            def one(args):
-                state, is_real = args
-                return jax.lax.cond(is_real & ~state.finished, advance, lambda s: s, state)
-
-            return jax.lax.map(one, (states, real))
-
-        body = batched if strategy == "vmap" else one_by_one
-        init = jax.jit(jax.vmap(trainer.init), out_shardings=NamedSharding(mesh, runs))
-        run = jax.jit(
-            # no collectives: each device's runs are independent (check_vma off, as
-            # the env's lax.cond branches mix per-device and replicated values)
-            jax.shard_map(body, mesh=mesh, in_specs=(runs, runs), out_specs=runs, check_vma=False),
-            donate_argnums=0,
-        )
+        init = jax.jit(jax.vmap(trainer.init), out_shardings=_sharding(devices))
+        run = _over_runs(advance, advance_unless_done, devices, strategy, donate_argnums=0)
         _COMPILED[cache_key] = (init, run)
     return _COMPILED[cache_key]
 
@@ -358,26 +374,15 @@ def validation_program(
     """``validate(states, real) -> (size, K + 1)`` validation returns of a call's
     finished runs (``train.snapshots`` = K > 0), sharded and batched as its ``run``;
     padding rows are skipped (NaN) when the runs go one after another."""
-    cache_key = (trainer.config, size, tuple(devices), strategy, "validate")
+    cache_key = (trainer.config, size, tuple(devices), strategy)
     if cache_key not in _VALIDATE:
-        mesh = Mesh(np.asarray(devices), ("runs",))
-        runs = PartitionSpec("runs")
         nan = jnp.full((trainer.config.snapshots + 1,), jnp.nan, jnp.float32)
 
-        def batched(states: TrainState, real: jax.Array) -> jax.Array:
-            return jax.vmap(trainer.validation_returns)(states)
+        def validate_if_real(state: TrainState, is_real: jax.Array) -> jax.Array:
+            return jax.lax.cond(is_real, trainer.validation_returns, lambda s: nan, state)
 
-        def one_by_one(states: TrainState, real: jax.Array) -> jax.Array:
-            def one(args):
-                state, is_real = args
-                return jax.lax.cond(is_real, trainer.validation_returns, lambda s: nan, state)
-
-            return jax.lax.map(one, (states, real))
-
-        body = batched if strategy == "vmap" else one_by_one
-        _VALIDATE[cache_key] = jax.jit(
-            jax.shard_map(body, mesh=mesh, in_specs=(runs, runs), out_specs=runs, check_vma=False)
-        )
+        validate = trainer.validation_returns
+        _VALIDATE[cache_key] = _over_runs(validate, validate_if_real, devices, strategy)
     return _VALIDATE[cache_key]
 
 
@@ -388,6 +393,10 @@ class CallOutcome:
     status: str
     trainer: Trainer
     state: TrainState  # batched, padding included
+
+    def agent_params(self) -> Any:
+        """Every run's agent (``Trainer.agent_params``), padding included."""
+        return jax.vmap(self.trainer.agent_params)(self.state)
 
 
 def train_call(
@@ -464,8 +473,7 @@ def call_results(call: Call, outcome: CallOutcome, eval_key: jax.Array) -> list[
     """Per run: its index and axis values, the evaluation, the final training
     return (mean of the last 10 % of episodes) and whether it diverged."""
     n = len(call.points)
-    chosen = jax.vmap(outcome.trainer.agent_params)(outcome.state)
-    params = jax.tree.map(lambda x: np.asarray(x)[:n], chosen)
+    params = jax.tree.map(lambda x: np.asarray(x)[:n], outcome.agent_params())
     returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
     finite = np.asarray(jax.vmap(_finite)(outcome.state))[:n]
     validation = outcome.state.validation
@@ -659,6 +667,7 @@ def train_runs(
     size = call_size(len(points), len(devices), strategy)
     outcome = train_call(Call(0, tuple(points), size, strategy), devices)
     n = len(points)
-    chosen = jax.vmap(outcome.trainer.agent_params)(outcome.state)
-    params, metrics = jax.tree.map(lambda x: np.asarray(x)[:n], (chosen, outcome.state.metrics))
+    params, metrics = jax.tree.map(
+        lambda x: np.asarray(x)[:n], (outcome.agent_params(), outcome.state.metrics)
+    )
     return outcome.trainer, params, metrics

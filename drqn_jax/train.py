@@ -59,7 +59,7 @@ from drqn_jax.env.grid import GridInputs
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.state import NUM_ACTIONS, Observation
 from drqn_jax.env.urban import UrbanPedestrians
-from drqn_jax.evaluation import episode_keys, map_episodes, rollout_episode
+from drqn_jax.evaluation import episode_keys, run_episodes
 from drqn_jax.loss import CLIP_GRAD, CLIP_MODES, sequence_loss
 from drqn_jax.networks import Network, NetworkConfig, make_network
 from drqn_jax.optim import adam, apply_updates, clip
@@ -313,17 +313,26 @@ def _small_leaves(state: TrainState) -> TrainState:
     )
 
 
+def chosen_candidate(validation: jax.Array) -> jax.Array:
+    """() int32 index of the run's agent among its K + 1 candidates, from their
+    (K + 1,) validation returns: the best (of equal ones, the latest); the final
+    parameters (K) while any return is NaN (not validated yet)."""
+    last = validation.shape[-1] - 1
+    latest_best = last - jnp.argmax(validation[::-1])
+    return jnp.where(jnp.any(jnp.isnan(validation)), last, latest_best).astype(jnp.int32)
+
+
 def selection(validation: Any) -> dict[str, Any]:
     """Host-side record of a run's choice: ``{}`` without snapshots, else
     ``validation_returns`` (K + 1 floats, the last the final parameters'; NaN
-    before validation) and ``selected`` (the chosen candidate's index, K = final)."""
+    before validation) and ``selected`` (:func:`chosen_candidate`, K = final)."""
     if validation is None:
         return {}
-    returns = [float(r) for r in validation]
-    last = len(returns) - 1
-    pending = any(r != r for r in returns)
-    best = last if pending else last - returns[::-1].index(max(returns))  # ties: the latest
-    return {"validation_returns": returns, "selected": best}
+    validation = jnp.asarray(validation)
+    return {
+        "validation_returns": [float(r) for r in validation],
+        "selected": int(chosen_candidate(validation)),
+    }
 
 
 def snapshot_thresholds(config: TrainConfig) -> tuple[int, ...]:
@@ -625,10 +634,7 @@ def _make_train(config: TrainConfig) -> Trainer:
         )
 
         def mean_return(params: Any) -> jax.Array:
-            agent = drqn_agent(network, params)
-            episodes = map_episodes(
-                lambda k: rollout_episode(agent, k, env, state.env_params), keys
-            )
+            episodes = run_episodes(drqn_agent(network, params), keys, env, state.env_params)
             return jnp.mean(episodes.episode_return)
 
         return jax.lax.map(mean_return, candidates(state))
@@ -639,8 +645,7 @@ def _make_train(config: TrainConfig) -> Trainer:
         (of equal ones, the latest)."""
         if not n_snapshots:
             return state.online
-        latest_best = n_snapshots - jnp.argmax(state.validation[::-1])  # ties: the latest
-        best = jnp.where(jnp.any(jnp.isnan(state.validation)), n_snapshots, latest_best)
+        best = chosen_candidate(state.validation)
         return jax.tree.map(lambda c: c[best], candidates(state))
 
     return Trainer(
