@@ -403,7 +403,7 @@ def _run_summary(result: Any) -> dict[str, Any]:
         "episodes": int(state.recorded),
         "env_steps": int(state.env_steps),
         "grad_steps": int(state.grad_steps),
-        **selection(state.validation),
+        **selection(state.validation, state.hparams),
     }
 
 

@@ -69,6 +69,8 @@ ADDED_LATER = {
     ("train", "window_start"): "inside",
     ("train", "snapshots"): 0,
     ("train", "validation_episodes"): 100,
+    ("train", "select_by"): "return",
+    ("train", "select_speed_floor"): 0.0,
 }
 
 

@@ -272,11 +272,11 @@ _VALIDATE: dict[TrainConfig, Any] = {}
 
 
 def validated(trainer: Trainer, state: TrainState) -> TrainState:
-    """A finished run's ``state`` with its candidates' validation returns filled in
+    """A finished run's ``state`` with its candidates' validation metrics filled in
     (``train.snapshots`` > 0; :func:`~drqn_jax.train.make_train`); else unchanged."""
-    if not trainer.config.snapshots or not bool(jnp.any(jnp.isnan(state.validation))):
+    if not trainer.config.snapshots or not bool(jnp.isnan(state.validation["return"]).any()):
         return state
-    fn = _VALIDATE.setdefault(trainer.config, jax.jit(trainer.validation_returns))
+    fn = _VALIDATE.setdefault(trainer.config, jax.jit(trainer.validation_metrics))
     return state.replace(validation=fn(state))
 
 

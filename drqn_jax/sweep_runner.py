@@ -70,7 +70,7 @@ from drqn_jax.memory import (
 )
 from drqn_jax.runner import _finite, _progress_bar, _StopRequest, json_ready, metrics_csv
 from drqn_jax.sweep import STRATEGIES, Sweep, SweepPoint
-from drqn_jax.train import Trainer, TrainState, make_train, selection
+from drqn_jax.train import Trainer, TrainState, make_train, selection, unvalidated
 
 __all__ = [
     "Call",
@@ -371,17 +371,18 @@ _VALIDATE: dict[tuple, Callable] = {}
 def validation_program(
     trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
 ) -> Callable:
-    """``validate(states, real) -> (size, K + 1)`` validation returns of a call's
-    finished runs (``train.snapshots`` = K > 0), sharded and batched as its ``run``;
-    padding rows are skipped (NaN) when the runs go one after another."""
+    """``validate(states, real) -> {metric: (size, K + 1)}``: the validation
+    metrics of a call's finished runs (``train.snapshots`` = K > 0), sharded and
+    batched as its ``run``; padding rows are skipped (NaN) when the runs go one
+    after another."""
     cache_key = (trainer.config, size, tuple(devices), strategy)
     if cache_key not in _VALIDATE:
-        nan = jnp.full((trainer.config.snapshots + 1,), jnp.nan, jnp.float32)
+        nan = unvalidated(trainer.config.snapshots)
 
-        def validate_if_real(state: TrainState, is_real: jax.Array) -> jax.Array:
-            return jax.lax.cond(is_real, trainer.validation_returns, lambda s: nan, state)
+        def validate_if_real(state: TrainState, is_real: jax.Array) -> dict[str, jax.Array]:
+            return jax.lax.cond(is_real, trainer.validation_metrics, lambda s: nan, state)
 
-        validate = trainer.validation_returns
+        validate = trainer.validation_metrics
         _VALIDATE[cache_key] = _over_runs(validate, validate_if_real, devices, strategy)
     return _VALIDATE[cache_key]
 
@@ -476,12 +477,13 @@ def call_results(call: Call, outcome: CallOutcome, eval_key: jax.Array) -> list[
     params = jax.tree.map(lambda x: np.asarray(x)[:n], outcome.agent_params())
     returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
     finite = np.asarray(jax.vmap(_finite)(outcome.state))[:n]
-    validation = outcome.state.validation
-    validation = [None] * n if validation is None else np.asarray(validation)[:n]
     evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key)
     results = []
-    rows = zip(call.points, evaluations, returns, finite, validation, strict=True)
-    for point, evaluation, ret, ok, val in rows:
+    rows = zip(call.points, evaluations, returns, finite, strict=True)
+    for i, (point, evaluation, ret, ok) in enumerate(rows):
+        val, hp = jax.tree.map(
+            lambda x, i=i: np.asarray(x)[i], (outcome.state.validation, outcome.state.hparams)
+        )
         tail = max(1, len(ret) // 10)
         results.append(
             {
@@ -489,7 +491,7 @@ def call_results(call: Call, outcome: CallOutcome, eval_key: jax.Array) -> list[
                 "values": point.values,
                 "final_train_return": float(np.mean(ret[-tail:])),
                 "diverged": not bool(ok),
-                **selection(val),
+                **selection(val, hp),
                 **json_ready(evaluation),
             }
         )

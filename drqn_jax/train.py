@@ -21,9 +21,12 @@ state keeps the online parameters as they were when the recorded episodes
 reached k · num_episodes / (K + 1), k = 1 … K. ``validation_returns(state)``
 plays each of these K candidates and the final parameters greedily on
 ``validation_episodes`` episodes of a key of their own (not the evaluation
-key), and ``agent_params(state)`` is the candidate with the best mean return
-once they are stored in ``state.validation``. Training itself is unchanged:
-its every other leaf is bit-identical to a run with K = 0.
+key) and measures each one's mean return, collision-free rate and mean speed
+(``VALIDATION_METRICS``); once they are stored in ``state.validation``,
+``agent_params(state)`` is the candidate that ``select_by`` prefers
+(:func:`chosen_candidate`): the best mean return, or the most collision-free
+among those no slower than ``select_speed_floor``. Training itself is
+unchanged: its every other leaf is bit-identical to a run with K = 0.
 
 ε falls linearly from ``epsilon_start`` to ``epsilon_end`` over the training
 episodes (an episode keeps the ε it started with); during the first
@@ -83,6 +86,11 @@ __all__ = ["Hyperparams", "TrainConfig", "TrainState", "Trainer", "make_train"]
 GUIDE_STREAM = 1
 #: ``fold_in`` index of the validation episodes' key (from the finished state's key).
 VALIDATION_STREAM = 2
+#: What ``validation_metrics`` measures per candidate, each (K + 1,) float32.
+VALIDATION_METRICS = ("return", "collision_free", "speed")
+#: How the run's agent is chosen among its candidates (``Hyperparams.select_by``).
+SELECT_BY = ("return", "safe")
+SELECT_SAFE = SELECT_BY.index("safe")
 RULE_BASED_GUIDE = RuleBasedParams()
 
 METRIC_NAMES = (
@@ -135,6 +143,18 @@ class Hyperparams:
         choices=WINDOW_STARTS,
         doc="where a replay window may start: 'inside' the episode (SPEC §7; its last "
         "steps are in fewer windows) or 'anywhere', padded past its end",
+    )
+    select_by: int = param(
+        "return",
+        choices=SELECT_BY,
+        doc="with snapshots > 0, the candidate chosen on the validation episodes: the best "
+        "mean 'return', or the 'safe' one (most collision-free at select_speed_floor or faster)",
+    )
+    select_speed_floor: float = param(
+        0.0,
+        low=0.0,
+        doc="m/s: with select_by = 'safe', candidates slower than this on the validation "
+        "episodes are not chosen (none as fast: the final parameters)",
     )
 
     def __post_init__(self) -> None:
@@ -273,7 +293,7 @@ class TrainState:
     env_steps: jax.Array
     metrics: dict[str, jax.Array]
     snapshots: Any = None  # [K, ...] online parameters during training; None when K = 0
-    validation: Any = None  # (K + 1,) float32 mean validation returns, NaN until validated
+    validation: Any = None  # {VALIDATION_METRICS: (K + 1,) float32}, NaN until validated
 
     @property
     def finished(self) -> jax.Array:
@@ -292,7 +312,7 @@ class Trainer(NamedTuple):
     run: Callable[[TrainState, int], TrainState]
     train: Callable[..., tuple[Any, dict[str, jax.Array]]]
     gradient_update: Callable[..., tuple[tuple, jax.Array]]
-    validation_returns: Callable[[TrainState], jax.Array]
+    validation_metrics: Callable[[TrainState], dict[str, jax.Array]]
     agent_params: Callable[[TrainState], Any]
 
 
@@ -313,26 +333,52 @@ def _small_leaves(state: TrainState) -> TrainState:
     )
 
 
-def chosen_candidate(validation: jax.Array) -> jax.Array:
+def chosen_candidate(validation: dict[str, jax.Array], hp: Hyperparams) -> jax.Array:
     """() int32 index of the run's agent among its K + 1 candidates, from their
-    (K + 1,) validation returns: the best (of equal ones, the latest); the final
-    parameters (K) while any return is NaN (not validated yet)."""
-    last = validation.shape[-1] - 1
-    latest_best = last - jnp.argmax(validation[::-1])
-    return jnp.where(jnp.any(jnp.isnan(validation)), last, latest_best).astype(jnp.int32)
+    validation metrics (``VALIDATION_METRICS``, each (K + 1,)):
+
+    * ``select_by = "return"``: the best mean return;
+    * ``select_by = "safe"``: among the candidates whose mean speed is at least
+      ``select_speed_floor``, the highest collision-free rate, then the best
+      return; the final parameters when none is as fast.
+
+    Of equal candidates, the latest. The final parameters (K) while any metric
+    is NaN (not validated yet).
+    """
+    returns = validation["return"]
+    last = returns.shape[-1] - 1
+    fast = validation["speed"] >= hp.select_speed_floor
+    safest = jnp.max(jnp.where(fast, validation["collision_free"], -jnp.inf))
+    safe = fast & (validation["collision_free"] == safest)
+    score = jnp.where((hp.select_by != SELECT_SAFE) | safe, returns, -jnp.inf)
+    best = last - jnp.argmax(score[::-1])
+    unusable = jnp.any(jnp.isnan(jnp.stack(list(validation.values()))))
+    unusable |= (hp.select_by == SELECT_SAFE) & ~jnp.any(fast)
+    return jnp.where(unusable, last, best).astype(jnp.int32)
 
 
-def selection(validation: Any) -> dict[str, Any]:
-    """Host-side record of a run's choice: ``{}`` without snapshots, else
-    ``validation_returns`` (K + 1 floats, the last the final parameters'; NaN
-    before validation) and ``selected`` (:func:`chosen_candidate`, K = final)."""
+def selection(validation: dict[str, Any] | None, hp: Hyperparams) -> dict[str, Any]:
+    """Host-side record of a run's choice: ``{}`` without snapshots, else each
+    candidate's validation metrics (K + 1 floats each, the last the final
+    parameters'; NaN before validation) — ``validation_returns``,
+    ``validation_collision_free``, ``validation_speed_kmh`` — and ``selected``
+    (:func:`chosen_candidate`, K = the final parameters)."""
     if validation is None:
         return {}
-    validation = jnp.asarray(validation)
+    validation = {name: jnp.asarray(v) for name, v in validation.items()}
+    speed_kmh = validation["speed"] * 3.6
     return {
-        "validation_returns": [float(r) for r in validation],
-        "selected": int(chosen_candidate(validation)),
+        "validation_returns": [float(r) for r in validation["return"]],
+        "validation_collision_free": [float(r) for r in validation["collision_free"]],
+        "validation_speed_kmh": [float(v) for v in speed_kmh],
+        "selected": int(chosen_candidate(validation, hp)),
     }
+
+
+def unvalidated(snapshots: int) -> dict[str, jax.Array]:
+    """``TrainState.validation`` before validation: NaN for each of the
+    ``snapshots`` + 1 candidates and each of ``VALIDATION_METRICS``."""
+    return {name: jnp.full((snapshots + 1,), jnp.nan, jnp.float32) for name in VALIDATION_METRICS}
 
 
 def snapshot_thresholds(config: TrainConfig) -> tuple[int, ...]:
@@ -387,7 +433,7 @@ def _make_train(config: TrainConfig) -> Trainer:
         snapshots = validation = None
         if n_snapshots:
             snapshots = jax.tree.map(lambda p: jnp.stack([p] * n_snapshots), online)
-            validation = jnp.full((n_snapshots + 1,), jnp.nan, jnp.float32)
+            validation = unvalidated(n_snapshots)
         return TrainState(
             key=key,
             hparams=hp,
@@ -614,7 +660,7 @@ def _make_train(config: TrainConfig) -> Trainer:
             lambda s: ~s.finished, lambda s: run(s, config.chunk_iterations), state
         )
         if n_snapshots:
-            state = state.replace(validation=validation_returns(state))
+            state = state.replace(validation=validation_metrics(state))
         return agent_params(state), state.metrics
 
     def candidates(state: TrainState) -> Any:
@@ -623,29 +669,35 @@ def _make_train(config: TrainConfig) -> Trainer:
             lambda s, o: jnp.concatenate([s, o[None]]), state.snapshots, state.online
         )
 
-    def validation_returns(state: TrainState) -> jax.Array:
-        """(K + 1,) float32: each candidate's mean greedy return over
-        ``validation_episodes`` episodes of ``fold_in(state.key, VALIDATION_STREAM)``
-        (the same episodes for every candidate). Needs K > 0."""
+    def validation_metrics(state: TrainState) -> dict[str, jax.Array]:
+        """``VALIDATION_METRICS``, each (K + 1,) float32: every candidate's mean
+        greedy return, share of collision-free episodes and mean speed (m/s, the
+        mean over episodes of distance / time, SPEC §8) over ``validation_episodes``
+        episodes of ``fold_in(state.key, VALIDATION_STREAM)`` (the same episodes
+        for every candidate). Needs K > 0."""
         if not n_snapshots:
-            raise ValueError("validation_returns: the run keeps no snapshots (train.snapshots = 0)")
+            raise ValueError("validation_metrics: the run keeps no snapshots (train.snapshots = 0)")
         keys = episode_keys(
             jax.random.fold_in(state.key, VALIDATION_STREAM), config.validation_episodes
         )
 
-        def mean_return(params: Any) -> jax.Array:
+        def measure(params: Any) -> dict[str, jax.Array]:
             episodes = run_episodes(drqn_agent(network, params), keys, env, state.env_params)
-            return jnp.mean(episodes.episode_return)
+            return {
+                "return": jnp.mean(episodes.episode_return),
+                "collision_free": jnp.mean(1.0 - episodes.collision.astype(jnp.float32)),
+                "speed": jnp.mean(episodes.mean_speed),
+            }
 
-        return jax.lax.map(mean_return, candidates(state))
+        return jax.lax.map(measure, candidates(state))
 
     def agent_params(state: TrainState) -> Any:
         """The run's agent: the final online parameters, or with K > 0 and
-        ``state.validation`` filled in, the candidate of the best mean return
-        (of equal ones, the latest)."""
+        ``state.validation`` filled in, the candidate that ``select_by`` prefers
+        (:func:`chosen_candidate`)."""
         if not n_snapshots:
             return state.online
-        best = chosen_candidate(state.validation)
+        best = chosen_candidate(state.validation, state.hparams)
         return jax.tree.map(lambda c: c[best], candidates(state))
 
     return Trainer(
@@ -658,6 +710,6 @@ def _make_train(config: TrainConfig) -> Trainer:
         run=run,
         train=train,
         gradient_update=gradient_update,
-        validation_returns=validation_returns,
+        validation_metrics=validation_metrics,
         agent_params=agent_params,
     )

@@ -221,6 +221,9 @@ def test_cli_sweep_writes_tables(sweep_file, cli_sweep, capsys):
     assert all(r["num_episodes"] == 2 and r["diverged"] is False for r in runs)
     # each run's agent chosen between its snapshot and its final parameters
     assert all(len(r["validation_returns"]) == 2 and r["selected"] in (0, 1) for r in runs)
+    assert all(
+        len(r["validation_collision_free"]) == len(r["validation_speed_kmh"]) == 2 for r in runs
+    )
     csv = (cli_sweep / "results.csv").read_text().splitlines()
     assert csv[0].startswith("train.learning_rate,runs,diverged,collision_free_rate_mean")
     assert len(csv) == 3
