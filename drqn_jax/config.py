@@ -69,6 +69,9 @@ ADDED_LATER = {
     ("train", "window_start"): "inside",
     ("train", "snapshots"): 0,
     ("train", "validation_episodes"): 100,
+    ("train", "imitation_weight"): 0.0,
+    ("train", "imitation_margin"): 1.0,
+    ("train", "imitation_states"): "brake",
     ("train", "select_by"): "return",
     ("train", "select_speed_floor"): 0.0,
 }

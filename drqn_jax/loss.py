@@ -18,6 +18,15 @@ is clipped as the paper says ("limiting the error term to [−1, 1]"): Huber
 loss with δ = 1 (``clip = "huber"``), or the authors' code, MSE with the
 gradient clamped element-wise (``clip = "grad"``, see
 :func:`drqn_jax.optim.clip`). Padding is masked out of the mean.
+
+Optionally (not in the paper) a large-margin imitation term is added, as in
+DQfD (Hester et al. 2018): for each step with an expert action a_E and a
+weight w_t > 0,
+
+    J_E(t) = max_a [Q(s_t, a) + l · 1(a ≠ a_E)] − Q(s_t, a_E),
+
+which is zero once a_E's value leads every other action's by the margin l;
+the loss is then Σ_t (TD_t + w_t J_E(t)) over the masked steps' count.
 """
 
 from __future__ import annotations
@@ -33,7 +42,14 @@ from drqn_jax.replay import Windows
 CLIP_MODES = ("huber", "grad")
 CLIP_HUBER, CLIP_GRAD = 0, 1
 
-__all__ = ["CLIP_MODES", "double_dqn_targets", "huber", "n_step_targets", "sequence_loss"]
+__all__ = [
+    "CLIP_MODES",
+    "double_dqn_targets",
+    "huber",
+    "large_margin",
+    "n_step_targets",
+    "sequence_loss",
+]
 
 
 def huber(x: jax.Array, delta: float = 1.0) -> jax.Array:
@@ -100,6 +116,15 @@ def n_step_targets(
     return ret + discount * (1.0 - done.astype(jnp.float32)) * boot
 
 
+def large_margin(q: jax.Array, expert_action: jax.Array, margin: float | jax.Array) -> jax.Array:
+    """DQfD's supervised loss (…,) from Q-values (…, A) and expert actions (…,):
+    ``max_a [Q(a) + margin · 1(a ≠ a_E)] − Q(a_E)`` ≥ 0."""
+    num_actions = q.shape[-1]
+    other = jnp.arange(num_actions) != expert_action[..., None]
+    q_expert = jnp.take_along_axis(q, expert_action[..., None], axis=-1)[..., 0]
+    return jnp.max(q + margin * other.astype(q.dtype), axis=-1) - q_expert
+
+
 def sequence_loss(
     online: Any,
     target: Any,
@@ -108,16 +133,24 @@ def sequence_loss(
     gamma: float | jax.Array,
     clip_mode: int | jax.Array = CLIP_HUBER,
     n_step: int = 1,
+    expert_action: jax.Array | None = None,
+    expert_weight: jax.Array | None = None,
+    margin: float | jax.Array = 1.0,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Mean masked TD loss of a window batch, and diagnostics.
+    """Mean masked TD loss of a window batch (plus the imitation term), and diagnostics.
 
     Args:
         online, target: network parameters (gradients flow to ``online`` only).
         windows: time-major batch (W + 1 observations, W transitions, B windows).
         clip_mode: ``CLIP_HUBER`` (0) or ``CLIP_GRAD`` (1, MSE ½δ²).
         n_step: static number of rewards per target (1 = the paper).
+        expert_action, expert_weight: (W, B) int32 and float32, the expert's
+            action in each state and the weight of its :func:`large_margin` term
+            (0: none); both None (the paper): no imitation term.
+        margin: the margin l of :func:`large_margin`.
     Returns:
-        () float32 loss, and ``{"td_abs": mean |δ|, "q_mean": mean Q(s, a)}``.
+        () float32 loss, and ``{"td_abs": mean |δ|, "q_mean": mean Q(s, a),
+        "margin": mean weighted J_E}`` (``margin`` with an expert only).
     """
     steps, batch = windows.action.shape
     resets = jnp.zeros((steps + 1, batch), bool)
@@ -143,4 +176,8 @@ def sequence_loss(
         "td_abs": jnp.sum(jnp.abs(td) * weight) / count,
         "q_mean": jnp.sum(q_taken * weight) / count,
     }
+    if expert_action is not None:
+        supervised = large_margin(q_online[:-1], expert_action, margin)
+        aux["margin"] = jnp.sum(supervised * expert_weight * weight) / count
+        loss = loss + aux["margin"]
     return loss, aux

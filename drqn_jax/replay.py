@@ -88,11 +88,14 @@ class Windows:
 
     Attributes:
         obs: Observation with leaves (W + 1, B, …), rasterised.
+        records: GridInputs with leaves (W + 1, B, …): what ``obs`` was rasterised
+            from (the true state's ego and pedestrians).
         action, reward, terminated, mask: (W, B); ``mask`` is false on padding.
         slot, start: (B,) int32, where each window came from.
     """
 
     obs: Observation
+    records: GridInputs
     action: jax.Array
     reward: jax.Array
     terminated: jax.Array
@@ -262,6 +265,7 @@ def sample_windows(
     last_action = jnp.where(t_obs == 0, NO_ACTION, replay.action[slot[None, :], prev])
     return Windows(
         obs=observations(records, last_action, params, static),
+        records=records,
         action=replay.action[slot[None, :], t],
         reward=jnp.where(mask, replay.reward[slot[None, :], t], 0.0),
         terminated=replay.terminated[slot[None, :], t] & mask,

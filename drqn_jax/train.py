@@ -57,10 +57,10 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.agents.drqn import drqn_agent
-from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
+from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action, rule_based_labels
 from drqn_jax.env.grid import GridInputs
 from drqn_jax.env.params import EnvParams
-from drqn_jax.env.state import NUM_ACTIONS, Observation
+from drqn_jax.env.state import BRAKE, NUM_ACTIONS, Observation
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.evaluation import episode_keys, run_episodes
 from drqn_jax.loss import CLIP_GRAD, CLIP_MODES, sequence_loss
@@ -88,6 +88,9 @@ GUIDE_STREAM = 1
 VALIDATION_STREAM = 2
 #: What ``validation_metrics`` measures per candidate, each (K + 1,) float32.
 VALIDATION_METRICS = ("return", "collision_free", "speed")
+#: Where the imitation term applies (``Hyperparams.imitation_states``).
+IMITATION_STATES = ("brake", "all")
+IMITATION_ALL = IMITATION_STATES.index("all")
 #: How the run's agent is chosen among its candidates (``Hyperparams.select_by``).
 SELECT_BY = ("return", "safe")
 SELECT_SAFE = SELECT_BY.index("safe")
@@ -143,6 +146,21 @@ class Hyperparams:
         choices=WINDOW_STARTS,
         doc="where a replay window may start: 'inside' the episode (SPEC §7; its last "
         "steps are in fewer windows) or 'anywhere', padded past its end",
+    )
+    imitation_weight: float = param(
+        0.0,
+        low=0.0,
+        doc="weight of a large-margin term (DQfD) pulling the greedy action toward the "
+        "rule-based agent's (SPEC §6) in the replayed states of imitation_states; 0 = the paper",
+    )
+    imitation_margin: float = param(
+        1.0, low=0.0, low_open=True, doc="the margin l by which the expert's Q must lead"
+    )
+    imitation_states: int = param(
+        "brake",
+        choices=IMITATION_STATES,
+        doc="where the imitation term applies: states where the rule-based agent 'brake's "
+        "(a pedestrian in its corridor) or 'all' states",
     )
     select_by: int = param(
         "return",
@@ -498,8 +516,20 @@ def _make_train(config: TrainConfig) -> Trainer:
             env.static,
             hp.window_start,
         )
+        states = jax.tree.map(lambda x: x[:-1], windows.records)  # s_t of each transition
+        expert = rule_based_labels(states, env_params, RULE_BASED_GUIDE, env.static)
+        imitate = (hp.imitation_states == IMITATION_ALL) | (expert == BRAKE)
         (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
-            online, target, windows, network, hp.gamma, hp.clip, config.n_step
+            online,
+            target,
+            windows,
+            network,
+            hp.gamma,
+            hp.clip,
+            config.n_step,
+            expert,
+            hp.imitation_weight * imitate.astype(jnp.float32),
+            hp.imitation_margin,
         )
         clamped, _ = clip(1.0).update(grads, ())
         grads = jax.tree.map(lambda c, g: jnp.where(hp.clip == CLIP_GRAD, c, g), clamped, grads)

@@ -13,11 +13,12 @@ from drqn_jax.loss import (
     CLIP_HUBER,
     double_dqn_targets,
     huber,
+    large_margin,
     n_step_targets,
     sequence_loss,
 )
 from drqn_jax.networks import NetworkConfig, make_network
-from drqn_jax.optim import clip
+from drqn_jax.optim import adam, apply_updates, clip
 from drqn_jax.replay import Windows
 
 
@@ -115,6 +116,7 @@ def _windows(key, steps=4, batch=3, mask=None):
     mask = jnp.ones((steps, batch), bool) if mask is None else mask
     return Windows(
         obs=obs,
+        records=None,
         action=jax.random.randint(k4, (steps, batch), 0, 4),
         reward=jnp.where(mask, jnp.linspace(-1, 1, steps * batch).reshape(steps, batch), 0.0),
         terminated=jnp.zeros((steps, batch), bool).at[-1, 0].set(True) & mask,
@@ -194,3 +196,54 @@ def test_gradients_flow_only_to_online_and_grad_mode(small_net):
     clamped, _ = clip(1.0).update(g, (), online)
     assert all(float(jnp.abs(x).max()) <= 1.0 for x in jax.tree.leaves(clamped))
     assert float(aux["td_abs"]) > 0.0
+
+
+def test_large_margin_hand_computed():
+    q = jnp.array([[1.0, 3.0, 2.0, 0.0], [1.0, 3.0, 2.0, 0.0], [5.0, 3.0, 4.5, 0.0]])
+    expert = jnp.array([0, 1, 0])
+    # max_a [Q(a) + l·1(a ≠ a_E)] − Q(a_E), l = 1: max(1, 4, 3, 1) − 1; max(2, 3, 3, 1) − 3;
+    # max(5, 4, 5.5, 1) − 5 (a lead smaller than the margin still costs)
+    np.testing.assert_allclose(np.asarray(large_margin(q, expert, 1.0)), [3.0, 0.0, 0.5])
+    assert float(large_margin(q, expert, 0.25)[2]) == 0.0
+
+
+def test_imitation_term_adds_the_weighted_margin_and_teaches_the_expert(small_net):
+    """The imitation term is the mean of w_t · J_E(t) over the masked steps, added to
+    the TD loss (zero weight: the TD loss exactly); minimising it makes the expert's
+    action the greedy one where w_t > 0."""
+    net, online, target = small_net
+    mask = jnp.ones((4, 3), bool).at[3:, 1].set(False)
+    w = _windows(jax.random.key(6), mask=mask)
+    expert = jax.random.randint(jax.random.key(7), (4, 3), 0, 4)
+    weight = jnp.where(jnp.arange(3) == 2, 0.0, 2.0)[None, :] * jnp.ones((4, 1))
+    td_loss, _ = sequence_loss(online, target, w, net, 0.9, CLIP_GRAD)
+    zero, _ = sequence_loss(online, target, w, net, 0.9, CLIP_GRAD, 1, expert, weight * 0, 1.0)
+    assert float(zero) == float(td_loss)
+    loss, aux = sequence_loss(online, target, w, net, 0.9, CLIP_GRAD, 1, expert, weight, 1.0)
+    q, _ = net.unroll(online, w.obs, net.initial_carry((3,)), jnp.zeros((5, 3), bool))
+    q = np.asarray(q[:-1], np.float64)
+    q_expert = np.take_along_axis(q, np.asarray(expert)[..., None], -1)[..., 0]
+    other = np.arange(4) != np.asarray(expert)[..., None]
+    j_e = (q + 1.0 * other).max(-1) - q_expert
+    m = np.asarray(mask)
+    expected = (np.asarray(weight) * j_e)[m].sum() / m.sum()
+    assert float(aux["margin"]) == pytest.approx(expected, rel=1e-5)
+    assert float(loss) == pytest.approx(float(td_loss) + expected, rel=1e-5)
+
+    opt = adam(1e-2)
+
+    @jax.jit
+    def step(params, opt_state):
+        grads = jax.grad(
+            lambda p: sequence_loss(p, target, w, net, 0.0, CLIP_GRAD, 1, expert, weight * 50)[0]
+        )(params)
+        updates, opt_state = opt.update(grads, opt_state, params)
+        return apply_updates(params, updates), opt_state
+
+    params, opt_state = online, opt.init(online)
+    for _ in range(200):
+        params, opt_state = step(params, opt_state)
+    q, _ = net.unroll(params, w.obs, net.initial_carry((3,)), jnp.zeros((5, 3), bool))
+    greedy = np.asarray(jnp.argmax(q[:-1], -1))
+    taught = m & (np.asarray(weight) > 0)
+    np.testing.assert_array_equal(greedy[taught], np.asarray(expert)[taught])

@@ -19,10 +19,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
+from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action, rule_based_labels
 from drqn_jax.env.collision import box_disc_overlap, ego_box, time_to_collision
 from drqn_jax.env.ego import initial_ego
-from drqn_jax.env.grid import grid_cell_index, rasterize_grid
+from drqn_jax.env.grid import GridInputs, grid_cell_index, rasterize_grid
 from drqn_jax.env.params import KMH, EnvParams
 from drqn_jax.env.road_map import lane_centre_y, semantic_class
 from drqn_jax.env.state import (
@@ -338,6 +338,32 @@ def test_rule_based_stops_before_standing_pedestrian(env, params, static, run_sc
     np.testing.assert_array_equal(
         out["ped_position"][:, 0], np.broadcast_to(np.float32([ped_x, LANE_Y]), (SCAN_STEPS, 2))
     )
+
+
+def test_rule_based_labels_of_records_are_its_actions(params, static):
+    """``rule_based_labels`` on the replay's records (``GridInputs``) gives the
+    action ``rule_based_action`` takes in the true state, for any leading shape:
+    braking for a pedestrian in the corridor within the look-ahead, not for one
+    beyond it or on the sidewalk, and tracking the speed limit otherwise."""
+    rb = RuleBasedParams()
+    s = 40.0
+    front = s + 0.5 * params.ego_length
+    scenes = [
+        (0.0, [(front + 3.0, LANE_Y)]),  # in the corridor: brake
+        (4.0, [(front + rb.lookahead + 2.0, LANE_Y)]),  # beyond the look-ahead
+        (4.2, [(front + 3.0, -5.0)]),  # on the sidewalk
+        (3.0, [(front + 6.0, LANE_Y + 0.5)]),  # in the corridor, off-centre: brake
+        (4.9, []),  # nobody: slow down from above the limit
+        (2.0, []),  # nobody: accelerate
+    ]
+    states = [_state(_ego(params, static, s=s, v=v), _peds(static, peds)) for v, peds in scenes]
+    batch = jax.tree.map(lambda *x: jnp.stack(x).reshape((2, 3, *x[0].shape)), *states)
+    expected = [int(rule_based_action(st, params, rb, static)) for st in states]
+    assert expected[0] == expected[3] == BRAKE and BRAKE not in expected[1:3] + expected[4:]
+    records = GridInputs.of(batch.ego, batch.pedestrians)
+    labels = rule_based_labels(records, params, rb, static)
+    assert labels.shape == (2, 3)
+    np.testing.assert_array_equal(np.asarray(labels).ravel(), expected)
 
 
 # --- 4. pedestrians never walk into the car ------------------------------------------

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 import drqn_jax
-from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
+from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action, rule_based_labels
+from drqn_jax.env.state import BRAKE
 from drqn_jax.loss import sequence_loss
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.replay import WINDOW_ANYWHERE, sample_windows
-from drqn_jax.train import Hyperparams, TrainConfig, annealed, make_train
+from drqn_jax.train import IMITATION_STATES, Hyperparams, TrainConfig, annealed, make_train
 from tests.helpers import assert_tree_equal, take, tiny_train_config
 
 TINY = tiny_train_config()
@@ -120,6 +121,48 @@ def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked):
     three, one = losses(state, key)
     assert float(loss) == pytest.approx(float(three), rel=1e-5)
     assert float(three) != pytest.approx(float(one), rel=1e-5)
+
+
+def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
+    """train.imitation_*: the update's loss is sequence_loss with the rule-based
+    agent's actions in the sampled windows' states as the expert, weighted by
+    imitation_weight in every state ('all') or where it brakes ('brake'); weight 0
+    is the TD loss alone."""
+    trainer, _ = tiny
+    state, _ = tiny_chunked
+    update = jax.jit(trainer.gradient_update)
+    key = jax.random.key(12)
+    learner = (state.online, state.target, state.opt_state, state.grad_steps)
+
+    @jax.jit
+    def expected(state, key, weight, everywhere):
+        hp = state.hparams
+        w = sample_windows(
+            state.replay, key, 4, 4, state.env_params, trainer.env.static, hp.window_start
+        )
+        states = jax.tree.map(lambda x: x[:-1], w.records)
+        expert = rule_based_labels(states, state.env_params, RuleBasedParams(), trainer.env.static)
+        where = everywhere | (expert == BRAKE)
+        args = (expert, weight * where.astype(jnp.float32), 0.5)
+        net = trainer.network
+        return sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, 1, *args)[0]
+
+    losses = {}
+    for states in ("brake", "all"):
+        for weight in (0.0, 2.0):
+            hp = state.hparams.replace(
+                imitation_weight=weight,
+                imitation_margin=0.5,
+                imitation_states=IMITATION_STATES.index(states),
+            )
+            _, loss = update(learner, key, state.replay, hp, state.env_params)
+            want = expected(state.replace(hparams=hp), key, weight, states == "all")
+            assert float(loss) == pytest.approx(float(want), rel=1e-6)
+            losses[states, weight] = float(loss)
+    assert losses["all", 0.0] == losses["brake", 0.0]
+    assert losses["all", 2.0] > losses["all", 0.0]
+    with pytest.raises(ValueError, match="imitation_states"):
+        Hyperparams(imitation_states=IMITATION_STATES.index("all") + 1)
 
 
 def test_guided_exploration_takes_the_rule_based_action(tiny):

@@ -13,12 +13,19 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.agents.base import Agent, no_carry
+from drqn_jax.env.grid import GridInputs
 from drqn_jax.env.params import KMH, EnvParams
 from drqn_jax.env.road_map import CROSSING_AREA, ROAD, lane_centre_y, semantic_class
 from drqn_jax.env.state import ACCELERATE, BRAKE, SLOW_DOWN, STEER, EnvState
 from drqn_jax.pytree import param, pytree_dataclass, validate
 
-__all__ = ["RuleBasedParams", "rule_based_action", "rule_based_agent"]
+__all__ = [
+    "RuleBasedParams",
+    "must_brake",
+    "rule_based_action",
+    "rule_based_agent",
+    "rule_based_labels",
+]
 
 
 @pytree_dataclass
@@ -34,29 +41,55 @@ class RuleBasedParams:
         validate(self)
 
 
-def must_brake(state: EnvState, env_params: EnvParams, rb: RuleBasedParams, static) -> jax.Array:
-    """() bool: a pedestrian on the road or a crosswalk is in the corridor ahead."""
-    peds, ego = state.pedestrians, state.ego
-    cls = semantic_class(peds.position, env_params, static)
+def must_brake(
+    s: jax.Array, position: jax.Array, env_params: EnvParams, rb: RuleBasedParams, static
+) -> jax.Array:
+    """() bool: a pedestrian on the road or a crosswalk is in the corridor ahead.
+
+    Args:
+        s: () the ego's arc length (m); position: (P, 2) the pedestrians' centres.
+    """
+    cls = semantic_class(position, env_params, static)
     on_road = (cls == ROAD) | (cls == CROSSING_AREA)
     half_corridor = 0.5 * env_params.ego_width + env_params.ped_radius + rb.corridor_margin
-    lateral = jnp.abs(peds.position[:, 1] - lane_centre_y(env_params))
-    ahead = peds.position[:, 0] - (ego.s + 0.5 * env_params.ego_length)
+    lateral = jnp.abs(position[:, 1] - lane_centre_y(env_params))
+    ahead = position[:, 0] - (s + 0.5 * env_params.ego_length)
     in_front = (ahead >= -env_params.ped_radius) & (ahead <= rb.lookahead)
     return jnp.any(on_road & (lateral <= half_corridor) & in_front)
+
+
+def _action(
+    s: jax.Array, v: jax.Array, position: jax.Array, env_params: EnvParams, rb, static
+) -> jax.Array:
+    track = jnp.where(
+        v < rb.v_max - rb.speed_band,
+        ACCELERATE,
+        jnp.where(v > rb.v_max + rb.speed_band, SLOW_DOWN, STEER),
+    )
+    brake = must_brake(s, position, env_params, rb, static)
+    return jnp.where(brake, BRAKE, track).astype(jnp.int32)
 
 
 def rule_based_action(
     state: EnvState, env_params: EnvParams, rb: RuleBasedParams, static
 ) -> jax.Array:
     """() int32 action of the rule-based agent for one environment."""
-    v = state.ego.v
-    track = jnp.where(
-        v < rb.v_max - rb.speed_band,
-        ACCELERATE,
-        jnp.where(v > rb.v_max + rb.speed_band, SLOW_DOWN, STEER),
+    ego = state.ego
+    return _action(ego.s, ego.v, state.pedestrians.position, env_params, rb, static)
+
+
+def rule_based_labels(
+    records: GridInputs, env_params: EnvParams, rb: RuleBasedParams, static
+) -> jax.Array:
+    """The rule-based agent's action for each of ``records`` (any leading shape
+    (…,), int32): what it would have done in the replay's stored states, which
+    hold every pedestrian's position (visible or not) as the true state does."""
+    lead = records.s.shape
+    flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[len(lead) :])), records)
+    actions = jax.vmap(_action, (0, 0, 0, None, None, None))(
+        flat.s, flat.v, flat.position, env_params, rb, static
     )
-    return jnp.where(must_brake(state, env_params, rb, static), BRAKE, track).astype(jnp.int32)
+    return actions.reshape(lead)
 
 
 def _act(params, key, obs, carry, state, env, env_params):
