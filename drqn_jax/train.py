@@ -18,7 +18,7 @@
 Choosing the run's agent on validation episodes (the project's, not the
 paper's, which keeps the last parameters): with ``snapshots`` = K > 0 the
 state keeps the online parameters as they were when the recorded episodes
-reached k · num_episodes / (K + 1), k = 1 … K. ``validation_returns(state)``
+reached k · num_episodes / (K + 1), k = 1 … K. ``validation_metrics(state)``
 plays each of these K candidates and the final parameters greedily on
 ``validation_episodes`` episodes of a key of their own (not the evaluation
 key) and measures each one's mean return, collision-free rate and mean speed
@@ -37,7 +37,11 @@ paper's) an exploratory action is, with probability g, the rule-based agent's
 (SPEC §6, its default thresholds ``RULE_BASED_GUIDE``) instead: the replay
 then holds episodes of braking and waiting for pedestrians, which uniform
 random actions rarely produce; learning stays off-policy Q-learning and the
-agent acts greedily on its own at evaluation.
+agent acts greedily on its own at evaluation. With ``imitation_weight`` > 0
+(the project's) the loss also pulls the greedy action toward the rule-based
+agent's in the replayed states — those where it brakes, or all — with DQfD's
+large margin (:func:`drqn_jax.loss.large_margin`); the labels are recomputed
+from the replay's records of the true state at each gradient step.
 The acting LSTM advances on every step and is zeroed when its environment
 starts a new episode.
 
