@@ -72,6 +72,8 @@ ADDED_LATER = {
     ("train", "imitation_weight"): 0.0,
     ("train", "imitation_margin"): 1.0,
     ("train", "imitation_states"): "brake",
+    ("train", "imitation_lookahead"): 7.0,
+    ("train", "imitation_corridor_margin"): 0.5,
     ("train", "select_by"): "return",
     ("train", "select_speed_floor"): 0.0,
 }

@@ -166,6 +166,18 @@ class Hyperparams:
         doc="where the imitation term applies: states where the rule-based agent 'brake's "
         "(a pedestrian in its corridor) or 'all' states",
     )
+    imitation_lookahead: float = param(
+        7.0,
+        low=0.0,
+        doc="m: the look-ahead of the rule-based agent whose actions are imitated "
+        "(SPEC §6: 7; exploration's guide keeps 7)",
+    )
+    imitation_corridor_margin: float = param(
+        0.5,
+        low=0.0,
+        doc="m: the corridor margin of the rule-based agent whose actions are imitated "
+        "(SPEC §6: 0.5; exploration's guide keeps 0.5)",
+    )
     select_by: int = param(
         "return",
         choices=SELECT_BY,
@@ -521,7 +533,10 @@ def _make_train(config: TrainConfig) -> Trainer:
             hp.window_start,
         )
         states = jax.tree.map(lambda x: x[:-1], windows.records)  # s_t of each transition
-        expert = rule_based_labels(states, env_params, RULE_BASED_GUIDE, env.static)
+        teacher = RULE_BASED_GUIDE.replace(
+            lookahead=hp.imitation_lookahead, corridor_margin=hp.imitation_corridor_margin
+        )
+        expert = rule_based_labels(states, env_params, teacher, env.static)
         imitate = (hp.imitation_states == IMITATION_ALL) | (expert == BRAKE)
         (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
             online,

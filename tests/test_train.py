@@ -11,6 +11,7 @@ import pytest
 
 import drqn_jax
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action, rule_based_labels
+from drqn_jax.env.road_map import lane_centre_y
 from drqn_jax.env.state import BRAKE
 from drqn_jax.loss import sequence_loss
 from drqn_jax.networks import NetworkConfig
@@ -123,13 +124,23 @@ def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked):
     assert float(three) != pytest.approx(float(one), rel=1e-5)
 
 
+LANE_Y = float(lane_centre_y(drqn_jax.make("UrbanPedestrians-v0")[1]))
+TEACHER = RuleBasedParams(lookahead=12.0, corridor_margin=1.0)
+
+
 def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
     """train.imitation_*: the update's loss is sequence_loss with the rule-based
-    agent's actions in the sampled windows' states as the expert, weighted by
-    imitation_weight in every state ('all') or where it brakes ('brake'); weight 0
-    is the TD loss alone."""
+    agent's actions (with the imitation_* look-ahead and corridor margin) in the
+    sampled windows' states as the expert, weighted by imitation_weight in every
+    state ('all') or where it brakes ('brake'); weight 0 is the TD loss alone.
+    Pedestrian 0 is moved onto the lane 10 m ahead of the ego in every replayed
+    state: beyond the usual 7 m look-ahead, within the teacher's 12 m."""
     trainer, _ = tiny
     state, _ = tiny_chunked
+    records = state.replay.records
+    ahead = jnp.stack([records.s + 10.0, jnp.full_like(records.s, LANE_Y)], axis=-1)
+    records = records.replace(position=records.position.at[..., 0, :].set(ahead))
+    state = state.replace(replay=state.replay.replace(records=records))
     update = jax.jit(trainer.gradient_update)
     key = jax.random.key(12)
     learner = (state.online, state.target, state.opt_state, state.grad_steps)
@@ -141,11 +152,14 @@ def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
             state.replay, key, 4, 4, state.env_params, trainer.env.static, hp.window_start
         )
         states = jax.tree.map(lambda x: x[:-1], w.records)
-        expert = rule_based_labels(states, state.env_params, RuleBasedParams(), trainer.env.static)
+        static = trainer.env.static
+        expert = rule_based_labels(states, state.env_params, TEACHER, static)
+        usual = rule_based_labels(states, state.env_params, RuleBasedParams(), static)
         where = everywhere | (expert == BRAKE)
         args = (expert, weight * where.astype(jnp.float32), 0.5)
         net = trainer.network
-        return sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, 1, *args)[0]
+        loss = sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, 1, *args)[0]
+        return loss, jnp.sum(expert != usual)
 
     losses = {}
     for states in ("brake", "all"):
@@ -154,13 +168,17 @@ def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
                 imitation_weight=weight,
                 imitation_margin=0.5,
                 imitation_states=IMITATION_STATES.index(states),
+                imitation_lookahead=TEACHER.lookahead,
+                imitation_corridor_margin=TEACHER.corridor_margin,
             )
             _, loss = update(learner, key, state.replay, hp, state.env_params)
-            want = expected(state.replace(hparams=hp), key, weight, states == "all")
+            want, relabelled = expected(state.replace(hparams=hp), key, weight, states == "all")
             assert float(loss) == pytest.approx(float(want), rel=1e-6)
+            assert int(relabelled) > 0  # the teacher's thresholds are not the usual ones
             losses[states, weight] = float(loss)
     assert losses["all", 0.0] == losses["brake", 0.0]
     assert losses["all", 2.0] > losses["all", 0.0]
+    assert losses["brake", 2.0] > losses["brake", 0.0]
     with pytest.raises(ValueError, match="imitation_states"):
         Hyperparams(imitation_states=IMITATION_STATES.index("all") + 1)
 
