@@ -1,0 +1,88 @@
+"""Where a trained agent departs from the rule-based agent, step by step (docs/results.md §9).
+
+Plays a run directory's greedy agent and the rule-based agent (SPEC §6) on the
+same episodes and splits every step by what the rule-based agent would do in
+that state: where it brakes (a pedestrian on the road in its corridor) and
+where it drives on. Prints the share of each action there, the speed where
+it drives on, and the collisions::
+
+    python docs/action_trace.py runs/reproduce --episodes 64
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import drqn_jax
+from drqn_jax.agents import Agent, drqn_agent, rule_based_agent
+from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
+from drqn_jax.env.state import BRAKE
+from drqn_jax.runner import load_run, load_trained_network
+
+ACTIONS = ("accelerate", "slow_down", "brake", "steer")
+
+
+def trace(agent: Agent, key: jax.Array, env: Any, params: Any) -> dict[str, jax.Array]:
+    """One episode's per-step (max_steps,) action, rule-based label, speed (m/s),
+    live flag and collision flag."""
+    k_reset, k_carry, k_run = jax.random.split(key, 3)
+    obs, state = env.reset_env(k_reset, params)
+    carry = agent.init_carry(k_carry)
+
+    def step(loop, k):
+        obs, state, carry, done = loop
+        k_act, k_env = jax.random.split(k)
+        label = rule_based_action(state, params, RuleBasedParams(), env.static)
+        action, carry = agent.act(k_act, obs, carry, state, env, params)
+        speed = state.ego.v
+        obs, state, _, terminated, truncated, info = env.step_env(k_env, state, action, params)
+        out = {
+            "action": action,
+            "label": label,
+            "speed": speed,
+            "live": ~done,
+            "collision": info["collision"] & ~done,
+        }
+        return (obs, state, carry, done | terminated | truncated), out
+
+    keys = jax.random.split(k_run, env.static.max_steps)
+    _, out = jax.lax.scan(step, (obs, state, carry, jnp.zeros((), bool)), keys)
+    return out
+
+
+def report(name: str, out: dict[str, np.ndarray]) -> None:
+    live = out["live"]
+    must = live & (out["label"] == BRAKE)
+    free = live & (out["label"] != BRAKE)
+    print(f"{name}: {int(out['collision'].sum())} collisions, {int(live.sum())} steps")
+    for where, mask in (("where it brakes", must), ("where it drives on", free)):
+        shares = np.bincount(out["action"][mask], minlength=4) / max(int(mask.sum()), 1)
+        text = ", ".join(f"{a} {100 * s:.0f} %" for a, s in zip(ACTIONS, shares, strict=True))
+        print(f"  {where} ({100 * mask.sum() / live.sum():.0f} % of steps): {text}")
+    kmh = out["speed"][free] * 3.6
+    stopped = 100 * (kmh < 1).mean()
+    print(f"  speed where it drives on: {kmh.mean():.1f} km/h; stopped in {stopped:.0f} %")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir", help="a drqn-jax train run directory")
+    parser.add_argument("--episodes", type=int, default=64)
+    parser.add_argument("--seed", type=int, default=123, help="key of the episodes")
+    args = parser.parse_args(argv)
+    config = load_run(args.run_dir)
+    network, params, _ = load_trained_network(config, args.run_dir)
+    env, env_params = config.make_env()
+    keys = drqn_jax.evaluation.episode_keys(jax.random.key(args.seed), args.episodes)
+    for name, agent in (("drqn", drqn_agent(network, params)), ("rule-based", rule_based_agent())):
+        out = jax.jit(jax.vmap(lambda k, agent=agent: trace(agent, k, env, env_params)))(keys)
+        report(name, jax.tree.map(np.asarray, out))
+
+
+if __name__ == "__main__":
+    main()

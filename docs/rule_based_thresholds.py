@@ -1,0 +1,47 @@
+"""The rule-based agent (SPEC §6) over its two thresholds (docs/results.md §9).
+
+Evaluates it on the same 1000 episodes for every corridor margin and look-ahead
+given, on the paper's and the realistic pedestrians, and prints a Markdown
+table (a few seconds per cell on a 2-core CPU)::
+
+    python docs/rule_based_thresholds.py --margins 0.5,0.3,0.1 --lookaheads 7,5,4,3
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import jax
+
+import drqn_jax
+from drqn_jax.agents import rule_based_agent
+from drqn_jax.agents.rule_based import RuleBasedParams
+
+ENVS = ("UrbanPedestrians-v0", "UrbanPedestriansRealistic-v0")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--margins", default="0.5,0.3,0.1", help="corridor margins (m)")
+    parser.add_argument("--lookaheads", default="7,5,4,3", help="look-aheads (m)")
+    parser.add_argument("--episodes", type=int, default=1000)
+    parser.add_argument("--seed", type=int, default=7, help="key of the episodes")
+    args = parser.parse_args(argv)
+    envs = [drqn_jax.make(env_id) for env_id in ENVS]
+    key = jax.random.key(args.seed)
+    print("| corridor margin (m) | look-ahead (m) | " + " | ".join(ENVS) + " |")
+    print("| ---: | ---: |" + " --- |" * len(ENVS))
+    for margin in map(float, args.margins.split(",")):
+        for lookahead in map(float, args.lookaheads.split(",")):
+            agent = rule_based_agent(RuleBasedParams(corridor_margin=margin, lookahead=lookahead))
+            cells = []
+            for env, params in envs:
+                r = drqn_jax.evaluate(agent, key, args.episodes, env, params)
+                cells.append(
+                    f"{100 * r['collision_free_rate']:.1f} %, {r['avg_speed_kmh']:.2f} km/h"
+                )
+            print(f"| {margin} | {lookahead} | " + " | ".join(cells) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
