@@ -25,6 +25,7 @@ from drqn_jax.env.state import BRAKE
 from drqn_jax.runner import load_run, load_trained_network
 
 ACTIONS = ("accelerate", "slow_down", "brake", "steer")
+SPEED_LIMIT_KMH = 15.0  # v_ref (SPEC §2)
 
 
 def trace(agent: Agent, key: jax.Array, env: Any, params: Any) -> dict[str, jax.Array]:
@@ -67,6 +68,13 @@ def report(name: str, out: dict[str, np.ndarray]) -> None:
     kmh = out["speed"][free] * 3.6
     stopped = 100 * (kmh < 1).mean()
     print(f"  speed where it drives on: {kmh.mean():.1f} km/h; stopped in {stopped:.0f} %")
+    live_kmh = out["speed"][live] * 3.6
+    above = live_kmh[live_kmh > SPEED_LIMIT_KMH]
+    share = 100 * above.size / live_kmh.size
+    text = f"  above the {SPEED_LIMIT_KMH:.0f} km/h limit (fined) in {share:.0f} % of steps"
+    if above.size:
+        text += f", at {above.mean():.2f} km/h on average, {above.max():.2f} at most"
+    print(text)
 
 
 def main(argv: list[str] | None = None) -> None:

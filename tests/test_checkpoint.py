@@ -25,7 +25,7 @@ from drqn_jax.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from drqn_jax.config import added_leaves
+from drqn_jax.config import ADDED_LATER, added_leaves
 from drqn_jax.train import Hyperparams, make_train
 from tests.helpers import assert_tree_equal, tiny_train_config
 
@@ -331,7 +331,12 @@ def test_leaves_added_later_are_filled(tmp_path, tiny, template):
     paths = {jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_leaves_with_path(template)}
     fills = added_leaves(TINY.hyperparams)
     assert fills and set(fills) <= paths
-    assert all(int(v) == 0 for v in fills.values())  # n_step is static; window_start "inside"
+    # each at the value the runs written before it had (n_step is static, not a leaf)
+    traced = {f.name for f in dataclasses.fields(Hyperparams)}
+    before = Hyperparams(**{n: v for (_, n), v in ADDED_LATER.items() if n in traced})
+    assert len(fills) == len(traced & {n for _, n in ADDED_LATER})
+    for path, value in fills.items():
+        np.testing.assert_array_equal(value, getattr(before, path.removeprefix(".hparams.")))
 
 
 def test_config_mismatch_names_the_field(tmp_path, tiny, template):
