@@ -518,8 +518,10 @@ def _make_train(config: TrainConfig) -> Trainer:
         learner: tuple, key: jax.Array, replay: EpisodeReplay, hp: Hyperparams, env_params
     ) -> tuple[tuple, jax.Array]:
         """One Double-DQN gradient step on ``learner`` = (online, target, opt_state,
-        grad_steps): sample windows, loss and gradient, clamp switch, Adam, and the
-        hard target copy every ``target_period`` steps. Returns the learner and the loss.
+        grad_steps): sample windows, the rule-based agent's actions in their states
+        (the imitation term's expert; weighted 0 unless ``imitation_weight`` > 0), loss
+        and gradient, clamp switch, Adam, and the hard target copy every
+        ``target_period`` steps. Returns the learner and the loss.
         """
         online, target, opt_state, grad_steps = learner
         opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
