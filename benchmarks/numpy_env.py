@@ -526,7 +526,8 @@ def _waits_at_kerb(
 
 
 def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) -> PedestrianState:
-    """Walk every pedestrian one step towards its next waypoint, never into the car."""
+    """Walk every pedestrian one step towards its next waypoint, never into the car
+    unless ``ped_yield`` is 0."""
     num = peds.position.shape[0]
     idx = np.minimum(peds.waypoint_index, peds.waypoints.shape[1] - 1)
     target = peds.waypoints[np.arange(num), idx]  # (P, 2)
@@ -540,6 +541,7 @@ def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) ->
 
     centre, half = ego_box(ego.s, params, inflate=params.ped_clearance)
     blocked = box_disc_overlap(centre, half, new_position, params.ped_radius)
+    blocked &= params.ped_yield == 1
     moves = ~peds.done & ~blocked & ~_waits_at_kerb(peds, new_position, ego, params)
     position = np.where(moves[:, None], new_position, peds.position)
     turn = moves & (dist > 0.0)

@@ -76,19 +76,22 @@ ADDED_LATER = {
     ("train", "imitation_corridor_margin"): 0.5,
     ("train", "select_by"): "return",
     ("train", "select_speed_floor"): 0.0,
+    ("env", "ped_yield"): 1,
 }
 
 
-def added_leaves(hparams: Hyperparams) -> dict[str, Any]:
+def added_leaves(hparams: Hyperparams, env_params: EnvParams) -> dict[str, Any]:
     """The ``TrainState`` leaves that checkpoints written before the
-    ``ADDED_LATER`` fields lack (key path -> value, from ``hparams``: the run's,
-    whose training hash the checkpoint's matched), for ``load_checkpoint(fill=…)``."""
-    traced = {f.name for f in dataclasses.fields(Hyperparams)}
-    return {
-        f".hparams.{name}": getattr(hparams, name)
-        for section, name in ADDED_LATER
-        if section == "train" and name in traced
-    }
+    ``ADDED_LATER`` fields lack (key path -> value, from the run's ``hparams``
+    and ``env_params``, whose training hash the checkpoint's matched), for
+    ``load_checkpoint(fill=…)``. Untraced fields (static sizes) are no leaves."""
+    owners = {"train": ("hparams", hparams), "env": ("env_params", env_params)}
+    fills = {}
+    for section, name in ADDED_LATER:
+        leaf, values = owners[section]
+        if name in {f.name for f in dataclasses.fields(values)}:
+            fills[f".{leaf}.{name}"] = getattr(values, name)
+    return fills
 
 
 TRAIN_SIZES = tuple(

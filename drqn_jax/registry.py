@@ -14,6 +14,9 @@ _PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "UrbanPedestrians-v0": ({}, {}),
     # Pedestrians at realistic walking speeds, 0.5–1.5 m/s.
     "UrbanPedestriansRealistic-v0": ({}, {"ped_speed_min": 0.5, "ped_speed_max": 1.5}),
+    # The paper's pedestrians, heedless of the car: they walk on into it, as CARLA's
+    # walkers do (SPEC §3's pedestrians stand still instead; docs/results.md §10).
+    "UrbanPedestriansHeedless-v0": ({}, {"ped_yield": 0}),
 }
 
 __all__ = ["make", "preset", "registered_envs"]

@@ -227,7 +227,8 @@ def train_run(
     wall_before, chunks = 0.0, 0
     if resume:
         expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
-        template, fill = jax.eval_shape(init, train_key), added_leaves(trainer.config.hyperparams)
+        template = jax.eval_shape(init, train_key)
+        fill = added_leaves(trainer.config.hyperparams, trainer.env_params)
         state, meta = load_checkpoint(run_dir, template, expected, fill)
         wall_before, chunks = float(meta["wall_time_s"]), int(meta["chunks"])
     else:
@@ -350,7 +351,7 @@ def load_trained_network(
     trainer = make_train(config.train_config())
     template = jax.eval_shape(trainer.init, config.keys()[0])
     expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
-    fill = added_leaves(trainer.config.hyperparams)
+    fill = added_leaves(trainer.config.hyperparams, trainer.env_params)
     state, meta = load_checkpoint(run_dir, template, expected, fill)
     return trainer.network, trainer.agent_params(state), meta
 

@@ -423,8 +423,9 @@ def train_call(
     checkpoint = directory is not None and (directory / CHECKPOINT_NPZ).exists()
     if checkpoint:
         template = jax.eval_shape(init, *args)
-        _, hparams, _ = args
-        expected, fill = {"config_hash": call.fingerprint()}, added_leaves(hparams)
+        _, hparams, env_params = args
+        expected = {"config_hash": call.fingerprint()}
+        fill = added_leaves(hparams, env_params)
         state, _ = load_checkpoint(directory, template, expected, fill)
         state = jax.device_put(state, sharding)
     else:

@@ -26,6 +26,7 @@ from drqn_jax.checkpoint import (
     save_checkpoint,
 )
 from drqn_jax.config import ADDED_LATER, added_leaves
+from drqn_jax.env.params import EnvParams
 from drqn_jax.train import Hyperparams, make_train
 from tests.helpers import assert_tree_equal, tiny_train_config
 
@@ -329,14 +330,20 @@ def test_leaves_added_later_are_filled(tmp_path, tiny, template):
     np.testing.assert_array_equal(np.asarray(state.metrics["extra"]), [7, 7, 7])
     assert_state_equal(state.replace(metrics=state5.metrics), state5)
     paths = {jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_leaves_with_path(template)}
-    fills = added_leaves(TINY.hyperparams)
+    fills = added_leaves(TINY.hyperparams, EnvParams())
     assert fills and set(fills) <= paths
     # each at the value the runs written before it had (n_step is static, not a leaf)
-    traced = {f.name for f in dataclasses.fields(Hyperparams)}
-    before = Hyperparams(**{n: v for (_, n), v in ADDED_LATER.items() if n in traced})
-    assert len(fills) == len(traced & {n for _, n in ADDED_LATER})
-    for path, value in fills.items():
-        np.testing.assert_array_equal(value, getattr(before, path.removeprefix(".hparams.")))
+    for owner, section, leaf in (
+        (Hyperparams, "train", "hparams"),
+        (EnvParams, "env", "env_params"),
+    ):
+        traced = {f.name for f in dataclasses.fields(owner)}
+        added = {n: v for (s, n), v in ADDED_LATER.items() if s == section and n in traced}
+        before = owner(**added)
+        ours = {p: v for p, v in fills.items() if p.startswith(f".{leaf}.")}
+        assert added and len(ours) == len(added), section
+        for path, value in ours.items():
+            np.testing.assert_array_equal(value, getattr(before, path.removeprefix(f".{leaf}.")))
 
 
 def test_config_mismatch_names_the_field(tmp_path, tiny, template):

@@ -75,6 +75,17 @@ def test_realistic_extends_default_with_walking_speeds():
     assert realistic["env"]["reward_collision"] == default["env"]["reward_collision"] == -100.0
 
 
+def test_heedless_is_default_among_pedestrians_that_walk_into_the_car():
+    default, heedless, ablation = (load_config(n) for n in ("default", "heedless", "heedless-dqn"))
+    assert heedless["env"]["id"] == "UrbanPedestriansHeedless-v0"
+    assert heedless.make_env()[1].ped_yield == 0 and default.make_env()[1].ped_yield == 1
+    differ = {k for k in default["env"] if heedless["env"][k] != default["env"][k]}
+    assert differ == {"id", "ped_yield"}, differ
+    assert heedless["train"] == default["train"] and heedless["network"] == default["network"]
+    assert ablation["network"]["kind"] == "dqn" and ablation["env"] == heedless["env"]
+    assert ablation["train"] == heedless["train"]
+
+
 def test_set_overrides_and_parsing():
     config = load_config(
         "smoke",

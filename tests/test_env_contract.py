@@ -66,9 +66,12 @@ def test_registered_ids_and_overrides():
     assert set(drqn_jax.registered_envs()) >= {
         "UrbanPedestrians-v0",
         "UrbanPedestriansRealistic-v0",
+        "UrbanPedestriansHeedless-v0",
     }
     _, realistic = drqn_jax.make("UrbanPedestriansRealistic-v0")
     assert float(realistic.ped_speed_min) == 0.5 and float(realistic.ped_speed_max) == 1.5
+    _, heedless = drqn_jax.make("UrbanPedestriansHeedless-v0")
+    assert int(heedless.ped_yield) == 0 and int(drqn_jax.make()[1].ped_yield) == 1
     env, params = drqn_jax.make(num_pedestrians=4, v_ref=5.0, semantic_channel="map")
     assert env.static.num_pedestrians == 4 and float(params.v_ref) == 5.0
     obs, state = env.reset(jax.random.key(0), params)
@@ -93,6 +96,7 @@ def test_registered_ids_and_overrides():
         ({"semantic_channel": 7}, "semantic_channel"),
         ({"dt": 0.0}, "dt"),
         ({"gap_acceptance": 0.5}, "gap_acceptance"),
+        ({"ped_yield": 2}, "ped_yield"),
         ({"ttc_threshold": 4.0}, "ttc_threshold"),
     ],
 )

@@ -93,6 +93,9 @@ SCENARIOS = {
     "occlusion": Scenario(
         "UrbanPedestrians-v0", {"occlusion_prob": 0.3}, "driving", 1, 250, ("occluded",)
     ),
+    "heedless": Scenario(  # pedestrians walk into the car (ped_yield = 0)
+        "UrbanPedestriansHeedless-v0", {}, "driving", 3, 300, ("collision", "goal", "near_miss")
+    ),
     "truncation": Scenario(
         "UrbanPedestrians-v0", {"max_steps": 100}, "random", 3, 250, ("truncated",)
     ),

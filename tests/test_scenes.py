@@ -418,6 +418,33 @@ def test_pedestrians_stop_before_stopped_car(env, params, static, run_scene):
     np.testing.assert_array_equal(pos[-20:], np.broadcast_to(end, (20, n, 2)))
 
 
+def test_heedless_pedestrian_walks_into_stopped_car(params, static, run_scene):
+    """``ped_yield = 0``: the walker ignores the stopped car and collides with it.
+
+    The car stands at s = 20 (box x in [17.75, 22.25], y in [-2.65, -0.85]); a
+    walker at the paper's speed, 0.3 m/s (0.03 m a step), starts at (22, -4)
+    and crosses towards the left sidewalk: its disc (radius 0.3 m) meets the
+    box once it has walked 1.05 m, at step 35. With ``ped_yield = 1`` (SPEC
+    §3) the same walker stops before the car.
+    """
+    s = 20.0
+    state = _state(
+        _ego(params, static, s=s, v=0.0),
+        _peds(static, [(22.0, -4.0)], targets=[(22.0, 2.0)], speeds=[0.3], park_x=s + 10.0),
+    )
+    _, yielding = run_scene(state, params, action=BRAKE)
+    _, heedless = run_scene(state, params.replace(ped_yield=0), action=BRAKE)
+
+    assert params.ped_yield == 1  # the default: SPEC §3
+    assert not np.any(yielding["collision"])
+    assert np.all(heedless["v"] == 0.0)  # the car never moved: the walker did
+    first = int(np.argmax(heedless["collision"]))
+    assert heedless["collision"][first] and heedless["terminated"][first]
+    assert first + 1 in (34, 35, 36), first  # steps taken when the disc meets the box
+    walked = 4.0 + heedless["ped_position"][first, 0, 1]
+    assert 1.05 - 1e-4 <= walked < 1.05 + 0.03 + 1e-4, walked
+
+
 # --- 5. the observation grid ----------------------------------------------------
 
 

@@ -160,6 +160,13 @@ class EnvParams:
     despawn_behind: float = param(5.0, low=0.0, doc="m behind the ego's rear")
     despawn_ahead: float = param(45.0, low=0.0, doc="m ahead of the ego centre")
     ped_clearance: float = param(0.2, low=0.0, doc="m; footprint inflation pedestrians respect")
+    ped_yield: int = param(
+        1,
+        low=0,
+        high=1,
+        doc="1: a pedestrian stands still rather than step into the ego (SPEC §3); "
+        "0: it walks on into the car, as CARLA's walkers do",
+    )
     gap_acceptance: int = param(0, low=0, high=1, doc="1: wait at the kerb for the ego")
     wait_distance: float = param(10.0, low=0.0, doc="m; gap acceptance distance")
     wait_time: float = param(3.0, low=0.0, doc="s; gap acceptance time to arrive")

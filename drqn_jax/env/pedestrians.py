@@ -14,8 +14,9 @@ a behaviour drawn from (crossing, jaywalking, sidewalk) and a path of
 
 Each step a pedestrian walks straight to its next waypoint at its desired
 speed, unless its next position would overlap the ego's footprint inflated
-by ``ped_clearance`` (then it stands still), or gap acceptance makes it wait
-at the kerb. Pedestrians far behind, far ahead or done are replaced by new
+by ``ped_clearance`` (then it stands still; with ``ped_yield`` = 0 it walks on
+into the car, as CARLA's walkers do), or gap acceptance makes it wait at the
+kerb. Pedestrians far behind, far ahead or done are replaced by new
 ones spawned ahead of the ego. Optionally (``occlusion_prob`` > 0) each
 pedestrian is left out of the observation grid with that probability per
 step (:func:`occlusion_mask`), for studies of partial observability.
@@ -225,7 +226,9 @@ def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) ->
 
     ``ego`` is the ego after its own step: a pedestrian whose next position
     would overlap the ego's footprint inflated by ``ped_clearance`` stays put,
-    so any overlap comes from the ego's motion.
+    so any overlap comes from the ego's motion — unless ``ped_yield`` is 0,
+    when pedestrians ignore the car and may walk into it (a collision the ego
+    can only avoid by not being there).
     """
     num_wp = peds.waypoints.shape[-2]
     done = peds.done
@@ -239,7 +242,9 @@ def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) ->
     new_position = jnp.where(reach[:, None], target, peds.position + unit * step[:, None])
 
     centre, half = ego_box(ego.s, params, inflate=params.ped_clearance)
-    blocked = box_disc_overlap(centre, half, new_position, params.ped_radius)
+    blocked = (params.ped_yield == 1) & box_disc_overlap(
+        centre, half, new_position, params.ped_radius
+    )
     moves = ~done & ~blocked & ~_waits_at_kerb(peds, new_position, ego, params)
     position = jnp.where(moves[:, None], new_position, peds.position)
     heading = jnp.where(moves & (dist > 0.0), jnp.arctan2(delta[:, 1], delta[:, 0]), peds.heading)
