@@ -4,7 +4,9 @@ Plays a run directory's greedy agent and the rule-based agent (SPEC §6) on the
 same episodes and splits every step by what the rule-based agent would do in
 that state: where it brakes (a pedestrian on the road in its corridor) and
 where it drives on. Prints the share of each action there, the speed where
-it drives on, and the collisions::
+it drives on, and the collisions: whether the car was stopped, where the
+pedestrian met it (its front, side or rear) and what the pedestrian was
+doing (docs/results.md §10: among heedless pedestrians, who walk into cars)::
 
     python docs/action_trace.py runs/reproduce --episodes 64
 """
@@ -21,16 +23,30 @@ import numpy as np
 import drqn_jax
 from drqn_jax.agents import Agent, drqn_agent, rule_based_agent
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
+from drqn_jax.env.collision import box_disc_overlap, ego_box
 from drqn_jax.env.state import BRAKE
 from drqn_jax.runner import load_run, load_trained_network
 
 ACTIONS = ("accelerate", "slow_down", "brake", "steer")
+BEHAVIOURS = ("crossing", "jaywalking", "sidewalk")  # SPEC §3, state.CROSSING … SIDEWALK
+SIDES = ("front", "side", "rear")
 SPEED_LIMIT_KMH = 15.0  # v_ref (SPEC §2)
+
+
+def collider(state: Any, params: Any) -> tuple[jax.Array, jax.Array]:
+    """Where the pedestrian that overlaps the ego met it (0 front: ahead of the
+    front bumper, 1 side, 2 rear) and its behaviour; the first such pedestrian."""
+    centre, half = ego_box(state.ego.s, params)
+    peds = state.pedestrians
+    hit = jnp.argmax(box_disc_overlap(centre, half, peds.position, params.ped_radius))
+    dx = peds.position[hit, 0] - state.ego.s
+    side = jnp.where(dx > half[0], 0, jnp.where(dx < -half[0], 2, 1))
+    return side, peds.behaviour[hit]
 
 
 def trace(agent: Agent, key: jax.Array, env: Any, params: Any) -> dict[str, jax.Array]:
     """One episode's per-step (max_steps,) action, rule-based label, speed (m/s),
-    live flag and collision flag."""
+    live flag, collision flag, and where the collision happened (:func:`collider`)."""
     k_reset, k_carry, k_run = jax.random.split(key, 3)
     obs, state = env.reset_env(k_reset, params)
     carry = agent.init_carry(k_carry)
@@ -42,12 +58,15 @@ def trace(agent: Agent, key: jax.Array, env: Any, params: Any) -> dict[str, jax.
         action, carry = agent.act(k_act, obs, carry, state, env, params)
         speed = state.ego.v
         obs, state, _, terminated, truncated, info = env.step_env(k_env, state, action, params)
+        side, behaviour = collider(state, params)
         out = {
             "action": action,
             "label": label,
             "speed": speed,
             "live": ~done,
             "collision": info["collision"] & ~done,
+            "side": side,
+            "behaviour": behaviour,
         }
         return (obs, state, carry, done | terminated | truncated), out
 
@@ -75,6 +94,18 @@ def report(name: str, out: dict[str, np.ndarray]) -> None:
     if above.size:
         text += f", at {above.mean():.2f} km/h on average, {above.max():.2f} at most"
     print(text)
+    hits = out["collision"]
+    if hits.any():
+        n = int(hits.sum())
+        stopped = 100 * (out["speed"][hits] * 3.6 < 1).mean()
+
+        def shares(names: tuple[str, ...], codes: np.ndarray) -> str:
+            counts = np.bincount(codes, minlength=len(names))
+            return ", ".join(f"{m} {100 * c / n:.0f} %" for m, c in zip(names, counts, strict=True))
+
+        print(f"  collisions: the car stopped (< 1 km/h) in {stopped:.0f} %")
+        print(f"    where the pedestrian met it: {shares(SIDES, out['side'][hits])}")
+        print(f"    what it was doing: {shares(BEHAVIOURS, out['behaviour'][hits])}")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -5,6 +5,7 @@ given, on the paper's and the realistic pedestrians, and prints a Markdown
 table (a few seconds per cell on a 2-core CPU)::
 
     python docs/rule_based_thresholds.py --margins 0.5,0.3,0.1 --lookaheads 7,5,4,3
+    python docs/rule_based_thresholds.py --envs UrbanPedestriansHeedless-v0   # §10
 """
 
 from __future__ import annotations
@@ -26,11 +27,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--lookaheads", default="7,5,4,3", help="look-aheads (m)")
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=7, help="key of the episodes")
+    parser.add_argument("--envs", default=",".join(ENVS), help="comma-separated env ids")
     args = parser.parse_args(argv)
-    envs = [drqn_jax.make(env_id) for env_id in ENVS]
+    env_ids = args.envs.split(",")
+    envs = [drqn_jax.make(env_id) for env_id in env_ids]
     key = jax.random.key(args.seed)
-    print("| corridor margin (m) | look-ahead (m) | " + " | ".join(ENVS) + " |")
-    print("| ---: | ---: |" + " --- |" * len(ENVS))
+    print("| corridor margin (m) | look-ahead (m) | " + " | ".join(env_ids) + " |")
+    print("| ---: | ---: |" + " --- |" * len(env_ids))
     for margin in map(float, args.margins.split(",")):
         for lookahead in map(float, args.lookaheads.split(",")):
             agent = rule_based_agent(RuleBasedParams(corridor_margin=margin, lookahead=lookahead))
