@@ -60,13 +60,17 @@ def make_sync(num_envs: int, mode: AutoresetMode):
 
 # --- registration -------------------------------------------------------------
 def test_registration_ids_entry_points_and_idempotence():
-    ids = ((ID, "UrbanPedestrians-v0"), (ID_REALISTIC, "UrbanPedestriansRealistic-v0"))
+    ids = (
+        (ID, "UrbanPedestrians-v0"),
+        (ID_REALISTIC, "UrbanPedestriansRealistic-v0"),
+        ("drqn_jax/UrbanPedestriansHeedless-v0", "UrbanPedestriansHeedless-v0"),
+    )
     for gym_id, env_id in ids:
         spec = gymnasium.spec(gym_id)
         assert spec.entry_point == "drqn_jax.gymnasium_env:UrbanPedestriansGymEnv"
         assert spec.vector_entry_point == "drqn_jax.gymnasium_env:UrbanPedestriansVectorEnv"
         assert spec.kwargs == {"env_id": env_id}
-    assert set(ge.gymnasium_ids()) == {ID, ID_REALISTIC}
+    assert set(ge.gymnasium_ids()) == {gym_id for gym_id, _ in ids}
     with no_warnings():
         assert drqn_jax.register_gymnasium_envs() == ge.gymnasium_ids()  # no re-registration
 
