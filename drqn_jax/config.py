@@ -37,7 +37,7 @@ from typing import Any
 import jax
 
 from drqn_jax.agents.rule_based import RuleBasedParams
-from drqn_jax.env.params import EnvParams, StaticEnvParams
+from drqn_jax.env.params import KMH, EnvParams, StaticEnvParams
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.registry import make, preset, registered_envs
@@ -74,6 +74,7 @@ ADDED_LATER = {
     ("train", "imitation_states"): "brake",
     ("train", "imitation_lookahead"): 7.0,
     ("train", "imitation_corridor_margin"): 0.5,
+    ("train", "imitation_v_max"): 15.0 * KMH,
     ("train", "select_by"): "return",
     ("train", "select_speed_floor"): 0.0,
     ("env", "ped_yield"): 1,

@@ -63,7 +63,7 @@ import jax.numpy as jnp
 from drqn_jax.agents.drqn import drqn_agent
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action, rule_based_labels
 from drqn_jax.env.grid import GridInputs
-from drqn_jax.env.params import EnvParams
+from drqn_jax.env.params import KMH, EnvParams
 from drqn_jax.env.state import BRAKE, NUM_ACTIONS, Observation
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.evaluation import episode_keys, run_episodes
@@ -177,6 +177,13 @@ class Hyperparams:
         low=0.0,
         doc="m: the corridor margin of the rule-based agent whose actions are imitated "
         "(SPEC §6: 0.5; exploration's guide keeps 0.5)",
+    )
+    imitation_v_max: float = param(
+        15.0 * KMH,
+        low=0.0,
+        low_open=True,
+        doc="m/s: the speed the imitated rule-based agent tracks, within ±1 km/h "
+        "(SPEC §6: 15 km/h, the limit; exploration's guide keeps 15 km/h)",
     )
     select_by: int = param(
         "return",
@@ -536,7 +543,9 @@ def _make_train(config: TrainConfig) -> Trainer:
         )
         states = jax.tree.map(lambda x: x[:-1], windows.records)  # s_t of each transition
         teacher = RULE_BASED_GUIDE.replace(
-            lookahead=hp.imitation_lookahead, corridor_margin=hp.imitation_corridor_margin
+            lookahead=hp.imitation_lookahead,
+            corridor_margin=hp.imitation_corridor_margin,
+            v_max=hp.imitation_v_max,
         )
         expert = rule_based_labels(states, env_params, teacher, env.static)
         imitate = (hp.imitation_states == IMITATION_ALL) | (expert == BRAKE)

@@ -125,16 +125,17 @@ def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked):
 
 
 LANE_Y = float(lane_centre_y(drqn_jax.make("UrbanPedestrians-v0")[1]))
-TEACHER = RuleBasedParams(lookahead=12.0, corridor_margin=1.0)
+TEACHER = RuleBasedParams(lookahead=12.0, corridor_margin=1.0, v_max=2.0)
 
 
 def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
     """train.imitation_*: the update's loss is sequence_loss with the rule-based
-    agent's actions (with the imitation_* look-ahead and corridor margin) in the
+    agent's actions (with the imitation_* look-ahead, corridor margin and v_max) in the
     sampled windows' states as the expert, weighted by imitation_weight in every
     state ('all') or where it brakes ('brake'); weight 0 is the TD loss alone.
     Pedestrian 0 is moved onto the lane 10 m ahead of the ego in every replayed
-    state: beyond the usual 7 m look-ahead, within the teacher's 12 m."""
+    state: beyond the usual 7 m look-ahead, within the teacher's 12 m; the teacher
+    tracks 2 m/s (7.2 km/h) instead of 15 km/h."""
     trainer, _ = tiny
     state, _ = tiny_chunked
     records = state.replay.records
@@ -170,6 +171,7 @@ def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
                 imitation_states=IMITATION_STATES.index(states),
                 imitation_lookahead=TEACHER.lookahead,
                 imitation_corridor_margin=TEACHER.corridor_margin,
+                imitation_v_max=TEACHER.v_max,
             )
             _, loss = update(learner, key, state.replay, hp, state.env_params)
             want, relabelled = expected(state.replace(hparams=hp), key, weight, states == "all")
@@ -179,8 +181,29 @@ def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
     assert losses["all", 0.0] == losses["brake", 0.0]
     assert losses["all", 2.0] > losses["all", 0.0]
     assert losses["brake", 2.0] > losses["brake", 0.0]
+    # imitation_v_max alone: every pedestrian 100 m ahead (no braking), every replayed
+    # speed 3 m/s, above the teacher's 2 ± 0.28 ("slow down") and below 15 km/h − 1
+    # ("accelerate")
+    far = jnp.stack([records.s + 100.0, jnp.full_like(records.s, LANE_Y)], axis=-1)
+    cruising = records.replace(
+        position=jnp.broadcast_to(far[..., None, :], records.position.shape),
+        v=jnp.full_like(records.v, 3.0),
+    )
+    state = state.replace(replay=state.replay.replace(records=cruising))
+    hp = hp.replace(imitation_weight=2.0, imitation_states=IMITATION_STATES.index("all"))
+    spec_v_max = RuleBasedParams().v_max
+    slow, spec = (
+        update(learner, key, state.replay, hp.replace(imitation_v_max=v), state.env_params)[1]
+        for v in (TEACHER.v_max, spec_v_max)
+    )
+    want, relabelled = expected(state.replace(hparams=hp), key, 2.0, True)
+    assert float(slow) == pytest.approx(float(want), rel=1e-6)
+    assert int(relabelled) == 16  # all 16 sampled states: "slow down", not "accelerate"
+    assert float(slow) != pytest.approx(float(spec), rel=1e-3)
     with pytest.raises(ValueError, match="imitation_states"):
         Hyperparams(imitation_states=IMITATION_STATES.index("all") + 1)
+    with pytest.raises(ValueError, match="imitation_v_max"):
+        Hyperparams(imitation_v_max=0.0)
 
 
 def test_guided_exploration_takes_the_rule_based_action(tiny):
