@@ -6,17 +6,20 @@ table (a few seconds per cell on a 2-core CPU)::
 
     python docs/rule_based_thresholds.py --margins 0.5,0.3,0.1 --lookaheads 7,5,4,3
     python docs/rule_based_thresholds.py --envs UrbanPedestriansHeedless-v0   # §10
+    python docs/rule_based_thresholds.py --v-maxes 14 --margins 0.5,0.4 --lookaheads 7,5,4
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 
 import jax
 
 import drqn_jax
 from drqn_jax.agents import rule_based_agent
 from drqn_jax.agents.rule_based import RuleBasedParams
+from drqn_jax.env.params import KMH
 
 ENVS = ("UrbanPedestrians-v0", "UrbanPedestriansRealistic-v0")
 
@@ -25,6 +28,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--margins", default="0.5,0.3,0.1", help="corridor margins (m)")
     parser.add_argument("--lookaheads", default="7,5,4,3", help="look-aheads (m)")
+    parser.add_argument("--v-maxes", default="15", help="speeds it tracks (km/h)")
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=7, help="key of the episodes")
     parser.add_argument("--envs", default=",".join(ENVS), help="comma-separated env ids")
@@ -32,18 +36,20 @@ def main(argv: list[str] | None = None) -> None:
     env_ids = args.envs.split(",")
     envs = [drqn_jax.make(env_id) for env_id in env_ids]
     key = jax.random.key(args.seed)
-    print("| corridor margin (m) | look-ahead (m) | " + " | ".join(env_ids) + " |")
-    print("| ---: | ---: |" + " --- |" * len(env_ids))
-    for margin in map(float, args.margins.split(",")):
-        for lookahead in map(float, args.lookaheads.split(",")):
-            agent = rule_based_agent(RuleBasedParams(corridor_margin=margin, lookahead=lookahead))
-            cells = []
-            for env, params in envs:
-                r = drqn_jax.evaluate(agent, key, args.episodes, env, params)
-                cells.append(
-                    f"{100 * r['collision_free_rate']:.1f} %, {r['avg_speed_kmh']:.2f} km/h"
-                )
-            print(f"| {margin} | {lookahead} | " + " | ".join(cells) + " |", flush=True)
+    print("| v_max (km/h) | corridor margin (m) | look-ahead (m) | " + " | ".join(env_ids) + " |")
+    print("| ---: | ---: | ---: |" + " --- |" * len(env_ids))
+    grid = itertools.product(
+        *(map(float, a.split(",")) for a in (args.v_maxes, args.margins, args.lookaheads))
+    )
+    for v_max, margin, lookahead in grid:
+        agent = rule_based_agent(
+            RuleBasedParams(v_max=v_max * KMH, corridor_margin=margin, lookahead=lookahead)
+        )
+        cells = []
+        for env, params in envs:
+            r = drqn_jax.evaluate(agent, key, args.episodes, env, params)
+            cells.append(f"{100 * r['collision_free_rate']:.1f} %, {r['avg_speed_kmh']:.2f} km/h")
+        print(f"| {v_max:g} | {margin} | {lookahead} | " + " | ".join(cells) + " |", flush=True)
 
 
 if __name__ == "__main__":
