@@ -86,6 +86,23 @@ def test_heedless_is_default_among_pedestrians_that_walk_into_the_car():
     assert ablation["train"] == heedless["train"]
 
 
+def test_heedless_safe_imitates_a_cautious_rule_based_agent_not_the_compared_one():
+    heedless, safe = load_config("heedless"), load_config("heedless-safe")
+    assert safe["env"] == heedless["env"] and safe["network"] == heedless["network"]
+    differ = {
+        k: safe["train"][k] for k in heedless["train"] if safe["train"][k] != heedless["train"][k]
+    }
+    assert differ == {
+        "imitation_weight": 10.0,
+        "imitation_states": "all",
+        "imitation_corridor_margin": 3.0,
+        "imitation_lookahead": 15.0,
+    }, differ
+    # the study's rule-based row stays SPEC §6's agent, not the teacher
+    assert safe["rule_based"] == heedless["rule_based"] == load_config("default")["rule_based"]
+    assert safe.rule_based_params().corridor_margin == 0.5
+
+
 def test_set_overrides_and_parsing():
     config = load_config(
         "smoke",
