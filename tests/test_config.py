@@ -103,6 +103,28 @@ def test_heedless_safe_imitates_a_cautious_rule_based_agent_not_the_compared_one
     assert safe.rule_based_params().corridor_margin == 0.5
 
 
+def test_beyond_is_safe_with_a_faster_teacher_on_both_pedestrians():
+    safe, beyond = load_config("safe"), load_config("beyond")
+    assert beyond["env"] == safe["env"] and beyond["network"] == safe["network"]
+    differ = {k: v for k, v in beyond["train"].items() if v != safe["train"][k]}
+    assert differ == {
+        "imitation_v_max": pytest.approx(14.5 / 3.6),
+        "imitation_corridor_margin": 0.45,
+        "imitation_lookahead": 5.0,
+    }, differ
+    assert beyond["rule_based"] == safe["rule_based"] == load_config("default")["rule_based"]
+    realistic = load_config("beyond-realistic")
+    assert realistic["env"] == load_config("safe-realistic")["env"]
+    assert realistic["train"] == beyond["train"]
+    # docs/results.md §9's study ran `safe` with these --set overrides: the same runs
+    teacher = (
+        "train.imitation_v_max=4.027777777777778",
+        "train.imitation_corridor_margin=0.45",
+        "train.imitation_lookahead=5",
+    )
+    assert beyond.training_hash() == load_config("safe", teacher).training_hash()
+
+
 def test_set_overrides_and_parsing():
     config = load_config(
         "smoke",
