@@ -18,6 +18,11 @@ from drqn_jax.networks import NetworkConfig
 from drqn_jax.train import TrainConfig
 
 
+def changed(preset, base, section: str) -> dict:
+    """The fields of ``section`` whose value in ``preset`` differs from ``base``'s."""
+    return {k: v for k, v in preset[section].items() if v != base[section][k]}
+
+
 def test_shipped_configs_load():
     assert {"paper", "budget", "default", "realistic", "smoke"} <= set(config_names())
     for name in config_names():
@@ -79,8 +84,8 @@ def test_heedless_is_default_among_pedestrians_that_walk_into_the_car():
     default, heedless, ablation = (load_config(n) for n in ("default", "heedless", "heedless-dqn"))
     assert heedless["env"]["id"] == "UrbanPedestriansHeedless-v0"
     assert heedless.make_env()[1].ped_yield == 0 and default.make_env()[1].ped_yield == 1
-    differ = {k for k in default["env"] if heedless["env"][k] != default["env"][k]}
-    assert differ == {"id", "ped_yield"}, differ
+    differ = changed(heedless, default, "env")
+    assert differ.keys() == {"id", "ped_yield"}, differ
     assert heedless["train"] == default["train"] and heedless["network"] == default["network"]
     assert ablation["network"]["kind"] == "dqn" and ablation["env"] == heedless["env"]
     assert ablation["train"] == heedless["train"]
@@ -89,9 +94,7 @@ def test_heedless_is_default_among_pedestrians_that_walk_into_the_car():
 def test_heedless_safe_imitates_a_cautious_rule_based_agent_not_the_compared_one():
     heedless, safe = load_config("heedless"), load_config("heedless-safe")
     assert safe["env"] == heedless["env"] and safe["network"] == heedless["network"]
-    differ = {
-        k: safe["train"][k] for k in heedless["train"] if safe["train"][k] != heedless["train"][k]
-    }
+    differ = changed(safe, heedless, "train")
     assert differ == {
         "imitation_weight": 10.0,
         "imitation_states": "all",
@@ -106,7 +109,7 @@ def test_heedless_safe_imitates_a_cautious_rule_based_agent_not_the_compared_one
 def test_beyond_is_safe_with_a_faster_teacher_on_both_pedestrians():
     safe, beyond = load_config("safe"), load_config("beyond")
     assert beyond["env"] == safe["env"] and beyond["network"] == safe["network"]
-    differ = {k: v for k, v in beyond["train"].items() if v != safe["train"][k]}
+    differ = changed(beyond, safe, "train")
     assert differ == {
         "imitation_v_max": pytest.approx(14.5 / 3.6),
         "imitation_corridor_margin": 0.45,
