@@ -289,7 +289,8 @@ _SWEEP_DOC = """Run every point of a sweep file: points that share shapes train 
 compiled jit(vmap) calls, the runs sharded over all local devices, as many per call as the
 memory plan allows; each run is evaluated on the same episodes. Writes results.md and
 results.csv (mean, std, 95 % t-interval and IQM across seeds per setting) and runs.json
-(every run). Ctrl-C saves checkpoints (status 130); --resume continues. With several
+(every run). Ctrl-C saves checkpoints (status 130); --resume continues, also a sweep
+file given more points after the saved ones (more seeds). With several
 processes each trains its slice of the runs and process 0 writes the results."""
 _STUDY_DOC = """Train every config for seeds 0 … N-1 (one sweep over run.seed per
 config, in OUT/<config>/), evaluate every run greedily on the same episodes (the first
@@ -298,7 +299,7 @@ seed's evaluation key), evaluate the rule-based agent on them, and write OUT/stu
 speed, distance, goal %, collisions per km), OUT/study.json, and the training curves
 (average reward and steps per episode, mean and min-max over seeds) as OUT/curves.png
 and OUT/curves.rrd. Ctrl-C saves checkpoints (status 130); running the same command
-again continues the study."""
+again continues the study, and with a larger --seeds adds the new seeds to it."""
 _BENCH_DOC = """Run the benchmark suite of benchmarks/ (a clone of the repository is
 needed): each benchmark prints a Markdown table with the machine it ran on, and
 --out DIR writes DIR/NAME.json and DIR/NAME.md. 'all' runs every benchmark with

@@ -401,10 +401,10 @@ def compare(row: Mapping[str, Any], baseline: Mapping[str, Any]) -> str:
 
 def finished_results(directory: Path) -> list[dict[str, Any]]:
     """The runs of a config's sweep whose call has ended (``calls/*/runs.json``), by index."""
-    results: list[dict[str, Any]] = []
+    results: dict[int, dict[str, Any]] = {}  # by index: a grown plan may regroup its calls
     for path in sorted((directory / "calls").glob("*/runs.json")):
-        results += json.loads(path.read_text())
-    return sorted(results, key=lambda r: r["index"])
+        results.update((r["index"], r) for r in json.loads(path.read_text()))
+    return [results[i] for i in sorted(results)]
 
 
 def run_study(

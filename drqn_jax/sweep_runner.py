@@ -544,7 +544,9 @@ def _plan_path(out: Path, dist: Distributed) -> Path:
     return out / ("plan.json" if dist.processes == 1 else f"plan.process-{dist.process}.json")
 
 
-def _check_plan(path: Path, record: dict[str, Any]) -> None:
+def _check_plan(path: Path, record: dict[str, Any]) -> bool:
+    """Check that ``path`` holds this sweep, or its first points (a study given more
+    seeds); return whether the plan grows. Every saved point must keep its training hash."""
     out = path.parent
     if not path.is_file():
         raise CheckpointError(f"{out}: no sweep to resume (no {path.name})")
@@ -554,16 +556,15 @@ def _check_plan(path: Path, record: dict[str, Any]) -> None:
             f"{out}: the sweep ran as {saved.get('processes')} process(es); resume it with as many"
         )
     old = {p["index"]: p for p in saved.get("points", [])}
-    for point in record["points"]:
-        if old.get(point["index"], {}).get("training_hash") != point["training_hash"]:
+    new = {p["index"]: p for p in record["points"]}
+    for index, point in old.items():
+        if new.get(index, {}).get("training_hash") != point["training_hash"]:
             raise CheckpointError(
-                f"{out} holds another sweep: point {point['index']} ({point['values']}) "
-                "differs; resume with the same sweep file and --set overrides"
+                f"{out} holds another sweep: point {index} ({point['values']}) "
+                "differs or is missing; resume with the same sweep file and --set overrides "
+                "(more points may follow the saved ones, none may change)"
             )
-    if len(old) != len(record["points"]):
-        raise CheckpointError(
-            f"{out} holds another sweep: {len(old)} points, not {len(record['points'])}"
-        )
+    return len(new) > len(old)
 
 
 def run_sweep(
@@ -579,7 +580,8 @@ def run_sweep(
 
     Args:
         calls: the plan (default: :func:`plan_calls` on all local devices).
-        resume: continue a sweep in ``out`` (same points, same process count).
+        resume: continue a sweep in ``out``: the same points, or more after them (e.g.
+            more seeds), and the same process count.
     """
     out = Path(out)
     devices = jax.local_devices()
@@ -587,7 +589,8 @@ def run_sweep(
         calls = plan_calls(sweep, len(devices), dist)
     record, plan = _plan_record(sweep, dist), _plan_path(out, dist)
     if resume:
-        _check_plan(plan, record)
+        if _check_plan(plan, record):  # more seeds: the saved runs are kept, the new ones train
+            atomic_write_text(plan, json.dumps(record, indent=1) + "\n")
     else:
         if plan.exists():
             raise CheckpointError(

@@ -307,6 +307,28 @@ def test_resume_skips_finished_calls_and_refuses_another_sweep(sweep_file, cli_s
     assert code == 2 and "already holds a sweep" in capsys.readouterr().err
 
 
+def test_a_sweep_grows_by_seeds_and_keeps_its_runs(sweep_file, cli_sweep, tmp_path, capsys):
+    """Seed 0's sweep resumed with both seeds: seed 0's calls are kept, seed 1's train,
+    and runs.json is the full sweep's; the full sweep's directory refuses the smaller file."""
+    first = tmp_path / "seed0.toml"
+    first.write_text(SWEEP.replace("stop = 2", "stop = 1"))
+    out = tmp_path / "out"
+    args = ["--set", "evaluate.episodes=2", "--out", str(out), "--quiet"]
+    assert cli.main(["sweep", str(first), *args]) == 0
+    kept = {p: p.stat().st_mtime_ns for p in out.glob("calls/*/runs.json")}
+    assert len(kept) == 2
+    assert cli.main(["sweep", str(sweep_file), *args, "--resume"]) == 0
+    assert all(p.stat().st_mtime_ns == t for p, t in kept.items())  # not trained again
+    assert len(json.loads((out / "plan.json").read_text())["points"]) == 4
+    assert json.loads((out / "runs.json").read_text()) == json.loads(
+        (cli_sweep / "runs.json").read_text()
+    )
+    capsys.readouterr()
+    code = cli.main(["sweep", str(first), "--out", str(cli_sweep), "--resume", "--quiet"])
+    assert code == 2
+    assert "point 2 ({'run.seed': 1" in capsys.readouterr().err
+
+
 def test_the_memory_plan_splits_or_refuses(sweep_file, capsys):
     sweep = load_sweep(sweep_file)
     per_run = run_memory(sweep.points[0].config)
