@@ -581,7 +581,9 @@ def run_sweep(
     Args:
         calls: the plan (default: :func:`plan_calls` on all local devices).
         resume: continue a sweep in ``out``: the same points, or more after them (e.g.
-            more seeds), and the same process count.
+            more seeds), and the same process count. A call whose runs ended is kept
+            when the plan has the same call (always with one run per call, as on CPU);
+            a grown batched plan may regroup runs, which then train again.
     """
     out = Path(out)
     devices = jax.local_devices()
@@ -589,14 +591,15 @@ def run_sweep(
         calls = plan_calls(sweep, len(devices), dist)
     record, plan = _plan_record(sweep, dist), _plan_path(out, dist)
     if resume:
-        if _check_plan(plan, record):  # more seeds: the saved runs are kept, the new ones train
-            atomic_write_text(plan, json.dumps(record, indent=1) + "\n")
+        write_plan = _check_plan(plan, record)  # grown (more seeds): the new points are added
     else:
         if plan.exists():
             raise CheckpointError(
                 f"{out} already holds a sweep; continue it with --resume or choose another --out"
             )
         out.mkdir(parents=True, exist_ok=True)
+        write_plan = True
+    if write_plan:
         atomic_write_text(plan, json.dumps(record, indent=1) + "\n")
     first = sweep.points[0].config
     eval_key = first.keys()[1]
