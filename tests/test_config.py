@@ -128,6 +128,19 @@ def test_beyond_is_safe_with_a_faster_teacher_on_both_pedestrians():
     assert beyond.training_hash() == load_config("safe", teacher).training_hash()
 
 
+def test_beyond_long_is_beyond_trained_twice_as_long():
+    beyond, long = load_config("beyond"), load_config("beyond-long")
+    assert changed(long, beyond, "train") == {"num_episodes": 512}
+    assert long["env"] == beyond["env"] and long["network"] == beyond["network"]
+    realistic = load_config("beyond-long-realistic")
+    assert realistic["env"] == load_config("beyond-realistic")["env"]
+    assert realistic["train"] == long["train"]
+    # docs/results.md §9 ("Longer training") ran `beyond` with this --set: the same runs
+    for name, base in (("beyond-long", "beyond"), ("beyond-long-realistic", "beyond-realistic")):
+        longer = load_config(base, ["train.num_episodes=512"])
+        assert load_config(name).training_hash() == longer.training_hash()
+
+
 def test_set_overrides_and_parsing():
     config = load_config(
         "smoke",
