@@ -143,8 +143,15 @@ affine.defvjp(_affine_fwd, _affine_bwd)
 
 
 def _glorot(key: jax.Array, shape: tuple[int, ...], fan_in: int, fan_out: int) -> jax.Array:
+    """Glorot-uniform weights of ``shape``.
+
+    Drawn flat and reshaped: the same bits as drawing ``shape`` directly (the
+    threefry counter is the row-major index), but a 4-D draw compiles 10 × slower
+    on XLA:CPU (about 2 s for a conv kernel, against 0.2 s flat).
+    """
     limit = math.sqrt(6.0 / (fan_in + fan_out))
-    return jax.random.uniform(key, shape, jnp.float32, -limit, limit)
+    flat = jax.random.uniform(key, (math.prod(shape),), jnp.float32, -limit, limit)
+    return flat.reshape(shape)
 
 
 def _dense_init(key: jax.Array, n_in: int, n_out: int) -> Params:

@@ -110,7 +110,9 @@ def spawn_pedestrians(
         PedestrianState with leaves of leading size P, standing still.
     """
     num = static.num_pedestrians
-    u = jax.random.uniform(key, (8, num), dtype=jnp.float32)
+    # Drawn flat: the same bits as shape (8, P), and a rank fewer for XLA:CPU to
+    # compile under vmap (random draws compile slower with every dimension).
+    u = jax.random.uniform(key, (8 * num,), dtype=jnp.float32).reshape(8, num)
     u_x, u_side, u_y, u_speed, u_behaviour, u_angle, u_len, u_dir = u
 
     x = sidewalk_x(u_x, x_lo, x_hi, params, static)
