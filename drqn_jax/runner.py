@@ -49,7 +49,7 @@ from drqn_jax.checkpoint import (
 from drqn_jax.config import Config, added_leaves, load_config
 from drqn_jax.evaluation import evaluate
 from drqn_jax.networks import Network
-from drqn_jax.train import METRIC_NAMES, TrainConfig, Trainer, TrainState, make_train
+from drqn_jax.train import METRIC_NAMES, Trainer, TrainState, make_train
 
 __all__ = [
     "RunResult",
@@ -116,16 +116,17 @@ class _StopRequest:
                 signal.signal(s, handler)
 
 
-_COMPILED: dict[TrainConfig, Any] = {}
+_COMPILED: dict[tuple, Any] = {}
 
 
 def _compiled_run(trainer: Trainer, state: TrainState) -> Any:
-    """``run(state, chunk_iterations)`` compiled once per configuration and process."""
-    config = trainer.config
-    if config not in _COMPILED:
+    """``run(state, chunk_iterations)`` compiled once per program and process (the
+    hyperparameters are in the state: :meth:`TrainConfig.program_key`)."""
+    key = trainer.config.program_key()
+    if key not in _COMPILED:
         run = jax.jit(trainer.run, static_argnums=1)
-        _COMPILED[config] = run.lower(state, config.chunk_iterations).compile()
-    return _COMPILED[config]
+        _COMPILED[key] = run.lower(state, trainer.config.chunk_iterations).compile()
+    return _COMPILED[key]
 
 
 @jax.jit
@@ -269,7 +270,7 @@ def train_run(
     return RunResult(status, state, trainer, run_dir, wall, compile_s, message)
 
 
-_VALIDATE: dict[TrainConfig, Any] = {}
+_VALIDATE: dict[tuple, Any] = {}
 
 
 def validated(trainer: Trainer, state: TrainState) -> TrainState:
@@ -277,7 +278,7 @@ def validated(trainer: Trainer, state: TrainState) -> TrainState:
     (``train.snapshots`` > 0; :func:`~drqn_jax.train.make_train`); else unchanged."""
     if not trainer.config.snapshots or not bool(jnp.isnan(state.validation["return"]).any()):
         return state
-    fn = _VALIDATE.setdefault(trainer.config, jax.jit(trainer.validation_metrics))
+    fn = _VALIDATE.setdefault(trainer.config.program_key(), jax.jit(trainer.validation_metrics))
     return state.replace(validation=fn(state))
 
 

@@ -340,7 +340,9 @@ _COMPILED: dict[tuple, tuple[Callable, Callable]] = {}
 def call_programs(
     trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
 ) -> tuple[Callable, Callable]:
-    """``(init, run)`` of a call, jitted once per process and shape.
+    """``(init, run)`` of a call, jitted once per process and shape: calls whose
+    runs differ in hyperparameter values only share them (``init`` takes the
+    hyperparameters as arguments and ``run`` finds them in the state).
 
     ``init(keys, hparams, env_params)`` builds the ``size`` runs' batched
     state (sharded over ``devices``); ``run(state, real)`` advances every run
@@ -349,7 +351,7 @@ def call_programs(
     the runs (``shard_map``): batched (``vmap``) or one after another
     (``map``, where padding and finished runs cost nothing).
     """
-    cache_key = (trainer.config, size, tuple(devices), strategy)
+    cache_key = (trainer.config.program_key(), size, tuple(devices), strategy)
     if cache_key not in _COMPILED:
         chunk = trainer.config.chunk_iterations
 
@@ -375,7 +377,7 @@ def validation_program(
     metrics of a call's finished runs (``train.snapshots`` = K > 0), sharded and
     batched as its ``run``; padding rows are skipped (NaN) when the runs go one
     after another."""
-    cache_key = (trainer.config, size, tuple(devices), strategy)
+    cache_key = (trainer.config.program_key(), size, tuple(devices), strategy)
     if cache_key not in _VALIDATE:
         nan = unvalidated(trainer.config.snapshots)
 

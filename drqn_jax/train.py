@@ -287,19 +287,23 @@ class TrainConfig:
                 f"({2 * self.num_envs}); each environment writes its own replay slots"
             )
 
-    def _static_key(self) -> tuple:
+    def program_key(self) -> tuple:
+        """Every field but ``hyperparams``: what a compiled program of ``make_train``'s
+        functions depends on when it takes the hyperparameters as arguments (in the
+        state, or as ``init``'s), as the runners' programs do. Configs that differ in
+        hyperparameter values only share those programs."""
         return tuple(
             getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "hyperparams"
         )
 
     def __hash__(self) -> int:  # Hyperparams holds arrays: hash the static part only
-        return hash(self._static_key())
+        return hash(self.program_key())
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, TrainConfig):
             return NotImplemented
         mine, theirs = jax.tree.leaves(self.hyperparams), jax.tree.leaves(other.hyperparams)
-        return self._static_key() == other._static_key() and all(
+        return self.program_key() == other.program_key() and all(
             bool(jnp.array_equal(a, b)) for a, b in zip(mine, theirs, strict=True)
         )
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -181,6 +182,22 @@ def test_a_shape_changing_axis_splits_the_programs(tmp_path):
     assert {p.values["network.hidden"] for p in programs[0]} == {8}
     description = sweep.describe()
     assert "2 separate programs: network.hidden change(s) shapes" in description
+
+
+def test_calls_that_differ_in_hyperparameter_values_share_their_programs(sweep_file):
+    """The hyperparameters are arguments of a call's programs: a sweep over learning
+    rates traces and compiles them once per process (with no persistent cache, or in a
+    process that does not write it, every call would compile again)."""
+    from drqn_jax.sweep_runner import call_programs, validation_program
+    from drqn_jax.train import make_train
+
+    first, second = (make_train(p.config.train_config()) for p in load_sweep(sweep_file).points[:2])
+    assert first.config != second.config  # learning rates 1e-3 and 3e-4
+    devices = jax.devices()[:1]
+    for programs in (call_programs, validation_program):
+        assert programs(first, 1, devices, "map") is programs(second, 1, devices, "map")
+        shorter = make_train(dataclasses.replace(first.config, chunk_iterations=8))
+        assert programs(shorter, 1, devices, "map") is not programs(first, 1, devices, "map")
 
 
 def test_statistics_are_computed_from_the_runs():
