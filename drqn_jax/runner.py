@@ -278,8 +278,10 @@ def validated(trainer: Trainer, state: TrainState) -> TrainState:
     (``train.snapshots`` > 0; :func:`~drqn_jax.train.make_train`); else unchanged."""
     if not trainer.config.snapshots or not bool(jnp.isnan(state.validation["return"]).any()):
         return state
-    fn = _VALIDATE.setdefault(trainer.config.program_key(), jax.jit(trainer.validation_metrics))
-    return state.replace(validation=fn(state))
+    key = trainer.config.program_key()
+    if key not in _VALIDATE:
+        _VALIDATE[key] = jax.jit(trainer.validation_metrics)
+    return state.replace(validation=_VALIDATE[key](state))
 
 
 def _chunks(

@@ -21,7 +21,17 @@ from drqn_jax.memory import USABLE_FRACTION, run_memory
 from drqn_jax.runner import _StopRequest
 from drqn_jax.stats import interquartile_mean
 from drqn_jax.sweep import load_sweep, summarize_sweep
-from drqn_jax.sweep_runner import Call, call_size, plan_calls, run_sweep, train_call, train_runs
+from drqn_jax.sweep_runner import (
+    Call,
+    call_programs,
+    call_size,
+    plan_calls,
+    run_sweep,
+    train_call,
+    train_runs,
+    validation_program,
+)
+from drqn_jax.train import make_train
 from tests.helpers import assert_tree_equal, train_alone
 
 SWEEP = """
@@ -188,9 +198,6 @@ def test_calls_that_differ_in_hyperparameter_values_share_their_programs(sweep_f
     """The hyperparameters are arguments of a call's programs: a sweep over learning
     rates traces and compiles them once per process (with no persistent cache, or in a
     process that does not write it, every call would compile again)."""
-    from drqn_jax.sweep_runner import call_programs, validation_program
-    from drqn_jax.train import make_train
-
     first, second = (make_train(p.config.train_config()) for p in load_sweep(sweep_file).points[:2])
     assert first.config != second.config  # learning rates 1e-3 and 3e-4
     devices = jax.devices()[:1]
