@@ -64,6 +64,8 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = [
+    "AGENT",
+    "CHECKPOINT",
     "CHECKPOINT_JSON",
     "CHECKPOINT_NPZ",
     "FORMAT",
@@ -75,8 +77,10 @@ __all__ = [
     "save_checkpoint",
 ]
 
-CHECKPOINT_NPZ = "checkpoint.npz"
-CHECKPOINT_JSON = "checkpoint.json"
+CHECKPOINT = "checkpoint"  # the default file stem: checkpoint.npz and checkpoint.json
+CHECKPOINT_NPZ = f"{CHECKPOINT}.npz"
+CHECKPOINT_JSON = f"{CHECKPOINT}.json"
+AGENT = "agent"  # the stem of a trained agent's parameters alone (a sweep's OUT/agents/run-NNNN)
 FORMAT = 1
 _MANIFEST = "manifest.json"  # the npz entry that holds the manifest
 _RESERVED = ("format", "drqn_jax_version", "npz_sha256", "leaves")
@@ -265,7 +269,9 @@ def _npz_bytes(entries: list[dict[str, Any]], arrays: list[np.ndarray], manifest
 # ----------------------------------------------------------------------------- save / load
 
 
-def save_checkpoint(run_dir: str | os.PathLike, state: Any, meta: dict[str, Any]) -> None:
+def save_checkpoint(
+    run_dir: str | os.PathLike, state: Any, meta: dict[str, Any], *, name: str = CHECKPOINT
+) -> None:
     """Save the pytree ``state`` and ``meta`` as ``run_dir/checkpoint.npz`` (+ its ``.json``).
 
     Args:
@@ -276,6 +282,8 @@ def save_checkpoint(run_dir: str | os.PathLike, state: Any, meta: dict[str, Any]
             manifest (NumPy/JAX scalars are converted); it may not use the
             reserved keys ``format``, ``drqn_jax_version``, ``npz_sha256``,
             ``leaves``.
+        name: the files' stem (``NAME.npz``, ``NAME.json``); e.g. ``agent`` for a
+            sweep's trained agent parameters beside no training state.
 
     The npz, which holds the manifest, is written atomically first (the
     commit point), then the json copy (see the module docstring for what a
@@ -304,8 +312,8 @@ def save_checkpoint(run_dir: str | os.PathLike, state: Any, meta: dict[str, Any]
         **saved,
     }
     run_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(run_dir / CHECKPOINT_NPZ, data)
-    atomic_write_text(run_dir / CHECKPOINT_JSON, json.dumps(copy, indent=1) + "\n")
+    atomic_write_bytes(run_dir / f"{name}.npz", data)
+    atomic_write_text(run_dir / f"{name}.json", json.dumps(copy, indent=1) + "\n")
 
 
 def load_checkpoint(
@@ -313,6 +321,8 @@ def load_checkpoint(
     template: Any,
     expected_meta: dict[str, Any] | None = None,
     fill: Mapping[str, Any] | None = None,
+    *,
+    name: str = CHECKPOINT,
 ) -> tuple[Any, dict[str, Any]]:
     """Load the checkpoint in ``run_dir`` into the structure of ``template``.
 
@@ -331,6 +341,7 @@ def load_checkpoint(
         fill: optional values of leaves added to the state after the
             checkpoint was written (key path -> array of the template's shape
             and dtype), used where the checkpoint lacks them.
+        name: the npz's stem, as given to :func:`save_checkpoint`.
 
     Returns:
         ``(state, meta)``: the state (``jax.Array`` leaves, typed keys
@@ -347,13 +358,13 @@ def load_checkpoint(
             configuration (the differing ``config`` fields are named).
     """
     run_dir = Path(run_dir)
-    npz_path = run_dir / CHECKPOINT_NPZ
+    npz_path = run_dir / f"{name}.npz"
     if not run_dir.is_dir():
         raise CheckpointError(f"no checkpoint: directory {run_dir} does not exist")
     try:
         data = npz_path.read_bytes()
     except FileNotFoundError:
-        raise CheckpointError(f"no checkpoint in {run_dir} (no {CHECKPOINT_NPZ})") from None
+        raise CheckpointError(f"no checkpoint in {run_dir} (no {npz_path.name})") from None
     except OSError as err:
         raise CheckpointError(f"cannot read {npz_path}: {err.strerror or err}") from None
     try:

@@ -80,7 +80,12 @@ def _run_dir_option(parser: argparse.ArgumentParser, prefix: str) -> None:
 
 def _agent_options(parser: argparse.ArgumentParser, verb: str) -> None:
     """``[RUN_DIR]`` and ``--agent``: a trained run's DRQN or a built-in agent."""
-    parser.add_argument("run_dir", nargs="?", default=None, help="a run directory (its DRQN agent)")
+    parser.add_argument(
+        "run_dir",
+        nargs="?",
+        default=None,
+        help="a run directory (its DRQN agent), or a sweep's trained agent: OUT/agents/run-NNNN",
+    )
     parser.add_argument(
         "--agent",
         choices=_AGENTS,
@@ -192,6 +197,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
     sweep.add_argument(
+        "--no-agents",
+        action="store_true",
+        help="do not keep the trained agents in OUT/agents (about 4 MB each, paper network)",
+    )
+    sweep.add_argument(
         "--strategy",
         choices=STRATEGIES,
         default=None,
@@ -276,8 +286,10 @@ def build_parser() -> argparse.ArgumentParser:
 _TRAIN_DOC = """Train the DRQN of a config; writes config.toml, metrics.csv, checkpoints,
 evaluation.json and results.md to the run directory. Ctrl-C (or SIGTERM) saves a
 checkpoint and exits with status 130; --resume continues bit-identically."""
-_EVALUATE_DOC = """Evaluate a run directory's DRQN or a built-in agent greedily on the
-evaluation key and print the SPEC §8 metrics."""
+_EVALUATE_DOC = """Evaluate a run directory's DRQN (or a sweep's or study's trained agent,
+OUT/agents/run-NNNN) or a built-in agent greedily on the evaluation key and print the SPEC §8
+metrics. --set changes the episodes, not the agent: e.g. --set env.id=... evaluates it among
+other pedestrians, --seed 0 on a study's episodes."""
 _REPRODUCE_DOC = """Train the DRQN with the config (default.toml), evaluate it and the
 rule-based agent on evaluate.episodes episodes each, and print the paper's Table III beside
 ours with the wall time."""
@@ -289,7 +301,8 @@ _SWEEP_DOC = """Run every point of a sweep file: points that share shapes train 
 compiled jit(vmap) calls, the runs sharded over all local devices, as many per call as the
 memory plan allows; each run is evaluated on the same episodes. Writes results.md and
 results.csv (mean, std, 95 % t-interval and IQM across seeds per setting) and runs.json
-(every run). Ctrl-C saves checkpoints (status 130); --resume continues, also a sweep
+(every run), and every run's trained agent in OUT/agents/run-NNNN (for evaluate and
+replay). Ctrl-C saves checkpoints (status 130); --resume continues, also a sweep
 file given more points after the saved ones (more seeds). With several
 processes each trains its slice of the runs and process 0 writes the results."""
 _STUDY_DOC = """Train every config for seeds 0 … N-1 (one sweep over run.seed per
@@ -298,7 +311,8 @@ seed's evaluation key), evaluate the rule-based agent on them, and write OUT/stu
 (the paper's Table III beside ours: collision-free % with a 95 % interval across seeds,
 speed, distance, goal %, collisions per km), OUT/study.json, and the training curves
 (average reward and steps per episode, mean and min-max over seeds) as OUT/curves.png
-and OUT/curves.rrd. Ctrl-C saves checkpoints (status 130); running the same command
+and OUT/curves.rrd; each run's trained agent is OUT/<config>/agents/run-NNNN (for evaluate,
+e.g. among other pedestrians). Ctrl-C saves checkpoints (status 130); running the same command
 again continues the study, and with a larger --seeds adds the new seeds to it."""
 _BENCH_DOC = """Run the benchmark suite of benchmarks/ (a clone of the repository is
 needed): each benchmark prints a Markdown table with the machine it ran on, and
@@ -592,7 +606,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return EXIT_OK
     out = Path(args.out or _default_run_dir("sweep", args.sweep_file))
     start = time.perf_counter()
-    outcome = run_sweep(sweep, out, calls=calls, dist=dist, resume=args.resume, quiet=args.quiet)
+    outcome = run_sweep(
+        sweep,
+        out,
+        calls=calls,
+        dist=dist,
+        resume=args.resume,
+        quiet=args.quiet,
+        keep_agents=not args.no_agents,
+    )
     if outcome.status == "interrupted":
         print(
             f"interrupted; checkpoints saved, continue with: drqn-jax sweep {args.sweep_file} "

@@ -40,6 +40,7 @@ import numpy as np
 from drqn_jax.agents import rule_based_agent
 from drqn_jax.agents.base import Agent
 from drqn_jax.checkpoint import (
+    AGENT,
     CHECKPOINT_NPZ,
     CheckpointError,
     atomic_write_text,
@@ -350,10 +351,17 @@ def load_trained_network(
 ) -> tuple[Network, Any, dict[str, Any]]:
     """The network, the run's agent parameters (``Trainer.agent_params``: the final
     online parameters, or the validated choice among snapshots) and the metadata
-    of a run directory's last checkpoint."""
+    of a run directory's last checkpoint, or of a sweep's trained agent (a
+    directory with ``agent.npz`` and no ``checkpoint.npz``:
+    :func:`drqn_jax.sweep_runner.agent_dir`)."""
     trainer = make_train(config.train_config())
     template = jax.eval_shape(trainer.init, config.keys()[0])
     expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
+    run_dir = Path(run_dir)
+    if not (run_dir / CHECKPOINT_NPZ).exists() and (run_dir / f"{AGENT}.npz").exists():
+        agent_template = jax.eval_shape(trainer.agent_params, template)
+        params, meta = load_checkpoint(run_dir, agent_template, expected, name=AGENT)
+        return trainer.network, params, meta
     fill = added_leaves(trainer.config.hyperparams, trainer.env_params)
     state, meta = load_checkpoint(run_dir, template, expected, fill)
     return trainer.network, trainer.agent_params(state), meta

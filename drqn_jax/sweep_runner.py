@@ -23,6 +23,9 @@ Output directory::
                                        runs.json once it ended
     OUT/metrics/run-<index>.csv        each run's training metrics, one row per episode
                                        (written by the process that trained it)
+    OUT/agents/run-<index>/            each run's trained agent: config.toml and agent.npz
+                                       (its parameters, no training state), read by
+                                       ``drqn-jax evaluate`` and ``replay`` like a run directory
     OUT/results.md, results.csv        per setting: mean, std, 95 % interval, IQM
     OUT/runs.json                      every run's evaluation and training summary
 
@@ -51,6 +54,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from drqn_jax.agents import drqn_agent
 from drqn_jax.checkpoint import (
+    AGENT,
     CHECKPOINT_JSON,
     CHECKPOINT_NPZ,
     CheckpointError,
@@ -473,11 +477,20 @@ def evaluate_runs(
     return out
 
 
-def call_results(call: Call, outcome: CallOutcome, eval_key: jax.Array) -> list[dict[str, Any]]:
-    """Per run: its index and axis values, the evaluation, the final training
-    return (mean of the last 10 % of episodes) and whether it diverged."""
+def real_agent_params(call: Call, outcome: CallOutcome) -> Any:
+    """The agent parameters of the call's runs, padding dropped: NumPy leaves of
+    leading size ``len(call.points)``."""
     n = len(call.points)
-    params = jax.tree.map(lambda x: np.asarray(x)[:n], outcome.agent_params())
+    return jax.tree.map(lambda x: np.asarray(x)[:n], outcome.agent_params())
+
+
+def call_results(
+    call: Call, outcome: CallOutcome, eval_key: jax.Array, params: Any
+) -> list[dict[str, Any]]:
+    """Per run: its index and axis values, the evaluation of its agent (``params``:
+    :func:`real_agent_params`), the final training return (mean of the last 10 % of
+    episodes) and whether it diverged."""
+    n = len(call.points)
     returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
     finite = np.asarray(jax.vmap(_finite)(outcome.state))[:n]
     evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key)
@@ -514,6 +527,37 @@ def write_training_metrics(out: Path, call: Call, state: TrainState) -> None:
         path = metrics_path(out, point.index)
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(path, metrics_csv({k: v[i] for k, v in metrics.items()}))
+
+
+def agent_dir(out: str | Path, index: int) -> Path:
+    """``OUT/agents/run-NNNN``: the sweep's run ``index`` as a directory that ``drqn-jax
+    evaluate`` and ``replay`` read like a trained run's (its ``config.toml`` and
+    ``agent.npz``)."""
+    return Path(out) / "agents" / f"run-{index:04d}"
+
+
+def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
+    """Each run's resolved ``config.toml`` and trained agent (``params``:
+    :func:`real_agent_params`; the final or the validated parameters, as
+    evaluated) as ``agent.npz`` at :func:`agent_dir`, with the training hash that
+    ``drqn-jax evaluate`` checks against the config."""
+    counts = jax.tree.map(np.asarray, (state.recorded, state.grad_steps, state.env_steps))
+    for i, point in enumerate(call.points):
+        directory = agent_dir(out, point.index)
+        directory.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(directory / "config.toml", point.config.to_toml())
+        recorded, grad_steps, env_steps = (int(c[i]) for c in counts)
+        meta = {
+            "config": point.config.training_dict(),
+            "config_hash": point.config.training_hash(),
+            "values": point.values,
+            "finished": True,
+            "recorded": recorded,
+            "grad_steps": grad_steps,
+            "env_steps": env_steps,
+        }
+        run_params = jax.tree.map(lambda x, i=i: x[i], params)
+        save_checkpoint(directory, run_params, meta, name=AGENT)
 
 
 # ------------------------------------------------------------------------------ the sweep
@@ -577,6 +621,7 @@ def run_sweep(
     dist: Distributed = Distributed(),
     resume: bool = False,
     quiet: bool = False,
+    keep_agents: bool = True,
 ) -> SweepOutcome:
     """Train and evaluate this process's runs call by call; gather on process 0.
 
@@ -586,6 +631,7 @@ def run_sweep(
             more seeds), and the same process count. A call whose runs ended is kept
             when the plan has the same call (always with one run per call, as on CPU);
             a grown batched plan may regroup runs, which then train again.
+        keep_agents: write each run's trained agent (:func:`write_agents`).
     """
     out = Path(out)
     devices = jax.local_devices()
@@ -635,9 +681,12 @@ def run_sweep(
             )
             if outcome.status == "interrupted":
                 return SweepOutcome("interrupted", results, list(calls))
-            call_result = call_results(call, outcome, eval_key)
+            params = real_agent_params(call, outcome)
+            call_result = call_results(call, outcome, eval_key, params)
             directory.mkdir(parents=True, exist_ok=True)
             write_training_metrics(out, call, outcome.state)
+            if keep_agents:
+                write_agents(out, call, outcome.state, params)
             atomic_write_text(saved, json.dumps(call_result, indent=1) + "\n")
             for name in (CHECKPOINT_NPZ, CHECKPOINT_JSON):  # the results replace them
                 (directory / name).unlink(missing_ok=True)
@@ -676,9 +725,7 @@ def train_runs(
     devices = list(jax.local_devices() if devices is None else devices)
     strategy = resolve_strategy(strategy, devices)
     size = call_size(len(points), len(devices), strategy)
-    outcome = train_call(Call(0, tuple(points), size, strategy), devices)
-    n = len(points)
-    params, metrics = jax.tree.map(
-        lambda x: np.asarray(x)[:n], (outcome.agent_params(), outcome.state.metrics)
-    )
-    return outcome.trainer, params, metrics
+    call = Call(0, tuple(points), size, strategy)
+    outcome = train_call(call, devices)
+    metrics = jax.tree.map(lambda x: np.asarray(x)[: len(points)], outcome.state.metrics)
+    return outcome.trainer, real_agent_params(call, outcome), metrics

@@ -298,6 +298,9 @@ def test_two_processes_on_localhost_match_one_process(sweep_file, cli_sweep, tmp
     )
     assert (out / "results.csv").read_text() == (cli_sweep / "results.csv").read_text()
     assert (out / "plan.process-0.json").is_file() and (out / "plan.process-1.json").is_file()
+    for index in range(4):  # each process keeps the agents it trained, byte for byte
+        agent = Path("agents", f"run-{index:04d}", "agent.npz")
+        assert (out / agent).read_bytes() == (cli_sweep / agent).read_bytes()
 
 
 def test_an_interrupted_call_resumes_bit_identically(sweep_file, trained, tmp_path):
@@ -338,11 +341,13 @@ def test_a_sweep_grows_by_seeds_and_keeps_its_runs(sweep_file, cli_sweep, tmp_pa
     first.write_text(SWEEP.replace("stop = 2", "stop = 1"))
     out = tmp_path / "out"
     args = ["--set", "evaluate.episodes=2", "--out", str(out), "--quiet"]
-    assert cli.main(["sweep", str(first), *args]) == 0
+    assert cli.main(["sweep", str(first), *args, "--no-agents"]) == 0
+    assert not (out / "agents").exists()
     kept = {p: p.stat().st_mtime_ns for p in out.glob("calls/*/runs.json")}
     assert len(kept) == 2
     assert cli.main(["sweep", str(sweep_file), *args, "--resume"]) == 0
     assert all(p.stat().st_mtime_ns == t for p, t in kept.items())  # not trained again
+    assert sorted(p.name for p in out.glob("agents/*")) == ["run-0002", "run-0003"]
     assert len(json.loads((out / "plan.json").read_text())["points"]) == 4
     assert json.loads((out / "runs.json").read_text()) == json.loads(
         (cli_sweep / "runs.json").read_text()
@@ -421,3 +426,32 @@ def test_every_run_writes_its_training_metrics(trained, cli_sweep):
         text = metrics_path(cli_sweep, point.index).read_text()
         assert text == metrics_csv(run_metrics)
         assert len(text.splitlines()) == 1 + 4  # header + train.num_episodes rows
+
+
+def test_every_run_keeps_its_trained_agent(trained, cli_sweep, tmp_path, capsys):
+    """OUT/agents/run-NNNN holds the run's agent bit for bit; ``drqn-jax evaluate``
+    reads it like a run directory and scores it as the sweep did."""
+    from drqn_jax.runner import load_run, load_trained_network
+    from drqn_jax.sweep_runner import agent_dir
+
+    sweep, params, _ = trained
+    for point in sweep.points:
+        directory = agent_dir(cli_sweep, point.index)
+        _, run_params, meta = load_trained_network(load_run(directory), directory)
+        assert_tree_equal(run_params, jax.tree.map(lambda x, i=point.index: x[i], params))
+        assert meta["values"] == point.values and meta["recorded"] == 4 and meta["finished"]
+    # on the sweep's episodes (its first point's evaluation key: seed 0)
+    run = json.loads((cli_sweep / "runs.json").read_text())[3]
+    out = tmp_path / "evaluation.json"
+    directory = agent_dir(cli_sweep, 3)
+    assert cli.main(["evaluate", str(directory), "--seed", "0", "--json", str(out)]) == 0
+    evaluation = json.loads(out.read_text())
+    for name in ("num_episodes", "collision_free_rate", "avg_speed_kmh", "goal_rate"):
+        assert evaluation[name] == run[name], name
+    # the agent is checked against its config: another training config is refused
+    text = (directory / "config.toml").read_text()
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "config.toml").write_text(text.replace("seed = 1", "seed = 7"))
+    (tmp_path / "other" / "agent.npz").write_bytes((directory / "agent.npz").read_bytes())
+    assert cli.main(["evaluate", str(tmp_path / "other")]) == 2
+    assert "run.seed" in capsys.readouterr().err
