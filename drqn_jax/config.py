@@ -6,7 +6,10 @@ names only what it changes:
 * ``[run]``: ``seed`` (training key ``split(key(seed))[0]``, evaluation key
   ``[1]``: disjoint, SPEC §8) and ``checkpoint_every_s``;
 * ``[env]``: ``id`` (a registered env) and any ``StaticEnvParams`` or
-  ``EnvParams`` field; the id's preset fills the fields the file leaves out;
+  ``EnvParams`` field; the id's preset fills the fields the file leaves out.
+  An override ``env.id=...`` brings the new id's preset also where the file
+  repeats the old id's (as a run's resolved ``config.toml`` does): a trained
+  run is evaluated among other pedestrians with ``--set env.id=...``;
 * ``[network]``: ``kind``, ``conv``, ``recurrent``, ``hidden`` (Table I);
 * ``[train]``: the ``TrainConfig`` sizes (envs, episodes, replay, batch,
   window, update ratio, chunk) and every ``Hyperparams`` field (Table II);
@@ -314,17 +317,35 @@ def load_config(
             raise ConfigError(f"{section} = {table!r}: expected a [{section}] table")
         for name, value in table.items():
             _merge(given, section, name, value)
+    file_env_id = given["env"].get("id", SCHEMA["env"]["id"].default)
+    overridden: set[tuple[str, str]] = set()
     for text in overrides:
-        _merge(given, *parse_override(text))
+        section, name, value = parse_override(text)
+        _merge(given, section, name, value)
+        overridden.add((section, name))
 
     values = {s: {n: f.default for n, f in fields.items()} for s, fields in SCHEMA.items()}
     env_id = given["env"].get("id", values["env"]["id"])
+    if env_id != file_env_id:
+        _follow_new_preset(given["env"], file_env_id, {n for s, n in overridden if s == "env"})
     values["env"].update(preset(env_id))
     for section, table in given.items():
         values[section].update(table)
     config = Config(values, origin)
     config.validate()
     return config
+
+
+def _follow_new_preset(env: dict[str, Any], old_id: str, overridden: set[str]) -> None:
+    """An override of ``env.id`` brings the new id's preset: drop the file's env fields
+    that only repeat ``old_id``'s preset (a resolved ``config.toml`` holds every
+    field), so that the new preset fills them; fields the file set apart from its
+    preset, and other overrides, are kept."""
+    old = {n: f.default for n, f in SCHEMA["env"].items()}
+    old.update(preset(old_id))
+    for name in [n for n in env if n != "id" and n not in overridden]:
+        if env[name] == old[name]:
+            del env[name]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -219,6 +219,19 @@ def test_resolved_toml_reads_back_equal(tmp_path):
     assert {s: set(t) for s, t in again.values.items()} == {s: set(t) for s, t in SCHEMA.items()}
 
 
+def test_an_env_id_override_brings_its_preset_into_a_resolved_config(tmp_path):
+    """A run's config.toml holds every env field, its id's preset included; ``--set
+    env.id=...`` must evaluate among the new id's pedestrians, not the old speeds."""
+    path = tmp_path / "config.toml"
+    path.write_text(load_config("realistic", ["env.occlusion_prob=0.2"]).to_toml())
+    moved = load_config(path, ["env.id=UrbanPedestrians-v0"])
+    paper = load_config("default", ["env.occlusion_prob=0.2"])
+    assert moved["env"] == paper["env"]  # the paper's speeds; the changed field kept
+    assert moved["env"]["ped_speed_max"] != load_config(path)["env"]["ped_speed_max"]
+    both = load_config(path, ["env.id=UrbanPedestrians-v0", "env.ped_speed_max=1.5"])
+    assert both["env"]["ped_speed_max"] == 1.5  # a field overridden too stays as given
+
+
 def test_training_hash_tracks_training_fields_only():
     base = load_config("smoke")
     assert load_config("smoke", ["evaluate.episodes=3"]).training_hash() == base.training_hash()
