@@ -240,6 +240,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _set_option(study, "override one field of every config (repeatable)")
     study.add_argument(
+        "--eval-envs",
+        default="",
+        metavar="ENV_ID,...",
+        help="also evaluate every config's trained agents among these envs' pedestrians, "
+        "on the same episodes (one more row each, beside that env's rule-based agent)",
+    )
+    study.add_argument(
         "--out",
         default=None,
         help="study directory (default: runs/study-<config names>, so that running the "
@@ -311,9 +318,10 @@ seed's evaluation key), evaluate the rule-based agent on them, and write OUT/stu
 (the paper's Table III beside ours: collision-free % with a 95 % interval across seeds,
 speed, distance, goal %, collisions per km), OUT/study.json, and the training curves
 (average reward and steps per episode, mean and min-max over seeds) as OUT/curves.png
-and OUT/curves.rrd; each run's trained agent is OUT/<config>/agents/run-NNNN (for evaluate,
-e.g. among other pedestrians). Ctrl-C saves checkpoints (status 130); running the same command
-again continues the study, and with a larger --seeds adds the new seeds to it."""
+and OUT/curves.rrd. Each run's trained agent is OUT/<config>/agents/run-NNNN; --eval-envs
+evaluates them among other pedestrians too (one more row per env). Ctrl-C saves checkpoints
+(status 130); running the same command again continues the study, and with a larger
+--seeds adds the new seeds to it; --eval-envs on a finished study only evaluates."""
 _BENCH_DOC = """Run the benchmark suite of benchmarks/ (a clone of the repository is
 needed): each benchmark prints a Markdown table with the machine it ran on, and
 --out DIR writes DIR/NAME.json and DIR/NAME.md. 'all' runs every benchmark with
@@ -641,7 +649,8 @@ def cmd_study(args: argparse.Namespace) -> int:
     configs = [c.strip() for c in args.configs.split(",") if c.strip()]
     if args.smooth < 1:
         raise ConfigError(f"--smooth {args.smooth}: must be an integer >= 1")
-    arms = plan_study(configs, args.seeds, args.episodes, args.overrides)
+    eval_envs = [e.strip() for e in args.eval_envs.split(",") if e.strip()]
+    arms = plan_study(configs, args.seeds, args.episodes, args.overrides, eval_envs)
     out = Path(args.out or Path("runs") / f"study-{'-'.join(a.name for a in arms)}")
     for arm in arms:
         print(f"{arm.name}: {arm.sweep.describe()}", file=sys.stderr)

@@ -19,6 +19,10 @@ distinct ``[env]`` section on the same episodes. Then:
   episodes), average speed, distance (all and collision-free), goal %,
   collisions per km;
 * ``OUT/study.json``: the rows and every run's evaluation;
+* with ``--eval-envs``: every config's trained agents
+  (``OUT/<config>/agents/run-NNNN``) evaluated among other envs' pedestrians
+  too, on the same episodes, one row per env (``<config> on <env id>``) beside
+  that env's rule-based agent (cached in ``OUT/<config>/cross/<env id>/``);
 * ``OUT/curves.png`` (matplotlib, the ``plots`` extra) and ``OUT/curves.rrd``:
   average reward and steps per episode against training episode, mean and
   min–max over seeds, as the paper's figure.
@@ -37,10 +41,11 @@ from typing import Any
 
 import numpy as np
 
-from drqn_jax.checkpoint import atomic_write_text
-from drqn_jax.config import Config, ConfigError
+from drqn_jax.checkpoint import CheckpointError, atomic_write_text
+from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import wilson_interval
 from drqn_jax.recording import running_mean
+from drqn_jax.registry import registered_envs
 from drqn_jax.stats import t_interval
 from drqn_jax.sweep import Sweep, build_sweep
 
@@ -51,6 +56,7 @@ __all__ = [
     "StudyOutcome",
     "baseline_row",
     "compare",
+    "cross_results",
     "finished_results",
     "load_curves",
     "paper_rows",
@@ -79,19 +85,31 @@ CURVES = (
 
 @dataclasses.dataclass(frozen=True)
 class Arm:
-    """One row of the study: a config trained for every seed (a sweep over ``run.seed``)."""
+    """One row of the study: a config trained for every seed (a sweep over ``run.seed``),
+    and one more row per env of ``cross_envs``, where its trained agents are evaluated
+    as well (among other pedestrians, on the same episodes)."""
 
     name: str
     sweep: Sweep
+    cross_envs: tuple[str, ...] = ()
 
     @property
     def config(self) -> Config:
         """The first seed's resolved config (the others differ only in ``run.seed``)."""
         return self.sweep.points[0].config
 
+    def cross_config(self, env_id: str) -> Config:
+        """:attr:`config` with ``env.id = env_id`` (its preset follows): the evaluation
+        among ``env_id``'s pedestrians; the agent stays the one trained with :attr:`config`."""
+        return load_config(self.config.values, [f"env.id={env_id}"])
+
 
 def plan_study(
-    configs: Sequence[str], seeds: int, episodes: int, overrides: Sequence[str] = ()
+    configs: Sequence[str],
+    seeds: int,
+    episodes: int,
+    overrides: Sequence[str] = (),
+    eval_envs: Sequence[str] = (),
 ) -> list[Arm]:
     """Validate the study before anything compiles: one :class:`Arm` per config.
 
@@ -100,9 +118,18 @@ def plan_study(
         seeds: seeds ``0 … seeds − 1`` per config.
         episodes: greedy evaluation episodes per run (the same for every agent).
         overrides: ``section.field=value`` applied to every config.
+        eval_envs: env ids every config's agents are evaluated on as well as their
+            own (a config's own id among them adds nothing): trained on one kind of
+            pedestrians, tested on another.
     Raises:
-        ConfigError: a bad count, a duplicate name, or a config field at fault.
+        ConfigError: a bad count, a duplicate name, an unknown env id, or a config
+            field at fault.
     """
+    unknown = [e for e in eval_envs if e not in registered_envs()]
+    if unknown:
+        raise ConfigError(
+            f"--eval-envs {unknown[0]!r}: must be one of {', '.join(registered_envs())}"
+        )
     if not isinstance(seeds, int) or seeds < 1:
         raise ConfigError(f"--seeds {seeds!r}: must be an integer >= 1")
     if not isinstance(episodes, int) or episodes < 1:
@@ -113,10 +140,13 @@ def plan_study(
     if len(set(names)) < len(names):
         raise ConfigError(f"--configs {','.join(configs)}: two configs share a name")
     shared = [*overrides, f"evaluate.episodes={episodes}"]
-    return [
-        Arm(name, build_sweep(config, {"run.seed": list(range(seeds))}, shared))
-        for name, config in zip(names, configs, strict=True)
-    ]
+    arms = []
+    for name, config in zip(names, configs, strict=True):
+        sweep = build_sweep(config, {"run.seed": list(range(seeds))}, shared)
+        own = sweep.points[0].config["env"]["id"]
+        cross = tuple(dict.fromkeys(e for e in eval_envs if e != own))
+        arms.append(Arm(name, sweep, cross))
+    return arms
 
 
 def env_key(config: Config) -> str:
@@ -365,26 +395,67 @@ class StudyOutcome:
     table: str = ""
 
 
-def rule_based_results(arms: Sequence[Arm], out: Path) -> dict[str, tuple[str, dict[str, Any]]]:
-    """The rule-based agent on each distinct environment of ``arms``, on the study's
-    episodes: ``{env_key: (env id, result)}``, cached in ``OUT/baselines/``."""
+def rule_based_results(
+    configs: Sequence[Config], out: Path
+) -> dict[str, tuple[str, dict[str, Any]]]:
+    """The rule-based agent on each distinct environment of ``configs`` (the arms'
+    and those of their ``cross_envs``), on the study's episodes: ``{env_key: (env id,
+    result)}``, cached in ``OUT/baselines/``."""
     from drqn_jax.runner import builtin_agent, evaluate_agents, json_ready
 
     found: dict[str, tuple[str, dict[str, Any]]] = {}
-    for arm in arms:
-        key = env_key(arm.config)
+    for config in configs:
+        key = env_key(config)
         if key in found:
             continue
         path = out / "baselines" / f"rule-based-{key}.json"
         if path.is_file():
             result = json.loads(path.read_text())
         else:
-            (result,) = evaluate_agents(arm.config, [builtin_agent("rule-based", arm.config)])
+            (result,) = evaluate_agents(config, [builtin_agent("rule-based", config)])
             result = json_ready(result)
             path.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_text(path, json.dumps(result, indent=1) + "\n")
-        found[key] = (arm.config["env"]["id"], result)
+        found[key] = (config["env"]["id"], result)
     return found
+
+
+def cross_results(
+    arm: Arm, env_id: str, runs: Sequence[Mapping[str, Any]], out: Path
+) -> list[dict[str, Any]]:
+    """Each of ``runs``' trained agents (``OUT/<arm>/agents/run-NNNN``) evaluated among
+    ``env_id``'s pedestrians on the study's episodes, cached in
+    ``OUT/<arm>/cross/<env_id>/run-NNNN.json``.
+
+    Raises:
+        CheckpointError: a run's agent is missing (a study run before sweeps kept
+            their agents: train it again in a new directory).
+    """
+    from drqn_jax.agents import drqn_agent
+    from drqn_jax.runner import evaluate_agents, json_ready, load_run, load_trained_network
+    from drqn_jax.sweep_runner import agent_dir
+
+    config = arm.cross_config(env_id)
+    results = []
+    for run in runs:
+        index = run["index"]
+        path = out / arm.name / "cross" / env_id / f"run-{index:04d}.json"
+        if path.is_file():
+            results.append(json.loads(path.read_text()))
+            continue
+        directory = agent_dir(out / arm.name, index)
+        if not (directory / "config.toml").is_file():
+            raise CheckpointError(
+                f"{directory}: no trained agent to evaluate on {env_id} (the run ended before "
+                "sweeps kept their agents); run the study in a new --out"
+            )
+        network, params, _ = load_trained_network(load_run(directory), directory)
+        (result,) = evaluate_agents(config, [drqn_agent(network, params)])
+        result = {"index": index, "values": run["values"], **json_ready(result)}
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, json.dumps(result, indent=1) + "\n")
+        results.append(result)
+    return results
 
 
 def compare(row: Mapping[str, Any], baseline: Mapping[str, Any]) -> str:
@@ -439,16 +510,24 @@ def run_study(
             return StudyOutcome("interrupted")
         runs[arm.name] = outcome.results
     done = [arm for arm in arms if runs[arm.name]]
-    trained = {
-        arm.name: study_row(f"drqn_jax: {arm.name}", arm.config["network"]["kind"], runs[arm.name])
+    cross = {
+        arm.name: {env: cross_results(arm, env, runs[arm.name], out) for env in arm.cross_envs}
         for arm in done
     }
+    configs = [a.config for a in arms] + [a.cross_config(e) for a in done for e in a.cross_envs]
     baselines = {
         key: baseline_row(f"drqn_jax: {env}", r)
-        for key, (env, r) in rule_based_results(arms, out).items()
+        for key, (env, r) in rule_based_results(configs, out).items()
     }
-    rows = [*paper_rows(), *trained.values(), *baselines.values()]
-    comparisons = [compare(trained[a.name], baselines[env_key(a.config)]) for a in done]
+    trained: list[tuple[dict[str, Any], Config]] = []  # each row and the config it was evaluated on
+    for arm in done:
+        kind = arm.config["network"]["kind"]
+        trained.append((study_row(f"drqn_jax: {arm.name}", kind, runs[arm.name]), arm.config))
+        for env, results in cross[arm.name].items():
+            row = study_row(f"drqn_jax: {arm.name} on {env}", kind, results)
+            trained.append((row, arm.cross_config(env)))
+    rows = [*paper_rows(), *(row for row, _ in trained), *baselines.values()]
+    comparisons = [compare(row, baselines[env_key(config)]) for row, config in trained]
     curves = {
         arm.name: load_curves(
             [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth
@@ -458,7 +537,7 @@ def run_study(
     table = "\n\n".join([study_table(rows), "\n".join(f"* {c}" for c in comparisons)])
     atomic_write_text(out / "study.md", table + "\n")
     record = _finite_json(
-        {"rows": rows, "comparisons": comparisons, "runs": runs, "smooth": smooth}
+        {"rows": rows, "comparisons": comparisons, "runs": runs, "cross": cross, "smooth": smooth}
     )
     atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
     if curves:

@@ -187,3 +187,55 @@ def test_a_report_covers_the_runs_that_have_finished(study, tmp_path, monkeypatc
     record = json.loads((partial / "study.json").read_text())
     assert [r["index"] for r in record["runs"]["smoke"]] == [0]
     assert "| drqn_jax: smoke | drqn | 1 × 4 |" in (partial / "study.md").read_text()
+
+
+def test_eval_envs_evaluate_the_trained_agents_among_other_pedestrians(
+    study, tmp_path, monkeypatch, capsys
+):
+    """--eval-envs on a finished study trains nothing: every run's agent among the
+    realistic pedestrians, on the study's episodes, as `drqn-jax evaluate` scores it."""
+    import shutil
+
+    import drqn_jax.sweep_runner as sweep_runner
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("a finished study trained again")
+
+    monkeypatch.setattr(sweep_runner, "train_call", no_training)
+    out = tmp_path / "cross"
+    shutil.copytree(study, out)
+    realistic = "UrbanPedestriansRealistic-v0"
+    envs = ["--eval-envs", f"{realistic},UrbanPedestrians-v0"]  # its own env adds nothing
+    assert cli.main(["study", *STUDY, "--out", str(out), "--no-png", *envs]) == 0
+    record = json.loads((out / "study.json").read_text())
+    assert [(r["label"], r["agent"]) for r in record["rows"][2:]] == [
+        ("drqn_jax: smoke", "drqn"),
+        (f"drqn_jax: smoke on {realistic}", "drqn"),
+        ("drqn_jax: UrbanPedestrians-v0", "rule-based"),
+        (f"drqn_jax: {realistic}", "rule-based"),
+    ]
+    assert record["comparisons"][1].startswith(
+        f"drqn_jax: smoke on {realistic} (drqn) against drqn_jax: {realistic} (rule-based)"
+    )
+    cross = record["cross"]["smoke"][realistic]
+    assert [r["index"] for r in cross] == [0, 1]
+    evaluation = tmp_path / "run1.json"
+    agent = str(sweep_runner.agent_dir(out / "smoke", 1))
+    command = ["evaluate", agent, "--seed", "0", "--set", f"env.id={realistic}"]
+    assert cli.main([*command, "--json", str(evaluation)]) == 0
+    alone = json.loads(evaluation.read_text())
+    for name in ("num_episodes", "collision_free_rate", "avg_speed_kmh", "avg_distance_m"):
+        assert cross[1][name] == alone[name], name
+    # a study whose runs kept no agents says so
+    shutil.rmtree(out / "smoke" / "cross")
+    shutil.rmtree(out / "smoke" / "agents")
+    capsys.readouterr()
+    assert cli.main(["study", *STUDY, "--out", str(out), "--no-png", *envs]) == 2
+    assert "no trained agent to evaluate" in capsys.readouterr().err
+
+
+def test_eval_envs_are_validated_before_anything_runs():
+    with pytest.raises(ConfigError, match="--eval-envs 'Nope-v0': must be one of"):
+        plan_study(["smoke"], 2, 10, eval_envs=["Nope-v0"])
+    (arm,) = plan_study(["realistic"], 2, 10, eval_envs=["UrbanPedestriansRealistic-v0"])
+    assert arm.cross_envs == ()  # its own env
