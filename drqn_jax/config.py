@@ -318,16 +318,17 @@ def load_config(
         for name, value in table.items():
             _merge(given, section, name, value)
     file_env_id = given["env"].get("id", SCHEMA["env"]["id"].default)
-    overridden: set[tuple[str, str]] = set()
+    overridden_env: set[str] = set()
     for text in overrides:
         section, name, value = parse_override(text)
         _merge(given, section, name, value)
-        overridden.add((section, name))
+        if section == "env":
+            overridden_env.add(name)
 
     values = {s: {n: f.default for n, f in fields.items()} for s, fields in SCHEMA.items()}
     env_id = given["env"].get("id", values["env"]["id"])
     if env_id != file_env_id:
-        _follow_new_preset(given["env"], file_env_id, {n for s, n in overridden if s == "env"})
+        _follow_new_preset(given["env"], file_env_id, overridden_env)
     values["env"].update(preset(env_id))
     for section, table in given.items():
         values[section].update(table)
@@ -467,6 +468,11 @@ class Config:
         """sha256 of :meth:`training_dict` (canonical JSON)."""
         text = json.dumps(self.training_dict(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
+
+    def training_identity(self) -> dict[str, Any]:
+        """``{"config": training_dict, "config_hash": training_hash}``: what a checkpoint
+        stores, and what loading one checks (the differing fields are named)."""
+        return {"config": self.training_dict(), "config_hash": self.training_hash()}
 
 
 def _in_config_words(message: str) -> str:

@@ -186,8 +186,7 @@ def _progress_postfix(state: TrainState, steps_per_s: float) -> dict[str, str]:
 
 def _checkpoint_meta(config: Config, state: TrainState, wall: float, chunks: int) -> dict:
     return {
-        "config": config.training_dict(),
-        "config_hash": config.training_hash(),
+        **config.training_identity(),
         "recorded": int(state.recorded),
         "grad_steps": int(state.grad_steps),
         "env_steps": int(state.env_steps),
@@ -228,7 +227,7 @@ def train_run(
     )
     wall_before, chunks = 0.0, 0
     if resume:
-        expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
+        expected = config.training_identity()
         template = jax.eval_shape(init, train_key)
         fill = added_leaves(trainer.config.hyperparams, trainer.env_params)
         state, meta = load_checkpoint(run_dir, template, expected, fill)
@@ -356,7 +355,7 @@ def load_trained_network(
     :func:`drqn_jax.sweep_runner.agent_dir`)."""
     trainer = make_train(config.train_config())
     template = jax.eval_shape(trainer.init, config.keys()[0])
-    expected = {"config": config.training_dict(), "config_hash": config.training_hash()}
+    expected = config.training_identity()
     run_dir = Path(run_dir)
     if not (run_dir / CHECKPOINT_NPZ).exists() and (run_dir / f"{AGENT}.npz").exists():
         agent_template = jax.eval_shape(trainer.agent_params, template)

@@ -35,7 +35,7 @@ import dataclasses
 import hashlib
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -408,24 +408,32 @@ def rule_based_results(
         key = env_key(config)
         if key in found:
             continue
-        path = out / "baselines" / f"rule-based-{key}.json"
-        if path.is_file():
-            result = json.loads(path.read_text())
-        else:
+
+        def evaluated(config: Config = config) -> dict[str, Any]:
             (result,) = evaluate_agents(config, [builtin_agent("rule-based", config)])
-            result = json_ready(result)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(path, json.dumps(result, indent=1) + "\n")
+            return json_ready(result)
+
+        result = _cached(out / "baselines" / f"rule-based-{key}.json", evaluated)
         found[key] = (config["env"]["id"], result)
     return found
 
 
+def _cached(path: Path, compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """The JSON at ``path``, or ``compute()``'s result, then written there (atomically)."""
+    if path.is_file():
+        return json.loads(path.read_text())
+    result = compute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, json.dumps(result, indent=1) + "\n")
+    return result
+
+
 def cross_results(
-    arm: Arm, env_id: str, runs: Sequence[Mapping[str, Any]], out: Path
+    arm: Arm, config: Config, runs: Sequence[Mapping[str, Any]], out: Path
 ) -> list[dict[str, Any]]:
-    """Each of ``runs``' trained agents (``OUT/<arm>/agents/run-NNNN``) evaluated among
-    ``env_id``'s pedestrians on the study's episodes, cached in
-    ``OUT/<arm>/cross/<env_id>/run-NNNN.json``.
+    """Each of ``runs``' trained agents (``OUT/<arm>/agents/run-NNNN``) evaluated with
+    ``config`` (``arm.cross_config(env_id)``: among ``env_id``'s pedestrians, on the
+    study's episodes), cached in ``OUT/<arm>/cross/<env_id>/run-NNNN.json``.
 
     Raises:
         CheckpointError: a run's agent is missing (a study run before sweeps kept
@@ -435,15 +443,10 @@ def cross_results(
     from drqn_jax.runner import evaluate_agents, json_ready, load_run, load_trained_network
     from drqn_jax.sweep_runner import agent_dir
 
-    config = arm.cross_config(env_id)
-    results = []
-    for run in runs:
-        index = run["index"]
-        path = out / arm.name / "cross" / env_id / f"run-{index:04d}.json"
-        if path.is_file():
-            results.append(json.loads(path.read_text()))
-            continue
-        directory = agent_dir(out / arm.name, index)
+    env_id = config["env"]["id"]
+
+    def evaluated(run: Mapping[str, Any]) -> dict[str, Any]:
+        directory = agent_dir(out / arm.name, run["index"])
         if not (directory / "config.toml").is_file():
             raise CheckpointError(
                 f"{directory}: no trained agent to evaluate on {env_id} (the run ended before "
@@ -451,11 +454,13 @@ def cross_results(
             )
         network, params, _ = load_trained_network(load_run(directory), directory)
         (result,) = evaluate_agents(config, [drqn_agent(network, params)])
-        result = {"index": index, "values": run["values"], **json_ready(result)}
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, json.dumps(result, indent=1) + "\n")
-        results.append(result)
-    return results
+        return {"index": run["index"], "values": run["values"], **json_ready(result)}
+
+    cache = out / arm.name / "cross" / env_id
+    return [
+        _cached(cache / f"run-{run['index']:04d}.json", lambda run=run: evaluated(run))
+        for run in runs
+    ]
 
 
 def compare(row: Mapping[str, Any], baseline: Mapping[str, Any]) -> str:
@@ -510,11 +515,15 @@ def run_study(
             return StudyOutcome("interrupted")
         runs[arm.name] = outcome.results
     done = [arm for arm in arms if runs[arm.name]]
+    cross_configs = {a.name: {e: a.cross_config(e) for e in a.cross_envs} for a in done}
     cross = {
-        arm.name: {env: cross_results(arm, env, runs[arm.name], out) for env in arm.cross_envs}
+        arm.name: {
+            env: cross_results(arm, config, runs[arm.name], out)
+            for env, config in cross_configs[arm.name].items()
+        }
         for arm in done
     }
-    configs = [a.config for a in arms] + [a.cross_config(e) for a in done for e in a.cross_envs]
+    configs = [a.config for a in arms] + [c for cs in cross_configs.values() for c in cs.values()]
     baselines = {
         key: baseline_row(f"drqn_jax: {env}", r)
         for key, (env, r) in rule_based_results(configs, out).items()
@@ -525,7 +534,7 @@ def run_study(
         trained.append((study_row(f"drqn_jax: {arm.name}", kind, runs[arm.name]), arm.config))
         for env, results in cross[arm.name].items():
             row = study_row(f"drqn_jax: {arm.name} on {env}", kind, results)
-            trained.append((row, arm.cross_config(env)))
+            trained.append((row, cross_configs[arm.name][env]))
     rows = [*paper_rows(), *(row for row, _ in trained), *baselines.values()]
     comparisons = [compare(row, baselines[env_key(config)]) for row, config in trained]
     curves = {

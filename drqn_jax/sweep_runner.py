@@ -548,8 +548,7 @@ def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
         atomic_write_text(directory / "config.toml", point.config.to_toml())
         recorded, grad_steps, env_steps = (int(c[i]) for c in counts)
         meta = {
-            "config": point.config.training_dict(),
-            "config_hash": point.config.training_hash(),
+            **point.config.training_identity(),
             "values": point.values,
             "finished": True,
             "recorded": recorded,
