@@ -17,6 +17,9 @@ _PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     # The paper's pedestrians, heedless of the car: they walk on into it, as CARLA's
     # walkers do (SPEC §3's pedestrians stand still instead; docs/results.md §10).
     "UrbanPedestriansHeedless-v0": ({}, {"ped_yield": 0}),
+    # Both kinds at once: pedestrians from the paper's slowest (0.5 km/h) to the
+    # realistic fastest (1.5 m/s), for an agent trained for both (docs/results.md §9).
+    "UrbanPedestriansMixed-v0": ({}, {"ped_speed_max": 1.5}),
 }
 
 __all__ = ["make", "preset", "registered_envs"]

@@ -67,9 +67,16 @@ def test_registered_ids_and_overrides():
         "UrbanPedestrians-v0",
         "UrbanPedestriansRealistic-v0",
         "UrbanPedestriansHeedless-v0",
+        "UrbanPedestriansMixed-v0",
     }
     _, realistic = drqn_jax.make("UrbanPedestriansRealistic-v0")
     assert float(realistic.ped_speed_min) == 0.5 and float(realistic.ped_speed_max) == 1.5
+    _, mixed = drqn_jax.make("UrbanPedestriansMixed-v0")
+    paper = drqn_jax.make()[1]
+    assert (
+        float(mixed.ped_speed_min) == float(paper.ped_speed_min)
+        and float(mixed.ped_speed_max) == 1.5
+    )
     _, heedless = drqn_jax.make("UrbanPedestriansHeedless-v0")
     assert int(heedless.ped_yield) == 0 and int(drqn_jax.make()[1].ped_yield) == 1
     env, params = drqn_jax.make(num_pedestrians=4, v_ref=5.0, semantic_channel="map")
