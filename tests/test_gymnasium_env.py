@@ -64,6 +64,7 @@ def test_registration_ids_entry_points_and_idempotence():
         (ID, "UrbanPedestrians-v0"),
         (ID_REALISTIC, "UrbanPedestriansRealistic-v0"),
         ("drqn_jax/UrbanPedestriansHeedless-v0", "UrbanPedestriansHeedless-v0"),
+        ("drqn_jax/UrbanPedestriansMixed-v0", "UrbanPedestriansMixed-v0"),
     )
     for gym_id, env_id in ids:
         spec = gymnasium.spec(gym_id)
