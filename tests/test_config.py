@@ -141,6 +141,14 @@ def test_beyond_long_is_beyond_trained_twice_as_long():
         assert load_config(name).training_hash() == longer.training_hash()
 
 
+def test_beyond_long_mixed_is_beyond_long_among_both_kinds():
+    """docs/results.md §9 ("Trained among both kinds"): only the pedestrians differ."""
+    long, mixed = load_config("beyond-long"), load_config("beyond-long-mixed")
+    assert mixed["train"] == long["train"] and mixed["network"] == long["network"]
+    # the env id brings its registered preset: walking speeds up to 1.5 m/s
+    assert changed(mixed, long, "env") == {"id": "UrbanPedestriansMixed-v0", "ped_speed_max": 1.5}
+
+
 def test_set_overrides_and_parsing():
     config = load_config(
         "smoke",
