@@ -30,11 +30,17 @@ def registered_envs() -> tuple[str, ...]:
     return tuple(_PRESETS)
 
 
-def preset(env_id: str) -> dict[str, Any]:
-    """The field values ``env_id`` sets on top of the parameter defaults."""
+def _overrides(env_id: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Copies of ``env_id``'s (static, traced) overrides; an unknown id is an error."""
     if env_id not in _PRESETS:
         raise ValueError(f"unknown env id {env_id!r}; registered: {', '.join(_PRESETS)}")
     static_kw, traced_kw = _PRESETS[env_id]
+    return dict(static_kw), dict(traced_kw)
+
+
+def preset(env_id: str) -> dict[str, Any]:
+    """The field values ``env_id`` sets on top of the parameter defaults."""
+    static_kw, traced_kw = _overrides(env_id)
     return {**static_kw, **traced_kw}
 
 
@@ -53,9 +59,7 @@ def make(
     Raises:
         ValueError: unknown id or field, or a value out of its allowed range.
     """
-    if env_id not in _PRESETS:
-        raise ValueError(f"unknown env id {env_id!r}; registered: {', '.join(_PRESETS)}")
-    static_kw, traced_kw = (dict(d) for d in _PRESETS[env_id])
+    static_kw, traced_kw = _overrides(env_id)
     static_names = {f.name for f in dataclasses.fields(StaticEnvParams)}
     traced_names = {f.name for f in dataclasses.fields(EnvParams)}
     for name, value in overrides.items():
