@@ -78,6 +78,7 @@ ADDED_LATER = {
     ("train", "imitation_lookahead"): 7.0,
     ("train", "imitation_corridor_margin"): 0.5,
     ("train", "imitation_v_max"): 15.0 * KMH,
+    ("train", "imitation_horizon"): 0.0,
     ("train", "select_by"): "return",
     ("train", "select_speed_floor"): 0.0,
     ("env", "ped_yield"): 1,

@@ -185,6 +185,13 @@ class Hyperparams:
         doc="m/s: the speed the imitated rule-based agent tracks, within ±1 km/h "
         "(SPEC §6: 15 km/h, the limit; exploration's guide keeps 15 km/h)",
     )
+    imitation_horizon: float = param(
+        0.0,
+        low=0.0,
+        doc="s: the imitated rule-based agent also brakes for a pedestrian walking into its "
+        "corridor within this time (RuleBasedParams.horizon; 0 = SPEC §6's rule; "
+        "exploration's guide keeps 0)",
+    )
     select_by: int = param(
         "return",
         choices=SELECT_BY,
@@ -550,6 +557,7 @@ def _make_train(config: TrainConfig) -> Trainer:
             lookahead=hp.imitation_lookahead,
             corridor_margin=hp.imitation_corridor_margin,
             v_max=hp.imitation_v_max,
+            horizon=hp.imitation_horizon,
         )
         expert = rule_based_labels(states, env_params, teacher, env.static)
         imitate = (hp.imitation_states == IMITATION_ALL) | (expert == BRAKE)

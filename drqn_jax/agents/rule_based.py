@@ -5,6 +5,14 @@ the ego's corridor (lateral distance to the lane centre ≤ ego_width/2 +
 ped_radius + ``corridor_margin``) and within ``lookahead`` metres ahead of the
 front bumper; otherwise track ``v_max``: accelerate below ``v_max − band``,
 steer (keep speed) within ±band, slow down above ``v_max + band``.
+
+``horizon`` > 0 (not the paper's; 0 by default) makes it anticipate: it also
+brakes for a pedestrian that, walking on at its current velocity, enters the
+corridor within ``horizon`` seconds, within ``lookahead`` of the front bumper
+and before the bumper, moving on at the ego's speed, has passed it. A fast
+pedestrian stepping towards the lane is braked for before it arrives; a slow
+one, whose ``horizon`` seconds of walking are short, barely changes the rule;
+one in the corridor already is braked for as before.
 """
 
 from __future__ import annotations
@@ -36,37 +44,84 @@ class RuleBasedParams:
     speed_band: float = param(1.0 * KMH, low=0.0, doc="m/s; steer within ±band of v_max")
     lookahead: float = param(7.0, low=0.0, doc="m ahead of the front bumper")
     corridor_margin: float = param(0.5, low=0.0, doc="m added to half width + ped radius")
+    horizon: float = param(
+        0.0,
+        low=0.0,
+        doc="s; also brake for a pedestrian entering the corridor ahead within this time "
+        "at its current velocity (0: the paper's rule, only pedestrians already in it)",
+    )
 
     def __post_init__(self) -> None:
         validate(self)
 
 
+def _times_between(a: jax.Array, b: jax.Array, low: jax.Array, high: jax.Array):
+    """The times t (an interval, maybe empty or unbounded) with low ≤ a + b·t ≤ high,
+    elementwise: (start, end) of the same shape as ``a`` and ``b``."""
+    moving = b != 0.0
+    rate = jnp.where(moving, b, 1.0)
+    t_low, t_high = (low - a) / rate, (high - a) / rate
+    inside = (a >= low) & (a <= high)
+    always = jnp.where(inside, -jnp.inf, jnp.inf)
+    start = jnp.where(moving, jnp.minimum(t_low, t_high), always)
+    end = jnp.where(moving, jnp.maximum(t_low, t_high), -always)
+    return start, end
+
+
 def must_brake(
-    s: jax.Array, position: jax.Array, env_params: EnvParams, rb: RuleBasedParams, static
+    s: jax.Array,
+    position: jax.Array,
+    env_params: EnvParams,
+    rb: RuleBasedParams,
+    static,
+    velocity: jax.Array | None = None,
+    v: jax.Array | float = 0.0,
 ) -> jax.Array:
-    """() bool: a pedestrian on the road or a crosswalk is in the corridor ahead.
+    """() bool: a pedestrian on the road or a crosswalk is in the corridor ahead
+    (or, with ``rb.horizon`` > 0, walks into it within ``rb.horizon`` seconds).
 
     Args:
-        s: () the ego's arc length (m); position: (P, 2) the pedestrians' centres.
+        s, v: () the ego's arc length (m) and speed (m/s); position, velocity:
+            (P, 2) the pedestrians' centres (m) and velocities (m/s; ``velocity``
+            and ``v`` are needed only when ``rb.horizon`` > 0).
     """
     cls = semantic_class(position, env_params, static)
     on_road = (cls == ROAD) | (cls == CROSSING_AREA)
     half_corridor = 0.5 * env_params.ego_width + env_params.ped_radius + rb.corridor_margin
-    lateral = jnp.abs(position[:, 1] - lane_centre_y(env_params))
+    offset = position[:, 1] - lane_centre_y(env_params)
     ahead = position[:, 0] - (s + 0.5 * env_params.ego_length)
     in_front = (ahead >= -env_params.ped_radius) & (ahead <= rb.lookahead)
-    return jnp.any(on_road & (lateral <= half_corridor) & in_front)
+    now = jnp.any(on_road & (jnp.abs(offset) <= half_corridor) & in_front)
+    if velocity is None:
+        return now
+    # When each pedestrian, walking on, is in the corridor (its lateral offset is
+    # linear in t), within the look-ahead of where the bumper is now, and not yet
+    # passed by the bumper moving on at v: an interval of t each, intersected
+    # with [0, horizon].
+    lat = _times_between(offset, velocity[:, 1], -half_corridor, half_corridor)
+    near = _times_between(ahead, velocity[:, 0], -jnp.inf, rb.lookahead)
+    unpassed = _times_between(ahead, velocity[:, 0] - v, -env_params.ped_radius, jnp.inf)
+    start = jnp.maximum(jnp.maximum(lat[0], near[0]), jnp.maximum(unpassed[0], 0.0))
+    end = jnp.minimum(jnp.minimum(lat[1], near[1]), jnp.minimum(unpassed[1], rb.horizon))
+    soon = jnp.any(start <= end)
+    return now | ((rb.horizon > 0.0) & soon)
 
 
 def _action(
-    s: jax.Array, v: jax.Array, position: jax.Array, env_params: EnvParams, rb, static
+    s: jax.Array,
+    v: jax.Array,
+    position: jax.Array,
+    velocity: jax.Array,
+    env_params: EnvParams,
+    rb,
+    static,
 ) -> jax.Array:
     track = jnp.where(
         v < rb.v_max - rb.speed_band,
         ACCELERATE,
         jnp.where(v > rb.v_max + rb.speed_band, SLOW_DOWN, STEER),
     )
-    brake = must_brake(s, position, env_params, rb, static)
+    brake = must_brake(s, position, env_params, rb, static, velocity, v)
     return jnp.where(brake, BRAKE, track).astype(jnp.int32)
 
 
@@ -75,7 +130,8 @@ def rule_based_action(
 ) -> jax.Array:
     """() int32 action of the rule-based agent for one environment."""
     ego = state.ego
-    return _action(ego.s, ego.v, state.pedestrians.position, env_params, rb, static)
+    peds = state.pedestrians
+    return _action(ego.s, ego.v, peds.position, peds.velocity, env_params, rb, static)
 
 
 def rule_based_labels(
@@ -86,8 +142,8 @@ def rule_based_labels(
     hold every pedestrian's position (visible or not) as the true state does."""
     lead = records.s.shape
     flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[len(lead) :])), records)
-    actions = jax.vmap(_action, (0, 0, 0, None, None, None))(
-        flat.s, flat.v, flat.position, env_params, rb, static
+    actions = jax.vmap(_action, (0, 0, 0, 0, None, None, None))(
+        flat.s, flat.v, flat.position, flat.velocity, env_params, rb, static
     )
     return actions.reshape(lead)
 
