@@ -366,6 +366,38 @@ def test_rule_based_labels_of_records_are_its_actions(params, static):
     np.testing.assert_array_equal(np.asarray(labels).ravel(), expected)
 
 
+def test_rule_based_horizon_anticipates_pedestrians_walking_into_the_corridor(params, static):
+    """``horizon`` = h > 0: also brake for a pedestrian that, walking on, enters the
+    corridor within h seconds, within the look-ahead of the bumper, before the bumper
+    (moving on at the ego's speed) has passed it; h = 0 is the paper's rule."""
+    s, v = 40.0, 4.0
+    front = s + 0.5 * params.ego_length
+    kerb = LANE_Y - 2.0  # 0.3 m outside the corridor (half width 0.9 + 0.3 + 0.5)
+    scenes = {  # pedestrian (x, y), velocity, ego speed -> brakes with h = 0.1, 0.5, 1
+        "steps in, enters in 0.2 s": ((front + 3.0, kerb), (0.0, 1.5), v, (0, 1, 1)),
+        "steps in slowly, enters in 0.75 s": ((front + 3.0, kerb), (0.0, 0.4), v, (0, 0, 1)),
+        "walks away": ((front + 3.0, kerb), (0.0, -1.5), v, (0, 0, 0)),
+        "walks along the kerb": ((front + 3.0, kerb), (1.5, 0.0), v, (0, 0, 0)),
+        "the bumper passes first": ((front + 0.2, kerb), (0.0, 1.5), v, (0, 0, 0)),
+        "... unless the ego stands": ((front + 0.2, kerb), (0.0, 1.5), 0.0, (0, 1, 1)),
+        "beyond the look-ahead": ((front + 8.0, kerb), (0.0, 1.5), v, (0, 0, 0)),
+        "into the look-ahead in 0.4 s": ((front + 7.4, LANE_Y), (-1.0, 0.0), v, (0, 1, 1)),
+        "standing beyond it": ((front + 7.5, LANE_Y), (0.0, 0.0), v, (0, 0, 0)),
+    }
+    action = jax.jit(rule_based_action, static_argnums=3)
+    labels = jax.jit(rule_based_labels, static_argnums=3)
+    for name, (position, velocity, speed, brakes) in scenes.items():
+        state = _state(
+            _ego(params, static, s=s, v=speed), _peds(static, [position], velocities=[velocity])
+        )
+        records = GridInputs.of(state.ego, state.pedestrians)  # what the replay holds
+        for horizon, want in zip((0.0, 0.1, 0.5, 1.0), (0, *brakes), strict=True):
+            rb = RuleBasedParams(horizon=horizon)
+            got = int(action(state, params, rb, static))
+            assert (got == BRAKE) == bool(want), (name, horizon)
+            assert int(labels(records, params, rb, static)) == got
+
+
 # --- 4. pedestrians never walk into the car ------------------------------------------
 
 

@@ -130,7 +130,8 @@ TEACHER = RuleBasedParams(lookahead=12.0, corridor_margin=1.0, v_max=2.0)
 
 def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
     """train.imitation_*: the update's loss is sequence_loss with the rule-based
-    agent's actions (with the imitation_* look-ahead, corridor margin and v_max) in the
+    agent's actions (with the imitation_* look-ahead, corridor margin, v_max and
+    horizon) in the
     sampled windows' states as the expert, weighted by imitation_weight in every
     state ('all') or where it brakes ('brake'); weight 0 is the TD loss alone.
     Pedestrian 0 is moved onto the lane 10 m ahead of the ego in every replayed
@@ -147,14 +148,14 @@ def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
     learner = (state.online, state.target, state.opt_state, state.grad_steps)
 
     @jax.jit
-    def expected(state, key, weight, everywhere):
+    def expected(state, key, weight, everywhere, teacher=TEACHER):
         hp = state.hparams
         w = sample_windows(
             state.replay, key, 4, 4, state.env_params, trainer.env.static, hp.window_start
         )
         states = jax.tree.map(lambda x: x[:-1], w.records)
         static = trainer.env.static
-        expert = rule_based_labels(states, state.env_params, TEACHER, static)
+        expert = rule_based_labels(states, state.env_params, teacher, static)
         usual = rule_based_labels(states, state.env_params, RuleBasedParams(), static)
         where = everywhere | (expert == BRAKE)
         args = (expert, weight * where.astype(jnp.float32), 0.5)
@@ -200,6 +201,27 @@ def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
     assert float(slow) == pytest.approx(float(want), rel=1e-6)
     assert int(relabelled) == 16  # all 16 sampled states: "slow down", not "accelerate"
     assert float(slow) != pytest.approx(float(spec), rel=1e-3)
+    # imitation_horizon alone: pedestrian 0 on the kerb 3 m ahead of the bumper, outside
+    # the teacher's corridor (half width 2.2 m), walking into the lane at 1.5 m/s: it
+    # enters in 0.2 s, so a teacher looking 1 s ahead brakes in every state, one looking
+    # 0 s ahead never does (it slows down from 3 m/s)
+    front = cruising.s + 0.5 * float(state.env_params.ego_length) + 3.0
+    kerb = jnp.stack([front, jnp.full_like(front, LANE_Y - 2.5)], axis=-1)
+    stepping_in = cruising.replace(
+        position=cruising.position.at[..., 0, :].set(kerb),
+        velocity=cruising.velocity.at[..., 0, :].set(jnp.array([0.0, 1.5])),
+    )
+    state = state.replace(replay=state.replay.replace(records=stepping_in))
+    anticipating, blind = (
+        update(learner, key, state.replay, hp.replace(imitation_horizon=h), state.env_params)[1]
+        for h in (1.0, 0.0)
+    )
+    state = state.replace(hparams=hp)
+    want, relabelled = expected(state, key, 2.0, True, TEACHER.replace(horizon=1.0))
+    assert float(anticipating) == pytest.approx(float(want), rel=1e-6)
+    assert int(relabelled) == 16  # "brake", not the usual "accelerate", in all 16
+    assert float(blind) == pytest.approx(float(expected(state, key, 2.0, True)[0]), rel=1e-6)
+    assert float(anticipating) != pytest.approx(float(blind), rel=1e-3)
     with pytest.raises(ValueError, match="imitation_states"):
         Hyperparams(imitation_states=IMITATION_STATES.index("all") + 1)
     with pytest.raises(ValueError, match="imitation_v_max"):
