@@ -131,7 +131,7 @@ def test_invalid_arguments(env_params):
 def test_agent_is_a_pytree_with_static_functions():
     agent = drqn_jax.rule_based_agent()
     leaves, treedef = jax.tree.flatten(agent)
-    assert len(leaves) == 4  # the four thresholds
+    assert len(leaves) == 5  # the four thresholds and the anticipation horizon
     rebuilt = jax.tree.unflatten(treedef, leaves)
     assert rebuilt.act_fn is agent.act_fn and rebuilt.name == "rule-based"
 
