@@ -131,9 +131,9 @@ TEACHER = RuleBasedParams(lookahead=12.0, corridor_margin=1.0, v_max=2.0)
 def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
     """train.imitation_*: the update's loss is sequence_loss with the rule-based
     agent's actions (with the imitation_* look-ahead, corridor margin, v_max and
-    horizon) in the
-    sampled windows' states as the expert, weighted by imitation_weight in every
-    state ('all') or where it brakes ('brake'); weight 0 is the TD loss alone.
+    horizon) in the sampled windows' states as the expert, weighted by
+    imitation_weight in every state ('all') or where it brakes ('brake'); weight 0
+    is the TD loss alone.
     Pedestrian 0 is moved onto the lane 10 m ahead of the ego in every replayed
     state: beyond the usual 7 m look-ahead, within the teacher's 12 m; the teacher
     tracks 2 m/s (7.2 km/h) instead of 15 km/h."""

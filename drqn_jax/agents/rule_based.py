@@ -55,7 +55,9 @@ class RuleBasedParams:
         validate(self)
 
 
-def _times_between(a: jax.Array, b: jax.Array, low: jax.Array, high: jax.Array):
+def _times_between(
+    a: jax.Array, b: jax.Array, low: jax.Array | float, high: jax.Array | float
+) -> tuple[jax.Array, jax.Array]:
     """The times t (an interval, maybe empty or unbounded) with low ≤ a + b·t ≤ high,
     elementwise: (start, end) of the same shape as ``a`` and ``b``."""
     moving = b != 0.0
@@ -74,16 +76,15 @@ def must_brake(
     env_params: EnvParams,
     rb: RuleBasedParams,
     static,
-    velocity: jax.Array | None = None,
-    v: jax.Array | float = 0.0,
+    velocity: jax.Array,
+    v: jax.Array,
 ) -> jax.Array:
     """() bool: a pedestrian on the road or a crosswalk is in the corridor ahead
     (or, with ``rb.horizon`` > 0, walks into it within ``rb.horizon`` seconds).
 
     Args:
         s, v: () the ego's arc length (m) and speed (m/s); position, velocity:
-            (P, 2) the pedestrians' centres (m) and velocities (m/s; ``velocity``
-            and ``v`` are needed only when ``rb.horizon`` > 0).
+            (P, 2) the pedestrians' centres (m) and velocities (m/s).
     """
     cls = semantic_class(position, env_params, static)
     on_road = (cls == ROAD) | (cls == CROSSING_AREA)
@@ -92,8 +93,6 @@ def must_brake(
     ahead = position[:, 0] - (s + 0.5 * env_params.ego_length)
     in_front = (ahead >= -env_params.ped_radius) & (ahead <= rb.lookahead)
     now = jnp.any(on_road & (jnp.abs(offset) <= half_corridor) & in_front)
-    if velocity is None:
-        return now
     # When each pedestrian, walking on, is in the corridor (its lateral offset is
     # linear in t), within the look-ahead of where the bumper is now, and not yet
     # passed by the bumper moving on at v: an interval of t each, intersected
