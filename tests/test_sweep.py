@@ -55,11 +55,13 @@ def sweep_file(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def trained(sweep_file):
-    """The 4-run sweep on one device, in one program (``auto``: one run after
-    another on the CPU)."""
+    """The 4-run sweep on one device, one run per call (``auto`` on the CPU: ``map``),
+    as ``cli_sweep`` trains it: the same compiled programs (``call_programs``), so
+    this module compiles them once."""
     sweep = load_sweep(sweep_file)
     (points,) = sweep.programs()
-    _, params, metrics = train_runs(points)
+    runs = [train_runs([point])[1:] for point in points]
+    params, metrics = jax.tree.map(lambda *x: np.concatenate(x), *runs)
     return sweep, params, metrics
 
 
@@ -116,18 +118,12 @@ def test_each_run_is_bit_identical_to_the_run_alone(trained):
 
 
 def _train_on_forced_devices(
-    sweep_file: Path,
-    devices: int,
-    out: Path,
-    *,
-    runs: int = 3,
-    threads: int | None = None,
-    alone: bool = False,
-    strategy: str = "auto",
-) -> list[np.ndarray]:
-    """Leaves of the sweep's first ``runs`` runs trained in a process with ``devices``
-    forced host devices — as one sweep call sharded over all of them, or each
-    ``alone`` (``jit(train)``) — with, if given, an XLA:CPU pool of ``threads``."""
+    sweep_file: Path, devices: int, out: Path, jobs: dict[str, int], threads: int
+) -> dict[str, list[np.ndarray]]:
+    """Leaves of the sweep's first runs trained in one process with ``devices`` forced
+    host devices and an XLA:CPU pool of ``threads``: per job ``{strategy: runs}``,
+    the first ``runs`` points as one sweep call sharded over all the devices
+    (``"map"`` or ``"vmap"``) or each alone (``"alone"``: ``jit(train)``)."""
     script = textwrap.dedent(f"""
         import jax, numpy as np
         import drqn_jax
@@ -135,32 +131,39 @@ def _train_on_forced_devices(
         from drqn_jax.sweep_runner import train_runs
         from tests.helpers import train_alone
         assert len(jax.devices()) == {devices}, jax.devices()
-        points = load_sweep({str(sweep_file)!r}).points[:{runs}]
-        if {alone}:
-            results = [train_alone(p) for p in points]
-            params, metrics = jax.tree.map(lambda *x: np.stack(x), *results)
-        else:
-            _, params, metrics = train_runs(points, strategy={strategy!r})
-        np.savez({str(out)!r}, *jax.tree.leaves((params, metrics)))
+        for strategy, runs in {jobs!r}.items():
+            points = load_sweep({str(sweep_file)!r}).points[:runs]
+            if strategy == "alone":
+                results = [train_alone(p) for p in points]
+                params, metrics = jax.tree.map(lambda *x: np.stack(x), *results)
+            else:
+                _, params, metrics = train_runs(points, strategy=strategy)
+            np.savez(f"{out}/{{strategy}}.npz", *jax.tree.leaves((params, metrics)))
     """)
     env = {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
-    if threads is not None:
-        env["PJRT_NPROC"] = str(threads)
+    env["PJRT_NPROC"] = str(threads)
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
-    saved = np.load(out)
-    return [saved[f"arr_{i}"] for i in range(len(saved.files))]
+    saved = {strategy: np.load(out / f"{strategy}.npz") for strategy in jobs}
+    return {k: [v[f"arr_{i}"] for i in range(len(v.files))] for k, v in saved.items()}
 
 
 @pytest.fixture(scope="module")
 def alone_with_four_threads(sweep_file, tmp_path_factory):
-    out = tmp_path_factory.mktemp("alone") / "1.npz"
-    return _train_on_forced_devices(sweep_file, 1, out, runs=4, threads=4, alone=True)
+    out = tmp_path_factory.mktemp("alone")
+    return _train_on_forced_devices(sweep_file, 1, out, {"alone": 4}, threads=4)["alone"]
+
+
+@pytest.fixture(scope="module")
+def on_four_devices(sweep_file, tmp_path_factory):
+    """Both strategies in one process (one start-up): ``map`` 4 runs, ``vmap`` 3."""
+    out = tmp_path_factory.mktemp("four")
+    return _train_on_forced_devices(sweep_file, 4, out, {"map": 4, "vmap": 3}, threads=4)
 
 
 @pytest.mark.parametrize(("strategy", "runs"), [("map", 4), ("vmap", 3)])
 def test_four_forced_devices_reproduce_each_run_alone(
-    sweep_file, alone_with_four_threads, strategy, runs, tmp_path
+    alone_with_four_threads, on_four_devices, strategy, runs
 ):
     """The sweep's first ``runs`` points sharded over 4 forced host devices
     (``map``: one run per device; ``vmap``: 3 runs padded to 2 per device, 5 of
@@ -172,11 +175,10 @@ def test_four_forced_devices_reproduce_each_run_alone(
     has. Both processes get the same pool (``PJRT_NPROC=4``), as two machines
     with 4 cores would; see ``drqn_jax.determinism``.
     """
-    four = _train_on_forced_devices(
-        sweep_file, 4, tmp_path / "4.npz", runs=runs, threads=4, strategy=strategy
-    )
+    four = on_four_devices[strategy]
     assert len(four) == len(alone_with_four_threads)
     for got, want in zip(four, alone_with_four_threads, strict=True):
+        assert len(got) == runs
         np.testing.assert_array_equal(got, want[:runs], strict=True)
 
 
