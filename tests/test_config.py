@@ -149,6 +149,17 @@ def test_beyond_long_mixed_is_beyond_long_among_both_kinds():
     assert changed(mixed, long, "env") == {"id": "UrbanPedestriansMixed-v0", "ped_speed_max": 1.5}
 
 
+def test_anticipate_is_beyond_long_mixed_with_an_anticipating_narrower_teacher():
+    """docs/results.md §9 ("A teacher that anticipates"): only the imitated teacher
+    differs; the compared rule-based agent and the exploration guide keep SPEC §6's rule."""
+    mixed, anticipate = load_config("beyond-long-mixed"), load_config("anticipate")
+    assert anticipate["env"] == mixed["env"] and anticipate["network"] == mixed["network"]
+    differ = changed(anticipate, mixed, "train")
+    assert differ == {"imitation_horizon": 1.0, "imitation_corridor_margin": 0.3}, differ
+    assert anticipate["rule_based"] == load_config("default")["rule_based"]
+    assert anticipate.rule_based_params().horizon == 0.0
+
+
 def test_set_overrides_and_parsing():
     config = load_config(
         "smoke",
