@@ -131,8 +131,9 @@ def _train_on_forced_devices(
         from drqn_jax.sweep_runner import train_runs
         from tests.helpers import train_alone
         assert len(jax.devices()) == {devices}, jax.devices()
+        sweep = load_sweep({str(sweep_file)!r})
         for strategy, runs in {jobs!r}.items():
-            points = load_sweep({str(sweep_file)!r}).points[:runs]
+            points = sweep.points[:runs]
             if strategy == "alone":
                 results = [train_alone(p) for p in points]
                 params, metrics = jax.tree.map(lambda *x: np.stack(x), *results)
@@ -154,14 +155,18 @@ def alone_with_four_threads(sweep_file, tmp_path_factory):
     return _train_on_forced_devices(sweep_file, 1, out, {"alone": 4}, threads=4)["alone"]
 
 
+#: Runs per strategy on 4 forced devices: ``map`` one per device, ``vmap`` 3 padded to 8.
+FOUR_DEVICE_JOBS = {"map": 4, "vmap": 3}
+
+
 @pytest.fixture(scope="module")
 def on_four_devices(sweep_file, tmp_path_factory):
-    """Both strategies in one process (one start-up): ``map`` 4 runs, ``vmap`` 3."""
+    """Both strategies of ``FOUR_DEVICE_JOBS`` in one process (one start-up)."""
     out = tmp_path_factory.mktemp("four")
-    return _train_on_forced_devices(sweep_file, 4, out, {"map": 4, "vmap": 3}, threads=4)
+    return _train_on_forced_devices(sweep_file, 4, out, FOUR_DEVICE_JOBS, threads=4)
 
 
-@pytest.mark.parametrize(("strategy", "runs"), [("map", 4), ("vmap", 3)])
+@pytest.mark.parametrize(("strategy", "runs"), FOUR_DEVICE_JOBS.items())
 def test_four_forced_devices_reproduce_each_run_alone(
     alone_with_four_threads, on_four_devices, strategy, runs
 ):
