@@ -14,6 +14,12 @@ from drqn_jax.env.state import SIDEWALK
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.train import Hyperparams, TrainConfig, make_train
 
+#: The smoke config as test_sweep's sweep sets it. test_study and test_memory
+#: train with the same settings so that the suite compiles those programs once
+#: (JAX's persistent compilation cache, tests/conftest.py, serves them to
+#: whichever file runs later): about half a minute of compiling each on 2 cores.
+SMOKE_SWEEP_SET = ("train.num_episodes=4", "train.snapshots=1", "train.validation_episodes=2")
+
 
 def tree_equal(a, b) -> bool:
     """Bitwise equality of two pytrees (structure, shapes, dtypes, values incl. NaN/inf)."""

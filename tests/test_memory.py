@@ -17,6 +17,7 @@ from drqn_jax.memory import (
 )
 from drqn_jax.sweep_runner import call_programs
 from drqn_jax.train import make_train
+from tests.helpers import SMOKE_SWEEP_SET
 
 
 def test_the_estimate_covers_what_xla_allocates():
@@ -35,9 +36,9 @@ def test_the_estimate_covers_what_xla_allocates():
 
 @pytest.mark.parametrize("strategy", ["map", "vmap"])
 def test_the_call_estimate_covers_what_xla_allocates(strategy):
-    """A 4-run call of the smoke config: :func:`call_bytes` against XLA's peak
-    (arguments + temporaries of the donating chunk program), within 1–2×."""
-    config = load_config("smoke")
+    """A 4-run call of test_sweep's smoke config: :func:`call_bytes` against XLA's
+    peak (arguments + temporaries of the donating chunk program), within 1–2×."""
+    config = load_config("smoke", list(SMOKE_SWEEP_SET))
     trainer = make_train(config.train_config())
     devices = jax.devices()[:1]
     init, run = call_programs(trainer, 4, devices, strategy)

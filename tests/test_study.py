@@ -21,6 +21,7 @@ from drqn_jax.study import (
     study_table,
 )
 from drqn_jax.sweep_runner import metrics_path
+from tests.helpers import SMOKE_SWEEP_SET
 
 
 def _run(rate: float, n: int = 100, distance: float = 100.0, free_distance: float = 120.0):
@@ -117,7 +118,7 @@ def test_a_study_is_validated_before_anything_runs():
 
 
 STUDY = ["--configs", "smoke", "--seeds", "2", "--episodes", "4", "--quiet"]
-STUDY += ["--set", "train.num_episodes=4"]
+STUDY += [arg for setting in SMOKE_SWEEP_SET for arg in ("--set", setting)]
 
 
 @pytest.fixture(scope="module")
