@@ -19,6 +19,7 @@ from typing import Any
 import jax
 
 from drqn_jax.config import Config
+from drqn_jax.runner import init_program
 from drqn_jax.train import make_train
 
 __all__ = ["bench_env", "bench_train"]
@@ -69,7 +70,7 @@ def bench_train(config: Config, iterations: int) -> str:
     """One line: training iterations/s (env steps, gradient updates) once learning runs."""
     trainer = make_train(config.train_config())
     train_key, _ = config.keys()
-    state = jax.jit(trainer.init)(train_key)
+    state = init_program(trainer)(train_key)  # train's init program
     start = time.perf_counter()
     run = jax.jit(trainer.run, static_argnums=1).lower(state, iterations).compile()
     compile_s = time.perf_counter() - start

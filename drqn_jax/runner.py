@@ -56,6 +56,7 @@ __all__ = [
     "RunResult",
     "builtin_agent",
     "evaluate_agents",
+    "init_program",
     "json_ready",
     "load_run",
     "load_trained_network",
@@ -118,6 +119,16 @@ class _StopRequest:
 
 
 _COMPILED: dict[tuple, Any] = {}
+
+
+def init_program(trainer: Trainer) -> Callable[[jax.Array], TrainState]:
+    """``init(key) -> TrainState``: ``trainer.init`` jitted with the hyperparameters
+    and env params as arguments, not constants: one program per shape, which the
+    persistent compilation cache serves to other values and to every caller that
+    builds its state this way (``train``, ``bench``, the tests)."""
+    return functools.partial(
+        jax.jit(trainer.init), hparams=trainer.config.hyperparams, env_params=trainer.env_params
+    )
 
 
 def _compiled_run(trainer: Trainer, state: TrainState) -> Any:
@@ -220,11 +231,7 @@ def train_run(
     run_dir = Path(run_dir)
     trainer = make_train(config.train_config())
     train_key, _ = config.keys()
-    # hyperparameters and env params as arguments, not constants: one init program
-    # per shape, which the persistent compilation cache can serve to other values
-    init = functools.partial(
-        jax.jit(trainer.init), hparams=trainer.config.hyperparams, env_params=trainer.env_params
-    )
+    init = init_program(trainer)
     wall_before, chunks = 0.0, 0
     if resume:
         expected = config.training_identity()

@@ -80,6 +80,8 @@ __all__ = [
     "Call",
     "Distributed",
     "SweepOutcome",
+    "call_inputs",
+    "call_programs",
     "evaluate_runs",
     "init_distributed",
     "metrics_path",
@@ -299,12 +301,17 @@ def _sharding(devices: Sequence[Any]) -> NamedSharding:
     return NamedSharding(Mesh(np.asarray(devices), ("runs",)), PartitionSpec("runs"))
 
 
-def _init_args(points: Sequence[SweepPoint], size: int) -> tuple[Any, Any, Any]:
-    """(keys, hparams, env_params) of the runs, stacked and padded to ``size``."""
+def call_inputs(call: Call, devices: Sequence[Any]) -> tuple[tuple[Any, Any, Any], jax.Array]:
+    """What a call's programs (:func:`call_programs`) take: ``init``'s arguments
+    ``(keys, hparams, env_params)``, the runs' stacked and padded to ``call.size``,
+    and ``run``'s ``real`` flags ``(size,)`` (False for padding), sharded over
+    ``devices``."""
+    points = call.points
     keys = jnp.stack([p.config.keys()[0] for p in points])
     hparams = _stack([p.config.hyperparams() for p in points])
     env_params = _stack([p.config.make_env()[1] for p in points])
-    return _pad((keys, hparams, env_params), size)
+    real = np.arange(call.size) < len(points)
+    return _pad((keys, hparams, env_params), call.size), jax.device_put(real, _sharding(devices))
 
 
 def _over_runs(
@@ -423,9 +430,7 @@ def train_call(
     """
     trainer = make_train(call.points[0].config.train_config())
     init, run = call_programs(trainer, call.size, devices, call.strategy)
-    args = _init_args(call.points, call.size)
-    sharding = _sharding(devices)
-    real = jax.device_put(np.arange(call.size) < len(call.points), sharding)
+    args, real = call_inputs(call, devices)
     checkpoint = directory is not None and (directory / CHECKPOINT_NPZ).exists()
     if checkpoint:
         template = jax.eval_shape(init, *args)
@@ -433,7 +438,7 @@ def train_call(
         expected = {"config_hash": call.fingerprint()}
         fill = added_leaves(hparams, env_params)
         state, _ = load_checkpoint(directory, template, expected, fill)
-        state = jax.device_put(state, sharding)
+        state = jax.device_put(state, _sharding(devices))
     else:
         state = init(*args)
     last_save = time.perf_counter()
