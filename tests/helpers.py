@@ -20,6 +20,16 @@ from drqn_jax.train import Hyperparams, TrainConfig, make_train
 #: whichever file runs later): about half a minute of compiling each on 2 cores.
 SMOKE_SWEEP_SET = ("train.num_episodes=4", "train.snapshots=1", "train.validation_episodes=2")
 
+#: test_sweep's sweep file: 2 seeds × 2 learning rates of that config (one program).
+SMOKE_SWEEP = """
+base = "smoke"
+[set]
+{}
+[axes]
+"run.seed" = {{ start = 0, stop = 2 }}
+"train.learning_rate" = [1e-3, 3e-4]
+""".format("\n".join('"{}" = {}'.format(*s.split("=")) for s in SMOKE_SWEEP_SET))
+
 
 def tree_equal(a, b) -> bool:
     """Bitwise equality of two pytrees (structure, shapes, dtypes, values incl. NaN/inf)."""

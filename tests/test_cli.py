@@ -272,7 +272,10 @@ def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
 
 
 def test_bench_quick_prints_throughput(capsys):
+    # a chunk of smoke's ``train``: the program test_train_writes_the_run_directory compiles
+    chunk = load_config("smoke")["train"]["chunk_iterations"]
     argv = ["bench", "quick", "--config", "smoke", "--num-envs", "4", "--steps", "5"]
+    argv += ["--iterations", str(chunk)]
     assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "env steps/s at 4 envs" in out and "JAX" in out

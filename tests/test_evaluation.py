@@ -89,32 +89,35 @@ def test_summary_consistent_with_episodes(results):
     assert res["collision_free_ci"] == wilson_interval(int(free.sum()), NUM)
 
 
+# The tests below run NUM episodes where they can: the programs of ``results``.
+
+
 def test_episode_i_does_not_depend_on_num_episodes(env_params):
     env, params = env_params
     agent = drqn_jax.rule_based_agent()
     key = jax.random.key(5)
-    big = run_episodes(agent, episode_keys(key, 16), env, params)
+    big = run_episodes(agent, episode_keys(key, NUM), env, params)
     small = run_episodes(agent, episode_keys(key, 3), env, params)
     assert_tree_equal(take(big, slice(0, 3)), small)
-    chunked = run_episodes(agent, episode_keys(key, 16), env, params, batch_size=4)
+    chunked = run_episodes(agent, episode_keys(key, NUM), env, params, batch_size=16)
     assert_tree_equal(big, chunked)
 
 
-def test_evaluate_is_deterministic_and_key_dependent(env_params):
+def test_evaluate_is_deterministic_and_key_dependent(env_params, results):
     env, params = env_params
     agent = drqn_jax.random_agent()
-    a = drqn_jax.evaluate(agent, jax.random.key(1), 8, env, params)
-    b = drqn_jax.evaluate(agent, jax.random.key(1), 8, env, params)
-    c = drqn_jax.evaluate(agent, jax.random.key(2), 8, env, params)
+    a = results["random"]  # key 123
+    b = drqn_jax.evaluate(agent, jax.random.key(123), NUM, env, params)
+    c = drqn_jax.evaluate(agent, jax.random.key(2), NUM, env, params)
     assert_tree_equal(a["episodes"], b["episodes"])
     assert not np.array_equal(a["episodes"].distance, c["episodes"].distance)
 
 
-def test_rule_based_params_change_behaviour(env_params):
+def test_rule_based_params_change_behaviour(env_params, results):
     env, params = env_params
     slow = drqn_jax.rule_based_agent(RuleBasedParams(v_max=5.0 / 3.6))
-    res = drqn_jax.evaluate(slow, jax.random.key(0), 8, env, params)
-    assert res["avg_speed_kmh"] < 6.5
+    res = drqn_jax.evaluate(slow, jax.random.key(123), NUM, env, params)
+    assert res["avg_speed_kmh"] < 6.5 < results["rule"]["avg_speed_kmh"]
     with pytest.raises(ValueError, match="v_max"):
         RuleBasedParams(v_max=-1.0)
 

@@ -293,7 +293,8 @@ def test_q_values_of_the_drqn_equal_network_step(drqn):
 
 
 def test_drqn_episode_is_bit_identical_alone_or_in_a_batch(env_params, key):
-    """Episode 0 of a DRQN: the same Q-values to the bit alone and beside 2 others.
+    """Episode 0 of a DRQN: the same Q-values to the bit alone and beside another
+    (the ``drqn`` fixture's episodes: one program for both).
 
     A batch of one would run XLA's matrix-vector kernels (Q-values 1 ulp apart);
     ``evaluation.map_episodes`` never runs a batch of one.
@@ -303,14 +304,14 @@ def test_drqn_episode_is_bit_identical_alone_or_in_a_batch(env_params, key):
     weights = network.init(jax.random.key(3))
     agent = drqn_jax.drqn_agent(network, weights)
 
-    def first(n, batch_size=None):
+    def first(n):
         record = recording.collect_episodes(
             agent, key, n, env, params, network=network, network_params=weights
         )
         return np.asarray(record.q_values)[0], np.asarray(record.action)[0]
 
     alone = first(1)
-    for got, want in zip(first(3), alone, strict=True):
+    for got, want in zip(first(NUM_EPISODES), alone, strict=True):
         np.testing.assert_array_equal(got, want)
     one_by_one = drqn_jax.evaluate(agent, key, 3, env, params, batch_size=1)["episodes"]
     together = drqn_jax.evaluate(agent, key, 3, env, params)["episodes"]

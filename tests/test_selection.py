@@ -17,7 +17,7 @@ import pytest
 import drqn_jax
 from drqn_jax.checkpoint import load_checkpoint
 from drqn_jax.config import ConfigError, load_config
-from drqn_jax.runner import load_trained_network, train_run, validated
+from drqn_jax.runner import init_program, load_trained_network, train_run, validated
 from drqn_jax.train import (
     SELECT_BY,
     VALIDATION_METRICS,
@@ -30,10 +30,10 @@ from drqn_jax.train import (
 )
 from tests.helpers import assert_tree_equal, take
 
-SMOKE = ["train.snapshots=2", "train.validation_episodes=2"]
-#: smoke.toml (2 envs, 6 episodes of at most 30 steps) with two snapshots: the
-#: runner's test below trains the same configuration and reuses the validation
-#: program compiled here (``runner.validated``).
+SMOKE = ["train.snapshots=2", "train.validation_episodes=2", "train.chunk_iterations=1"]
+#: smoke.toml (2 envs, 6 episodes of at most 30 steps) with two snapshots, one
+#: iteration per chunk: the runner's test below trains the same configuration
+#: with the programs compiled here (init, run and ``runner.validated``).
 SNAP = load_config("smoke", SMOKE).train_config()
 
 
@@ -42,9 +42,8 @@ def stepped():
     """``SNAP`` one iteration per call: (trainer, final state, the online
     parameters right after each iteration in which a threshold was crossed)."""
     trainer = make_train(SNAP)
-    init = jax.jit(trainer.init)
     run = jax.jit(trainer.run, static_argnums=1)
-    state = init(jax.random.key(0), SNAP.hyperparams, trainer.env_params)
+    state = init_program(trainer)(jax.random.key(0))
     at_threshold = {}
     while not bool(state.finished):
         before = int(state.recorded)
@@ -88,11 +87,16 @@ def test_snapshots_are_the_online_parameters_at_the_thresholds(stepped):
 
 
 def test_snapshots_leave_training_unchanged(stepped):
-    """Every leaf but the snapshots equals the run without them, bit for bit."""
+    """Every leaf but the snapshots equals the run without them, bit for bit. The
+    run without them goes in chunks of smoke.toml's ``train``: the programs of
+    test_cli's smoke run."""
     _, state, _ = stepped
-    plain = make_train(dataclasses.replace(SNAP, snapshots=0))
-    reference = jax.jit(plain.init)(jax.random.key(0), SNAP.hyperparams, plain.env_params)
-    reference = jax.jit(plain.run, static_argnums=1)(reference, 200)
+    chunk = load_config("smoke")["train"]["chunk_iterations"]
+    plain = make_train(dataclasses.replace(SNAP, snapshots=0, chunk_iterations=chunk))
+    reference = init_program(plain)(jax.random.key(0))
+    run = jax.jit(plain.run, static_argnums=1)
+    while not bool(reference.finished):
+        reference = run(reference, chunk)
     assert reference.snapshots is None and reference.validation is None
     assert_tree_equal(jax.random.key_data(state.key), jax.random.key_data(reference.key))
     assert_tree_equal(

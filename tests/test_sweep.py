@@ -32,17 +32,8 @@ from drqn_jax.sweep_runner import (
     validation_program,
 )
 from drqn_jax.train import make_train
-from tests.helpers import SMOKE_SWEEP_SET, assert_tree_equal, train_alone
-
-_SET = "\n".join('"{}" = {}'.format(*setting.split("=")) for setting in SMOKE_SWEEP_SET)
-SWEEP = f"""
-base = "smoke"
-[set]
-{_SET}
-[axes]
-"run.seed" = {{ start = 0, stop = 2 }}
-"train.learning_rate" = [1e-3, 3e-4]
-"""
+from tests.helpers import SMOKE_SWEEP as SWEEP
+from tests.helpers import assert_tree_equal, train_alone
 
 
 @pytest.fixture(scope="module")

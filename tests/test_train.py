@@ -16,6 +16,7 @@ from drqn_jax.env.state import BRAKE
 from drqn_jax.loss import sequence_loss
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.replay import WINDOW_ANYWHERE, sample_windows
+from drqn_jax.runner import init_program
 from drqn_jax.train import IMITATION_STATES, Hyperparams, TrainConfig, annealed, make_train
 from tests.helpers import assert_tree_equal, take, tiny_train_config
 
@@ -72,24 +73,24 @@ def test_same_key_bit_identical(tiny, tiny_run):
 
 @pytest.fixture(scope="module")
 def tiny_chunked(tiny):
-    """The run of ``tiny_run`` in chunks of 2 iterations: (final state, chunks).
-
-    Like the runner, it passes hyperparameters and env params to init as
-    arguments (``tiny_run`` has them as constants inside ``train``)."""
+    """The run of ``tiny_run`` in chunks of ``TINY.chunk_iterations``: (final state,
+    chunks). As the runner does (``TINY`` is smoke.toml's training config, so these
+    are the programs of ``drqn-jax train --config smoke``), it passes
+    hyperparameters and env params to init as arguments (``tiny_run`` has them
+    as constants inside ``train``)."""
     trainer, _ = tiny
-    init = jax.jit(trainer.init)
     run = jax.jit(trainer.run, static_argnums=1)
-    state = init(jax.random.key(0), TINY.hyperparams, trainer.env_params)
+    state = init_program(trainer)(jax.random.key(0))
     chunks = 0
     while not bool(state.finished):
-        state = run(state, 2)  # the chunk of the guided test: one program for both
+        state = run(state, TINY.chunk_iterations)
         chunks += 1
     return state, chunks
 
 
 def test_chunked_equals_one_shot(tiny_chunked, tiny_run):
-    """Chunks of 2 iterations from an init with hyperparameters as arguments end
-    bit-identical to one ``train`` call with them as constants."""
+    """Chunks from an init with hyperparameters as arguments end bit-identical to
+    one ``train`` call with them as constants."""
     state, chunks = tiny_chunked
     assert chunks > 3
     assert_tree_equal((state.online, state.metrics), tiny_run)
@@ -232,23 +233,27 @@ def test_guided_exploration_takes_the_rule_based_action(tiny):
     """explore_guide = 1 with ε = 1: every action is the rule-based agent's on the
     true state; explore_guide = 0: the random actions of the paper's exploration."""
     trainer, _ = tiny
-    init = jax.jit(trainer.init)
     run = jax.jit(trainer.run, static_argnums=1)
     act = jax.jit(trainer.act)
     rule_based = jax.jit(jax.vmap(rule_based_action, (0, None, None, None)), static_argnums=3)
     always = dict(epsilon_start=1.0, epsilon_end=1.0)
     guided_hp = TINY.hyperparams.replace(explore_guide=1.0, **always)
     random_hp = TINY.hyperparams.replace(**always)
-    state = init(jax.random.key(5), guided_hp, trainer.env_params)  # the program of tiny_chunked
+    # the programs of tiny_chunked: the hyperparameters are init's arguments
+    state = init_program(make_train(dataclasses.replace(TINY, hyperparams=guided_hp)))(
+        jax.random.key(5)
+    )
     guided, random, expected = [], [], []
-    for i in range(12):
-        state = run(state, 2)
-        key = jax.random.key(100 + i)
-        guided.append(act(state, key)[0])
-        random.append(act(state.replace(hparams=random_hp), key)[0])
-        expected.append(
+    for i in range(5):  # 5 chunks of 16 iterations: the episodes' first 80 steps
+        state = run(state, TINY.chunk_iterations)
+        assert not bool(state.finished)
+        for j in range(4):
+            key = jax.random.key(100 + 4 * i + j)
+            guided.append(act(state, key)[0])
+            random.append(act(state.replace(hparams=random_hp), key)[0])
+        expected += [
             rule_based(state.env_state, state.env_params, RuleBasedParams(), trainer.env.static)
-        )
+        ] * 4
     guided, random, expected = (np.concatenate(a) for a in (guided, random, expected))
     np.testing.assert_array_equal(guided, expected)
     assert np.any(random != expected)
