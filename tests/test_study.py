@@ -117,7 +117,10 @@ def test_a_study_is_validated_before_anything_runs():
         plan_study(["smoke"], 2, 10, ["train.gamma=2.0"])
 
 
-STUDY = ["--configs", "smoke", "--seeds", "2", "--episodes", "4", "--quiet"]
+#: test_sweep's sweep settings and its evaluation (2 episodes), so that the
+#: persistent compilation cache serves its programs to whichever file runs later.
+EPISODES = 2
+STUDY = ["--configs", "smoke", "--seeds", "2", "--episodes", str(EPISODES), "--quiet"]
 STUDY += [arg for setting in SMOKE_SWEEP_SET for arg in ("--set", setting)]
 
 
@@ -140,13 +143,13 @@ def test_the_study_writes_the_table_and_the_curves(study):
     runs = record["runs"]["smoke"]
     assert [r["values"] for r in runs] == [{"run.seed": 0}, {"run.seed": 1}]
     drqn = record["rows"][2]
-    assert drqn["seeds"] == 2 and drqn["episodes"] == 4
+    assert drqn["seeds"] == 2 and drqn["episodes"] == EPISODES
     rates = [r["collision_free_rate"] for r in runs]
     assert drqn["collision_free_rate"] == pytest.approx(np.mean(rates))
     baseline = json.loads(next((study / "baselines").glob("rule-based-*.json")).read_text())
-    assert baseline["num_episodes"] == 4 and record["rows"][3]["episodes"] == 4
+    assert baseline["num_episodes"] == EPISODES == record["rows"][3]["episodes"]
     table = (study / "study.md").read_text()
-    assert "| drqn_jax: smoke | drqn | 2 × 4 |" in table
+    assert f"| drqn_jax: smoke | drqn | 2 × {EPISODES} |" in table
     assert "* drqn_jax: smoke (drqn) against drqn_jax: UrbanPedestrians-v0 (rule-based)" in table
     assert record["comparisons"] == [line[2:] for line in table.splitlines() if line[:2] == "* "]
     assert (study / "curves.rrd").stat().st_size > 0
@@ -187,7 +190,7 @@ def test_a_report_covers_the_runs_that_have_finished(study, tmp_path, monkeypatc
     assert cli.main(["study", *STUDY, "--out", str(partial), "--report-only"]) == 0
     record = json.loads((partial / "study.json").read_text())
     assert [r["index"] for r in record["runs"]["smoke"]] == [0]
-    assert "| drqn_jax: smoke | drqn | 1 × 4 |" in (partial / "study.md").read_text()
+    assert f"| drqn_jax: smoke | drqn | 1 × {EPISODES} |" in (partial / "study.md").read_text()
 
 
 def test_eval_envs_evaluate_the_trained_agents_among_other_pedestrians(
