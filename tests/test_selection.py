@@ -92,7 +92,7 @@ def test_snapshots_leave_training_unchanged(stepped):
     test_cli's smoke run."""
     _, state, _ = stepped
     chunk = load_config("smoke")["train"]["chunk_iterations"]
-    plain = make_train(dataclasses.replace(SNAP, snapshots=0, chunk_iterations=chunk))
+    plain = make_train(dataclasses.replace(SNAP, snapshots=0))
     reference = init_program(plain)(jax.random.key(0))
     run = jax.jit(plain.run, static_argnums=1)
     while not bool(reference.finished):
