@@ -57,6 +57,14 @@ def assert_tree_equal(a, b) -> None:
         )
 
 
+def flat_random(sample, key: jax.Array, shape: tuple[int, ...], *args) -> jax.Array:
+    """``sample(key, shape, *args)`` (``jax.random.uniform``, ``randint``, ...) drawn
+    as a flat vector and reshaped: the same values (threefry's counter is the
+    row-major index), but a compile that does not grow with the rank. On XLA:CPU
+    a (3, 2, 45, 30, 4) ``uniform`` takes about 5 s to compile, its flat draw 0.4 s."""
+    return sample(key, (int(np.prod(shape)),), *args).reshape(shape)
+
+
 def take(tree, i):
     """Element ``i`` of every leaf's leading axis."""
     return jax.tree.map(lambda x: x[i], tree)

@@ -20,6 +20,7 @@ from drqn_jax.loss import (
 from drqn_jax.networks import NetworkConfig, make_network
 from drqn_jax.optim import adam, apply_updates, clip
 from drqn_jax.replay import Windows
+from tests.helpers import flat_random
 
 
 def test_double_dqn_target_hand_computed():
@@ -109,15 +110,15 @@ def small_net():
 def _windows(key, steps=4, batch=3, mask=None):
     k1, k2, k3, k4 = jax.random.split(key, 4)
     obs = Observation(
-        grid=jax.random.uniform(k1, (steps + 1, batch, 45, 30, 4)),
-        speed=jax.random.uniform(k2, (steps + 1, batch)),
-        last_action=jax.random.randint(k3, (steps + 1, batch), -1, 4),
+        grid=flat_random(jax.random.uniform, k1, (steps + 1, batch, 45, 30, 4)),
+        speed=flat_random(jax.random.uniform, k2, (steps + 1, batch)),
+        last_action=flat_random(jax.random.randint, k3, (steps + 1, batch), -1, 4),
     )
     mask = jnp.ones((steps, batch), bool) if mask is None else mask
     return Windows(
         obs=obs,
         records=None,
-        action=jax.random.randint(k4, (steps, batch), 0, 4),
+        action=flat_random(jax.random.randint, k4, (steps, batch), 0, 4),
         reward=jnp.where(mask, jnp.linspace(-1, 1, steps * batch).reshape(steps, batch), 0.0),
         terminated=jnp.zeros((steps, batch), bool).at[-1, 0].set(True) & mask,
         mask=mask,

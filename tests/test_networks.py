@@ -9,6 +9,7 @@ import pytest
 
 from drqn_jax.env.state import Observation
 from drqn_jax.networks import NetworkConfig, conv_torso, lstm_cell, make_network, param_count
+from tests.helpers import flat_random
 
 
 @pytest.fixture(scope="module")
@@ -20,9 +21,9 @@ def drqn():
 def _obs(key, lead):
     k1, k2, k3 = jax.random.split(key, 3)
     return Observation(
-        grid=jax.random.uniform(k1, (*lead, 45, 30, 4)),
-        speed=jax.random.uniform(k2, lead),
-        last_action=jax.random.randint(k3, lead, -1, 4),
+        grid=flat_random(jax.random.uniform, k1, (*lead, 45, 30, 4)),
+        speed=flat_random(jax.random.uniform, k2, lead),
+        last_action=flat_random(jax.random.randint, k3, lead, -1, 4),
     )
 
 
