@@ -70,7 +70,7 @@ TARGET_VS_NUMPY = 30.0
 TARGET_VS_HIGHWAY = 10_000.0
 
 FULL = {"num_envs": 4096, "steps": 200, "numpy_steps": 2000, "highway_steps": 100, "repeats": 5}
-QUICK = {"num_envs": 64, "steps": 20, "numpy_steps": 200, "highway_steps": 20, "repeats": 2}
+QUICK = {"num_envs": 64, "steps": 10, "numpy_steps": 200, "highway_steps": 20, "repeats": 2}
 
 # An OccupancyGrid like ours: rows forward from -5 m to 40 m, columns across from -15 m
 # to 15 m, 1 m cells, in the ego's axes; four per-agent channels (ours: presence,

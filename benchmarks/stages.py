@@ -45,7 +45,7 @@ step's time at the same N. Every program pays a fixed cost per scan
 iteration (a few µs on XLA:CPU), so at small N each row is mostly that cost:
 the stages' shares then add up to well over 1, and a light stage can even
 take longer than the full step. Read the shares at large N. ``--quick``: N =
-16, T = 10, 2 repeats: a smoke check of the script, not a measurement.
+64, T = 10, 2 repeats: a smoke check of the script, not a measurement.
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ from drqn_jax.env.state import NUM_ACTIONS, EgoState, EnvState, PedestrianState
 __all__ = ["DEFAULT_BATCH_SIZES", "STAGE_NAMES", "Stage", "bench_batch", "main", "make_stages"]
 
 DEFAULT_BATCH_SIZES = (1, 64, 4096, 65536)
-QUICK_BATCH_SIZES = (16,)
+QUICK_BATCH_SIZES = (64,)  # the quick sizes of roofline and peers: one program
 FULL = "full step"
 # Order of the table; "drift" is the input driver of grid, TTC and reward.
 STAGE_NAMES = ("ego", "pedestrians", "grid", "TTC", "reward", "drift", FULL)
@@ -366,7 +366,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
     parser.add_argument(
-        "--quick", action="store_true", help="N = 16, T = 10, 2 repeats: a smoke check"
+        "--quick", action="store_true", help="N = 64, T = 10, 2 repeats: a smoke check"
     )
     args = parser.parse_args(argv)
     if args.quick:

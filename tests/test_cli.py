@@ -282,16 +282,17 @@ def test_bench_quick_prints_throughput(capsys):
 
 
 def test_bench_runs_a_suite_benchmark_and_writes_json_and_markdown(tmp_path, capsys):
-    argv = ["bench", "env_throughput", "--batch-sizes", "2", "--steps", "3", "--repeats", "2"]
+    # the --quick sizes of stages, roofline and peers (64 envs × 10 steps): one program
+    argv = ["bench", "env_throughput", "--batch-sizes", "64", "--steps", "10", "--repeats", "2"]
     assert cli.main([*argv, "--out", str(tmp_path)]) == 0
     result = json.loads((tmp_path / "env_throughput.json").read_text())
-    assert result["command"].startswith("python -m benchmarks.env_throughput --batch-sizes 2")
+    assert result["command"].startswith("python -m benchmarks.env_throughput --batch-sizes 64")
     assert result["machine"]["jax_version"] == jax.__version__
     (row,) = result["rows"]
     assert len(row["run_times_s"]) == 2 and row["run_s"] == np.median(row["run_times_s"])
-    assert row["env_steps_per_s"] == pytest.approx(2 * 3 / row["run_s"])
+    assert row["env_steps_per_s"] == pytest.approx(64 * 10 / row["run_s"])
     md = (tmp_path / "env_throughput.md").read_text()
-    assert "| 2 |" in md and "JAX" in md and md in capsys.readouterr().out
+    assert "| 64 |" in md and "JAX" in md and md in capsys.readouterr().out
 
 
 def test_bench_all_takes_only_the_common_options(capsys):
