@@ -97,17 +97,29 @@ def test_chunked_equals_one_shot(tiny_chunked, tiny_run):
     assert int(state.recorded) == 6 and int(state.grad_steps) > 0
 
 
-def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked):
+#: ``TINY`` with 3-step targets: its gradient update is compiled once (module scope)
+#: for the n_step and the imitation tests.
+TINY_N3 = dataclasses.replace(TINY, n_step=3)
+
+
+@pytest.fixture(scope="module")
+def update_n3():
+    """``(trainer, jit(gradient_update))`` of ``TINY_N3``."""
+    trainer = make_train(TINY_N3)
+    return trainer, jax.jit(trainer.gradient_update)
+
+
+def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked, update_n3):
     """train.n_step is the loss's and train.window_start the sampler's: the update's
     loss is sequence_loss with n = 3 on the windows it samples from anywhere in the
     episodes (and differs from the one-step loss)."""
     state, _ = tiny_chunked
     state = state.replace(hparams=state.hparams.replace(window_start=WINDOW_ANYWHERE))
-    trainer = make_train(dataclasses.replace(TINY, n_step=3))
+    trainer, update = update_n3
     learner = (state.online, state.target, state.opt_state, state.grad_steps)
     key = jax.random.key(11)
     args = (learner, key, state.replay, state.hparams, state.env_params)
-    _, loss = jax.jit(trainer.gradient_update)(*args)
+    _, loss = update(*args)
 
     @jax.jit
     def losses(state, key):  # n = 3 and n = 1 on the windows the update samples
@@ -129,27 +141,26 @@ LANE_Y = float(lane_centre_y(drqn_jax.make("UrbanPedestrians-v0")[1]))
 TEACHER = RuleBasedParams(lookahead=12.0, corridor_margin=1.0, v_max=2.0)
 
 
-def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
-    """train.imitation_*: the update's loss is sequence_loss with the rule-based
-    agent's actions (with the imitation_* look-ahead, corridor margin, v_max and
-    horizon) in the sampled windows' states as the expert, weighted by
-    imitation_weight in every state ('all') or where it brakes ('brake'); weight 0
-    is the TD loss alone.
+def test_imitation_reaches_the_gradient_update(tiny_chunked, update_n3):
+    """train.imitation_*: the update's loss (of ``TINY_N3``, 3-step targets) is
+    sequence_loss with the rule-based agent's actions (with the imitation_*
+    look-ahead, corridor margin, v_max and horizon) in the sampled windows' states
+    as the expert, weighted by imitation_weight in every state ('all') or where it
+    brakes ('brake'); weight 0 is the TD loss alone.
     Pedestrian 0 is moved onto the lane 10 m ahead of the ego in every replayed
     state: beyond the usual 7 m look-ahead, within the teacher's 12 m; the teacher
     tracks 2 m/s (7.2 km/h) instead of 15 km/h."""
-    trainer, _ = tiny
+    trainer, update = update_n3
     state, _ = tiny_chunked
     records = state.replay.records
     ahead = jnp.stack([records.s + 10.0, jnp.full_like(records.s, LANE_Y)], axis=-1)
     records = records.replace(position=records.position.at[..., 0, :].set(ahead))
     state = state.replace(replay=state.replay.replace(records=records))
-    update = jax.jit(trainer.gradient_update)
     key = jax.random.key(12)
     learner = (state.online, state.target, state.opt_state, state.grad_steps)
 
     @jax.jit
-    def expected(state, key, weight, everywhere, teacher=TEACHER):
+    def expected(state, key, weight, everywhere, teacher):
         hp = state.hparams
         w = sample_windows(
             state.replay, key, 4, 4, state.env_params, trainer.env.static, hp.window_start
@@ -161,7 +172,7 @@ def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
         where = everywhere | (expert == BRAKE)
         args = (expert, weight * where.astype(jnp.float32), 0.5)
         net = trainer.network
-        loss = sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, 1, *args)[0]
+        loss = sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, 3, *args)[0]
         return loss, jnp.sum(expert != usual)
 
     losses = {}
@@ -176,7 +187,9 @@ def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
                 imitation_v_max=TEACHER.v_max,
             )
             _, loss = update(learner, key, state.replay, hp, state.env_params)
-            want, relabelled = expected(state.replace(hparams=hp), key, weight, states == "all")
+            want, relabelled = expected(
+                state.replace(hparams=hp), key, weight, states == "all", TEACHER
+            )
             assert float(loss) == pytest.approx(float(want), rel=1e-6)
             assert int(relabelled) > 0  # the teacher's thresholds are not the usual ones
             losses[states, weight] = float(loss)
@@ -198,7 +211,7 @@ def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
         update(learner, key, state.replay, hp.replace(imitation_v_max=v), state.env_params)[1]
         for v in (TEACHER.v_max, spec_v_max)
     )
-    want, relabelled = expected(state.replace(hparams=hp), key, 2.0, True)
+    want, relabelled = expected(state.replace(hparams=hp), key, 2.0, True, TEACHER)
     assert float(slow) == pytest.approx(float(want), rel=1e-6)
     assert int(relabelled) == 16  # all 16 sampled states: "slow down", not "accelerate"
     assert float(slow) != pytest.approx(float(spec), rel=1e-3)
@@ -221,7 +234,9 @@ def test_imitation_reaches_the_gradient_update(tiny, tiny_chunked):
     want, relabelled = expected(state, key, 2.0, True, TEACHER.replace(horizon=1.0))
     assert float(anticipating) == pytest.approx(float(want), rel=1e-6)
     assert int(relabelled) == 16  # "brake", not the usual "accelerate", in all 16
-    assert float(blind) == pytest.approx(float(expected(state, key, 2.0, True)[0]), rel=1e-6)
+    assert float(blind) == pytest.approx(
+        float(expected(state, key, 2.0, True, TEACHER)[0]), rel=1e-6
+    )
     assert float(anticipating) != pytest.approx(float(blind), rel=1e-3)
     with pytest.raises(ValueError, match="imitation_states"):
         Hyperparams(imitation_states=IMITATION_STATES.index("all") + 1)
