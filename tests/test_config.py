@@ -160,6 +160,18 @@ def test_anticipate_is_beyond_long_mixed_with_an_anticipating_narrower_teacher()
     assert anticipate.rule_based_params().horizon == 0.0
 
 
+def test_anticipate_narrow_is_anticipate_with_a_025_m_teacher():
+    """docs/results.md §9 ("A corridor margin of 0.25 m"): only the teacher's margin
+    differs, and the preset trains what the documented ``--set`` study trained."""
+    anticipate, narrow = load_config("anticipate"), load_config("anticipate-narrow")
+    assert narrow["env"] == anticipate["env"] and narrow["network"] == anticipate["network"]
+    differ = changed(narrow, anticipate, "train")
+    assert differ == {"imitation_corridor_margin": 0.25}, differ
+    assert narrow["rule_based"] == anticipate["rule_based"]
+    studied = load_config("anticipate", ["train.imitation_corridor_margin=0.25"])
+    assert narrow.training_hash() == studied.training_hash()
+
+
 def test_set_overrides_and_parsing():
     config = load_config(
         "smoke",
