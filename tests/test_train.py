@@ -172,7 +172,8 @@ def test_imitation_reaches_the_gradient_update(tiny_chunked, update_n3):
         where = everywhere | (expert == BRAKE)
         args = (expert, weight * where.astype(jnp.float32), 0.5)
         net = trainer.network
-        loss = sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, 3, *args)[0]
+        n = TINY_N3.n_step
+        loss = sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, n, *args)[0]
         return loss, jnp.sum(expert != usual)
 
     losses = {}
