@@ -42,6 +42,9 @@ ENV_ID = "UrbanPedestrians-v0"
 DEFAULT_BATCH_SIZES = (1, 16, 256, 1024, 4096, 16384, 65536)
 TARGET_STEPS_PER_S = 200_000
 TARGET_COMPILE_S = 10.0
+#: The ``--quick`` rollout of stages, roofline and peers (and the bench command's
+#: test): one size, so they share one compiled rollout and one init program.
+QUICK_ENVS, QUICK_STEPS = 64, 10
 # Context from the issue: writing the float32 grid alone bounds this machine near here.
 GRID_BOUND_STEPS_PER_S = 400_000
 

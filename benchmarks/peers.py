@@ -60,7 +60,7 @@ import numpy as np
 
 import drqn_jax
 from benchmarks import harness
-from benchmarks.env_throughput import time_rollout
+from benchmarks.env_throughput import QUICK_ENVS, QUICK_STEPS, time_rollout
 from benchmarks.numpy_env import NumpyUrbanPedestrians, random_steps
 
 ENV_ID = "UrbanPedestrians-v0"
@@ -70,7 +70,13 @@ TARGET_VS_NUMPY = 30.0
 TARGET_VS_HIGHWAY = 10_000.0
 
 FULL = {"num_envs": 4096, "steps": 200, "numpy_steps": 2000, "highway_steps": 100, "repeats": 5}
-QUICK = {"num_envs": 64, "steps": 10, "numpy_steps": 200, "highway_steps": 20, "repeats": 2}
+QUICK = {
+    "num_envs": QUICK_ENVS,
+    "steps": QUICK_STEPS,
+    "numpy_steps": 200,
+    "highway_steps": 20,
+    "repeats": 2,
+}
 
 # An OccupancyGrid like ours: rows forward from -5 m to 40 m, columns across from -15 m
 # to 15 m, 1 m cells, in the ego's axes; four per-agent channels (ours: presence,

@@ -73,7 +73,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import drqn_jax
-from benchmarks.env_throughput import ENV_ID, grid_bytes, time_rollout
+from benchmarks.env_throughput import ENV_ID, QUICK_ENVS, QUICK_STEPS, grid_bytes, time_rollout
 from benchmarks.harness import base_parser, compile_timed, markdown_table, report, time_calls
 from benchmarks.train_throughput import (
     analytic_update_flops,
@@ -552,7 +552,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     args = parser.parse_args(argv)
     if args.quick:
-        args.mb, args.env_batch, args.steps, args.updates, args.repeats = 16, 64, 10, 3, 2
+        args.mb, args.updates, args.repeats = 16, 3, 2
+        args.env_batch, args.steps = QUICK_ENVS, QUICK_STEPS
     if min(args.mb, args.env_batch, args.steps, args.updates, args.repeats) < 1:
         parser.error("--mb, --env-batch, --steps, --updates, --repeats must be >= 1")
     return args

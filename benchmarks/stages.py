@@ -59,7 +59,7 @@ import jax
 import jax.numpy as jnp
 
 import drqn_jax
-from benchmarks.env_throughput import ENV_ID, time_rollout
+from benchmarks.env_throughput import ENV_ID, QUICK_ENVS, QUICK_STEPS, time_rollout
 from benchmarks.harness import base_parser, compile_timed, markdown_table, report, time_calls
 from drqn_jax.env.collision import collision, time_to_collision
 from drqn_jax.env.ego import ego_step
@@ -71,7 +71,7 @@ from drqn_jax.env.state import NUM_ACTIONS, EgoState, EnvState, PedestrianState
 __all__ = ["DEFAULT_BATCH_SIZES", "STAGE_NAMES", "Stage", "bench_batch", "main", "make_stages"]
 
 DEFAULT_BATCH_SIZES = (1, 64, 4096, 65536)
-QUICK_BATCH_SIZES = (64,)  # the quick sizes of roofline and peers: one program
+QUICK_BATCH_SIZES = (QUICK_ENVS,)
 FULL = "full step"
 # Order of the table; "drift" is the input driver of grid, TTC and reward.
 STAGE_NAMES = ("ego", "pedestrians", "grid", "TTC", "reward", "drift", FULL)
@@ -370,8 +370,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     args = parser.parse_args(argv)
     if args.quick:
-        args.batch_sizes, args.steps, args.repeats = list(QUICK_BATCH_SIZES), 10, 2
-        args.warmup_steps = min(args.warmup_steps, 10)
+        args.batch_sizes, args.steps, args.repeats = list(QUICK_BATCH_SIZES), QUICK_STEPS, 2
+        args.warmup_steps = min(args.warmup_steps, QUICK_STEPS)
     if min(args.steps, args.repeats, *args.batch_sizes) < 1 or args.warmup_steps < 0:
         parser.error("--batch-sizes, --steps, --repeats must be >= 1, --warmup-steps >= 0")
     return args

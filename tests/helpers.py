@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from drqn_jax.config import load_config
 from drqn_jax.env.road_map import WALKWAY, semantic_class
 from drqn_jax.env.state import SIDEWALK
 from drqn_jax.networks import NetworkConfig
@@ -19,6 +20,9 @@ from drqn_jax.train import Hyperparams, TrainConfig, make_train
 #: (JAX's persistent compilation cache, tests/conftest.py, serves them to
 #: whichever file runs later): about half a minute of compiling each on 2 cores.
 SMOKE_SWEEP_SET = ("train.num_episodes=4", "train.snapshots=1", "train.validation_episodes=2")
+
+#: smoke.toml's iterations per chunk: the runner's ``run`` program (test_cli's smoke run).
+SMOKE_CHUNK = load_config("smoke")["train"]["chunk_iterations"]
 
 #: test_sweep's sweep file: 2 seeds × 2 learning rates of that config (one program).
 SMOKE_SWEEP = """
@@ -213,7 +217,7 @@ def tiny_train_config(max_steps: int = 30, **changes: Any) -> TrainConfig:
         replay_episodes=4,
         batch_size=4,
         window=4,
-        chunk_iterations=16,
+        chunk_iterations=SMOKE_CHUNK,
         hyperparams=Hyperparams(learning_starts=1, target_period=7),
     )
     return TrainConfig(**{**base, **changes})

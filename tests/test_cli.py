@@ -13,10 +13,12 @@ import jax
 import numpy as np
 import pytest
 
+from benchmarks.env_throughput import QUICK_ENVS, QUICK_STEPS
 from drqn_jax import cli, runner
 from drqn_jax.checkpoint import CHECKPOINT_JSON, CHECKPOINT_NPZ, load_checkpoint
 from drqn_jax.config import load_config
 from drqn_jax.env.state import ACTIONS
+from tests.helpers import SMOKE_CHUNK
 
 SMOKE = ["--config", "smoke", "--quiet"]
 RUN_FILES = {
@@ -273,26 +275,27 @@ def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
 
 def test_bench_quick_prints_throughput(capsys):
     # a chunk of smoke's ``train``: the program test_train_writes_the_run_directory compiles
-    chunk = load_config("smoke")["train"]["chunk_iterations"]
     argv = ["bench", "quick", "--config", "smoke", "--num-envs", "4", "--steps", "5"]
-    argv += ["--iterations", str(chunk)]
+    argv += ["--iterations", str(SMOKE_CHUNK)]
     assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "env steps/s at 4 envs" in out and "JAX" in out
 
 
 def test_bench_runs_a_suite_benchmark_and_writes_json_and_markdown(tmp_path, capsys):
-    # the --quick sizes of stages, roofline and peers (64 envs × 10 steps): one program
-    argv = ["bench", "env_throughput", "--batch-sizes", "64", "--steps", "10", "--repeats", "2"]
+    # the --quick rollout of stages, roofline and peers: one program
+    n, steps = QUICK_ENVS, QUICK_STEPS
+    argv = ["bench", "env_throughput", "--batch-sizes", str(n), "--steps", str(steps)]
+    argv += ["--repeats", "2"]
     assert cli.main([*argv, "--out", str(tmp_path)]) == 0
     result = json.loads((tmp_path / "env_throughput.json").read_text())
-    assert result["command"].startswith("python -m benchmarks.env_throughput --batch-sizes 64")
+    assert result["command"].startswith(f"python -m benchmarks.env_throughput --batch-sizes {n}")
     assert result["machine"]["jax_version"] == jax.__version__
     (row,) = result["rows"]
     assert len(row["run_times_s"]) == 2 and row["run_s"] == np.median(row["run_times_s"])
-    assert row["env_steps_per_s"] == pytest.approx(64 * 10 / row["run_s"])
+    assert row["env_steps_per_s"] == pytest.approx(n * steps / row["run_s"])
     md = (tmp_path / "env_throughput.md").read_text()
-    assert "| 64 |" in md and "JAX" in md and md in capsys.readouterr().out
+    assert f"| {n} |" in md and "JAX" in md and md in capsys.readouterr().out
 
 
 def test_bench_all_takes_only_the_common_options(capsys):

@@ -28,7 +28,7 @@ from drqn_jax.train import (
     selection,
     snapshot_thresholds,
 )
-from tests.helpers import assert_tree_equal, take
+from tests.helpers import SMOKE_CHUNK, assert_tree_equal, take
 
 SMOKE = ["train.snapshots=2", "train.validation_episodes=2", "train.chunk_iterations=1"]
 #: smoke.toml (2 envs, 6 episodes of at most 30 steps) with two snapshots, one
@@ -91,12 +91,11 @@ def test_snapshots_leave_training_unchanged(stepped):
     run without them goes in chunks of smoke.toml's ``train``: the programs of
     test_cli's smoke run."""
     _, state, _ = stepped
-    chunk = load_config("smoke")["train"]["chunk_iterations"]
     plain = make_train(dataclasses.replace(SNAP, snapshots=0))
     reference = init_program(plain)(jax.random.key(0))
     run = jax.jit(plain.run, static_argnums=1)
     while not bool(reference.finished):
-        reference = run(reference, chunk)
+        reference = run(reference, SMOKE_CHUNK)
     assert reference.snapshots is None and reference.validation is None
     assert_tree_equal(jax.random.key_data(state.key), jax.random.key_data(reference.key))
     assert_tree_equal(
