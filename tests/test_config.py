@@ -172,6 +172,16 @@ def test_anticipate_narrow_is_anticipate_with_a_025_m_teacher():
     assert narrow.training_hash() == studied.training_hash()
 
 
+def test_anticipate_narrow_dqn_is_its_ablation_and_trains_the_studied_runs():
+    """docs/results.md §9 ("The memory, with the teacher"): only the network kind
+    differs, and the preset trains what the documented ``--set`` study trained."""
+    narrow, ablation = load_config("anticipate-narrow"), load_config("anticipate-narrow-dqn")
+    assert ablation["env"] == narrow["env"] and ablation["train"] == narrow["train"]
+    assert changed(ablation, narrow, "network") == {"kind": "dqn"}
+    studied = load_config("anticipate-narrow", ["network.kind=dqn"])
+    assert ablation.training_hash() == studied.training_hash()
+
+
 def test_set_overrides_and_parsing():
     config = load_config(
         "smoke",
