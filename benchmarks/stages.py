@@ -61,7 +61,7 @@ import jax.numpy as jnp
 import drqn_jax
 from benchmarks.env_throughput import ENV_ID, QUICK_ENVS, QUICK_STEPS, time_rollout
 from benchmarks.harness import base_parser, compile_timed, markdown_table, report, time_calls
-from drqn_jax.env.collision import collision, time_to_collision
+from drqn_jax.env.collision import classify_hits, time_to_collision
 from drqn_jax.env.ego import ego_step
 from drqn_jax.env.grid import rasterize_grid
 from drqn_jax.env.pedestrians import despawn_mask, respawn_pedestrians, step_pedestrians
@@ -185,7 +185,7 @@ def make_stages(env: drqn_jax.UrbanPedestrians, num_envs: int) -> dict[str, Stag
     def one_env_reward(
         ego: EgoState, peds: PedestrianState, ttc: jax.Array, params: Params
     ) -> jax.Array:
-        return compute_reward(collision(ego, peds, params), ttc, ego.v, params)
+        return compute_reward(classify_hits(ego, peds, params)[0], ttc, ego.v, params)
 
     def reward_stage(carry: tuple, t: jax.Array, params: Params) -> tuple:
         ego, peds, ttc, total = carry

@@ -63,7 +63,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from drqn_jax.env.collision import collision
+from drqn_jax.env.collision import classify_hits
 from drqn_jax.env.params import SPEED_RELATIVE, EnvParams
 from drqn_jax.env.road_map import CROSSING_AREA, OFF_ROAD, ROAD, WALKWAY, semantic_class
 from drqn_jax.env.state import NUM_ACTIONS, EnvState, Observation
@@ -261,7 +261,7 @@ def render_frame(
     in_ego = (jnp.abs(xy[..., 0] - s) <= 0.5 * params.ego_length) & (
         jnp.abs(xy[..., 1] - ego_y) <= 0.5 * params.ego_width
     )
-    collided = collision(state.ego, state.pedestrians, params)
+    collided, _ = classify_hits(state.ego, state.pedestrians, params)
     ego_colour = jnp.where(
         collided, jnp.asarray(_EGO_COLLIDED, jnp.uint8), jnp.asarray(_EGO, jnp.uint8)
     )

@@ -162,7 +162,7 @@ def validate(obj: Any) -> None:
         object.__setattr__(obj, f.name, arr.astype(np.int32 if integer else np.float32))
 
 
-def _show(value: Any) -> str:
+def show_value(value: Any) -> str:
     """A concrete scalar as its shortest exact decimal (float32 0.4 -> ``0.4``), else repr."""
     arr = np.asarray(value)
     if arr.ndim == 0 and np.issubdtype(arr.dtype, np.floating):
@@ -182,7 +182,7 @@ def check_order(obj: Any, lower: str, upper: str, *, strict: bool = False) -> No
         rel = "<" if strict else "<="
         name = type(obj).__name__
         raise ValueError(
-            f"{name}.{lower} = {_show(a)} and {name}.{upper} = {_show(b)}: "
+            f"{name}.{lower} = {show_value(a)} and {name}.{upper} = {show_value(b)}: "
             f"must satisfy {lower} {rel} {upper}"
         )
 
@@ -194,7 +194,7 @@ def check_sums_to_one(obj: Any, names: Sequence[str], *, tol: float = 1e-6) -> N
         return
     total = np.sum([np.asarray(v, dtype=np.float64) for v in values], axis=0)
     if not np.all(np.abs(total - 1.0) <= tol):
-        parts = " + ".join(f"{n} ({_show(getattr(obj, n))})" for n in names)
+        parts = " + ".join(f"{n} ({show_value(getattr(obj, n))})" for n in names)
         raise ValueError(
             f"{type(obj).__name__}: {parts} = {float(np.max(total)):.6g}, must sum to 1"
         )

@@ -10,16 +10,26 @@ from drqn_jax.env.urban import UrbanPedestrians
 
 # Each id maps to (static overrides, traced overrides) on top of the defaults.
 _PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
-    # The paper's settings (SPEC §1–5): pedestrians at 0.5–1.5 km/h.
+    # The paper's world (SPEC §1-5): pedestrians at 0.5-1.5 km/h that ignore the car,
+    # the authors' collision test (docs/spec.md, "The paper's world: calibration").
     "UrbanPedestrians-v0": ({}, {}),
-    # Pedestrians at realistic walking speeds, 0.5–1.5 m/s.
+    # The paper's world with pedestrians at realistic walking speeds, 0.5-1.5 m/s.
     "UrbanPedestriansRealistic-v0": ({}, {"ped_speed_min": 0.5, "ped_speed_max": 1.5}),
-    # The paper's pedestrians, heedless of the car: they walk on into it, as CARLA's
-    # walkers do (SPEC §3's pedestrians stand still instead; docs/results.md §10).
-    "UrbanPedestriansHeedless-v0": ({}, {"ped_yield": 0}),
-    # Both kinds at once: pedestrians from the paper's slowest (0.5 km/h) to the
-    # realistic fastest (1.5 m/s), for an agent trained for both (docs/results.md §9).
+    # The paper's world with pedestrians from the paper's slowest (0.5 km/h) to the
+    # realistic fastest (1.5 m/s), for an agent trained for both.
     "UrbanPedestriansMixed-v0": ({}, {"ped_speed_max": 1.5}),
+    # The project's world before the 2026-11-25 revision: pedestrians yield to the car
+    # (for at most ped_wait_max_s, then walk on) and collisions are box-disc contact.
+    "UrbanPedestriansYielding-v0": (
+        {},
+        {"ped_behaviour_to_car": "yield", "collision_model": "contact"},
+    ),
+    # Pedestrians that ignore the car with box-disc contact as the collision test
+    # (the world of docs/results.md §10).
+    "UrbanPedestriansHeedless-v0": (
+        {},
+        {"ped_behaviour_to_car": "ignore", "collision_model": "contact"},
+    ),
 }
 
 __all__ = ["make", "preset", "registered_envs"]
@@ -53,7 +63,7 @@ def make(
         env_id: one of :func:`registered_envs`.
         **overrides: any ``StaticEnvParams`` field (changes shapes, e.g.
             ``num_pedestrians=20``) or ``EnvParams`` field (e.g.
-            ``ped_speed_max=0.5``, ``semantic_channel="map"``).
+            ``ped_speed_max=0.5``, ``ped_behaviour_to_car="yield"``).
     Returns:
         ``(env, params)``: the env (hashable, static) and its ``EnvParams``.
     Raises:

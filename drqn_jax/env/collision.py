@@ -2,8 +2,9 @@
 
 The ego is an axis-aligned box (its heading is always +x along the route);
 a pedestrian is a disc. :func:`box_disc_overlap` is the one geometric test
-used for the collision, for pedestrians that stop short of the car, and for
-the TTC projection.
+used for the contact collision, for pedestrians that stop short of the car,
+and for the TTC projection; the ``authors`` collision model tests a zone in
+the ego's lane instead (:func:`collision_test`).
 """
 
 from __future__ import annotations
@@ -11,11 +12,18 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.env.params import EnvParams, StaticEnvParams
+from drqn_jax.env.params import COLLISION_AUTHORS, EnvParams, StaticEnvParams
 from drqn_jax.env.road_map import lane_centre_y
 from drqn_jax.env.state import EgoState, PedestrianState
 
-__all__ = ["box_disc_overlap", "collision", "ego_box", "squared_length", "time_to_collision"]
+__all__ = [
+    "box_disc_overlap",
+    "classify_hits",
+    "collision_test",
+    "ego_box",
+    "squared_length",
+    "time_to_collision",
+]
 
 
 def ego_box(s: jax.Array, params: EnvParams, inflate: float | jax.Array = 0.0):
@@ -53,10 +61,44 @@ def box_disc_overlap(
     return dx * dx + dy * dy < radius * radius
 
 
-def collision(ego: EgoState, peds: PedestrianState, params: EnvParams) -> jax.Array:
-    """() bool: the ego's box overlaps any pedestrian's disc."""
+def collision_test(ego: EgoState, peds: PedestrianState, params: EnvParams) -> jax.Array:
+    """(P,) bool: which pedestrians meet the collision test of ``collision_model`` (SPEC §5).
+
+    * ``contact``: the ego's box overlaps the pedestrian's disc;
+    * ``authors`` (carla-gym ``urban_env.py``, ``is_collision``): the
+      pedestrian's centre is on the ego's lane (``-lane_width <= y <= 0``) and,
+      in the ego frame, within ``-authors_zone_back <= x <= authors_zone_front``
+      and ``|y| <= authors_zone_half_width``.
+
+    Whether a hit is the ego's collision (it moves) or the pedestrian struck a
+    stopped car is decided by the caller (:func:`classify_hits`).
+    """
     centre, half = ego_box(ego.s, params)
-    return jnp.any(box_disc_overlap(centre, half, peds.position, params.ped_radius))
+    contact = box_disc_overlap(centre, half, peds.position, params.ped_radius)
+    rel_x = peds.position[:, 0] - ego.s
+    y = peds.position[:, 1]
+    in_lane = (y >= -params.lane_width) & (y <= 0.0)
+    zone = (
+        in_lane
+        & (rel_x >= -params.authors_zone_back)
+        & (rel_x <= params.authors_zone_front)
+        & (jnp.abs(y - lane_centre_y(params)) <= params.authors_zone_half_width)
+    )
+    return jnp.where(params.collision_model == COLLISION_AUTHORS, zone, contact)
+
+
+def classify_hits(
+    ego: EgoState, peds: PedestrianState, params: EnvParams
+) -> tuple[jax.Array, jax.Array]:
+    """``(collision, struck_while_stopped)``, () bool each, after a step (SPEC §5).
+
+    A hit while the ego moves (``v >= stopped_speed``) is the ego's collision;
+    a hit while it stands is *struck while stopped*: no penalty, not the ego's
+    collision, and the episode goes on.
+    """
+    hit = jnp.any(collision_test(ego, peds, params))
+    moving = ego.v >= params.stopped_speed
+    return hit & moving, hit & ~moving
 
 
 def time_to_collision(

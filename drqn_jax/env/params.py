@@ -25,6 +25,7 @@ from drqn_jax.pytree import (
     is_concrete,
     param,
     pytree_dataclass,
+    show_value,
     validate,
 )
 
@@ -34,9 +35,13 @@ KMH = 1.0 / 3.6  # one km/h in m/s
 SETPOINT_MODES = ("measured", "setpoint")
 SPEED_CHANNELS = ("pedestrian", "relative")
 SEMANTIC_CHANNELS = ("pedestrian", "map")
+PED_BEHAVIOURS_TO_CAR = ("ignore", "yield")
+COLLISION_MODELS = ("contact", "authors")
 SETPOINT_MEASURED, SETPOINT_PREVIOUS = 0, 1
 SPEED_PEDESTRIAN, SPEED_RELATIVE = 0, 1
 SEMANTIC_PEDESTRIAN, SEMANTIC_MAP = 0, 1
+PED_IGNORE, PED_YIELD = 0, 1
+COLLISION_CONTACT, COLLISION_AUTHORS = 0, 1
 
 __all__ = ["KMH", "EnvParams", "StaticEnvParams"]
 
@@ -160,12 +165,15 @@ class EnvParams:
     despawn_behind: float = param(5.0, low=0.0, doc="m behind the ego's rear")
     despawn_ahead: float = param(45.0, low=0.0, doc="m ahead of the ego centre")
     ped_clearance: float = param(0.2, low=0.0, doc="m; footprint inflation pedestrians respect")
-    ped_yield: int = param(
-        1,
-        low=0,
-        high=1,
-        doc="1: a pedestrian stands still rather than step into the ego (SPEC §3); "
-        "0: it walks on into the car, as CARLA's walkers do",
+    ped_behaviour_to_car: int = param(
+        "ignore",
+        choices=PED_BEHAVIOURS_TO_CAR,
+        doc="'ignore': walks its path regardless of the car, as the authors' CARLA walkers "
+        "(the paper's world); 'yield': waits while its next position would overlap the ego, "
+        "at most ped_wait_max_s (SPEC §3)",
+    )
+    ped_wait_max_s: float = param(
+        5.0, low=0.0, doc="s; longest a yielding pedestrian waits for the car (CARLA: 5 s)"
     )
     gap_acceptance: int = param(0, low=0, high=1, doc="1: wait at the kerb for the ego")
     wait_distance: float = param(10.0, low=0.0, doc="m; gap acceptance distance")
@@ -185,6 +193,15 @@ class EnvParams:
     v_ref: float = param(15.0 * KMH, low=0.0, low_open=True, doc="m/s; speed limit")
     stopped_speed: float = param(0.1, low=0.0, doc="m/s; below it the ego counts as stopped")
     ttc_threshold: float = param(3.0, low=0.0, doc="s; near-collision when TTC <= it")
+    collision_model: int = param(
+        "authors",
+        choices=COLLISION_MODELS,
+        doc="'contact': box and disc overlap; 'authors': a pedestrian on the ego's lane "
+        "within -2.2..3.5 m along and 2.2 m across the ego's centre (carla-gym; SPEC §5)",
+    )
+    authors_zone_back: float = param(2.2, low=0.0, doc="m behind the ego centre ('authors')")
+    authors_zone_front: float = param(3.5, low=0.0, doc="m ahead of the ego centre ('authors')")
+    authors_zone_half_width: float = param(2.2, low=0.0, doc="m either side ('authors')")
     reward_collision: float = param(-10.0, high=0.0, doc="r_c")
     reward_stopped: float = param(-1.0, low=-10.0, high=1.0)
     reward_overspeed: float = param(-0.5, low=-10.0, high=1.0)
@@ -209,3 +226,12 @@ def check_compatible(static: StaticEnvParams, params: EnvParams) -> None:
             f"EnvParams.ttc_threshold = {params.ttc_threshold!r}: must be <= "
             f"StaticEnvParams.ttc_horizon ({static.ttc_horizon!r})"
         )
+    if static.num_intersections > 1:
+        spacing = params.intersection_spacing
+        least = params.cross_street_width + 2.0 * params.crosswalk_width
+        if is_concrete((spacing, least)) and np.any(np.asarray(spacing) < np.asarray(least)):
+            raise ValueError(
+                f"EnvParams.intersection_spacing = {show_value(spacing)}: must be >= "
+                f"cross_street_width + 2 * crosswalk_width ({show_value(least)}), or the "
+                "crosswalks of one intersection lie on the next one's cross street"
+            )

@@ -13,13 +13,15 @@ a behaviour drawn from (crossing, jaywalking, sidewalk) and a path of
   enters the road or a crossing.
 
 Each step a pedestrian walks straight to its next waypoint at its desired
-speed, unless its next position would overlap the ego's footprint inflated
-by ``ped_clearance`` (then it stands still; with ``ped_yield`` = 0 it walks on
-into the car, as CARLA's walkers do), or gap acceptance makes it wait at the
-kerb. Pedestrians far behind, far ahead or done are replaced by new
-ones spawned ahead of the ego. Optionally (``occlusion_prob`` > 0) each
-pedestrian is left out of the observation grid with that probability per
-step (:func:`occlusion_mask`), for studies of partial observability.
+speed. Toward the car (``ped_behaviour_to_car``) it either ignores it and
+walks its path regardless, as the authors' CARLA walkers (``ignore``, the
+paper's world), or stands still while its next position would overlap the
+ego's footprint inflated by ``ped_clearance``, for at most ``ped_wait_max_s``
+seconds in all, then walks on (``yield``: never a standoff). Gap acceptance
+(off by default) makes it wait at the kerb. Pedestrians far behind, far
+ahead or done are replaced by new ones spawned ahead of the ego. Optionally
+(``occlusion_prob`` > 0) each pedestrian is left out of the observation grid
+with that probability per step (:func:`occlusion_mask`), for studies of partial observability.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ import jax.numpy as jnp
 from jax.custom_batching import custom_vmap
 
 from drqn_jax.env.collision import box_disc_overlap, ego_box, squared_length
-from drqn_jax.env.params import EnvParams, StaticEnvParams
+from drqn_jax.env.params import PED_YIELD, EnvParams, StaticEnvParams
 from drqn_jax.env.road_map import crosswalk_centres, intersection_centres
 from drqn_jax.env.state import (
     CROSSING,
@@ -178,6 +180,7 @@ def spawn_pedestrians(
         behaviour=behaviour,
         waypoints=waypoints.astype(jnp.float32),
         waypoint_index=jnp.zeros((num,), jnp.int32),
+        waited=jnp.zeros((num,), jnp.float32),
         visible=jnp.ones((num,), bool),
     )
 
@@ -226,11 +229,12 @@ def _waits_at_kerb(
 def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) -> PedestrianState:
     """Walk every pedestrian one step towards its next waypoint (SPEC §3).
 
-    ``ego`` is the ego after its own step: a pedestrian whose next position
-    would overlap the ego's footprint inflated by ``ped_clearance`` stays put,
-    so any overlap comes from the ego's motion — unless ``ped_yield`` is 0,
-    when pedestrians ignore the car and may walk into it (a collision the ego
-    can only avoid by not being there).
+    ``ego`` is the ego after its own step. With ``ped_behaviour_to_car =
+    "yield"`` a pedestrian whose next position would overlap the ego's
+    footprint inflated by ``ped_clearance`` stays put and its ``waited`` (P,)
+    grows by ``dt``, until it reaches ``ped_wait_max_s``: from then on it walks
+    on, car or not (CARLA's walkers wait 5 s, then go). With ``"ignore"`` (the
+    paper's world) it walks its path regardless of the car.
     """
     num_wp = peds.waypoints.shape[-2]
     done = peds.done
@@ -244,9 +248,8 @@ def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) ->
     new_position = jnp.where(reach[:, None], target, peds.position + unit * step[:, None])
 
     centre, half = ego_box(ego.s, params, inflate=params.ped_clearance)
-    blocked = (params.ped_yield == 1) & box_disc_overlap(
-        centre, half, new_position, params.ped_radius
-    )
+    patient = (params.ped_behaviour_to_car == PED_YIELD) & (peds.waited < params.ped_wait_max_s)
+    blocked = ~done & patient & box_disc_overlap(centre, half, new_position, params.ped_radius)
     moves = ~done & ~blocked & ~_waits_at_kerb(peds, new_position, ego, params)
     position = jnp.where(moves[:, None], new_position, peds.position)
     heading = jnp.where(moves & (dist > 0.0), jnp.arctan2(delta[:, 1], delta[:, 0]), peds.heading)
@@ -256,6 +259,7 @@ def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) ->
         speed=jnp.where(moves, jnp.where(reach, dist, step), 0.0) * (1.0 / params.dt),
         heading=heading.astype(jnp.float32),
         waypoint_index=peds.waypoint_index + (moves & reach).astype(jnp.int32),
+        waited=peds.waited + jnp.where(blocked, params.dt, 0.0).astype(jnp.float32),
     )
 
 

@@ -69,6 +69,9 @@ class PedestrianState:
         behaviour: (P,) int32, CROSSING | JAYWALKING | SIDEWALK.
         waypoints: (P, W, 2) float32, the path computed at spawn.
         waypoint_index: (P,) int32, next waypoint; ``W`` means done.
+        waited: (P,) float32, seconds the pedestrian has stood yielding to the car
+            (``ped_behaviour_to_car = "yield"``); once it reaches
+            ``EnvParams.ped_wait_max_s`` the pedestrian walks on (SPEC §3).
         visible: (P,) bool, in the observation grid this step: each pedestrian is
             left out with probability ``EnvParams.occlusion_prob`` per step
             (partial observability; all visible by default, as in the paper).
@@ -84,6 +87,7 @@ class PedestrianState:
     behaviour: jax.Array
     waypoints: jax.Array
     waypoint_index: jax.Array
+    waited: jax.Array
     visible: jax.Array
 
     @property

@@ -12,9 +12,12 @@ argument).
   (XLA drops it when the caller does not use it);
 * ``step_env`` is the same step without the reset.
 
-One step (0.1 s): the ego acts (setpoint, PID, plant), pedestrians walk (never
-into the car), collision and TTC are measured, the reward is computed, and
-pedestrians far away or done are replaced.
+One step (0.1 s): the ego acts (setpoint, PID, plant), pedestrians walk
+(ignoring the car, or yielding to it for at most ``ped_wait_max_s``), the
+collision test (``collision_model``) and TTC are measured, the reward is
+computed, and pedestrians far away or done are replaced. A pedestrian that
+meets the collision test while the ego stands has *struck a stopped car*:
+``info["struck_while_stopped"]``, no penalty, and the episode goes on.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from drqn_jax.env import spaces
-from drqn_jax.env.collision import collision, time_to_collision
+from drqn_jax.env.collision import classify_hits, time_to_collision
 from drqn_jax.env.ego import ego_step, initial_ego
 from drqn_jax.env.grid import GRID_HIGH, GRID_LOW, rasterize_grid
 from drqn_jax.env.params import EnvParams, StaticEnvParams, check_compatible
@@ -53,6 +56,26 @@ def _opaque(params: EnvParams) -> EnvParams:
     ``params`` are passed as arguments. The barrier is free at run time.
     """
     return jax.lax.optimization_barrier(params)
+
+
+def checked_action(action: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``(action, invalid)``: the action as int32 in ``0 … 3``, and whether it was not.
+
+    An integer outside ``Discrete(4)`` is clipped into it (7 acts as ``steer``,
+    -1 as ``accelerate``) and flagged in ``info["invalid_action"]``, so a
+    caller's bug shows without a host round-trip inside ``jit``. A
+    non-integer action (1.5) is refused when traced: truncating it would hide
+    the bug.
+    """
+    action = jnp.asarray(action)
+    if not jnp.issubdtype(action.dtype, jnp.integer):
+        raise TypeError(
+            f"action: dtype {action.dtype} is not an integer; actions are 0 … "
+            f"{NUM_ACTIONS - 1} (accelerate, slow_down, brake, steer)"
+        )
+    action = action.astype(jnp.int32)
+    clipped = jnp.clip(action, 0, NUM_ACTIONS - 1)
+    return clipped, clipped != action
 
 
 StepResult = tuple[Observation, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]
@@ -140,13 +163,14 @@ class UrbanPedestrians:
 
         Returns:
             stepped state, reward () float32, terminated () bool, truncated () bool,
-            info (collision, goal, ttc, distance, speed, time).
+            info (collision, struck_while_stopped, goal, ttc, distance, speed,
+            time, invalid_action).
         """
         params = _opaque(params)
-        action = jnp.asarray(action, jnp.int32)
+        action, invalid = checked_action(action)
         ego = ego_step(state.ego, action, params)
         peds = step_pedestrians(state.pedestrians, ego, params)
-        collided = collision(ego, peds, params)
+        collided, struck = classify_hits(ego, peds, params)
         ttc = time_to_collision(ego, peds, params, self.static)
         r = compute_reward(collided, ttc, ego.v, params)
         goal = ego.s >= params.goal_x
@@ -156,11 +180,13 @@ class UrbanPedestrians:
         stepped = EnvState(ego=ego, pedestrians=peds, last_action=action, time=time)
         info = {
             "collision": collided,
+            "struck_while_stopped": struck,
             "goal": goal,
             "ttc": ttc,
             "distance": ego.s - params.ego_start_s,
             "speed": ego.v,
             "time": time,
+            "invalid_action": invalid,
         }
         return stepped, r, terminated, truncated, info
 
