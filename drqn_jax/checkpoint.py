@@ -323,6 +323,7 @@ def load_checkpoint(
     fill: Mapping[str, Any] | None = None,
     *,
     name: str = CHECKPOINT,
+    renamed: Mapping[str, str] | None = None,
 ) -> tuple[Any, dict[str, Any]]:
     """Load the checkpoint in ``run_dir`` into the structure of ``template``.
 
@@ -342,6 +343,8 @@ def load_checkpoint(
             checkpoint was written (key path -> array of the template's shape
             and dtype), used where the checkpoint lacks them.
         name: the npz's stem, as given to :func:`save_checkpoint`.
+        renamed: optional old key path -> new key path of leaves renamed after
+            the checkpoint was written (their values read unchanged).
 
     Returns:
         ``(state, meta)``: the state (``jax.Array`` leaves, typed keys
@@ -376,7 +379,11 @@ def load_checkpoint(
     manifest = _read_manifest(npz_path, archive)
     if expected_meta is not None:
         _check_config(run_dir, manifest, expected_meta)
-    entries = _check_template(run_dir, manifest["leaves"], template, fill or {})
+    saved = [
+        {**entry, "path": (renamed or {}).get(entry["path"], entry["path"])}
+        for entry in manifest["leaves"]
+    ]
+    entries = _check_template(run_dir, saved, template, fill or {})
     leaves = [
         _decode(npz_path, archive, entry) if isinstance(entry, dict) else entry for entry in entries
     ]

@@ -48,7 +48,11 @@ from drqn_jax.train import Hyperparams, TrainConfig
 
 __all__ = [
     "ADDED_LATER",
+    "ADDED_STATE_LEAVES",
     "CONFIG_DIR",
+    "RENAMED",
+    "RENAMED_LEAVES",
+    "REVISED",
     "TRAIN_SIZES",
     "Config",
     "ConfigError",
@@ -81,17 +85,40 @@ ADDED_LATER = {
     ("train", "imitation_horizon"): 0.0,
     ("train", "select_by"): "return",
     ("train", "select_speed_floor"): 0.0,
-    ("env", "ped_yield"): 1,
+    # The 2026-11-25 revision (docs/spec.md, "The paper's world"): runs before it had
+    # pedestrians yielding for ever (the timeout applies to them too: no standoffs in
+    # any world), the contact collision test, and no authors' zone.
+    ("env", "ped_behaviour_to_car"): "yield",
+    ("env", "ped_wait_max_s"): 5.0,
+    ("env", "collision_model"): "contact",
+    ("env", "authors_zone_back"): 2.2,
+    ("env", "authors_zone_front"): 3.5,
+    ("env", "authors_zone_half_width"): 2.2,
 }
+
+#: Fields renamed since run directories existed: old name -> (new name, how an old
+#: value reads). A config naming an old field was written before the 2026-11-25
+#: revision, so where it is silent it gets the ``REVISED`` fields' old values.
+RENAMED = {("env", "ped_yield"): ("ped_behaviour_to_car", {0: "ignore", 1: "yield"})}
+
+#: Defaults the 2026-11-25 revision changed (``ADDED_LATER`` holds the old values).
+REVISED = (("env", "ped_behaviour_to_car"), ("env", "collision_model"))
+
+#: Checkpoint leaves renamed with their fields (same codes): old key path -> new.
+RENAMED_LEAVES = {".env_params.ped_yield": ".env_params.ped_behaviour_to_car"}
+
+#: State leaves added after checkpoints existed, with the value they start from.
+ADDED_STATE_LEAVES = {".env_state.pedestrians.waited": 0.0}
 
 
 def added_leaves(hparams: Hyperparams, env_params: EnvParams) -> dict[str, Any]:
     """The ``TrainState`` leaves that checkpoints written before the
     ``ADDED_LATER`` fields lack (key path -> value, from the run's ``hparams``
     and ``env_params``, whose training hash the checkpoint's matched), for
-    ``load_checkpoint(fill=…)``. Untraced fields (static sizes) are no leaves."""
+    ``load_checkpoint(fill=…)``, and the ``ADDED_STATE_LEAVES``. Untraced fields
+    (static sizes) are no leaves."""
     owners = {"train": ("hparams", hparams), "env": ("env_params", env_params)}
-    fills = {}
+    fills: dict[str, Any] = dict(ADDED_STATE_LEAVES)
     for section, name in ADDED_LATER:
         leaf, values = owners[section]
         if name in {f.name for f in dataclasses.fields(values)}:
@@ -232,7 +259,21 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     return section, name, value
 
 
-def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: Any) -> None:
+def _renamed(section: str, name: str, value: Any) -> tuple[str, Any]:
+    """An old field name and value (``RENAMED``) as the new field's, or as given."""
+    if (section, name) not in RENAMED:
+        return name, value
+    new, codes = RENAMED[(section, name)]
+    if isinstance(value, bool) or value not in codes:
+        allowed = ", ".join(f"{code} ({meaning})" for code, meaning in codes.items())
+        raise ConfigError(f"{section}.{name} = {value!r}: must be one of {allowed}")
+    return new, codes[value]
+
+
+def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: Any) -> str:
+    """Check ``section.name = value`` and set it in ``values``; return the field's
+    name (the new one for a ``RENAMED`` field)."""
+    name, value = _renamed(section, name, value)
     if section not in SCHEMA:
         raise ConfigError(
             f"unknown section [{section}] (field {section}.{name}); sections: {', '.join(SCHEMA)}"
@@ -242,6 +283,7 @@ def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: An
             f"unknown field {section}.{name}; [{section}] has: {', '.join(SCHEMA[section])}"
         )
     values[section][name] = _check_type(f"{section}.{name}", value, SCHEMA[section][name])
+    return name
 
 
 def config_names() -> tuple[str, ...]:
@@ -318,11 +360,12 @@ def load_config(
             raise ConfigError(f"{section} = {table!r}: expected a [{section}] table")
         for name, value in table.items():
             _merge(given, section, name, value)
+    _keep_pre_revision_world(raw, given)
     file_env_id = given["env"].get("id", SCHEMA["env"]["id"].default)
     overridden_env: set[str] = set()
     for text in overrides:
         section, name, value = parse_override(text)
-        _merge(given, section, name, value)
+        name = _merge(given, section, name, value)
         if section == "env":
             overridden_env.add(name)
 
@@ -336,6 +379,17 @@ def load_config(
     config = Config(values, origin)
     config.validate()
     return config
+
+
+def _keep_pre_revision_world(raw: dict[str, Any], given: dict[str, dict[str, Any]]) -> None:
+    """A config written before the 2026-11-25 revision (it names a ``RENAMED`` field,
+    as every run's resolved ``config.toml`` of that time does) keeps the world it
+    ran in: the ``REVISED`` fields it is silent on take their old values."""
+    old_names = {(s, n) for s, table in raw.items() if isinstance(table, dict) for n in table}
+    if not old_names & RENAMED.keys():
+        return
+    for section, name in REVISED:
+        given[section].setdefault(name, ADDED_LATER[(section, name)])
 
 
 def _follow_new_preset(env: dict[str, Any], old_id: str, overridden: set[str]) -> None:
@@ -451,18 +505,24 @@ class Config:
         return "\n".join(lines)
 
     def training_dict(self) -> dict[str, Any]:
-        """The part of the configuration a training run's results depend on."""
+        """The part of the configuration a training run's results depend on.
+
+        Fields at the value runs had before they existed (``ADDED_LATER``) are
+        left out, and a ``RENAMED`` field is written under its old name and
+        code, so the hashes of older runs stay what they were.
+        """
         out: dict[str, Any] = {}
         for entry in TRAINING_SECTIONS:
             section, _, name = entry.partition(".")
             if name:
                 out[entry] = self[section][name]
-            else:
-                out[entry] = {
-                    field: value
-                    for field, value in self[section].items()
-                    if (section, field) not in ADDED_LATER or ADDED_LATER[(section, field)] != value
-                }
+                continue
+            table = {}
+            for field, value in self[section].items():
+                if (section, field) in ADDED_LATER and ADDED_LATER[(section, field)] == value:
+                    continue
+                table.update([_old_name(section, field, value)])
+            out[entry] = table
         return out
 
     def training_hash(self) -> str:
@@ -474,6 +534,14 @@ class Config:
         """``{"config": training_dict, "config_hash": training_hash}``: what a checkpoint
         stores, and what loading one checks (the differing fields are named)."""
         return {"config": self.training_dict(), "config_hash": self.training_hash()}
+
+
+def _old_name(section: str, field: str, value: Any) -> tuple[str, Any]:
+    """``(field, value)``, or its ``RENAMED`` old name and code."""
+    for (old_section, old), (new, codes) in RENAMED.items():
+        if old_section == section and new == field:
+            return old, next(code for code, meaning in codes.items() if meaning == value)
+    return field, value
 
 
 def _in_config_words(message: str) -> str:

@@ -47,7 +47,7 @@ from drqn_jax.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from drqn_jax.config import Config, added_leaves, load_config
+from drqn_jax.config import RENAMED_LEAVES, Config, added_leaves, load_config
 from drqn_jax.evaluation import evaluate
 from drqn_jax.networks import Network
 from drqn_jax.train import METRIC_NAMES, Trainer, TrainState, make_train
@@ -237,7 +237,7 @@ def train_run(
         expected = config.training_identity()
         template = jax.eval_shape(init, train_key)
         fill = added_leaves(trainer.config.hyperparams, trainer.env_params)
-        state, meta = load_checkpoint(run_dir, template, expected, fill)
+        state, meta = load_checkpoint(run_dir, template, expected, fill, renamed=RENAMED_LEAVES)
         wall_before, chunks = float(meta["wall_time_s"]), int(meta["chunks"])
     else:
         if (run_dir / CHECKPOINT_NPZ).exists():
@@ -369,7 +369,7 @@ def load_trained_network(
         params, meta = load_checkpoint(run_dir, agent_template, expected, name=AGENT)
         return trainer.network, params, meta
     fill = added_leaves(trainer.config.hyperparams, trainer.env_params)
-    state, meta = load_checkpoint(run_dir, template, expected, fill)
+    state, meta = load_checkpoint(run_dir, template, expected, fill, renamed=RENAMED_LEAVES)
     return trainer.network, trainer.agent_params(state), meta
 
 

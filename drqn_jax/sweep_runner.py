@@ -62,7 +62,7 @@ from drqn_jax.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from drqn_jax.config import ConfigError, added_leaves
+from drqn_jax.config import RENAMED_LEAVES, ConfigError, added_leaves
 from drqn_jax.evaluation import evaluate
 from drqn_jax.memory import (
     RunMemory,
@@ -437,7 +437,7 @@ def train_call(
         _, hparams, env_params = args
         expected = {"config_hash": call.fingerprint()}
         fill = added_leaves(hparams, env_params)
-        state, _ = load_checkpoint(directory, template, expected, fill)
+        state, _ = load_checkpoint(directory, template, expected, fill, renamed=RENAMED_LEAVES)
         state = jax.device_put(state, _sharding(devices))
     else:
         state = init(*args)
