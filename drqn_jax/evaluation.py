@@ -37,6 +37,9 @@ __all__ = [
 
 Z_95 = 1.959963984540054  # two-sided 95 % normal quantile
 
+#: m/s: the authors' average speed counts the steps faster than 0.5 km/h (``tester.py``).
+AUTHORS_MOVING_SPEED = 0.5 / 3.6
+
 
 @pytree_dataclass
 class EpisodeMetrics:
@@ -50,6 +53,11 @@ class EpisodeMetrics:
         mean_speed: () float32, distance / duration (m/s).
         min_ttc: () float32, smallest TTC of the episode (s, inf if never finite).
         near_collision_steps: () int32, steps with ``TTC <= ttc_threshold``.
+        struck_while_stopped: () bool, a pedestrian met the collision test while
+            the ego stood (SPEC §5: not the ego's collision).
+        moving_steps: () int32, steps with ``v > AUTHORS_MOVING_SPEED``.
+        authors_speed: () float32, the authors' average speed (carla-gym
+            ``tester.py``): mean speed over the moving steps (m/s; 0 if none).
     """
 
     episode_return: jax.Array
@@ -60,6 +68,9 @@ class EpisodeMetrics:
     mean_speed: jax.Array
     min_ttc: jax.Array
     near_collision_steps: jax.Array
+    struck_while_stopped: jax.Array
+    moving_steps: jax.Array
+    authors_speed: jax.Array
 
 
 def episode_keys(key: jax.Array, num_episodes: int, offset: int = 0) -> jax.Array:
@@ -91,6 +102,9 @@ def rollout_episode(
         mean_speed=zero_f,
         min_ttc=jnp.asarray(jnp.inf, jnp.float32),
         near_collision_steps=zero_i,
+        struck_while_stopped=false,
+        moving_steps=zero_i,
+        authors_speed=zero_f,  # the sum of the moving steps' speeds until the end
     )
 
     def step(loop, step_key):
@@ -102,6 +116,7 @@ def rollout_episode(
         )
         live = ~done
         ttc = info["ttc"]
+        moving = live & (info["speed"] > AUTHORS_MOVING_SPEED)
         m = EpisodeMetrics(
             episode_return=m.episode_return + jnp.where(live, reward, 0.0),
             length=m.length + live.astype(jnp.int32),
@@ -112,13 +127,20 @@ def rollout_episode(
             min_ttc=jnp.where(live, jnp.minimum(m.min_ttc, ttc), m.min_ttc),
             near_collision_steps=m.near_collision_steps
             + (live & (ttc <= params.ttc_threshold)).astype(jnp.int32),
+            struck_while_stopped=m.struck_while_stopped | (live & info["struck_while_stopped"]),
+            moving_steps=m.moving_steps + moving.astype(jnp.int32),
+            authors_speed=m.authors_speed + jnp.where(moving, info["speed"], 0.0),
         )
         return (obs, state, carry, m, done | terminated | truncated), None
 
     keys = jax.random.split(key_run, env.static.max_steps)
     (_, _, _, m, _), _ = jax.lax.scan(step, (obs, state, carry, metrics, false), keys)
     duration = jnp.maximum(m.length, 1).astype(jnp.float32) * params.dt
-    return m.replace(mean_speed=(m.distance / duration).astype(jnp.float32))
+    authors = m.authors_speed / jnp.maximum(m.moving_steps, 1).astype(jnp.float32)
+    return m.replace(
+        mean_speed=(m.distance / duration).astype(jnp.float32),
+        authors_speed=authors.astype(jnp.float32),
+    )
 
 
 @partial(jax.jit, static_argnames=("env", "batch_size"))
@@ -189,7 +211,11 @@ def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str,
 
     Returns a dict of Python numbers: ``num_episodes``; ``collision_free_rate``
     and its 95 % Wilson interval ``collision_free_ci`` (low, high);
-    ``goal_rate``; ``avg_speed_kmh`` (mean over episodes of distance/time);
+    ``goal_rate``; ``struck_while_stopped_rate`` (episodes where a pedestrian met
+    the collision test while the ego stood); ``avg_speed_kmh`` (mean over
+    episodes of distance/time); ``avg_speed_authors_kmh`` (the authors' average
+    speed, SPEC §8: mean over the episodes that moved of their mean speed over
+    the steps faster than 0.5 km/h);
     ``avg_distance_m`` (all) and ``avg_distance_collision_free_m``;
     ``collisions_per_km``; ``avg_return``; ``avg_length``; min-TTC statistics:
     ``min_ttc_p05_s``, ``min_ttc_median_s`` (inf when most episodes never have a
@@ -206,12 +232,15 @@ def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str,
     finite = min_ttc[np.isfinite(min_ttc)]
     low, high = wilson_interval(int(free.sum()), n)
     length = ep.length.astype(np.float64)
+    authors = ep.authors_speed.astype(np.float64)[ep.moving_steps > 0]
     return {
         "num_episodes": n,
         "collision_free_rate": float(free.mean()) if n else math.nan,
         "collision_free_ci": (low, high),
         "goal_rate": float(ep.goal.mean()) if n else math.nan,
+        "struck_while_stopped_rate": float(ep.struck_while_stopped.mean()) if n else math.nan,
         "avg_speed_kmh": float(ep.mean_speed.astype(np.float64).mean() * 3.6) if n else math.nan,
+        "avg_speed_authors_kmh": float(authors.mean() * 3.6) if authors.size else math.nan,
         "avg_distance_m": float(distance.mean()) if n else math.nan,
         "avg_distance_collision_free_m": float(distance[free].mean()) if free.any() else math.nan,
         "collisions_per_km": float(collided.sum() / total_km) if total_km > 0 else math.nan,
@@ -254,7 +283,8 @@ def evaluate(
 def metrics_table(results: list[dict[str, Any]]) -> str:
     """A Markdown table of :func:`evaluate` results, one row per agent (SPEC §8)."""
     header = (
-        "| agent | episodes | collision-free % (95 % CI) | goal % | avg speed (km/h) "
+        "| agent | episodes | collision-free % (95 % CI) | struck while stopped % | goal % "
+        "| avg speed (km/h) | authors' speed (km/h) "
         "| distance (m) | distance, collision-free (m) | collisions / km "
         "| min TTC median (s) | steps with TTC ≤ 3 s % |"
     )
@@ -264,7 +294,9 @@ def metrics_table(results: list[dict[str, Any]]) -> str:
         rows.append(
             f"| {r['agent']} | {r['num_episodes']} "
             f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
+            f"| {100 * r['struck_while_stopped_rate']:.1f} "
             f"| {100 * r['goal_rate']:.1f} | {r['avg_speed_kmh']:.2f} "
+            f"| {r['avg_speed_authors_kmh']:.2f} "
             f"| {r['avg_distance_m']:.1f} | {r['avg_distance_collision_free_m']:.1f} "
             f"| {r['collisions_per_km']:.3f} | {r['min_ttc_median_s']:.1f} "
             f"| {100 * r['near_collision_step_share']:.2f} |"
