@@ -85,6 +85,8 @@ import numpy as np
 from drqn_jax.env.ego import MS_TO_KMH
 from drqn_jax.env.grid import NUM_CHANNELS
 from drqn_jax.env.params import (
+    COLLISION_AUTHORS,
+    PED_YIELD,
     SEMANTIC_MAP,
     SETPOINT_PREVIOUS,
     SPEED_RELATIVE,
@@ -155,6 +157,7 @@ class PedestrianState:
     behaviour: Array  # (P,) int32
     waypoints: Array  # (P, W, 2) float32
     waypoint_index: Array  # (P,) int32
+    waited: Array  # (P,) float32, seconds stood yielding to the car
     visible: Array  # (P,) bool
 
     @property
@@ -359,10 +362,25 @@ def box_disc_overlap(box_centre: Array, box_half: Array, disc_centre: Array, rad
     return dx * dx + dy * dy < radius * radius
 
 
-def collision(ego: EgoState, peds: PedestrianState, params: EnvParams) -> bool:
-    """The ego's box overlaps some pedestrian's disc."""
-    centre, half = ego_box(ego.s, params)
-    return bool(np.any(box_disc_overlap(centre, half, peds.position, params.ped_radius)))
+def classify_hits(ego: EgoState, peds: PedestrianState, params: EnvParams) -> tuple[bool, bool]:
+    """``(collision, struck_while_stopped)``: a pedestrian meets the ``collision_model``
+    test (box-disc contact, or the authors' zone in the ego's lane) while the ego
+    moves, or while it stands."""
+    if params.collision_model == COLLISION_AUTHORS:
+        rel_x = peds.position[:, 0] - ego.s
+        y = peds.position[:, 1]
+        hit = (
+            (y >= -params.lane_width)
+            & (y <= 0.0)
+            & (rel_x >= -params.authors_zone_back)
+            & (rel_x <= params.authors_zone_front)
+            & (np.abs(y - lane_centre_y(params)) <= params.authors_zone_half_width)
+        )
+    else:
+        centre, half = ego_box(ego.s, params)
+        hit = box_disc_overlap(centre, half, peds.position, params.ped_radius)
+    moving = bool(ego.v >= params.stopped_speed)
+    return bool(hit.any()) and moving, bool(hit.any()) and not moving
 
 
 def time_to_collision(
@@ -500,6 +518,7 @@ def spawn_pedestrians(
         behaviour=behaviour,
         waypoints=waypoints,
         waypoint_index=np.zeros(num, np.int32),
+        waited=np.zeros(num, F32),
         visible=np.ones(num, bool),
     )
 
@@ -526,8 +545,8 @@ def _waits_at_kerb(
 
 
 def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) -> PedestrianState:
-    """Walk every pedestrian one step towards its next waypoint, never into the car
-    unless ``ped_yield`` is 0."""
+    """Walk every pedestrian one step towards its next waypoint; with
+    ``ped_behaviour_to_car = "yield"`` not into the car, for at most ``ped_wait_max_s``."""
     num = peds.position.shape[0]
     idx = np.minimum(peds.waypoint_index, peds.waypoints.shape[1] - 1)
     target = peds.waypoints[np.arange(num), idx]  # (P, 2)
@@ -540,8 +559,10 @@ def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) ->
     new_position = np.where(reach[:, None], target, peds.position + unit * step[:, None])
 
     centre, half = ego_box(ego.s, params, inflate=params.ped_clearance)
+    patience = params.ped_wait_max_s - F32(0.5) * params.dt
+    patient = (params.ped_behaviour_to_car == PED_YIELD) & (peds.waited < patience)
     blocked = box_disc_overlap(centre, half, new_position, params.ped_radius)
-    blocked &= params.ped_yield == 1
+    blocked &= ~peds.done & patient
     moves = ~peds.done & ~blocked & ~_waits_at_kerb(peds, new_position, ego, params)
     position = np.where(moves[:, None], new_position, peds.position)
     turn = moves & (dist > 0.0)
@@ -556,6 +577,7 @@ def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) ->
         speed=np.where(moves, np.where(reach, dist, step), F32(0.0)) * inv_dt,
         heading=heading,
         waypoint_index=peds.waypoint_index + (moves & reach).astype(np.int32),
+        waited=(peds.waited + np.where(blocked, params.dt, F32(0.0))).astype(F32),
     )
 
 
@@ -742,10 +764,11 @@ class NumpyUrbanPedestrians:
     ) -> tuple[EnvState, np.float32, bool, bool, dict[str, Any]]:
         """Everything but replacing pedestrians: ego, pedestrians, collision, TTC, reward."""
         p = self.params
-        action = int(action)
+        invalid = not 0 <= int(action) < NUM_ACTIONS
+        action = min(max(int(action), 0), NUM_ACTIONS - 1)
         ego = ego_step(state.ego, action, p)
         peds = step_pedestrians(state.pedestrians, ego, p)
-        collided = collision(ego, peds, p)
+        collided, struck = classify_hits(ego, peds, p)
         ttc = time_to_collision(ego, peds, p, self.static)
         r = reward(collided, ttc, ego.v, p)
         goal = bool(ego.s >= p.goal_x)
@@ -755,11 +778,13 @@ class NumpyUrbanPedestrians:
         stepped = EnvState(ego=ego, pedestrians=peds, last_action=np.int32(action), time=t)
         info = {
             "collision": collided,
+            "struck_while_stopped": struck,
             "goal": goal,
             "ttc": ttc,
             "distance": F32(ego.s - p.ego_start_s),
             "speed": ego.v,
             "time": t,
+            "invalid_action": invalid,
         }
         return stepped, r, terminated, truncated, info
 

@@ -214,8 +214,8 @@ def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str,
     ``goal_rate``; ``struck_while_stopped_rate`` (episodes where a pedestrian met
     the collision test while the ego stood); ``avg_speed_kmh`` (mean over
     episodes of distance/time); ``avg_speed_authors_kmh`` (the authors' average
-    speed, SPEC §8: mean over the episodes that moved of their mean speed over
-    the steps faster than 0.5 km/h);
+    speed, SPEC §8: the mean speed over every step faster than 0.5 km/h of all
+    the episodes pooled, as carla-gym ``tester.py`` accumulates it);
     ``avg_distance_m`` (all) and ``avg_distance_collision_free_m``;
     ``collisions_per_km``; ``avg_return``; ``avg_length``; min-TTC statistics:
     ``min_ttc_p05_s``, ``min_ttc_median_s`` (inf when most episodes never have a
@@ -232,7 +232,8 @@ def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str,
     finite = min_ttc[np.isfinite(min_ttc)]
     low, high = wilson_interval(int(free.sum()), n)
     length = ep.length.astype(np.float64)
-    authors = ep.authors_speed.astype(np.float64)[ep.moving_steps > 0]
+    moving = ep.moving_steps.astype(np.float64)
+    moving_speed_sum = float((ep.authors_speed.astype(np.float64) * moving).sum())
     return {
         "num_episodes": n,
         "collision_free_rate": float(free.mean()) if n else math.nan,
@@ -240,7 +241,9 @@ def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str,
         "goal_rate": float(ep.goal.mean()) if n else math.nan,
         "struck_while_stopped_rate": float(ep.struck_while_stopped.mean()) if n else math.nan,
         "avg_speed_kmh": float(ep.mean_speed.astype(np.float64).mean() * 3.6) if n else math.nan,
-        "avg_speed_authors_kmh": float(authors.mean() * 3.6) if authors.size else math.nan,
+        "avg_speed_authors_kmh": (
+            moving_speed_sum / moving.sum() * 3.6 if moving.sum() > 0 else math.nan
+        ),
         "avg_distance_m": float(distance.mean()) if n else math.nan,
         "avg_distance_collision_free_m": float(distance[free].mean()) if free.any() else math.nan,
         "collisions_per_km": float(collided.sum() / total_km) if total_km > 0 else math.nan,

@@ -25,7 +25,7 @@ from drqn_jax.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from drqn_jax.config import ADDED_LATER, added_leaves
+from drqn_jax.config import ADDED_LATER, RENAMED_LEAVES, added_leaves, load_config
 from drqn_jax.env.params import EnvParams
 from drqn_jax.train import Hyperparams, make_train
 from tests.helpers import assert_tree_equal, tiny_train_config
@@ -330,7 +330,9 @@ def test_leaves_added_later_are_filled(tmp_path, tiny, template):
     np.testing.assert_array_equal(np.asarray(state.metrics["extra"]), [7, 7, 7])
     assert_state_equal(state.replace(metrics=state5.metrics), state5)
     paths = {jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_leaves_with_path(template)}
-    fills = added_leaves(TINY.hyperparams, EnvParams())
+    # a run's config written before the 2026-11-25 revision names env.ped_yield
+    _, old_env = load_config({"env": {"ped_yield": 1}}).make_env()
+    fills = added_leaves(TINY.hyperparams, old_env)
     assert fills and set(fills) <= paths
     # each at the value the runs written before it had (n_step is static, not a leaf)
     for owner, section, leaf in (
@@ -344,6 +346,29 @@ def test_leaves_added_later_are_filled(tmp_path, tiny, template):
         assert added and len(ours) == len(added), section
         for path, value in ours.items():
             np.testing.assert_array_equal(value, getattr(before, path.removeprefix(f".{leaf}.")))
+
+
+def test_checkpoints_written_before_the_revision_load(tmp_path, tiny, template):
+    """A checkpoint of the time before the 2026-11-25 revision holds
+    ``.env_params.ped_yield`` (same codes as ``ped_behaviour_to_car``) and no
+    pedestrians' ``waited``: the runner's ``renamed`` and ``fill`` load it."""
+    state5 = tiny[3]
+    save_checkpoint(tmp_path, state5, {})
+    npz = tmp_path / CHECKPOINT_NPZ
+    manifest = read_manifest(npz)
+    waited = ".env_state.pedestrians.waited"
+    leaves = [e for e in manifest["leaves"] if e["path"] != waited]
+    assert len(leaves) == len(manifest["leaves"]) - 1
+    for entry in leaves:
+        if entry["path"] == ".env_params.ped_behaviour_to_car":
+            entry["path"] = ".env_params.ped_yield"
+    rewrite_manifest(npz, json.dumps({**manifest, "leaves": leaves}))
+    fill = added_leaves(TINY.hyperparams, EnvParams())
+    with pytest.raises(CheckpointError, match=r"\.env_params\.ped_yield: in the checkpoint"):
+        load_checkpoint(tmp_path, template, fill=fill)
+    state, _ = load_checkpoint(tmp_path, template, fill=fill, renamed=RENAMED_LEAVES)
+    assert not np.any(np.asarray(state5.env_state.pedestrians.waited))  # nobody yields here
+    assert_state_equal(state, state5)
 
 
 def test_config_mismatch_names_the_field(tmp_path, tiny, template):

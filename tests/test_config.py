@@ -8,6 +8,7 @@ import pytest
 
 from drqn_jax.config import (
     ADDED_LATER,
+    REVISED,
     SCHEMA,
     ConfigError,
     config_names,
@@ -80,12 +81,13 @@ def test_realistic_extends_default_with_walking_speeds():
     assert realistic["env"]["reward_collision"] == default["env"]["reward_collision"] == -100.0
 
 
-def test_heedless_is_default_among_pedestrians_that_walk_into_the_car():
+def test_heedless_is_default_among_pedestrians_that_walk_into_the_car_with_contact():
     default, heedless, ablation = (load_config(n) for n in ("default", "heedless", "heedless-dqn"))
     assert heedless["env"]["id"] == "UrbanPedestriansHeedless-v0"
-    assert heedless.make_env()[1].ped_yield == 0 and default.make_env()[1].ped_yield == 1
+    assert heedless["env"]["ped_behaviour_to_car"] == default["env"]["ped_behaviour_to_car"]
+    assert default["env"]["ped_behaviour_to_car"] == "ignore"
     differ = changed(heedless, default, "env")
-    assert differ.keys() == {"id", "ped_yield"}, differ
+    assert differ == {"id": "UrbanPedestriansHeedless-v0", "collision_model": "contact"}, differ
     assert heedless["train"] == default["train"] and heedless["network"] == default["network"]
     assert ablation["network"]["kind"] == "dqn" and ablation["env"] == heedless["env"]
     assert ablation["train"] == heedless["train"]
@@ -292,14 +294,48 @@ def test_training_hash_tracks_training_fields_only():
 
 def test_fields_added_later_keep_older_runs_resumable():
     """A field added after run directories existed is hashed only away from the
-    value those runs had, so their checkpoints still match."""
+    value those runs had, so their checkpoints still match. The fields the
+    2026-11-25 revision added with new defaults (REVISED) are at their old values
+    in a config written before it, which names the old ``env.ped_yield``."""
     config = load_config("smoke")
     for (section, name), old_value in ADDED_LATER.items():
+        if (section, name) in REVISED:
+            assert config[section][name] != old_value
+            continue
         assert config[section][name] == old_value
         assert name not in config.training_dict()[section]
     assert "n_step" in load_config("smoke", ["train.n_step=2"]).training_dict()["train"]
     anywhere = load_config("smoke", ["train.window_start=anywhere"])
     assert anywhere.training_dict()["train"]["window_start"] == "anywhere"
+
+
+def _before_revision(ped_yield: int) -> dict:
+    """smoke's resolved config as a run directory written before the revision holds it:
+    every field of that time, ``env.ped_yield`` among them, none of the new ones."""
+    values = load_config("smoke").values
+    env = {k: v for k, v in values["env"].items() if ("env", k) not in ADDED_LATER}
+    return {**values, "env": {**env, "ped_yield": ped_yield}}
+
+
+@pytest.mark.parametrize(("ped_yield", "behaviour"), [(1, "yield"), (0, "ignore")])
+def test_configs_written_before_the_revision_keep_their_world_and_hash(ped_yield, behaviour):
+    """``env.ped_yield`` reads as ``ped_behaviour_to_car``; such a config keeps the
+    contact collision test, and hashes as it did then: ``ped_yield`` under its old
+    name when it was not the default, no new field."""
+    old = load_config(_before_revision(ped_yield))
+    assert old["env"]["ped_behaviour_to_car"] == behaviour
+    assert old["env"]["collision_model"] == "contact" and old["env"]["ped_wait_max_s"] == 5.0
+    hashed = old.training_dict()["env"]
+    assert not {name for section, name in ADDED_LATER if section == "env"} & hashed.keys()
+    assert hashed.get("ped_yield", 1) == ped_yield
+    # today's configs name the new field, get the paper's world and hash what differs
+    new = load_config("smoke")
+    assert new["env"]["collision_model"] == "authors"
+    assert new.training_dict()["env"]["ped_yield"] == 0
+    assert new.training_dict()["env"]["collision_model"] == "authors"
+    with pytest.raises(ConfigError, match=r"env\.ped_yield = 2: must be one of 0 \(ignore\), 1"):
+        load_config("smoke", ["env.ped_yield=2"])
+    assert load_config("smoke", ["env.ped_yield=1"])["env"]["ped_behaviour_to_car"] == "yield"
 
 
 def test_env_overrides_are_the_difference_from_the_preset():

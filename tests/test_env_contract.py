@@ -55,11 +55,38 @@ def test_step_returns_six_tuple_with_info(env_params, jit_step):
     obs, state2, reward, terminated, truncated, info = out
     assert reward.dtype == jnp.float32 and reward.shape == ()
     assert terminated.dtype == jnp.bool_ and truncated.dtype == jnp.bool_
-    for name in ("collision", "goal", "ttc", "distance", "speed", "time", "final_observation"):
+    for name in (
+        "collision",
+        "struck_while_stopped",
+        "goal",
+        "ttc",
+        "distance",
+        "speed",
+        "time",
+        "invalid_action",
+        "final_observation",
+    ):
         assert name in info
     assert int(info["time"]) == 1 and int(state2.time) == 1
     assert int(obs.last_action) == ACCELERATE
     assert float(state2.ego.v) > 0.0
+
+
+def test_actions_outside_the_space_are_clipped_and_flagged(env_params):
+    """SPEC §2: an integer outside 0-3 acts as its nearest action, flagged in
+    ``info["invalid_action"]`` and never stored as ``last_action``; a non-integer
+    action is refused when traced."""
+    env, params = env_params
+    _, state = env.reset(jax.random.key(0), params)
+    step = jax.jit(env.step_env)
+    for action, acts_as in ((7, STEER), (-1, ACCELERATE), (2, BRAKE)):
+        _, nxt, *_, info = step(jax.random.key(1), state, jnp.int32(action), params)
+        _, ref, *_ = step(jax.random.key(1), state, jnp.int32(acts_as), params)
+        assert bool(info["invalid_action"]) == (action != acts_as)
+        assert int(nxt.last_action) == acts_as
+        assert float(nxt.ego.v_setpoint) == float(ref.ego.v_setpoint)
+    with pytest.raises(TypeError, match=r"action: dtype float32 is not an integer"):
+        env.step_env(jax.random.key(1), state, jnp.float32(1.5), params)
 
 
 def test_registered_ids_and_overrides():
@@ -68,6 +95,7 @@ def test_registered_ids_and_overrides():
         "UrbanPedestriansRealistic-v0",
         "UrbanPedestriansHeedless-v0",
         "UrbanPedestriansMixed-v0",
+        "UrbanPedestriansYielding-v0",
     }
     _, realistic = drqn_jax.make("UrbanPedestriansRealistic-v0")
     assert float(realistic.ped_speed_min) == 0.5 and float(realistic.ped_speed_max) == 1.5
@@ -78,7 +106,8 @@ def test_registered_ids_and_overrides():
         and float(mixed.ped_speed_max) == 1.5
     )
     _, heedless = drqn_jax.make("UrbanPedestriansHeedless-v0")
-    assert int(heedless.ped_yield) == 0 and int(drqn_jax.make()[1].ped_yield) == 1
+    assert int(heedless.ped_behaviour_to_car) == int(paper.ped_behaviour_to_car) == 0  # ignore
+    assert int(heedless.collision_model) == 0 and int(paper.collision_model) == 1  # contact
     env, params = drqn_jax.make(num_pedestrians=4, v_ref=5.0, semantic_channel="map")
     assert env.static.num_pedestrians == 4 and float(params.v_ref) == 5.0
     obs, state = env.reset(jax.random.key(0), params)
@@ -103,7 +132,10 @@ def test_registered_ids_and_overrides():
         ({"semantic_channel": 7}, "semantic_channel"),
         ({"dt": 0.0}, "dt"),
         ({"gap_acceptance": 0.5}, "gap_acceptance"),
-        ({"ped_yield": 2}, "ped_yield"),
+        ({"ped_behaviour_to_car": "wave"}, "ped_behaviour_to_car"),
+        ({"collision_model": 2}, "collision_model"),
+        ({"ped_wait_max_s": -1.0}, "ped_wait_max_s"),
+        ({"intersection_spacing": 5.0}, r"intersection_spacing = 5: must be >= .* \(13\)"),
         ({"ttc_threshold": 4.0}, "ttc_threshold"),
     ],
 )

@@ -66,13 +66,23 @@ def test_agents_behave_as_named(results):
     # always-brake never moves: no collision, no distance, stopped reward -1 every step
     assert brake["collision_free_rate"] == 1.0 and brake["avg_distance_m"] == 0.0
     assert brake["avg_return"] == -1000.0 and brake["goal_rate"] == 0.0
+    # pedestrians that walk into the standing car strike it: no collision, no penalty
+    assert np.all(brake["episodes"].moving_steps == 0)
+    assert math.isnan(brake["avg_speed_authors_kmh"])  # no episode ever moved
+    # the authors' speed leaves out the steps at a standstill (SPEC §8)
+    for res in (acc, rule):
+        assert res["avg_speed_authors_kmh"] >= res["avg_speed_kmh"]
+    assert 10.0 < rule["avg_speed_authors_kmh"] < 16.0
     # always-accelerate is fast and reaches the goal unless it hits someone
     assert acc["avg_speed_kmh"] > 30.0
     ep = acc["episodes"]
     assert np.all(ep.goal | ep.collision)
     # the rule-based agent holds about 15 km/h when it can and never exceeds ~16 km/h
     assert 3.0 < rule["avg_speed_kmh"] < 16.0
-    assert rule["collision_free_rate"] >= acc["collision_free_rate"]
+    # it stands for pedestrians, who may walk into it (the paper's world): struck while
+    # stopped, which always-accelerate, never standing after its first step, is not
+    assert rule["struck_while_stopped_rate"] > 0.0 == acc["struck_while_stopped_rate"]
+    assert brake["struck_while_stopped_rate"] >= rule["struck_while_stopped_rate"]
 
 
 def test_summary_consistent_with_episodes(results):
@@ -87,6 +97,12 @@ def test_summary_consistent_with_episodes(results):
     if km > 0:
         assert res["collisions_per_km"] == pytest.approx(ep.collision.sum() / km)
     assert res["collision_free_ci"] == wilson_interval(int(free.sum()), NUM)
+    assert res["struck_while_stopped_rate"] == pytest.approx(ep.struck_while_stopped.mean())
+    # pooled over every moving step of every episode, as the authors' tester.py
+    steps = ep.moving_steps.astype(np.float64)
+    authors = (ep.authors_speed * steps).sum() / steps.sum() * 3.6
+    assert res["avg_speed_authors_kmh"] == pytest.approx(authors)
+    assert np.all(ep.moving_steps <= ep.length)
 
 
 # The tests below run NUM episodes where they can: the programs of ``results``.
@@ -150,7 +166,11 @@ def test_summarize_handles_no_finite_ttc():
         mean_speed=jnp.zeros(n),
         min_ttc=jnp.full(n, jnp.inf),
         near_collision_steps=jnp.zeros(n, jnp.int32),
+        struck_while_stopped=jnp.zeros(n, bool),
+        moving_steps=jnp.zeros(n, jnp.int32),
+        authors_speed=jnp.zeros(n),
     )
     res = drqn_jax.summarize(ep)
     assert math.isnan(res["collisions_per_km"]) and math.isnan(res["min_ttc_mean_finite_s"])
     assert res["min_ttc_median_s"] == math.inf and res["near_collision_episode_rate"] == 0.0
+    assert math.isnan(res["avg_speed_authors_kmh"]) and res["struck_while_stopped_rate"] == 0.0

@@ -65,6 +65,7 @@ def test_registration_ids_entry_points_and_idempotence():
         (ID_REALISTIC, "UrbanPedestriansRealistic-v0"),
         ("drqn_jax/UrbanPedestriansHeedless-v0", "UrbanPedestriansHeedless-v0"),
         ("drqn_jax/UrbanPedestriansMixed-v0", "UrbanPedestriansMixed-v0"),
+        ("drqn_jax/UrbanPedestriansYielding-v0", "UrbanPedestriansYielding-v0"),
     )
     for gym_id, env_id in ids:
         spec = gymnasium.spec(gym_id)

@@ -78,10 +78,10 @@ class Scenario(NamedTuple):
 SCENARIOS = {
     **{f"random-{s}": Scenario("UrbanPedestrians-v0", {}, "random", s, 250) for s in range(5)},
     "accelerate": Scenario(
-        "UrbanPedestrians-v0", {}, "accelerate", 9, 250, ("collision", "goal", "near_miss")
+        "UrbanPedestrians-v0", {}, "accelerate", 2, 250, ("collision", "goal", "near_miss")
     ),
     "driving": Scenario(
-        "UrbanPedestrians-v0", {}, "driving", 3, 300, ("collision", "goal", "near_miss")
+        "UrbanPedestrians-v0", {}, "driving", 2, 300, ("collision", "goal", "near_miss")
     ),
     "realistic-accelerate": Scenario(
         "UrbanPedestriansRealistic-v0", {}, "accelerate", 0, 200, ("collision", "near_miss")
@@ -93,8 +93,14 @@ SCENARIOS = {
     "occlusion": Scenario(
         "UrbanPedestrians-v0", {"occlusion_prob": 0.3}, "driving", 1, 250, ("occluded",)
     ),
-    "heedless": Scenario(  # pedestrians walk into the car (ped_yield = 0)
+    "heedless": Scenario(  # pedestrians ignore the car, contact collisions
         "UrbanPedestriansHeedless-v0", {}, "driving", 3, 300, ("collision", "goal", "near_miss")
+    ),
+    "struck": Scenario(  # the paper's world: walkers into the standing car
+        "UrbanPedestrians-v0", {}, "random", 0, 300, ("collision", "struck")
+    ),
+    "yielding": Scenario(  # pedestrians wait for the car, at most 5 s, then strike it
+        "UrbanPedestriansYielding-v0", {}, "random", 3, 300, ("collision", "struck", "yielded")
     ),
     "truncation": Scenario(
         "UrbanPedestrians-v0", {"max_steps": 100}, "random", 3, 250, ("truncated",)
@@ -145,7 +151,7 @@ def record(obs: Any, state: Any, step: tuple | None = None) -> dict[str, np.ndar
         r, terminated, truncated, info = step
         rec |= {"reward": np.asarray(r), "terminated": np.asarray(terminated)}
         rec |= {"truncated": np.asarray(truncated)}
-        for k in ("collision", "goal", "ttc", "distance", "speed", "time"):
+        for k in ("collision", "struck_while_stopped", "goal", "ttc", "distance", "speed", "time"):
             rec[f"info.{k}"] = np.asarray(info[k])
         rec |= flatten(info["final_observation"], "final_obs")
         rec |= flatten(info["final_state"], "final_state")
@@ -258,6 +264,10 @@ def events(rec: dict) -> set[str]:
         found.add("near_miss")
     if not rec["state.pedestrians.visible"].all():
         found.add("occluded")
+    if rec["info.struck_while_stopped"].any():
+        found.add("struck")
+    if (rec["state.pedestrians.waited"] > 0).any():
+        found.add("yielded")
     return found
 
 

@@ -75,6 +75,7 @@ def _scan_steps(env, state, key, fixed_action, use_rule, params):
             "ped_position": nxt.pedestrians.position,
             "waypoint_index": nxt.pedestrians.waypoint_index,
             "collision": info["collision"],
+            "struck_while_stopped": info["struck_while_stopped"],
             "terminated": term,
             "truncated": trunc,
             "reward": r,
@@ -159,6 +160,7 @@ def _peds(
         "behaviour": jnp.full((num,), CROSSING, jnp.int32),
         "waypoints": jnp.asarray(np.repeat(tgt[:, None, :], NUM_WAYPOINTS, axis=1)),
         "waypoint_index": jnp.zeros((num,), jnp.int32),
+        "waited": jnp.zeros((num,), jnp.float32),
         "visible": jnp.ones((num,), bool),
     }
     if "speed" in _PED_FIELDS:  # the norm of the velocity, stored where the step knows it
@@ -198,6 +200,8 @@ def test_lane_centre(params):
 
 
 def test_accelerating_into_standing_pedestrian_collides(env, params, static, run_scene):
+    """``collision_model = "contact"``: the collision is the step the box meets the disc."""
+    params = params.replace(collision_model="contact")
     s0 = float(params.ego_start_s)
     ped_xy = (s0 + 8.0, LANE_Y)
     state = _state(_ego(params, static, s=s0), _peds(static, [ped_xy]))
@@ -402,6 +406,8 @@ def test_rule_based_horizon_anticipates_pedestrians_walking_into_the_corridor(pa
 
 
 def test_pedestrians_stop_before_stopped_car(env, params, static, run_scene):
+    """``ped_behaviour_to_car = "yield"`` (with a wait longer than the scene)."""
+    params = params.replace(ped_behaviour_to_car="yield", ped_wait_max_s=100.0)
     s = 20.0
     walkers = [
         # (start, target, speed m/s)
@@ -450,31 +456,77 @@ def test_pedestrians_stop_before_stopped_car(env, params, static, run_scene):
     np.testing.assert_array_equal(pos[-20:], np.broadcast_to(end, (20, n, 2)))
 
 
-def test_heedless_pedestrian_walks_into_stopped_car(params, static, run_scene):
-    """``ped_yield = 0``: the walker ignores the stopped car and collides with it.
-
-    The car stands at s = 20 (box x in [17.75, 22.25], y in [-2.65, -0.85]); a
-    walker at the paper's speed, 0.3 m/s (0.03 m a step), starts at (22, -4)
-    and crosses towards the left sidewalk: its disc (radius 0.3 m) meets the
-    box once it has walked 1.05 m, at step 35. With ``ped_yield = 1`` (SPEC
-    §3) the same walker stops before the car.
-    """
+def _walker_across_stopped_car(params, static):
+    """The car stands at s = 20 (box x in [17.75, 22.25], y in [-2.65, -0.85]); a
+    walker at the paper's speed, 0.3 m/s (0.03 m a step), starts at (22, -4) and
+    crosses towards the left sidewalk: its disc (radius 0.3 m) meets the box once
+    it has walked 1.05 m, at step 35; its centre enters the ego's lane (y = -3.5)
+    after 0.5 m, at step 17."""
     s = 20.0
-    state = _state(
+    return _state(
         _ego(params, static, s=s, v=0.0),
         _peds(static, [(22.0, -4.0)], targets=[(22.0, 2.0)], speeds=[0.3], park_x=s + 10.0),
     )
-    _, yielding = run_scene(state, params, action=BRAKE)
-    _, heedless = run_scene(state, params.replace(ped_yield=0), action=BRAKE)
 
-    assert params.ped_yield == 1  # the default: SPEC §3
-    assert not np.any(yielding["collision"])
-    assert np.all(heedless["v"] == 0.0)  # the car never moved: the walker did
-    first = int(np.argmax(heedless["collision"]))
-    assert heedless["collision"][first] and heedless["terminated"][first]
-    assert first + 1 in (34, 35, 36), first  # steps taken when the disc meets the box
-    walked = 4.0 + heedless["ped_position"][first, 0, 1]
-    assert 1.05 - 1e-4 <= walked < 1.05 + 0.03 + 1e-4, walked
+
+@pytest.mark.parametrize(("model", "steps"), [("contact", (34, 35, 36)), ("authors", (17, 18))])
+def test_ignoring_pedestrian_strikes_stopped_car(params, static, run_scene, model, steps):
+    """``ped_behaviour_to_car = "ignore"`` (the paper's world): the walker walks on
+    into the stopped car. It is *struck while stopped* (SPEC §5): not the ego's
+    collision, no penalty, and the episode goes on."""
+    params = params.replace(ped_behaviour_to_car="ignore", collision_model=model)
+    _, out = run_scene(_walker_across_stopped_car(params, static), params, action=BRAKE)
+
+    assert np.all(out["v"] == 0.0)  # the car never moved: the walker did
+    assert not np.any(out["collision"]) and not np.any(out["terminated"])
+    first = int(np.argmax(out["struck_while_stopped"]))
+    assert out["struck_while_stopped"][first] and first + 1 in steps, first
+    assert np.all(out["reward"] == np.float32(params.reward_stopped))  # never r_c
+    if model == "contact":
+        walked = 4.0 + out["ped_position"][first, 0, 1]
+        assert 1.05 - 1e-4 <= walked < 1.05 + 0.03 + 1e-4, walked
+    # it walks on through the car and out of the lane: the strike ends
+    assert out["ped_position"][-1, 0, 1] > 0.0 and not out["struck_while_stopped"][-1]
+
+
+def test_yielding_pedestrian_walks_on_after_its_wait(params, static, run_scene):
+    """``"yield"`` waits at most ``ped_wait_max_s`` (5 s: CARLA's), then walks on:
+    never a standoff (SPEC §3). It stops one step short of the inflated box, stands
+    50 steps, then walks into the stopped car: struck while stopped."""
+    params = params.replace(ped_behaviour_to_car="yield", collision_model="contact")
+    _, out = run_scene(_walker_across_stopped_car(params, static), params, action=BRAKE)
+
+    y = out["ped_position"][:, 0, 1]
+    standing = np.flatnonzero(np.diff(y) == 0.0) + 1
+    assert standing.size > 0
+    waited = standing[-1] - standing[0] + 1
+    assert waited == round(float(params.ped_wait_max_s) / float(params.dt)), waited
+    assert np.all(np.diff(standing) == 1)  # one wait, then on
+    assert y[-1] > y[standing[-1]]
+    assert np.any(out["struck_while_stopped"]) and not np.any(out["collision"])
+    assert not np.any(out["terminated"])
+
+
+@pytest.mark.parametrize(
+    ("y", "contact", "authors"), [(LANE_Y, True, True), (-3.3, False, True), (1.75, False, False)]
+)
+def test_authors_zone_is_the_ego_lane_around_the_car(
+    params, static, run_scene, y, contact, authors
+):
+    """``collision_model = "authors"`` (carla-gym ``is_collision``): a pedestrian on
+    the ego's lane within -2.2..+3.5 m of its centre is hit, touching or not; one in
+    the other lane is not. Driving at a standing pedestrian, the authors' test fires
+    when the pedestrian is 3.5 m ahead of the ego's centre, 1.25 m before the
+    bumper meets the disc."""
+    hits = {}
+    for model in ("contact", "authors"):
+        p = params.replace(collision_model=model)
+        state = _state(_ego(p, static, s=5.0, v=15 / 3.6), _peds(static, [(20.0, y)]))
+        _, out = run_scene(state, p, action=STEER)
+        hits[model] = np.flatnonzero(out["collision"])
+    assert (hits["contact"].size > 0) == contact and (hits["authors"].size > 0) == authors
+    if contact and authors:
+        assert hits["authors"][0] < hits["contact"][0]
 
 
 # --- 5. the observation grid ----------------------------------------------------

@@ -248,7 +248,9 @@ def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) ->
     new_position = jnp.where(reach[:, None], target, peds.position + unit * step[:, None])
 
     centre, half = ego_box(ego.s, params, inflate=params.ped_clearance)
-    patient = (params.ped_behaviour_to_car == PED_YIELD) & (peds.waited < params.ped_wait_max_s)
+    # Half a step of slack: it waits round(ped_wait_max_s / dt) steps, whatever the rounding.
+    patience = params.ped_wait_max_s - 0.5 * params.dt
+    patient = (params.ped_behaviour_to_car == PED_YIELD) & (peds.waited < patience)
     blocked = ~done & patient & box_disc_overlap(centre, half, new_position, params.ped_radius)
     moves = ~done & ~blocked & ~_waits_at_kerb(peds, new_position, ego, params)
     position = jnp.where(moves[:, None], new_position, peds.position)
