@@ -261,8 +261,10 @@ def build_sweep(
 
 TABLE_METRICS = (
     "collision_free_rate",
+    "struck_while_stopped_rate",
     "goal_rate",
     "avg_speed_kmh",
+    "avg_speed_authors_kmh",
     "avg_distance_m",
     "avg_return",
     "final_train_return",
@@ -282,7 +284,8 @@ def summarize_sweep(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         diverged = sum(bool(r.get("diverged")) for r in runs)
         row: dict[str, Any] = {"setting": dict(key), "runs": len(runs), "diverged": diverged}
         for metric in TABLE_METRICS:
-            x = np.array([r[metric] for r in runs], np.float64)
+            # None: a non-finite number in JSON; absent: a run evaluated before the metric
+            x = np.array([r.get(metric) for r in runs], np.float64)
             low, high = t_interval(x)
             row[metric] = {
                 "mean": float(x.mean()),

@@ -266,7 +266,7 @@ def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
     run_dir = tmp_path / "rep"
     assert cli.main(["reproduce", *SMOKE, "--run-dir", str(run_dir)]) == 0
     out = capsys.readouterr().out
-    assert "| paper (CARLA) | rule-based | 1 × 10 | 40.0 (16.8–68.7) | 7.79 | 82.6 |" in out
+    assert "| paper (CARLA) | rule-based | 1 × 10 | 40.0 (16.8–68.7) | – | 7.79 | – | 82.6 |" in out
     assert "| drqn_jax | drqn | 1 × 8 |" in out and "| drqn_jax | rule-based | 1 × 8 |" in out
     assert "wall time" in out
     agents = json.loads((run_dir / "evaluation.json").read_text())["agents"]
