@@ -64,27 +64,36 @@ def box_disc_overlap(
 def collision_test(ego: EgoState, peds: PedestrianState, params: EnvParams) -> jax.Array:
     """(P,) bool: which pedestrians meet the collision test of ``collision_model`` (SPEC §5).
 
-    * ``contact``: the ego's box overlaps the pedestrian's disc;
+    * ``contact``: the ego's box overlaps the pedestrian's disc (strictly);
     * ``authors`` (carla-gym ``urban_env.py``, ``is_collision``): the
       pedestrian's centre is on the ego's lane (``-lane_width <= y <= 0``) and,
       in the ego frame, within ``-authors_zone_back <= x <= authors_zone_front``
       and ``|y| <= authors_zone_half_width``.
 
+    Both are a distance from a box: the footprint with the disc's radius, or the
+    zone (the lane cut to the authors' band) with radius 0 and its edges
+    included. The box is chosen on scalars, so one test runs per pedestrian.
     Whether a hit is the ego's collision (it moves) or the pedestrian struck a
-    stopped car is decided by the caller (:func:`classify_hits`).
+    stopped car is decided by :func:`classify_hits`.
     """
-    centre, half = ego_box(ego.s, params)
-    contact = box_disc_overlap(centre, half, peds.position, params.ped_radius)
-    rel_x = peds.position[:, 0] - ego.s
-    y = peds.position[:, 1]
-    in_lane = (y >= -params.lane_width) & (y <= 0.0)
-    zone = (
-        in_lane
-        & (rel_x >= -params.authors_zone_back)
-        & (rel_x <= params.authors_zone_front)
-        & (jnp.abs(y - lane_centre_y(params)) <= params.authors_zone_half_width)
+    authors = params.collision_model == COLLISION_AUTHORS
+    foot_centre, foot_half = ego_box(ego.s, params)
+    lane_y = lane_centre_y(params)
+    y_lo = jnp.maximum(-params.lane_width, lane_y - params.authors_zone_half_width)
+    y_hi = jnp.minimum(0.0, lane_y + params.authors_zone_half_width)
+    zone_centre = jnp.stack(
+        [ego.s + 0.5 * (params.authors_zone_front - params.authors_zone_back), 0.5 * (y_lo + y_hi)]
     )
-    return jnp.where(params.collision_model == COLLISION_AUTHORS, zone, contact)
+    zone_half = jnp.stack(
+        [0.5 * (params.authors_zone_front + params.authors_zone_back), 0.5 * (y_hi - y_lo)]
+    )
+    centre = jnp.where(authors, zone_centre, foot_centre)
+    half = jnp.where(authors, zone_half, foot_half)
+    dx = jnp.maximum(jnp.abs(peds.position[:, 0] - centre[0]) - half[0], 0.0)
+    dy = jnp.maximum(jnp.abs(peds.position[:, 1] - centre[1]) - half[1], 0.0)
+    d2 = dx * dx + dy * dy
+    r2 = params.ped_radius * params.ped_radius
+    return jnp.where(authors, d2 <= 0.0, d2 < r2)
 
 
 def classify_hits(
