@@ -89,6 +89,9 @@ SCENARIOS = {
     "realistic-driving": Scenario(
         "UrbanPedestriansRealistic-v0", {}, "driving", 2, 250, ("collision", "near_miss")
     ),
+    "mixed": Scenario(
+        "UrbanPedestriansMixed-v0", {}, "driving", 0, 250, ("collision", "near_miss")
+    ),
     "switches": Scenario("UrbanPedestrians-v0", SWITCHED, "driving", 0, 300, ("collision",)),
     "occlusion": Scenario(
         "UrbanPedestrians-v0", {"occlusion_prob": 0.3}, "driving", 1, 250, ("occluded",)
@@ -277,6 +280,10 @@ def test_trajectories_match(compiled: dict, name: str) -> None:
     ours, theirs, np_env = rollouts(compiled, scenario)
     assert set(scenario.expect) <= events(ours), f"{name}: expected {scenario.expect}"
     assert_records_match(ours, theirs, np_env)
+
+
+def test_scenarios_cover_every_registered_world() -> None:
+    assert {s.env_id for s in SCENARIOS.values()} == set(drqn_jax.registered_envs())
 
 
 def test_grid_check_exempts_only_rounding_flips() -> None:
