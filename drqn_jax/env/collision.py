@@ -18,6 +18,7 @@ from drqn_jax.env.state import EgoState, PedestrianState
 
 __all__ = [
     "box_disc_overlap",
+    "box_squared_distance",
     "classify_hits",
     "collision_test",
     "ego_box",
@@ -44,6 +45,21 @@ def squared_length(v: jax.Array) -> jax.Array:
     return v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1]
 
 
+def box_squared_distance(box_centre: jax.Array, box_half: jax.Array, point: jax.Array) -> jax.Array:
+    """Squared distance from axis-aligned boxes to points (0 inside or on the edge).
+
+    Args:
+        box_centre: (..., 2); box_half: (2,); point: (..., 2) broadcastable with
+            ``box_centre``.
+    Returns:
+        (...,) float32.
+    """
+    # Components written out: a reduction over a minor axis of size 2 vectorises poorly.
+    dx = jnp.maximum(jnp.abs(point[..., 0] - box_centre[..., 0]) - box_half[0], 0.0)
+    dy = jnp.maximum(jnp.abs(point[..., 1] - box_centre[..., 1]) - box_half[1], 0.0)
+    return dx * dx + dy * dy
+
+
 def box_disc_overlap(
     box_centre: jax.Array, box_half: jax.Array, disc_centre: jax.Array, radius: jax.Array
 ) -> jax.Array:
@@ -55,10 +71,7 @@ def box_disc_overlap(
     Returns:
         (...,) bool.
     """
-    # Components written out: a reduction over a minor axis of size 2 vectorises poorly.
-    dx = jnp.maximum(jnp.abs(disc_centre[..., 0] - box_centre[..., 0]) - box_half[0], 0.0)
-    dy = jnp.maximum(jnp.abs(disc_centre[..., 1] - box_centre[..., 1]) - box_half[1], 0.0)
-    return dx * dx + dy * dy < radius * radius
+    return box_squared_distance(box_centre, box_half, disc_centre) < radius * radius
 
 
 def collision_test(ego: EgoState, peds: PedestrianState, params: EnvParams) -> jax.Array:
@@ -89,11 +102,8 @@ def collision_test(ego: EgoState, peds: PedestrianState, params: EnvParams) -> j
     )
     centre = jnp.where(authors, zone_centre, foot_centre)
     half = jnp.where(authors, zone_half, foot_half)
-    dx = jnp.maximum(jnp.abs(peds.position[:, 0] - centre[0]) - half[0], 0.0)
-    dy = jnp.maximum(jnp.abs(peds.position[:, 1] - centre[1]) - half[1], 0.0)
-    d2 = dx * dx + dy * dy
-    r2 = params.ped_radius * params.ped_radius
-    return jnp.where(authors, d2 <= 0.0, d2 < r2)
+    d2 = box_squared_distance(centre, half, peds.position)
+    return jnp.where(authors, d2 <= 0.0, d2 < params.ped_radius * params.ped_radius)
 
 
 def classify_hits(
