@@ -30,7 +30,9 @@ episode)::
     episode/<i>/q/<action name>               Scalars, steps 0…L-1 (DRQN only)
     episode/<i>/reward                        Scalars, steps 1…L
     episode/<i>/ttc                           Scalars, steps 1…L where TTC is finite
-    episode/<i>/events                        TextLog: action names at 0…L-1, end at L
+    episode/<i>/events                        TextLog: action names at 0…L-1 (a warning
+                                              where a pedestrian struck the standing
+                                              car), end at L
 
 L is the episode's length. Step t shows the state the agent sees before its
 t-th decision (t = 0 is the reset state, t = L the state the episode ended
@@ -163,7 +165,9 @@ class EpisodeRecord:
         action: (N, T) int32, the action taken in state t.
         q_values: (N, T, 4) float32 Q-values of state t (DRQN only, else None).
         reward: (N, T) float32; ttc: (N, T) float32 (s, inf: none), of the state
-            the step leads to; collision, goal, truncated: (N, T) bool.
+            the step leads to; collision, struck_while_stopped, goal, truncated:
+            (N, T) bool (SPEC §5: a pedestrian striking the standing ego is no
+            collision and does not end the episode).
         length: (N,) int32 steps until termination or truncation.
         episode_return: (N,) float32, accumulated as ``rollout_episode`` does.
     """
@@ -177,6 +181,7 @@ class EpisodeRecord:
     reward: Any
     ttc: Any
     collision: Any
+    struck_while_stopped: Any
     goal: Any
     truncated: Any
     length: Any
@@ -235,6 +240,7 @@ def _rollouts(
                 "reward": reward,
                 "ttc": info["ttc"],
                 "collision": info["collision"],
+                "struck_while_stopped": info["struck_while_stopped"],
                 "goal": info["goal"],
                 "truncated": truncated,
             }
@@ -272,6 +278,7 @@ def _rollouts(
             reward=out["reward"],
             ttc=out["ttc"],
             collision=out["collision"],
+            struck_while_stopped=out["struck_while_stopped"],
             goal=out["goal"],
             truncated=out["truncated"],
             length=length,
@@ -547,8 +554,13 @@ def _log_episode(
         "goal": ("goal reached", "INFO"),
         "truncated": (f"truncated after {n} steps", "INFO"),
     }[record.outcome(i)]
-    texts = [ACTIONS[a] for a in actions] + [end]
-    levels = ["DEBUG"] * n + [level]
+    struck = record.struck_while_stopped[i, :n]
+    texts = [
+        ACTIONS[a] + (" · struck while stopped" if hit else "")
+        for a, hit in zip(actions, struck, strict=True)
+    ]
+    levels = ["WARN" if hit else "DEBUG" for hit in struck] + [level]
+    texts.append(end)
     rec.send_columns(
         f"{root}/events",
         indexes=_steps(states),

@@ -122,6 +122,7 @@ def reference_episodes(agent, key, env, params, network=None, network_params=Non
             ep["action"].append(action)
             ep["reward"].append(reward)
             ep["ttc"].append(info["ttc"])
+            ep["struck"].append(info["struck_while_stopped"])
             ep["s"].append(state.ego.s)
             ep["peds"].append(state.pedestrians)
             ep["grid"].append(obs.grid)
@@ -217,12 +218,37 @@ def test_logged_steps_follow_the_episode_length(recorded):
         assert len(speed) == length + 1 and speed[0] == 0.0
         events = rrd[f"{root}/events"]
         texts = [row[0] for row in events["TextLog:text"]]
-        assert texts[:length] == [ACTIONS[a] for a in ref["action"]]
+        struck = " · struck while stopped"
+        expected = [
+            ACTIONS[a] + (struck if hit else "")
+            for a, hit in zip(ref["action"], ref["struck"], strict=True)
+        ]
+        assert texts[:length] == expected
         assert len(texts) == length + 1
+        levels = [row[0] for row in events["TextLog:level"]]
+        assert levels[:length] == ["WARN" if hit else "DEBUG" for hit in ref["struck"]]
         finite = np.isfinite(ref["ttc"])
         ttc = rrd[f"{root}/ttc"]  # finite values only; no temporal rows when none is
         np.testing.assert_array_equal(ttc.get("step", []), np.flatnonzero(finite) + 1)
         np.testing.assert_array_equal(scalars(ttc) if finite.any() else [], ref["ttc"][finite])
+
+
+def test_a_pedestrian_striking_the_standing_car_is_a_warning(tmp_path, env_params, key):
+    """SPEC §5: struck while stopped is no collision and ends nothing, but the
+    events say so at its step, as a warning."""
+    env, params = env_params
+    record = recording.collect_episodes(drqn_jax.rule_based_agent(), key, 1, env, params)
+    struck = np.zeros_like(np.asarray(record.struck_while_stopped))
+    struck[0, 3] = True
+    path = tmp_path / "struck.rrd"
+    recording.write_episodes(
+        path, dataclasses.replace(record, struck_while_stopped=struck), env, params
+    )
+    events = read_rrd(path)["/episode/0/events"]
+    texts = [row[0] for row in events["TextLog:text"]]
+    levels = [row[0] for row in events["TextLog:level"]]
+    assert texts[3] == ACTIONS[int(record.action[0, 3])] + " · struck while stopped"
+    assert levels[3] == "WARN" and levels[2] == levels[4] == "DEBUG"
 
 
 def test_pedestrians_are_coloured_by_behaviour(recorded):
