@@ -71,6 +71,29 @@ def test_same_key_bit_identical(tiny, tiny_run):
     )
 
 
+def test_acting_lstm_restarts_at_every_episode(tiny):
+    """The acting carry is the network's initial carry at each episode's first step
+    and only there (the bug class of purejaxrl issue 23, JaxMARL issue 119: a
+    carry leaking across an auto-reset). Over 80 iterations of 30-step episodes
+    each env starts several episodes; a carry kept across the reset fails."""
+    trainer, _ = tiny
+    step = jax.jit(trainer.run, static_argnums=1)
+    state = jax.jit(trainer.init)(jax.random.key(0))
+    initial = trainer.network.initial_carry((TINY.num_envs,))
+    starts = 0
+    for _ in range(80):
+        state = step(state, 1)
+        fresh = np.asarray(state.ep_length) == 0  # this iteration began a new episode
+        same = [
+            np.all(np.asarray(c) == np.asarray(i), axis=tuple(range(1, np.ndim(c))))
+            for c, i in zip(jax.tree.leaves(state.carry), jax.tree.leaves(initial), strict=True)
+        ]
+        at_initial = np.logical_and.reduce(same)
+        np.testing.assert_array_equal(at_initial, fresh)
+        starts += int(fresh.sum())
+    assert starts >= 2 * TINY.num_envs
+
+
 @pytest.fixture(scope="module")
 def tiny_chunked(tiny):
     """The run of ``tiny_run`` in chunks of ``TINY.chunk_iterations``: (final state,
