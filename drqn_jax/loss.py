@@ -19,6 +19,15 @@ loss with δ = 1 (``clip = "huber"``), or the authors' code, MSE with the
 gradient clamped element-wise (``clip = "grad"``, see
 :func:`drqn_jax.optim.clip`). Padding is masked out of the mean.
 
+Optionally (not in the paper; R2D2, Kapturowski et al. 2019, after Pohlen et
+al. 2018) the values are rescaled: the network learns h(Q) with
+h(x) = sign(x)(√(|x| + 1) − 1) + εx, so the target of any n becomes
+
+    y_t = h(Σ_{k<m} γ^k r_{t+k} + γ^m (1 − terminated) h⁻¹(Q_target(s_{t+m}, a*_{t+m}))),
+
+which shrinks large returns (a collision penalty of −100) without clipping
+them away (``value_rescale = 1``; 0 is the paper's target bit for bit).
+
 Optionally (not in the paper) a large-margin imitation term is added, as in
 DQfD (Hester et al. 2018): for each step with an expert action a_E and a
 weight w_t > 0,
@@ -41,6 +50,8 @@ from drqn_jax.replay import Windows
 
 CLIP_MODES = ("huber", "grad")
 CLIP_HUBER, CLIP_GRAD = 0, 1
+#: ε of the value rescaling h (R2D2's 10⁻³).
+RESCALE_EPS = 1e-3
 
 __all__ = [
     "CLIP_MODES",
@@ -48,7 +59,9 @@ __all__ = [
     "huber",
     "large_margin",
     "n_step_targets",
+    "rescale",
     "sequence_loss",
+    "unrescale",
 ]
 
 
@@ -56,6 +69,24 @@ def huber(x: jax.Array, delta: float = 1.0) -> jax.Array:
     """Huber loss: ½x² for |x| ≤ δ, δ(|x| − ½δ) beyond (gradient clipped to ±δ)."""
     a = jnp.abs(x)
     return jnp.where(a <= delta, 0.5 * x * x, delta * (a - 0.5 * delta))
+
+
+def rescale(x: jax.Array, eps: float = RESCALE_EPS) -> jax.Array:
+    """R2D2's h(x) = sign(x)(√(|x| + 1) − 1) + εx (odd, increasing, h(0) = 0).
+
+    √(|x| + 1) − 1 is computed as |x| / (√(|x| + 1) + 1): the same number without
+    the cancellation that costs float32 its digits near 0.
+    """
+    a = jnp.abs(x)
+    return jnp.sign(x) * a / (jnp.sqrt(a + 1.0) + 1.0) + eps * x
+
+
+def unrescale(x: jax.Array, eps: float = RESCALE_EPS) -> jax.Array:
+    """h⁻¹(x) = sign(x)(((√(1 + 4ε(|x| + 1 + ε)) − 1) / 2ε)² − 1), the inverse of
+    :func:`rescale`, with (√(1 + z) − 1) / 2ε written as 2(|x| + 1 + ε) / (√(1 + z) + 1)."""
+    b = jnp.abs(x) + 1.0 + eps
+    root = 2.0 * b / (jnp.sqrt(1.0 + 4.0 * eps * b) + 1.0)
+    return jnp.sign(x) * (root * root - 1.0)
 
 
 def double_dqn_targets(
@@ -79,6 +110,7 @@ def n_step_targets(
     mask: jax.Array,
     gamma: float | jax.Array,
     n_step: int,
+    value_rescale: int | jax.Array = 0,
 ) -> jax.Array:
     """n-step Double DQN targets (W, B) of a window (see the module docstring).
 
@@ -86,9 +118,28 @@ def n_step_targets(
         q_online_next, q_target_next: (W, B, A) Q-values at observations 1 … W.
         reward, terminated, mask: (W, B); ``mask`` is false on padding.
         n_step: static n ≥ 1 (n = 1: :func:`double_dqn_targets`).
+        value_rescale: 1: the networks' values are h(Q) (:func:`rescale`): the
+            bootstrap is unrescaled and the target rescaled; 0: the paper's.
     Returns:
         (W, B) float32 targets; those of padded steps are finite and meaningless.
     """
+    on = jnp.asarray(value_rescale) == 1
+    # Selected, not branched: with value_rescale = 0 the target is the paper's bit for bit.
+    q_target_next = jnp.where(on, unrescale(q_target_next), q_target_next)
+    y = _n_step_returns(q_online_next, q_target_next, reward, terminated, mask, gamma, n_step)
+    return jnp.where(on, rescale(y), y)
+
+
+def _n_step_returns(
+    q_online_next: jax.Array,
+    q_target_next: jax.Array,
+    reward: jax.Array,
+    terminated: jax.Array,
+    mask: jax.Array,
+    gamma: float | jax.Array,
+    n_step: int,
+) -> jax.Array:
+    """The unrescaled n-step Double DQN targets (W, B) of :func:`n_step_targets`."""
     if n_step == 1:
         return double_dqn_targets(q_online_next, q_target_next, reward, terminated, gamma)
     steps = reward.shape[0]
@@ -136,6 +187,7 @@ def sequence_loss(
     expert_action: jax.Array | None = None,
     expert_weight: jax.Array | None = None,
     margin: float | jax.Array = 1.0,
+    value_rescale: int | jax.Array = 0,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Mean masked TD loss of a window batch (plus the imitation term), and diagnostics.
 
@@ -148,6 +200,7 @@ def sequence_loss(
             action in each state and the weight of its :func:`large_margin` term
             (0: none); both None (the paper): no imitation term.
         margin: the margin l of :func:`large_margin`.
+        value_rescale: 1: R2D2's value rescaling (:func:`n_step_targets`); 0: the paper.
     Returns:
         () float32 loss, and ``{"td_abs": mean |δ|, "q_mean": mean Q(s, a),
         "margin": mean weighted J_E}`` (``margin`` with an expert only).
@@ -166,6 +219,7 @@ def sequence_loss(
         windows.mask,
         gamma,
         n_step,
+        value_rescale,
     )
     td = q_taken - jax.lax.stop_gradient(y)
     per_step = jnp.where(clip_mode == CLIP_GRAD, 0.5 * td * td, huber(td))

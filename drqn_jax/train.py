@@ -192,6 +192,13 @@ class Hyperparams:
         "corridor within this time (RuleBasedParams.horizon; 0 = SPEC §6's rule; "
         "exploration's guide keeps 0)",
     )
+    value_rescale: int = param(
+        0,
+        low=0,
+        high=1,
+        doc="1: the networks learn h(Q), R2D2's value rescaling, with targets "
+        "h(r + γ h⁻¹(Q')) (Kapturowski et al. 2019); 0 = the paper",
+    )
     select_by: int = param(
         "return",
         choices=SELECT_BY,
@@ -572,6 +579,7 @@ def _make_train(config: TrainConfig) -> Trainer:
             expert,
             hp.imitation_weight * imitate.astype(jnp.float32),
             hp.imitation_margin,
+            hp.value_rescale,
         )
         clamped, _ = clip(1.0).update(grads, ())
         grads = jax.tree.map(lambda c, g: jnp.where(hp.clip == CLIP_GRAD, c, g), clamped, grads)

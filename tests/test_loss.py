@@ -15,7 +15,9 @@ from drqn_jax.loss import (
     huber,
     large_margin,
     n_step_targets,
+    rescale,
     sequence_loss,
+    unrescale,
 )
 from drqn_jax.networks import NetworkConfig, make_network
 from drqn_jax.optim import adam, apply_updates, clip
@@ -92,6 +94,46 @@ def test_n_step_targets_match_hand_computation():
     assert y3[2, 2] == pytest.approx(reward[2, 2] + 0.9 * q_target_next[2, 2, a_star], rel=1e-6)
     # n-step differs from one-step where more than one real step lies ahead
     assert not np.allclose(y3[0, 0], np.asarray(n_step_targets(*args, 0.9, 1))[0, 0])
+
+
+def _h(x, eps=1e-3):
+    return np.sign(x) * (np.sqrt(np.abs(x) + 1.0) - 1.0) + eps * x
+
+
+def test_value_rescaling_and_its_inverse():
+    """R2D2's h(x) = sign(x)(√(|x| + 1) − 1) + εx and h⁻¹, in float32, against float64."""
+    x = np.array([-1000.0, -100.0, -10.0, -1.0, -0.01, 0.0, 0.01, 1.0, 3.0, 100.0], np.float32)
+    np.testing.assert_allclose(
+        np.asarray(rescale(jnp.asarray(x))), _h(x.astype(np.float64)), rtol=1e-6
+    )
+    back = np.asarray(unrescale(rescale(jnp.asarray(x))))
+    np.testing.assert_allclose(back, x, rtol=2e-5, atol=1e-5)
+    assert float(rescale(jnp.float32(-100.0))) == pytest.approx(-9.15, abs=0.01)  # −100 shrinks
+
+
+def test_value_rescaled_n_step_targets_match_hand_computation():
+    """``value_rescale = 1``: y = h(Σ γ^k r + γ^m h⁻¹(Q_target(s', a*))), a* by the
+    online values (h is increasing, so the argmax is the same either way); 0 is the
+    paper's target bit for bit."""
+    rng = np.random.default_rng(1)
+    steps, batch = 5, 3
+    q_online_next = rng.normal(size=(steps, batch, 4)).astype(np.float32)
+    q_target_next = (3.0 * rng.normal(size=(steps, batch, 4))).astype(np.float32)
+    reward = rng.normal(size=(steps, batch)).astype(np.float32) * 10.0
+    mask = np.arange(steps)[:, None] < np.array([5, 3, 2])
+    terminated = np.zeros((steps, batch), bool)
+    terminated[2, 1] = True
+    args = [jnp.asarray(x) for x in (q_online_next, q_target_next, reward, terminated, mask)]
+    q64 = q_target_next.astype(np.float64)
+    q_unscaled = np.asarray(unrescale(jnp.asarray(q_target_next)), np.float64)
+    np.testing.assert_allclose(_h(q_unscaled), q64, rtol=1e-5, atol=1e-5)
+    for n in (1, 3):
+        y = np.asarray(n_step_targets(*args, 0.9, n, value_rescale=1))
+        ref = _h(_n_step_reference(q_online_next, q_unscaled, reward, terminated, mask, 0.9, n))
+        np.testing.assert_allclose(y[mask], ref[mask], rtol=1e-5, atol=1e-5, err_msg=f"n={n}")
+        plain = np.asarray(n_step_targets(*args, 0.9, n))
+        np.testing.assert_array_equal(plain, np.asarray(n_step_targets(*args, 0.9, n, 0)))
+        assert not np.allclose(plain[mask], y[mask])
 
 
 def test_huber():

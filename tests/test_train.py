@@ -160,6 +160,33 @@ def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked, update_
     assert float(three) != pytest.approx(float(one), rel=1e-5)
 
 
+def test_value_rescale_reaches_the_gradient_update(tiny_chunked, update_n3):
+    """train.value_rescale = 1: the update's loss is sequence_loss with R2D2's value
+    rescaling on the windows it samples; 0 (the default) is the loss without it."""
+    state, _ = tiny_chunked
+    trainer, update = update_n3
+    learner = (state.online, state.target, state.opt_state, state.grad_steps)
+    key = jax.random.key(13)
+
+    @jax.jit
+    def losses(state, key):
+        hp = state.hparams
+        static = trainer.env.static
+        w = sample_windows(state.replay, key, 4, 4, state.env_params, static, hp.window_start)
+        net, n = trainer.network, TINY_N3.n_step
+        return [
+            sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, n, **kw)[0]
+            for kw in ({"value_rescale": 1}, {})
+        ]
+
+    rescaled, plain = losses(state, key)
+    for flag, want in ((1, rescaled), (0, plain)):
+        hp = state.hparams.replace(value_rescale=flag)
+        _, loss = update(learner, key, state.replay, hp, state.env_params)
+        assert float(loss) == pytest.approx(float(want), rel=1e-5), flag
+    assert float(rescaled) != pytest.approx(float(plain), rel=1e-3)
+
+
 LANE_Y = float(lane_centre_y(drqn_jax.make("UrbanPedestrians-v0")[1]))
 TEACHER = RuleBasedParams(lookahead=12.0, corridor_margin=1.0, v_max=2.0)
 
