@@ -284,9 +284,11 @@ def evaluate(
 
 
 def metrics_table(results: list[dict[str, Any]]) -> str:
-    """A Markdown table of :func:`evaluate` results, one row per agent (SPEC §8)."""
+    """A Markdown table of :func:`evaluate` results, one row per agent (SPEC §8); the
+    ``teacher`` column is what :func:`drqn_jax.runner.evaluate_agents` adds (– without it)."""
     header = (
-        "| agent | episodes | collision-free % (95 % CI) | struck while stopped % | goal % "
+        "| agent | teacher | episodes | collision-free % (95 % CI) | struck while stopped % "
+        "| goal % "
         "| avg speed (km/h) | authors' speed (km/h) "
         "| distance (m) | distance, collision-free (m) | collisions / km "
         "| min TTC median (s) | steps with TTC ≤ 3 s % |"
@@ -295,7 +297,7 @@ def metrics_table(results: list[dict[str, Any]]) -> str:
     for r in results:
         low, high = r["collision_free_ci"]
         rows.append(
-            f"| {r['agent']} | {r['num_episodes']} "
+            f"| {r['agent']} | {r.get('teacher', '–')} | {r['num_episodes']} "
             f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
             f"| {100 * r['struck_while_stopped_rate']:.1f} "
             f"| {100 * r['goal_rate']:.1f} | {r['avg_speed_kmh']:.2f} "

@@ -49,8 +49,15 @@ from drqn_jax.checkpoint import (
 )
 from drqn_jax.config import RENAMED_LEAVES, Config, added_leaves, load_config
 from drqn_jax.evaluation import evaluate
-from drqn_jax.networks import Network
-from drqn_jax.train import METRIC_NAMES, Trainer, TrainState, make_train
+from drqn_jax.networks import NETWORK_KINDS, Network
+from drqn_jax.train import (
+    METRIC_NAMES,
+    NOT_LEARNED,
+    Trainer,
+    TrainState,
+    make_train,
+    teacher_label,
+)
 
 __all__ = [
     "RunResult",
@@ -388,12 +395,21 @@ def builtin_agent(name: str, config: Config) -> Agent:
 
 def evaluate_agents(config: Config, agents: list[Agent]) -> list[dict[str, Any]]:
     """SPEC §8 metrics of each agent on ``evaluate.episodes`` episodes of the
-    evaluation key (the same episodes for every agent)."""
+    evaluation key (the same episodes for every agent), and its ``teacher``: how
+    ``config``'s training taught a network agent (:func:`teacher_label`), or
+    :data:`NOT_LEARNED` for a built-in one."""
     env, env_params = config.make_env()
     _, eval_key = config.keys()
     batch = config["evaluate"]["batch_size"] or None
     episodes = config["evaluate"]["episodes"]
-    return [evaluate(a, eval_key, episodes, env, env_params, batch_size=batch) for a in agents]
+    learned = teacher_label(config.hyperparams())
+    return [
+        {
+            **evaluate(a, eval_key, episodes, env, env_params, batch_size=batch),
+            "teacher": learned if a.name in NETWORK_KINDS else NOT_LEARNED,
+        }
+        for a in agents
+    ]
 
 
 def json_ready(result: dict[str, Any]) -> dict[str, Any]:

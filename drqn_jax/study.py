@@ -48,6 +48,7 @@ from drqn_jax.recording import running_mean
 from drqn_jax.registry import registered_envs
 from drqn_jax.stats import t_interval
 from drqn_jax.sweep import Sweep, build_sweep
+from drqn_jax.train import NOT_LEARNED
 
 __all__ = [
     "PAPER_TABLE_III",
@@ -201,6 +202,7 @@ def study_row(label: str, agent: str, runs: Sequence[Mapping[str, Any]]) -> dict
     return {
         "label": label,
         "agent": agent,
+        "teacher": " / ".join(sorted({r.get("teacher") or "–" for r in runs})),
         "seeds": len(runs),
         "episodes": int(episodes[0]),
         "diverged": sum(bool(r.get("diverged")) for r in runs),
@@ -235,6 +237,7 @@ def paper_rows() -> list[dict[str, Any]]:
             {
                 "label": "paper (CARLA)",
                 "agent": agent,
+                "teacher": NOT_LEARNED if agent == "rule-based" else "none (reward alone)",
                 "seeds": 1,
                 "episodes": PAPER_EPISODES,
                 "diverged": 0,
@@ -261,11 +264,14 @@ def _cell(value: float, spec: str, scale: float = 1.0) -> str:
 def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
     """Markdown: one row per agent; ``± std`` is across seeds."""
     header = (
-        "| source | agent | seeds × episodes | collision-free % (95 % interval) "
+        "| source | agent | teacher | seeds × episodes | collision-free % (95 % interval) "
         "| struck while stopped % | avg speed (km/h) | authors' speed (km/h) | distance (m) "
         "| distance, collision-free (m) | goal % | collisions / km |"
     )
-    lines = [header, "| --- | --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    lines = [
+        header,
+        "| --- | --- | --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for r in rows:
         low, high = r["collision_free_ci"]
         speed = _cell(r["avg_speed_kmh"], ".2f")
@@ -275,7 +281,7 @@ def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
         if r["diverged"]:
             seeds += f" ({r['diverged']} diverged)"
         lines.append(
-            f"| {r['label']} | {r['agent']} | {seeds} "
+            f"| {r['label']} | {r['agent']} | {r.get('teacher', '–')} | {seeds} "
             f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
             f"| {_cell(r.get('struck_while_stopped_rate'), '.1f', 100.0)} "
             f"| {speed} | {_cell(r.get('avg_speed_authors_kmh'), '.2f')} "

@@ -283,6 +283,7 @@ def summarize_sweep(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     for key, runs in settings.items():
         diverged = sum(bool(r.get("diverged")) for r in runs)
         row: dict[str, Any] = {"setting": dict(key), "runs": len(runs), "diverged": diverged}
+        row["teacher"] = " / ".join(sorted({r.get("teacher") or "–" for r in runs}))
         for metric in TABLE_METRICS:
             # None: a non-finite number in JSON; absent: a run evaluated before the metric
             x = np.array([r.get(metric) for r in runs], np.float64)
@@ -300,11 +301,11 @@ def summarize_sweep(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 def sweep_table(rows: Sequence[dict[str, Any]]) -> str:
     """Markdown: one row per setting, ``mean ± std [95 % CI] (IQM)`` per metric."""
     names = list(rows[0]["setting"]) if rows else []
-    header = [*names, "runs", *TABLE_METRICS]
+    header = [*names, "runs", "teacher", *TABLE_METRICS]
     lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
     for row in rows:
         runs = f"{row['runs']}" + (f" ({row['diverged']} diverged)" if row["diverged"] else "")
-        cells = [str(row["setting"][n]) for n in names] + [runs]
+        cells = [str(row["setting"][n]) for n in names] + [runs, row.get("teacher", "–")]
         for metric in TABLE_METRICS:
             m = row[metric]
             low, high = m["ci95"]

@@ -74,7 +74,14 @@ from drqn_jax.memory import (
 )
 from drqn_jax.runner import _finite, _progress_bar, _StopRequest, json_ready, metrics_csv
 from drqn_jax.sweep import STRATEGIES, Sweep, SweepPoint
-from drqn_jax.train import Trainer, TrainState, make_train, selection, unvalidated
+from drqn_jax.train import (
+    Trainer,
+    TrainState,
+    make_train,
+    selection,
+    teacher_label,
+    unvalidated,
+)
 
 __all__ = [
     "Call",
@@ -476,9 +483,8 @@ def evaluate_runs(
         agent = drqn_agent(network, jax.tree.map(lambda x, i=i: x[i], params))
         settings = point.config["evaluate"]
         batch = settings["batch_size"] or None
-        out.append(
-            evaluate(agent, eval_key, settings["episodes"], env, env_params, batch_size=batch)
-        )
+        result = evaluate(agent, eval_key, settings["episodes"], env, env_params, batch_size=batch)
+        out.append({**result, "teacher": teacher_label(point.config.hyperparams())})
     return out
 
 

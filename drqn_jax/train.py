@@ -82,7 +82,15 @@ from drqn_jax.replay import (
     sample_windows,
 )
 
-__all__ = ["Hyperparams", "TrainConfig", "TrainState", "Trainer", "make_train"]
+__all__ = [
+    "NOT_LEARNED",
+    "Hyperparams",
+    "TrainConfig",
+    "TrainState",
+    "Trainer",
+    "make_train",
+    "teacher_label",
+]
 
 #: ``fold_in`` index of the draw that picks a guided exploratory action: a
 #: stream of its own, so that ``explore_guide = 0`` leaves every other draw,
@@ -218,6 +226,26 @@ class Hyperparams:
             self,
             ("explore_accelerate", "explore_slow_down", "explore_brake", "explore_steer"),
         )
+
+
+#: The teacher column of a policy that did not learn (the rule-based agent, …).
+NOT_LEARNED = "– (not learned)"
+
+
+def teacher_label(hp: Hyperparams) -> str:
+    """How an agent trained with ``hp`` learned (SPEC §8: every table says it):
+    ``"none (reward alone)"``, or the teacher it had — exploration guided by the
+    rule-based agent (``explore_guide`` > 0), imitation of its actions
+    (``imitation_weight`` > 0), or both."""
+    teachers = [
+        name
+        for name, value in (
+            ("guided exploration", hp.explore_guide),
+            ("imitation", hp.imitation_weight),
+        )
+        if float(value) > 0.0
+    ]
+    return " + ".join(teachers) or "none (reward alone)"
 
 
 def annealed(hp: Hyperparams, recorded: jax.Array, num_episodes: int) -> Hyperparams:

@@ -225,13 +225,14 @@ def test_evaluate_builtin_and_trained(straight, capsys):
     assert cli.main(["evaluate", "--agent", "rule-based", "--episodes", "4", "--json", "-"]) == 0
     captured = capsys.readouterr()
     payload = json.loads(captured.out)  # stdout is only the JSON; the table is on stderr
-    assert "| rule-based | 4 |" in captured.err
+    assert "| rule-based | – (not learned) | 4 |" in captured.err
     assert payload["agent"] == "rule-based" and payload["num_episodes"] == 4
+    assert payload["teacher"] == "– (not learned)"
     assert 0.0 <= payload["collision_free_rate"] <= 1.0
     path = straight.parent / "eval.json"
     assert cli.main(["evaluate", str(straight), "--episodes", "3", "--json", str(path)]) == 0
     assert json.loads(path.read_text())["agent"] == "drqn"
-    assert "| drqn | 3 |" in capsys.readouterr().out
+    assert "| drqn | none (reward alone) | 3 |" in capsys.readouterr().out
 
 
 def _rrd_rows(path: Path) -> dict[str, int]:
@@ -266,8 +267,11 @@ def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
     run_dir = tmp_path / "rep"
     assert cli.main(["reproduce", *SMOKE, "--run-dir", str(run_dir)]) == 0
     out = capsys.readouterr().out
-    assert "| paper (CARLA) | rule-based | 1 × 10 | 40.0 (16.8–68.7) | – | 7.79 | – | 82.6 |" in out
-    assert "| drqn_jax | drqn | 1 × 8 |" in out and "| drqn_jax | rule-based | 1 × 8 |" in out
+    paper_row = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | 40.0 (16.8–68.7) | – |"
+    assert paper_row + " 7.79 | – | 82.6 |" in out
+    assert "| paper (CARLA) | DRQN | none (reward alone) | 1 × 10 |" in out
+    assert "| drqn_jax | drqn | none (reward alone) | 1 × 8 |" in out
+    assert "| drqn_jax | rule-based | – (not learned) | 1 × 8 |" in out
     assert "wall time" in out
     agents = json.loads((run_dir / "evaluation.json").read_text())["agents"]
     assert [a["agent"] for a in agents] == ["drqn", "rule-based"]

@@ -33,6 +33,7 @@ def _run(rate: float, n: int = 100, distance: float = 100.0, free_distance: floa
         "avg_speed_kmh": 10.0 * rate,
         "avg_speed_authors_kmh": 12.0 * rate,
         "struck_while_stopped_rate": 1.0 - rate,
+        "teacher": "imitation",
         "avg_distance_m": distance,
         "avg_distance_collision_free_m": free_distance,
         "goal_rate": rate / 2,
@@ -72,8 +73,10 @@ def test_a_single_policy_keeps_its_wilson_interval():
     assert row["collision_free_ci"] == pytest.approx((0.9, 1.0))
     assert row["interval"] == "Wilson over episodes" and math.isnan(row["avg_speed_kmh_std"])
     table = study_table([*paper_rows(), row])
-    assert "| paper (CARLA) | rule-based | 1 × 10 | 40.0 (16.8–68.7) | – | 7.79 | – |" in table
-    assert "| drqn_jax: env | drqn | 1 × 100 | 95.0 (90.0–100.0) | 5.0 | 9.50 | 11.40 |" in table
+    paper = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | 40.0 (16.8–68.7) | – |"
+    assert paper + " 7.79 | – |" in table
+    ours = "| drqn_jax: env | drqn | imitation | 1 × 100 | 95.0 (90.0–100.0) | 5.0 | 9.50 |"
+    assert ours + " 11.40 |" in table
     # a run evaluated before the struck-while-stopped rate and the authors' speed existed
     old = {k: v for k, v in _run(0.95).items() if k not in ("struck_while_stopped_rate",)}
     assert "| 95.0 (90.0–100.0) | – | 9.50 | 11.40 |" in study_table([baseline_row("old", old)])

@@ -206,11 +206,16 @@ def test_calls_that_differ_in_hyperparameter_values_share_their_programs(sweep_f
 
 def test_statistics_are_computed_from_the_runs():
     results = [
-        {"values": {"run.seed": s, "train.gamma": g}, **dict.fromkeys(_metrics(), float(v))}
+        {
+            "values": {"run.seed": s, "train.gamma": g},
+            "teacher": "imitation" if g == 0.5 else "none (reward alone)",
+            **dict.fromkeys(_metrics(), float(v)),
+        }
         for s, g, v in [(0, 0.9, 1.0), (1, 0.9, 2.0), (2, 0.9, 6.0), (0, 0.5, 3.0)]
     ]
     rows = summarize_sweep(results)
     assert [r["setting"] for r in rows] == [{"train.gamma": 0.9}, {"train.gamma": 0.5}]
+    assert [r["teacher"] for r in rows] == ["none (reward alone)", "imitation"]
     m = rows[0]["collision_free_rate"]
     assert rows[0]["runs"] == 3 and m["mean"] == 3.0
     std = math.sqrt(((1 - 3) ** 2 + (2 - 3) ** 2 + (6 - 3) ** 2) / 2)
@@ -248,7 +253,8 @@ def test_cli_sweep_writes_tables(sweep_file, cli_sweep, capsys):
     csv = (cli_sweep / "results.csv").read_text().splitlines()
     assert csv[0].startswith("train.learning_rate,runs,diverged,collision_free_rate_mean")
     assert len(csv) == 3
-    assert "| 0.001 | 2 |" in (cli_sweep / "results.md").read_text()
+    assert "| 0.001 | 2 | none (reward alone) |" in (cli_sweep / "results.md").read_text()
+    assert all(r["teacher"] == "none (reward alone)" for r in runs)
     assert not list(cli_sweep.glob("calls/*/checkpoint.npz"))  # the results replaced them
 
 

@@ -17,7 +17,14 @@ from drqn_jax.loss import sequence_loss
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.replay import WINDOW_ANYWHERE, sample_windows
 from drqn_jax.runner import init_program
-from drqn_jax.train import IMITATION_STATES, Hyperparams, TrainConfig, annealed, make_train
+from drqn_jax.train import (
+    IMITATION_STATES,
+    Hyperparams,
+    TrainConfig,
+    annealed,
+    make_train,
+    teacher_label,
+)
 from tests.helpers import assert_tree_equal, take, tiny_train_config
 
 TINY = tiny_train_config()
@@ -459,3 +466,13 @@ def test_learns_to_drive_near_the_speed_limit():
     # and it did not get there by chance: the first, exploring episodes were slower
     early_kmh = np.asarray(mean_speed)[:, :16].mean(axis=1) * 3.6
     assert np.all(early_kmh < means - 2.0), (early_kmh, means)
+
+
+def test_teacher_label_says_how_an_agent_learned():
+    """SPEC §8: every table says whether an agent learned with a teacher."""
+    hp = Hyperparams()
+    assert teacher_label(hp) == "none (reward alone)"
+    assert teacher_label(hp.replace(explore_guide=0.5)) == "guided exploration"
+    assert teacher_label(hp.replace(imitation_weight=1.0)) == "imitation"
+    both = hp.replace(explore_guide=0.1, imitation_weight=10.0)
+    assert teacher_label(both) == "guided exploration + imitation"
