@@ -74,7 +74,7 @@ def test_train_writes_the_run_directory(straight, capsys):
     evaluation = json.loads((straight / "evaluation.json").read_text())
     (drqn,) = evaluation["agents"]
     assert drqn["agent"] == "drqn" and drqn["num_episodes"] == 8
-    assert "| drqn | 8 |" in (straight / "results.md").read_text()
+    assert "| drqn | none (reward alone) | 8 |" in (straight / "results.md").read_text()
 
 
 def test_progress_bar_does_not_change_results(straight, tmp_path, capsys):

@@ -157,7 +157,7 @@ def test_the_study_writes_the_table_and_the_curves(study):
     baseline = json.loads(next((study / "baselines").glob("rule-based-*.json")).read_text())
     assert baseline["num_episodes"] == EPISODES == record["rows"][3]["episodes"]
     table = (study / "study.md").read_text()
-    assert f"| drqn_jax: smoke | drqn | 2 × {EPISODES} |" in table
+    assert f"| drqn_jax: smoke | drqn | none (reward alone) | 2 × {EPISODES} |" in table
     assert "* drqn_jax: smoke (drqn) against drqn_jax: UrbanPedestrians-v0 (rule-based)" in table
     assert record["comparisons"] == [line[2:] for line in table.splitlines() if line[:2] == "* "]
     assert (study / "curves.rrd").stat().st_size > 0
@@ -198,7 +198,8 @@ def test_a_report_covers_the_runs_that_have_finished(study, tmp_path, monkeypatc
     assert cli.main(["study", *STUDY, "--out", str(partial), "--report-only"]) == 0
     record = json.loads((partial / "study.json").read_text())
     assert [r["index"] for r in record["runs"]["smoke"]] == [0]
-    assert f"| drqn_jax: smoke | drqn | 1 × {EPISODES} |" in (partial / "study.md").read_text()
+    row = f"| drqn_jax: smoke | drqn | none (reward alone) | 1 × {EPISODES} |"
+    assert row in (partial / "study.md").read_text()
 
 
 def test_eval_envs_evaluate_the_trained_agents_among_other_pedestrians(
