@@ -8,6 +8,7 @@ import pytest
 
 from drqn_jax.config import (
     ADDED_LATER,
+    CONFIG_DIR,
     REVISED,
     SCHEMA,
     ConfigError,
@@ -22,6 +23,23 @@ from drqn_jax.train import TrainConfig
 def changed(preset, base, section: str) -> dict:
     """The fields of ``section`` whose value in ``preset`` differs from ``base``'s."""
     return {k: v for k, v in preset[section].items() if v != base[section][k]}
+
+
+def test_presets_say_when_they_have_a_teacher():
+    """Teacher-free by default: a shipped preset learns from the reward alone unless
+    its name says ``teacher`` (and then it has one: guided exploration or imitation);
+    a sweep whose name does not say so has no teacher at any point."""
+    from drqn_jax.sweep import load_sweep
+    from drqn_jax.train import teacher_label
+
+    for name in config_names():
+        label = teacher_label(load_config(name).hyperparams())
+        assert (label != "none (reward alone)") == ("teacher" in name), (name, label)
+    for path in sorted(CONFIG_DIR.glob("*.toml")):
+        if path.stem in config_names() or "teacher" in path.stem:
+            continue
+        for point in load_sweep(path).points:
+            assert teacher_label(point.config.hyperparams()) == "none (reward alone)", path
 
 
 def test_shipped_configs_load():
@@ -53,7 +71,8 @@ def test_paper_config_is_the_papers_protocol():
 
 
 def test_default_is_the_budget_with_the_safety_recipe():
-    """default.toml = budget.toml + the eight departures of docs/results.md §5, no others."""
+    """default.toml = budget.toml + the departures of docs/results.md §5 that are not a
+    teacher (§5's guided exploration is in the *-teacher presets), no others."""
     budget, default = load_config("budget").training_dict(), load_config("default").training_dict()
     changed = {
         (section, key): (budget[section][key], default[section][key])
@@ -66,7 +85,6 @@ def test_default_is_the_budget_with_the_safety_recipe():
         ("env", "reward_stopped"): (-1.0, -0.1),
         ("env", "reward_overspeed"): (-0.5, -2.0),
         ("train", "clip"): ("huber", "grad"),
-        ("train", "explore_guide"): (0.0, 0.5),
         ("train", "target_period"): (1000, 100),
         ("train", "gamma"): (0.9, 0.99),
         ("train", "learning_rate_end"): (1.0, 0.1),
@@ -94,10 +112,11 @@ def test_heedless_is_default_among_pedestrians_that_walk_into_the_car_with_conta
 
 
 def test_heedless_safe_imitates_a_cautious_rule_based_agent_not_the_compared_one():
-    heedless, safe = load_config("heedless"), load_config("heedless-safe")
+    heedless, safe = load_config("heedless"), load_config("heedless-safe-teacher")
     assert safe["env"] == heedless["env"] and safe["network"] == heedless["network"]
     differ = changed(safe, heedless, "train")
     assert differ == {
+        "explore_guide": 0.5,
         "imitation_weight": 10.0,
         "imitation_states": "all",
         "imitation_corridor_margin": 3.0,
@@ -109,7 +128,7 @@ def test_heedless_safe_imitates_a_cautious_rule_based_agent_not_the_compared_one
 
 
 def test_beyond_is_safe_with_a_faster_teacher_on_both_pedestrians():
-    safe, beyond = load_config("safe"), load_config("beyond")
+    safe, beyond = load_config("safe-teacher"), load_config("beyond-teacher")
     assert beyond["env"] == safe["env"] and beyond["network"] == safe["network"]
     differ = changed(beyond, safe, "train")
     assert differ == {
@@ -118,8 +137,8 @@ def test_beyond_is_safe_with_a_faster_teacher_on_both_pedestrians():
         "imitation_lookahead": 5.0,
     }, differ
     assert beyond["rule_based"] == safe["rule_based"] == load_config("default")["rule_based"]
-    realistic = load_config("beyond-realistic")
-    assert realistic["env"] == load_config("safe-realistic")["env"]
+    realistic = load_config("beyond-realistic-teacher")
+    assert realistic["env"] == load_config("safe-realistic-teacher")["env"]
     assert realistic["train"] == beyond["train"]
     # docs/results.md §9's study ran `safe` with these --set overrides: the same runs
     teacher = (
@@ -127,25 +146,28 @@ def test_beyond_is_safe_with_a_faster_teacher_on_both_pedestrians():
         "train.imitation_corridor_margin=0.45",
         "train.imitation_lookahead=5",
     )
-    assert beyond.training_hash() == load_config("safe", teacher).training_hash()
+    assert beyond.training_hash() == load_config("safe-teacher", teacher).training_hash()
 
 
 def test_beyond_long_is_beyond_trained_twice_as_long():
-    beyond, long = load_config("beyond"), load_config("beyond-long")
+    beyond, long = load_config("beyond-teacher"), load_config("beyond-long-teacher")
     assert changed(long, beyond, "train") == {"num_episodes": 512}
     assert long["env"] == beyond["env"] and long["network"] == beyond["network"]
-    realistic = load_config("beyond-long-realistic")
-    assert realistic["env"] == load_config("beyond-realistic")["env"]
+    realistic = load_config("beyond-long-realistic-teacher")
+    assert realistic["env"] == load_config("beyond-realistic-teacher")["env"]
     assert realistic["train"] == long["train"]
     # docs/results.md §9 ("Longer training") ran `beyond` with this --set: the same runs
-    for name, base in (("beyond-long", "beyond"), ("beyond-long-realistic", "beyond-realistic")):
+    for name, base in (
+        ("beyond-long-teacher", "beyond-teacher"),
+        ("beyond-long-realistic-teacher", "beyond-realistic-teacher"),
+    ):
         longer = load_config(base, ["train.num_episodes=512"])
         assert load_config(name).training_hash() == longer.training_hash()
 
 
 def test_beyond_long_mixed_is_beyond_long_among_both_kinds():
     """docs/results.md §9 ("Trained among both kinds"): only the pedestrians differ."""
-    long, mixed = load_config("beyond-long"), load_config("beyond-long-mixed")
+    long, mixed = load_config("beyond-long-teacher"), load_config("beyond-long-mixed-teacher")
     assert mixed["train"] == long["train"] and mixed["network"] == long["network"]
     # the env id brings its registered preset: walking speeds up to 1.5 m/s
     assert changed(mixed, long, "env") == {"id": "UrbanPedestriansMixed-v0", "ped_speed_max": 1.5}
@@ -154,7 +176,7 @@ def test_beyond_long_mixed_is_beyond_long_among_both_kinds():
 def test_anticipate_is_beyond_long_mixed_with_an_anticipating_narrower_teacher():
     """docs/results.md §9 ("A teacher that anticipates"): only the imitated teacher
     differs; the compared rule-based agent and the exploration guide keep SPEC §6's rule."""
-    mixed, anticipate = load_config("beyond-long-mixed"), load_config("anticipate")
+    mixed, anticipate = load_config("beyond-long-mixed-teacher"), load_config("anticipate-teacher")
     assert anticipate["env"] == mixed["env"] and anticipate["network"] == mixed["network"]
     differ = changed(anticipate, mixed, "train")
     assert differ == {"imitation_horizon": 1.0, "imitation_corridor_margin": 0.3}, differ
@@ -165,22 +187,25 @@ def test_anticipate_is_beyond_long_mixed_with_an_anticipating_narrower_teacher()
 def test_anticipate_narrow_is_anticipate_with_a_025_m_teacher():
     """docs/results.md §9 ("A corridor margin of 0.25 m"): only the teacher's margin
     differs, and the preset trains what the documented ``--set`` study trained."""
-    anticipate, narrow = load_config("anticipate"), load_config("anticipate-narrow")
+    anticipate, narrow = load_config("anticipate-teacher"), load_config("anticipate-narrow-teacher")
     assert narrow["env"] == anticipate["env"] and narrow["network"] == anticipate["network"]
     differ = changed(narrow, anticipate, "train")
     assert differ == {"imitation_corridor_margin": 0.25}, differ
     assert narrow["rule_based"] == anticipate["rule_based"]
-    studied = load_config("anticipate", ["train.imitation_corridor_margin=0.25"])
+    studied = load_config("anticipate-teacher", ["train.imitation_corridor_margin=0.25"])
     assert narrow.training_hash() == studied.training_hash()
 
 
 def test_anticipate_narrow_dqn_is_its_ablation_and_trains_the_studied_runs():
     """docs/results.md §9 ("The memory, with the teacher"): only the network kind
     differs, and the preset trains what the documented ``--set`` study trained."""
-    narrow, ablation = load_config("anticipate-narrow"), load_config("anticipate-narrow-dqn")
+    narrow, ablation = (
+        load_config("anticipate-narrow-teacher"),
+        load_config("anticipate-narrow-dqn-teacher"),
+    )
     assert ablation["env"] == narrow["env"] and ablation["train"] == narrow["train"]
     assert changed(ablation, narrow, "network") == {"kind": "dqn"}
-    studied = load_config("anticipate-narrow", ["network.kind=dqn"])
+    studied = load_config("anticipate-narrow-teacher", ["network.kind=dqn"])
     assert ablation.training_hash() == studied.training_hash()
 
 
