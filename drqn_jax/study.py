@@ -48,7 +48,7 @@ from drqn_jax.recording import running_mean
 from drqn_jax.registry import registered_envs
 from drqn_jax.stats import t_interval
 from drqn_jax.sweep import Sweep, build_sweep
-from drqn_jax.train import NOT_LEARNED
+from drqn_jax.train import NOT_LEARNED, REWARD_ALONE
 
 __all__ = [
     "PAPER_TABLE_III",
@@ -237,7 +237,7 @@ def paper_rows() -> list[dict[str, Any]]:
             {
                 "label": "paper (CARLA)",
                 "agent": agent,
-                "teacher": NOT_LEARNED if agent == "rule-based" else "none (reward alone)",
+                "teacher": NOT_LEARNED if agent == "rule-based" else REWARD_ALONE,
                 "seeds": 1,
                 "episodes": PAPER_EPISODES,
                 "diverged": 0,

@@ -84,6 +84,7 @@ from drqn_jax.replay import (
 
 __all__ = [
     "NOT_LEARNED",
+    "REWARD_ALONE",
     "Hyperparams",
     "TrainConfig",
     "TrainState",
@@ -230,6 +231,8 @@ class Hyperparams:
 
 #: The teacher column of a policy that did not learn (the rule-based agent, …).
 NOT_LEARNED = "– (not learned)"
+#: The teacher column of an agent that learned from the reward alone.
+REWARD_ALONE = "none (reward alone)"
 
 
 def teacher_label(hp: Hyperparams) -> str:
@@ -245,7 +248,7 @@ def teacher_label(hp: Hyperparams) -> str:
         )
         if float(value) > 0.0
     ]
-    return " + ".join(teachers) or "none (reward alone)"
+    return " + ".join(teachers) or REWARD_ALONE
 
 
 def annealed(hp: Hyperparams, recorded: jax.Array, num_episodes: int) -> Hyperparams:

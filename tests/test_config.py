@@ -30,16 +30,16 @@ def test_presets_say_when_they_have_a_teacher():
     its name says ``teacher`` (and then it has one: guided exploration or imitation);
     a sweep whose name does not say so has no teacher at any point."""
     from drqn_jax.sweep import load_sweep
-    from drqn_jax.train import teacher_label
+    from drqn_jax.train import REWARD_ALONE, teacher_label
 
     for name in config_names():
         label = teacher_label(load_config(name).hyperparams())
-        assert (label != "none (reward alone)") == ("teacher" in name), (name, label)
+        assert (label != REWARD_ALONE) == ("teacher" in name), (name, label)
     for path in sorted(CONFIG_DIR.glob("*.toml")):
         if path.stem in config_names() or "teacher" in path.stem:
             continue
         for point in load_sweep(path).points:
-            assert teacher_label(point.config.hyperparams()) == "none (reward alone)", path
+            assert teacher_label(point.config.hyperparams()) == REWARD_ALONE, path
 
 
 def test_shipped_configs_load():
