@@ -126,22 +126,9 @@ def n_step_targets(
     on = jnp.asarray(value_rescale) == 1
     # Selected, not branched: with value_rescale = 0 the target is the paper's bit for bit.
     q_target_next = jnp.where(on, unrescale(q_target_next), q_target_next)
-    y = _n_step_returns(q_online_next, q_target_next, reward, terminated, mask, gamma, n_step)
-    return jnp.where(on, rescale(y), y)
-
-
-def _n_step_returns(
-    q_online_next: jax.Array,
-    q_target_next: jax.Array,
-    reward: jax.Array,
-    terminated: jax.Array,
-    mask: jax.Array,
-    gamma: float | jax.Array,
-    n_step: int,
-) -> jax.Array:
-    """The unrescaled n-step Double DQN targets (W, B) of :func:`n_step_targets`."""
     if n_step == 1:
-        return double_dqn_targets(q_online_next, q_target_next, reward, terminated, gamma)
+        y = double_dqn_targets(q_online_next, q_target_next, reward, terminated, gamma)
+        return jnp.where(on, rescale(y), y)
     steps = reward.shape[0]
     best = jnp.argmax(q_online_next, axis=-1)
     value = jnp.take_along_axis(q_target_next, best[..., None], axis=-1)[..., 0]  # (W, B)
@@ -164,7 +151,8 @@ def _n_step_returns(
         last = jnp.where(take, jnp.arange(steps)[:, None] + k, last)
         alive = take & ~term_k
     boot = jnp.take_along_axis(value, last, axis=0)
-    return ret + discount * (1.0 - done.astype(jnp.float32)) * boot
+    y = ret + discount * (1.0 - done.astype(jnp.float32)) * boot
+    return jnp.where(on, rescale(y), y)
 
 
 def large_margin(q: jax.Array, expert_action: jax.Array, margin: float | jax.Array) -> jax.Array:
