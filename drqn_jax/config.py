@@ -86,6 +86,7 @@ ADDED_LATER = {
     ("train", "select_by"): "return",
     ("train", "select_speed_floor"): 0.0,
     ("train", "value_rescale"): 0,
+    ("train", "burn_in"): 0,
     # The 2026-11-25 revision (docs/spec.md, "The paper's world"): runs before it had
     # pedestrians yielding for ever (the timeout applies to them too: no standoffs in
     # any world), the contact collision test, and no authors' zone.

@@ -164,6 +164,21 @@ def large_margin(q: jax.Array, expert_action: jax.Array, margin: float | jax.Arr
     return jnp.max(q + margin * other.astype(q.dtype), axis=-1) - q_expert
 
 
+def _unroll(network: Network, params: Any, windows: Windows, carry: Any, burn_in: int) -> jax.Array:
+    """Q-values (L + W + 1, B, A) of a window batch; with burn-in L the carry after
+    the first L observations is cut from the gradient, as R2D2 does."""
+    if not burn_in:
+        return network.unroll(params, windows.obs, carry, windows.resets)[0]
+    first, rest = (
+        jax.tree.map(lambda x: x[:burn_in], windows.obs),
+        jax.tree.map(lambda x: x[burn_in:], windows.obs),
+    )
+    q_burn, carry = network.unroll(params, first, carry, windows.resets[:burn_in])
+    carry = jax.lax.stop_gradient(carry)
+    q_rest, _ = network.unroll(params, rest, carry, windows.resets[burn_in:])
+    return jnp.concatenate([jax.lax.stop_gradient(q_burn), q_rest])
+
+
 def sequence_loss(
     online: Any,
     target: Any,
@@ -176,6 +191,7 @@ def sequence_loss(
     expert_weight: jax.Array | None = None,
     margin: float | jax.Array = 1.0,
     value_rescale: int | jax.Array = 0,
+    burn_in: int = 0,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Mean masked TD loss of a window batch (plus the imitation term), and diagnostics.
 
@@ -189,15 +205,17 @@ def sequence_loss(
             (0: none); both None (the paper): no imitation term.
         margin: the margin l of :func:`large_margin`.
         value_rescale: 1: R2D2's value rescaling (:func:`n_step_targets`); 0: the paper.
+        burn_in: static L: the windows' first L steps only warm the LSTM (R2D2's
+            burn-in; they are masked out of the loss and no gradient flows back
+            into them); 0: the paper, the LSTM starts from zeros.
     Returns:
         () float32 loss, and ``{"td_abs": mean |δ|, "q_mean": mean Q(s, a),
         "margin": mean weighted J_E}`` (``margin`` with an expert only).
     """
-    steps, batch = windows.action.shape
-    resets = jnp.zeros((steps + 1, batch), bool)
+    batch = windows.action.shape[1]
     carry = network.initial_carry((batch,))
-    q_online, _ = network.unroll(online, windows.obs, carry, resets)  # (W + 1, B, A)
-    q_target, _ = network.unroll(target, windows.obs, carry, resets)
+    q_online = _unroll(network, online, windows, carry, burn_in)  # (W + 1, B, A)
+    q_target = _unroll(network, target, windows, carry, burn_in)
     q_taken = jnp.take_along_axis(q_online[:-1], windows.action[..., None], axis=-1)[..., 0]
     y = n_step_targets(
         q_online[1:],

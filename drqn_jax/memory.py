@@ -122,7 +122,7 @@ def forward_bytes_per_step(network: NetworkConfig) -> int:
 def activation_bytes(config: Config) -> int:
     """Estimated temporaries of one gradient update (and of acting, which is smaller)."""
     train = config["train"]
-    samples = train["batch_size"] * (train["window"] + 1)
+    samples = train["batch_size"] * (train["burn_in"] + train["window"] + 1)
     forward = samples * forward_bytes_per_step(config.network_config())
     return int(ACTIVATION_FACTOR * forward)
 

@@ -90,8 +90,13 @@ class Windows:
         obs: Observation with leaves (W + 1, B, …), rasterised.
         records: GridInputs with leaves (W + 1, B, …): what ``obs`` was rasterised
             from (the true state's ego and pedestrians).
-        action, reward, terminated, mask: (W, B); ``mask`` is false on padding.
-        slot, start: (B,) int32, where each window came from.
+        action, reward, terminated, mask: (W, B); ``mask`` is false on padding
+            and on the burn-in steps.
+        slot, start: (B,) int32, where each window came from (``start``: its first
+            trained step).
+        resets: (W + 1, B) bool, where the LSTM starts afresh: at the episode's
+            first observation and before it, inside a burn-in reaching past the
+            episode's start (all false without burn-in: the carry starts at zero).
     """
 
     obs: Observation
@@ -102,6 +107,7 @@ class Windows:
     mask: jax.Array
     slot: jax.Array
     start: jax.Array
+    resets: jax.Array
 
 
 def init_replay(
@@ -238,6 +244,7 @@ def sample_windows(
     params: EnvParams,
     static: StaticEnvParams,
     window_start: int | jax.Array = WINDOW_INSIDE,
+    burn_in: int = 0,
 ) -> Windows:
     """Draw ``batch`` windows of ``window`` transitions from complete episodes.
 
@@ -248,6 +255,12 @@ def sample_windows(
     last step in 1 of every n − W + 1), or in ``[0, n − 1]`` with
     ``WINDOW_ANYWHERE`` (windows run into masked padding past the episode's end,
     and every step from the W-th on is in W of every n).
+
+    With ``burn_in`` = L > 0 (static; R2D2's burn-in) each window is preceded by
+    the L steps before its start, which only warm the LSTM: the returned windows
+    have L + W transitions, the first L masked out of the loss; steps before the
+    episode's start are padding, and the LSTM restarts at its first observation
+    (``resets``). The trained steps are those of ``burn_in = 0``'s windows.
     """
     key_slot, key_start = jax.random.split(key)
     logits = jnp.where(replay.complete, 0.0, -jnp.inf)
@@ -255,11 +268,13 @@ def sample_windows(
     n = replay.length[slot]
     last = jnp.where(window_start == WINDOW_ANYWHERE, n - 1, jnp.maximum(n - window, 0))
     start = jax.random.randint(key_start, (batch,), 0, last + 1)
-    t = start[None, :] + jnp.arange(window, dtype=jnp.int32)[:, None]  # (W, B)
-    mask = t < n[None, :]
-    t_obs = jnp.concatenate([t, t[-1:] + 1], axis=0)  # (W + 1, B)
-    t_obs = jnp.minimum(t_obs, replay.max_length)
-    t = jnp.minimum(t, replay.max_length - 1)
+    offsets = jnp.arange(-burn_in, window, dtype=jnp.int32)[:, None]  # (L + W, 1)
+    t = start[None, :] + offsets  # (L + W, B)
+    mask = (offsets >= 0) & (t < n[None, :])
+    t_obs = jnp.concatenate([t, t[-1:] + 1], axis=0)  # (L + W + 1, B)
+    resets = t_obs <= 0 if burn_in else jnp.zeros(t_obs.shape, bool)
+    t_obs = jnp.clip(t_obs, 0, replay.max_length)
+    t = jnp.clip(t, 0, replay.max_length - 1)
     records = jax.tree.map(lambda buf: buf[slot[None, :], t_obs], replay.records)
     prev = jnp.maximum(t_obs - 1, 0)
     last_action = jnp.where(t_obs == 0, NO_ACTION, replay.action[slot[None, :], prev])
@@ -272,4 +287,5 @@ def sample_windows(
         mask=mask,
         slot=slot,
         start=start,
+        resets=resets,
     )

@@ -282,6 +282,13 @@ class TrainConfig:
         default=1,
         metadata={"doc": "rewards summed per TD target, <= window (1 = the paper)"},
     )
+    burn_in: int = dataclasses.field(
+        default=0,
+        metadata={
+            "doc": "steps before each replayed window that only warm the LSTM, without "
+            "loss or gradient (R2D2's burn-in; 0 = the paper: the LSTM starts from zeros)"
+        },
+    )
     updates_per_step: int = 1
     chunk_iterations: int = 1000
     snapshots: int = dataclasses.field(
@@ -312,6 +319,8 @@ class TrainConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"TrainConfig.{name} = {value!r}: must be an integer >= 1")
+        if not isinstance(self.burn_in, int) or isinstance(self.burn_in, bool) or self.burn_in < 0:
+            raise ValueError(f"TrainConfig.burn_in = {self.burn_in!r}: must be an integer >= 0")
         if self.n_step > self.window:
             raise ValueError(
                 f"TrainConfig.n_step = {self.n_step}: must be <= window ({self.window}); "
@@ -589,6 +598,7 @@ def _make_train(config: TrainConfig) -> Trainer:
             env_params,
             env.static,
             hp.window_start,
+            config.burn_in,
         )
         states = jax.tree.map(lambda x: x[:-1], windows.records)  # s_t of each transition
         teacher = RULE_BASED_GUIDE.replace(
@@ -611,6 +621,7 @@ def _make_train(config: TrainConfig) -> Trainer:
             hp.imitation_weight * imitate.astype(jnp.float32),
             hp.imitation_margin,
             hp.value_rescale,
+            config.burn_in,
         )
         clamped, _ = clip(1.0).update(grads, ())
         grads = jax.tree.map(lambda c, g: jnp.where(hp.clip == CLIP_GRAD, c, g), clamped, grads)

@@ -166,6 +166,7 @@ def _windows(key, steps=4, batch=3, mask=None):
         mask=mask,
         slot=jnp.zeros((batch,), jnp.int32),
         start=jnp.zeros((batch,), jnp.int32),
+        resets=jnp.zeros((steps + 1, batch), bool),
     )
 
 
@@ -224,6 +225,27 @@ def test_padding_is_masked_out(small_net):
     grads_ref = jax.grad(lambda p: sequence_loss(p, target, w, net, 0.9)[0])(online)
     for a, b in zip(jax.tree.leaves(grads), jax.tree.leaves(grads_ref), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_burn_in_warms_the_lstm_without_loss_or_gradient(small_net):
+    """R2D2's burn-in: the first L steps of the windows only warm the LSTM. The loss
+    is the same number as unrolling them with the rest (they are masked), but no
+    gradient flows into them: the burn-in observations get none, the others do."""
+    net, online, target = small_net
+    burn, steps = 3, 4
+    mask = jnp.ones((burn + steps, 3), bool).at[:burn].set(False)
+    w = _windows(jax.random.key(5), steps=burn + steps, mask=mask)
+
+    def loss_of(grid, burn_in):
+        obs = w.obs.replace(grid=grid)
+        return sequence_loss(online, target, w.replace(obs=obs), net, 0.9, burn_in=burn_in)[0]
+
+    with_burn, through = loss_of(w.obs.grid, burn), loss_of(w.obs.grid, 0)
+    assert float(with_burn) == pytest.approx(float(through), rel=1e-6)
+    g_burn = np.asarray(jax.grad(loss_of)(w.obs.grid, burn))
+    g_through = np.asarray(jax.grad(loss_of)(w.obs.grid, 0))
+    assert not g_burn[:burn].any() and g_burn[burn:].any()
+    assert np.abs(g_through[:burn]).sum() > 0  # without the cut, gradients reach them
 
 
 def test_gradients_flow_only_to_online_and_grad_mode(small_net):

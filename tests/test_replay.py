@@ -135,6 +135,46 @@ def test_windows_stay_inside_one_complete_episode(
     assert not np.any(np.asarray(w.terminated)[~mask])
 
 
+BURN_IN = 5
+
+
+@jax.jit
+def _sample_burn_in(replay, key):
+    from drqn_jax.env.params import EnvParams
+
+    return sample_windows(replay, key, BATCH, WINDOW, EnvParams(), STATIC, WINDOW_INSIDE, BURN_IN)
+
+
+def test_burn_in_prepends_the_steps_before_each_window():
+    """R2D2's burn-in: the same trained windows as without it (same key), preceded by
+    the L steps before their start, masked out of the loss; steps before the
+    episode's start are padding and the LSTM restarts at its first observation."""
+    lengths = np.array([[12, 7], [20, 3], [15, 9], [4, 4]])
+    ids = np.arange(8).reshape(4, 2) + 1
+    replay = _fill(init_replay(6, MAX_LEN, 2, STATIC), lengths, ids)
+    key = jax.random.key(3)
+    plain, burnt = sample(replay, key, WINDOW_INSIDE), _sample_burn_in(replay, key)
+    np.testing.assert_array_equal(np.asarray(plain.slot), np.asarray(burnt.slot))
+    np.testing.assert_array_equal(np.asarray(plain.start), np.asarray(burnt.start))
+    for name in ("action", "reward", "terminated", "mask"):
+        np.testing.assert_array_equal(
+            np.asarray(getattr(burnt, name))[BURN_IN:], np.asarray(getattr(plain, name)), name
+        )
+    np.testing.assert_array_equal(np.asarray(burnt.obs.grid)[BURN_IN:], np.asarray(plain.obs.grid))
+    assert not np.asarray(burnt.mask)[:BURN_IN].any() and not np.asarray(plain.resets).any()
+    start = np.asarray(burnt.start)
+    t_obs = start[None, :] + np.arange(-BURN_IN, WINDOW + 1)[:, None]
+    np.testing.assert_array_equal(np.asarray(burnt.resets), t_obs <= 0)
+    # the burn-in observations are the episode's own steps before the window
+    stored_s = np.asarray(replay.records.s)
+    slot = np.asarray(burnt.slot)
+    for b in range(BATCH):
+        real = t_obs[:BURN_IN, b] >= 0
+        want = stored_s[slot[b], t_obs[:BURN_IN, b][real]]
+        np.testing.assert_array_equal(np.asarray(burnt.records.s)[:BURN_IN, b][real], want)
+    assert (start < BURN_IN).any() and (start >= BURN_IN).any()  # both kinds were drawn
+
+
 def test_window_start_anywhere_covers_the_last_steps_as_often_as_the_others():
     """One complete 20-step episode: inside, its last step is in 1 window of every
     13 and a middle step in 8 of 13; anywhere, both are in 8 of every 20."""

@@ -194,6 +194,33 @@ def test_value_rescale_reaches_the_gradient_update(tiny_chunked, update_n3):
     assert float(rescaled) != pytest.approx(float(plain), rel=1e-3)
 
 
+def test_burn_in_reaches_the_gradient_update(tiny_chunked):
+    """train.burn_in (static) is the sampler's and the loss's: the update's loss is
+    sequence_loss with burn-in on windows sampled with it (the replay is the same)."""
+    state, _ = tiny_chunked
+    config = dataclasses.replace(TINY, burn_in=2)
+    trainer = make_train(config)
+    learner = (state.online, state.target, state.opt_state, state.grad_steps)
+    key = jax.random.key(14)
+    _, loss = jax.jit(trainer.gradient_update)(
+        learner, key, state.replay, state.hparams, state.env_params
+    )
+
+    @jax.jit
+    def expected(state, key):
+        hp = state.hparams
+        static = trainer.env.static
+        w = sample_windows(
+            state.replay, key, 4, 4, state.env_params, static, hp.window_start, burn_in=2
+        )
+        assert w.action.shape == (6, 4)
+        return sequence_loss(
+            state.online, state.target, w, trainer.network, hp.gamma, hp.clip, burn_in=2
+        )[0]
+
+    assert float(loss) == pytest.approx(float(expected(state, key)), rel=1e-5)
+
+
 LANE_Y = float(lane_centre_y(drqn_jax.make("UrbanPedestrians-v0")[1]))
 TEACHER = RuleBasedParams(lookahead=12.0, corridor_margin=1.0, v_max=2.0)
 
