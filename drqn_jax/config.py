@@ -10,7 +10,7 @@ names only what it changes:
   An override ``env.id=...`` brings the new id's preset also where the file
   repeats the old id's (as a run's resolved ``config.toml`` does): a trained
   run is evaluated among other pedestrians with ``--set env.id=...``;
-* ``[network]``: ``kind``, ``conv``, ``recurrent``, ``hidden`` (Table I);
+* ``[network]``: ``kind``, ``conv``, ``recurrent``, ``hidden`` (Table I), ``frames``;
 * ``[train]``: the ``TrainConfig`` sizes (envs, episodes, replay, batch,
   window, update ratio, chunk) and every ``Hyperparams`` field (Table II);
 * ``[rule_based]``: the baseline's ``RuleBasedParams`` (SPEC §6);
@@ -87,6 +87,7 @@ ADDED_LATER = {
     ("train", "select_speed_floor"): 0.0,
     ("train", "value_rescale"): 0,
     ("train", "burn_in"): 0,
+    ("network", "frames"): 1,
     # The 2026-11-25 revision (docs/spec.md, "The paper's world"): runs before it had
     # pedestrians yielding for ever (the timeout applies to them too: no standoffs in
     # any world), the contact collision test, and no authors' zone.
@@ -122,6 +123,8 @@ def added_leaves(hparams: Hyperparams, env_params: EnvParams) -> dict[str, Any]:
     owners = {"train": ("hparams", hparams), "env": ("env_params", env_params)}
     fills: dict[str, Any] = dict(ADDED_STATE_LEAVES)
     for section, name in ADDED_LATER:
+        if section not in owners:  # a static setting (network shape): no leaf
+            continue
         leaf, values = owners[section]
         if name in {f.name for f in dataclasses.fields(values)}:
             fills[f".{leaf}.{name}"] = getattr(values, name)
@@ -430,7 +433,11 @@ class Config:
         net = self["network"]
         conv = tuple(tuple(layer) for layer in net["conv"])
         return NetworkConfig(
-            kind=net["kind"], conv=conv, recurrent=net["recurrent"], hidden=net["hidden"]
+            kind=net["kind"],
+            conv=conv,
+            recurrent=net["recurrent"],
+            hidden=net["hidden"],
+            frames=net["frames"],
         )
 
     def hyperparams(self) -> Hyperparams:

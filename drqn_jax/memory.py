@@ -105,9 +105,11 @@ def forward_bytes_per_step(network: NetworkConfig) -> int:
     The grid, each conv layer's gathered patches and output, the flattened
     features, the recurrent core (LSTM: 4 gates, h and c per layer, plus the
     second layer's ``[h1, speed, last action]`` input; ``dqn``: two dense
-    layers), the FC layer and the Q-values.
+    layers), the FC layer and the Q-values. A ``dqn`` stacking k grids sees a
+    grid of k times the channels.
     """
     h, w, c = network.grid_shape
+    c *= network.frames
     floats = h * w * c
     for kh, kw, stride, filters in network.conv:
         h, w = (h - kh) // stride + 1, (w - kw) // stride + 1

@@ -6,7 +6,9 @@ Layers (default widths, Table I):
   2×2 stride 2, 64, ReLU (VALID; 45×30 → 10×7 → 3×2 → 1×1) → flatten (64);
 * ``drqn``: LSTM1 (256) on the conv features → LSTM2 (256) fed
   ``[h1, speed, one-hot last action]``; ``dqn``: two dense ReLU layers in
-  their place (same inputs, no memory, empty carry);
+  their place (same inputs, no memory, empty carry); ``dqn`` with ``frames``
+  = k > 1 sees the last k grids stacked along the channels (the classic
+  frame-stacking DQN, Mnih et al. 2015), its carry the k − 1 grids before;
 * FC 256 ReLU → linear, 4 Q-values.
 
 The LSTM is the standard one (gates i, f, g, o; ``c' = σ(f)c + σ(i)tanh(g)``,
@@ -59,6 +61,8 @@ class NetworkConfig:
         conv: ``(kernel_h, kernel_w, stride, filters)`` per conv layer (Table I).
         recurrent: width of LSTM1 and LSTM2 (or of the dense layers for ``dqn``).
         hidden: width of the FC layer before the Q-values.
+        frames: for ``dqn``, how many of the last grids it sees stacked (1: the
+            current one only).
         grid_shape: ``(rows, cols, channels)`` of the observation grid.
         num_actions: number of Q-values.
     """
@@ -67,16 +71,22 @@ class NetworkConfig:
     conv: tuple[tuple[int, int, int, int], ...] = ((8, 6, 4, 32), (4, 3, 3, 64), (2, 2, 2, 64))
     recurrent: int = 256
     hidden: int = 256
+    frames: int = 1
     grid_shape: tuple[int, int, int] = (45, 30, 4)
     num_actions: int = NUM_ACTIONS
 
     def __post_init__(self) -> None:
         if self.kind not in NETWORK_KINDS:
             raise ValueError(f"NetworkConfig.kind = {self.kind!r}: must be one of {NETWORK_KINDS}")
-        for name in ("recurrent", "hidden", "num_actions"):
+        for name in ("recurrent", "hidden", "frames", "num_actions"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"NetworkConfig.{name} = {value!r}: must be an integer >= 1")
+        if self.frames > 1 and self.kind != "dqn":
+            raise ValueError(
+                f"NetworkConfig.frames = {self.frames}: stacking grids is for kind 'dqn' "
+                f"(kind {self.kind!r} remembers through its LSTMs); use 1"
+            )
         h, w, _ = self.grid_shape
         for kh, kw, stride, filters in self.conv:
             if min(kh, kw, stride, filters) < 1:
@@ -220,15 +230,48 @@ def _extra_inputs(obs: Observation, num_actions: int) -> jax.Array:
     return jnp.concatenate([obs.speed[..., None].astype(jnp.float32), one_hot], axis=-1)
 
 
+def _stacked(seen: jax.Array) -> jax.Array:
+    """(..., k, rows, cols, C) grids, oldest first -> (..., rows, cols, k·C)."""
+    moved = jnp.moveaxis(seen, -4, -2)  # (..., rows, cols, k, C)
+    return moved.reshape((*moved.shape[:-2], -1))
+
+
+def _stack_sequence(
+    grid: jax.Array, carry: jax.Array, resets: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """The stacked grids (T, B..., rows, cols, k·C) of a time-major sequence
+    (T, B..., rows, cols, C) whose k − 1 grids before are ``carry`` (B..., k − 1,
+    …), and the carry after it. A grid before the latest reset at or before t
+    (an episode's start) is zeros in step t's stack, as :meth:`step` sees it
+    after a reset carry."""
+    k = carry.shape[-4] + 1
+    steps = grid.shape[0]
+    before = jnp.moveaxis(carry, -4, 0)  # (k - 1, B..., rows, cols, C)
+    frames = jnp.concatenate([before, grid])  # (k - 1 + T, B..., …)
+    t = jnp.arange(steps)
+    lead = resets.shape[1:]
+    index = jnp.broadcast_to(t.reshape((steps,) + (1,) * len(lead)), resets.shape)
+    last_reset = jax.lax.cummax(jnp.where(resets, index, -steps - k), axis=0)  # (T, B...)
+    stacked = []
+    for j in range(k):  # frame t - (k - 1) + j of step t
+        when = index - (k - 1) + j
+        keep = (when >= last_reset)[..., None, None, None]
+        stacked.append(jnp.where(keep, frames[j : j + steps], 0.0))
+    seen = jnp.stack(stacked, axis=-4)  # (T, B..., k, rows, cols, C)
+    return _stacked(seen), seen[-1, ..., 1:, :, :, :]
+
+
 def make_network(config: NetworkConfig | None = None) -> Network:
     """Build the pure functions of a DRQN (or DQN) for ``config``."""
     config = NetworkConfig() if config is None else config
     width, n_act = config.recurrent, config.num_actions
     n_extra = 1 + n_act
 
+    frames = config.frames
+
     def init(key: jax.Array) -> Params:
         keys = jax.random.split(key, len(config.conv) + 4)
-        conv, c_in = [], config.grid_shape[2]
+        conv, c_in = [], config.grid_shape[2] * frames
         for k, (kh, kw, _, filters) in zip(keys, config.conv, strict=False):
             fan_in, fan_out = kh * kw * c_in, kh * kw * filters
             conv.append(
@@ -258,7 +301,7 @@ def make_network(config: NetworkConfig | None = None) -> Network:
 
     def initial_carry(batch_shape: tuple[int, ...] = ()) -> Carry:
         if config.kind == "dqn":
-            return ()
+            return () if frames == 1 else jnp.zeros((*batch_shape, frames - 1, *config.grid_shape))
         zeros = jnp.zeros((*batch_shape, width), jnp.float32)
         return ((zeros, zeros), (zeros, zeros))
 
@@ -277,7 +320,11 @@ def make_network(config: NetworkConfig | None = None) -> Network:
 
     def step(params: Params, obs: Observation, carry: Carry) -> tuple[jax.Array, Carry]:
         """Q-values (..., A) for one time step with any leading batch shape."""
-        features = conv_torso(params, obs.grid, config)
+        grid = obs.grid
+        if frames > 1:  # the carry holds the grids before: stack, keep the newest k - 1
+            seen = jnp.concatenate([carry, grid[..., None, :, :, :]], axis=-4)
+            grid, carry = _stacked(seen), seen[..., 1:, :, :, :]
+        features = conv_torso(params, grid, config)
         return core_step(params, features, _extra_inputs(obs, n_act), carry)
 
     def unroll(
@@ -288,8 +335,14 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         The conv stack runs on all T·B grids at once; the recurrent core is a
         ``lax.scan`` over T whose carry is zeroed where ``resets`` (T, B...) is true.
         """
-        features = conv_torso(params, obs_seq.grid, config)  # (T, B..., F)
+        grid = obs_seq.grid
+        if frames > 1:
+            grid, carry = _stack_sequence(grid, carry, resets)
+        features = conv_torso(params, grid, config)  # (T, B..., F)
         extra = _extra_inputs(obs_seq, n_act)
+        if frames > 1:  # the stacking above did the resets; the dense core has no carry
+            q, _ = core_step(params, features, extra, ())
+            return q, carry
 
         def body(carry, inputs):
             feat, ext, reset = inputs

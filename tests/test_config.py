@@ -91,6 +91,14 @@ def test_default_is_the_budget_with_the_safety_recipe():
     }
 
 
+def test_dqn_stack_is_default_with_a_frame_stacking_dqn():
+    default, stack = load_config("default"), load_config("dqn-stack")
+    assert changed(stack, default, "network") == {"kind": "dqn", "frames": 4}
+    assert stack["train"] == default["train"] and stack["env"] == default["env"]
+    assert stack.network_config().frames == 4 and "frames" in stack.training_dict()["network"]
+    assert "frames" not in default.training_dict()["network"]  # runs from before still match
+
+
 def test_realistic_extends_default_with_walking_speeds():
     default, realistic = load_config("default"), load_config("realistic")
     assert realistic["env"]["id"] == "UrbanPedestriansRealistic-v0"

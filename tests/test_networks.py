@@ -124,6 +124,46 @@ def test_memory_matters_for_drqn_not_dqn():
         assert net.initial_carry((1,)) == () if kind == "dqn" else True
 
 
+STACKED = NetworkConfig(kind="dqn", recurrent=32, hidden=32, frames=3)
+
+
+def test_frame_stacking_dqn_sees_the_last_grids_and_restarts_with_the_episode():
+    """``frames`` = k: the DQN's input is its last k grids (zeros before an episode's
+    start). unroll ≡ repeated steps, with a reset; the grid 2 steps back changes the
+    Q-values, the grid 3 steps back does not; k = 1 keeps the memoryless DQN."""
+    net = make_network(STACKED)
+    params = net.init(jax.random.key(0))
+    assert params["conv"][0]["w"].shape[2] == 3 * 4
+    steps, batch = 6, 2
+    obs = _obs(jax.random.key(4), (steps, batch))
+    resets = jnp.zeros((steps, batch), bool).at[3, 1].set(True)
+    q_seq, final = jax.jit(net.unroll)(params, obs, net.initial_carry((batch,)), resets)
+    carry, step = net.initial_carry((batch,)), jax.jit(net.step)
+    assert carry.shape == (batch, 2, 45, 30, 4)
+    for t in range(steps):
+        carry = jnp.where(resets[t][:, None, None, None, None], 0.0, carry)
+        q, carry = step(params, jax.tree.map(lambda x, t=t: x[t], obs), carry)
+        np.testing.assert_allclose(np.asarray(q_seq[t]), np.asarray(q), rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(final), np.asarray(carry))
+    # env 1 restarted at t = 3: its grids before are gone from steps 3 and 4
+    no_reset = jnp.zeros((steps, batch), bool)
+    changed = obs.replace(grid=obs.grid.at[1, 1].set(0.0).at[2, 1].set(0.0))
+    q_changed, _ = net.unroll(params, changed, net.initial_carry((batch,)), resets)
+    np.testing.assert_array_equal(np.asarray(q_changed[3:, 1]), np.asarray(q_seq[3:, 1]))
+    q_a, _ = net.unroll(params, obs, net.initial_carry((batch,)), no_reset)
+    q_changed, _ = net.unroll(params, changed, net.initial_carry((batch,)), no_reset)
+    assert not np.allclose(np.asarray(q_changed[3, 1]), np.asarray(q_a[3, 1]))
+    # without a reset, zeroing the grids before is the reset: the same stack
+    np.testing.assert_array_equal(np.asarray(q_changed[3, 1]), np.asarray(q_seq[3, 1]))
+    # the window is k grids: grid 0 reaches steps 0-2, not step 3
+    zero_first = obs.replace(grid=obs.grid.at[0].set(0.0))
+    q_b, _ = net.unroll(params, zero_first, net.initial_carry((batch,)), no_reset)
+    assert not np.allclose(np.asarray(q_a[2]), np.asarray(q_b[2]))
+    np.testing.assert_array_equal(np.asarray(q_a[3:]), np.asarray(q_b[3:]))
+    with pytest.raises(ValueError, match="frames = 2: stacking grids is for kind 'dqn'"):
+        NetworkConfig(kind="drqn", frames=2)
+
+
 def test_config_validation():
     with pytest.raises(ValueError, match="kind"):
         NetworkConfig(kind="transformer")
