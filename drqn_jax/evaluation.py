@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from drqn_jax.agents.base import Agent
-from drqn_jax.env.params import EnvParams
+from drqn_jax.env.params import KMH, EnvParams
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.pytree import pytree_dataclass
 
@@ -38,7 +38,7 @@ __all__ = [
 Z_95 = 1.959963984540054  # two-sided 95 % normal quantile
 
 #: m/s: the authors' average speed counts the steps faster than 0.5 km/h (``tester.py``).
-AUTHORS_MOVING_SPEED = 0.5 / 3.6
+AUTHORS_MOVING_SPEED = 0.5 * KMH
 
 
 @pytree_dataclass

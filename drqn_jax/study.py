@@ -48,7 +48,7 @@ from drqn_jax.recording import running_mean
 from drqn_jax.registry import registered_envs
 from drqn_jax.stats import t_interval
 from drqn_jax.sweep import Sweep, build_sweep
-from drqn_jax.train import NOT_LEARNED, REWARD_ALONE
+from drqn_jax.train import NOT_LEARNED, REWARD_ALONE, teachers_of
 
 __all__ = [
     "PAPER_TABLE_III",
@@ -202,7 +202,7 @@ def study_row(label: str, agent: str, runs: Sequence[Mapping[str, Any]]) -> dict
     return {
         "label": label,
         "agent": agent,
-        "teacher": " / ".join(sorted({r.get("teacher") or "–" for r in runs})),
+        "teacher": teachers_of(runs),
         "seeds": len(runs),
         "episodes": int(episodes[0]),
         "diverged": sum(bool(r.get("diverged")) for r in runs),

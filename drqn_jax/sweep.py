@@ -47,6 +47,7 @@ from drqn_jax.config import (
     toml_value,
 )
 from drqn_jax.stats import interquartile_mean, t_interval
+from drqn_jax.train import teachers_of
 
 __all__ = [
     "STRATEGIES",
@@ -283,7 +284,7 @@ def summarize_sweep(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     for key, runs in settings.items():
         diverged = sum(bool(r.get("diverged")) for r in runs)
         row: dict[str, Any] = {"setting": dict(key), "runs": len(runs), "diverged": diverged}
-        row["teacher"] = " / ".join(sorted({r.get("teacher") or "–" for r in runs}))
+        row["teacher"] = teachers_of(runs)
         for metric in TABLE_METRICS:
             # None: a non-finite number in JSON; absent: a run evaluated before the metric
             x = np.array([r.get(metric) for r in runs], np.float64)

@@ -91,6 +91,7 @@ __all__ = [
     "Trainer",
     "make_train",
     "teacher_label",
+    "teachers_of",
 ]
 
 #: ``fold_in`` index of the draw that picks a guided exploratory action: a
@@ -249,6 +250,12 @@ def teacher_label(hp: Hyperparams) -> str:
         if float(value) > 0.0
     ]
     return " + ".join(teachers) or REWARD_ALONE
+
+
+def teachers_of(results: Any) -> str:
+    """The teacher column of a row pooling several runs' results (their distinct
+    ``teacher`` labels; – for results written before the column existed)."""
+    return " / ".join(sorted({r.get("teacher") or "–" for r in results}))
 
 
 def annealed(hp: Hyperparams, recorded: jax.Array, num_episodes: int) -> Hyperparams:
