@@ -298,7 +298,7 @@ def synthetic_replay(
     )
     opt_state = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps).init(online)
     learner = (online, online, opt_state, jnp.zeros((), jnp.int32))
-    replay = init_replay(cfg.replay_episodes, static.max_steps, cfg.num_envs, static)
+    replay = init_replay(cfg.replay_episodes, static.max_steps, cfg.num_envs, trainer.task.record)
     count = replay.records.s.size  # M × (L + 1) records
     index = jnp.arange(count) % records.s.shape[0]
     tiled = jax.tree.map(lambda b, x: x[index].reshape(b.shape), replay.records, records)

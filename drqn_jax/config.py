@@ -87,6 +87,7 @@ ADDED_LATER = {
     ("train", "select_speed_floor"): 0.0,
     ("train", "value_rescale"): 0,
     ("train", "burn_in"): 0,
+    ("train", "epsilon_fraction"): 1.0,
     ("network", "frames"): 1,
     # The 2026-11-25 revision (docs/spec.md, "The paper's world"): runs before it had
     # pedestrians yielding for ever (the timeout applies to them too: no standoffs in
@@ -172,7 +173,9 @@ def _fields_of(cls: type, skip: Sequence[str] = ()) -> dict[str, _Field]:
 
 
 def _schema() -> dict[str, dict[str, _Field]]:
-    network = _fields_of(NetworkConfig, skip=("grid_shape", "num_actions"))
+    network = _fields_of(
+        NetworkConfig, skip=("grid_shape", "num_actions", "torso", "mlp", "obs_size")
+    )
     network["kind"] = dataclasses.replace(network["kind"], choices=("drqn", "dqn"))
     train_sizes = _fields_of(TrainConfig)
     return {

@@ -11,6 +11,12 @@ Layers (default widths, Table I):
   frame-stacking DQN, Mnih et al. 2015), its carry the k − 1 grids before;
 * FC 256 ReLU → linear, 4 Q-values.
 
+The conv stack is the torso for the paper's grid observation. For an
+environment whose observation is a flat vector (any env of the gymnax
+contract, :mod:`drqn_jax.task`) the torso is an MLP instead (``torso =
+"mlp"``: dense ReLU layers of widths ``mlp``), and the core sees its features
+alone (no speed, no last action); the core and head are the same.
+
 The LSTM is the standard one (gates i, f, g, o; ``c' = σ(f)c + σ(i)tanh(g)``,
 ``h' = σ(o)tanh(c')``) with the forget-gate bias initialised to 1.
 
@@ -39,9 +45,12 @@ LSTMState = tuple[jax.Array, jax.Array]  # (h, c)
 Carry = Any
 
 NETWORK_KINDS = ("drqn", "dqn")
+#: What reads the observation: Table I's conv stack (grids) or an MLP (flat vectors).
+TORSOS = ("conv", "mlp")
 
 __all__ = [
     "NETWORK_KINDS",
+    "TORSOS",
     "Network",
     "NetworkConfig",
     "affine",
@@ -65,6 +74,11 @@ class NetworkConfig:
             current one only).
         grid_shape: ``(rows, cols, channels)`` of the observation grid.
         num_actions: number of Q-values.
+        torso: ``"conv"`` (the grid, speed and last action of the paper's env)
+            or ``"mlp"`` (a flat observation vector of ``obs_size`` floats);
+            chosen from the environment's observation by the trainer.
+        mlp: widths of the MLP torso's dense ReLU layers.
+        obs_size: length of the flat observation (``torso = "mlp"``).
     """
 
     kind: str = "drqn"
@@ -74,10 +88,26 @@ class NetworkConfig:
     frames: int = 1
     grid_shape: tuple[int, int, int] = (45, 30, 4)
     num_actions: int = NUM_ACTIONS
+    torso: str = "conv"
+    mlp: tuple[int, ...] = (64,)
+    obs_size: int = 0
 
     def __post_init__(self) -> None:
         if self.kind not in NETWORK_KINDS:
             raise ValueError(f"NetworkConfig.kind = {self.kind!r}: must be one of {NETWORK_KINDS}")
+        if self.torso not in TORSOS:
+            raise ValueError(f"NetworkConfig.torso = {self.torso!r}: must be one of {TORSOS}")
+        if self.torso == "mlp":
+            if self.obs_size < 1 or any(not isinstance(w, int) or w < 1 for w in self.mlp):
+                raise ValueError(
+                    f"NetworkConfig.mlp = {self.mlp!r}, obs_size = {self.obs_size!r}: the MLP "
+                    "torso needs integer widths >= 1 and a flat observation of >= 1 floats"
+                )
+            if self.frames > 1:
+                raise ValueError(
+                    f"NetworkConfig.frames = {self.frames}: stacking is for grids (torso "
+                    "'conv'); use 1"
+                )
         for name in ("recurrent", "hidden", "frames", "num_actions"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
@@ -87,6 +117,10 @@ class NetworkConfig:
                 f"NetworkConfig.frames = {self.frames}: stacking grids is for kind 'dqn' "
                 f"(kind {self.kind!r} remembers through its LSTMs); use 1"
             )
+        if self.torso == "conv":
+            self._check_conv()
+
+    def _check_conv(self) -> None:
         h, w, _ = self.grid_shape
         for kh, kw, stride, filters in self.conv:
             if min(kh, kw, stride, filters) < 1:
@@ -108,8 +142,17 @@ class NetworkConfig:
 
     @property
     def features(self) -> int:
-        """Width of the flattened conv output (64)."""
+        """Width of the torso's output: the flattened conv output (64), or the
+        MLP's last layer."""
+        if self.torso == "mlp":
+            return self.mlp[-1] if self.mlp else self.obs_size
         return math.prod(self.conv_output_shape)
+
+    @property
+    def extra_inputs(self) -> int:
+        """Width of what LSTM2 (or dense2) sees beside LSTM1's output: speed and the
+        one-hot last action (1 + A) with the conv torso, nothing with the MLP."""
+        return 1 + self.num_actions if self.torso == "conv" else 0
 
 
 class Network(NamedTuple):
@@ -224,6 +267,14 @@ def _kernel_matrix(w: jax.Array) -> jax.Array:
     return w.reshape(-1, w.shape[-1])
 
 
+def mlp_torso(params: Params, obs: jax.Array) -> jax.Array:
+    """Dense ReLU layers on flat observations of any leading shape: (..., n) -> (..., width)."""
+    x = obs.astype(jnp.float32)
+    for layer in params["torso"]:
+        x = jax.nn.relu(affine(x, layer["w"], layer["b"]))
+    return x
+
+
 def _extra_inputs(obs: Observation, num_actions: int) -> jax.Array:
     """``[speed, one-hot last action]`` (..., 1 + A); a last action of -1 is all zeros."""
     one_hot = jax.nn.one_hot(obs.last_action, num_actions, dtype=jnp.float32)
@@ -265,23 +316,36 @@ def make_network(config: NetworkConfig | None = None) -> Network:
     """Build the pure functions of a DRQN (or DQN) for ``config``."""
     config = NetworkConfig() if config is None else config
     width, n_act = config.recurrent, config.num_actions
-    n_extra = 1 + n_act
+    n_extra = config.extra_inputs
+    conv = config.torso == "conv"
 
     frames = config.frames
 
-    def init(key: jax.Array) -> Params:
-        keys = jax.random.split(key, len(config.conv) + 4)
-        conv, c_in = [], config.grid_shape[2] * frames
+    def init_torso(keys: jax.Array) -> Params:
+        if not conv:
+            widths = (config.obs_size, *config.mlp)
+            return {
+                "torso": [
+                    _dense_init(k, n_in, n_out)
+                    for k, n_in, n_out in zip(keys, widths[:-1], widths[1:], strict=False)
+                ]
+            }
+        layers, c_in = [], config.grid_shape[2] * frames
         for k, (kh, kw, _, filters) in zip(keys, config.conv, strict=False):
             fan_in, fan_out = kh * kw * c_in, kh * kw * filters
-            conv.append(
+            layers.append(
                 {
                     "w": _glorot(k, (kh, kw, c_in, filters), fan_in, fan_out),
                     "b": jnp.zeros((filters,), jnp.float32),
                 }
             )
             c_in = filters
-        k1, k2, k3, k4 = keys[len(config.conv) :]
+        return {"conv": layers}
+
+    def init(key: jax.Array) -> Params:
+        n_torso = len(config.conv) if conv else len(config.mlp)
+        keys = jax.random.split(key, n_torso + 4)
+        k1, k2, k3, k4 = keys[n_torso:]
         if config.kind == "drqn":
             core = {
                 "lstm1": _lstm_init(k1, config.features, width),
@@ -293,7 +357,7 @@ def make_network(config: NetworkConfig | None = None) -> Network:
                 "dense2": _dense_init(k2, width + n_extra, width),
             }
         return {
-            "conv": conv,
+            **init_torso(keys[:n_torso]),
             **core,
             "fc": _dense_init(k3, width, config.hidden),
             "q": _dense_init(k4, config.hidden, n_act),
@@ -318,34 +382,41 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         hidden = jax.nn.relu(affine(h2, params["fc"]["w"], params["fc"]["b"]))
         return affine(hidden, params["q"]["w"], params["q"]["b"]), carry
 
-    def step(params: Params, obs: Observation, carry: Carry) -> tuple[jax.Array, Carry]:
+    def inputs(params: Params, obs: Any) -> tuple[jax.Array, jax.Array]:
+        """The torso's features and the extra inputs of unstacked observations."""
+        if not conv:
+            features = mlp_torso(params, obs)
+            return features, features[..., :0]
+        return conv_torso(params, obs.grid, config), _extra_inputs(obs, n_act)
+
+    def step(params: Params, obs: Any, carry: Carry) -> tuple[jax.Array, Carry]:
         """Q-values (..., A) for one time step with any leading batch shape."""
+        if not conv or frames == 1:
+            return core_step(params, *inputs(params, obs), carry)
         grid = obs.grid
-        if frames > 1:  # the carry holds the grids before: stack, keep the newest k - 1
-            seen = jnp.concatenate([carry, grid[..., None, :, :, :]], axis=-4)
-            grid, carry = _stacked(seen), seen[..., 1:, :, :, :]
+        # the carry holds the grids before: stack, keep the newest k - 1
+        seen = jnp.concatenate([carry, grid[..., None, :, :, :]], axis=-4)
+        grid, carry = _stacked(seen), seen[..., 1:, :, :, :]
         features = conv_torso(params, grid, config)
         return core_step(params, features, _extra_inputs(obs, n_act), carry)
 
     def unroll(
-        params: Params, obs_seq: Observation, carry: Carry, resets: jax.Array
+        params: Params, obs_seq: Any, carry: Carry, resets: jax.Array
     ) -> tuple[jax.Array, Carry]:
         """Q-values (T, B..., A) over a time-major sequence.
 
-        The conv stack runs on all T·B grids at once; the recurrent core is a
+        The torso runs on all T·B observations at once; the recurrent core is a
         ``lax.scan`` over T whose carry is zeroed where ``resets`` (T, B...) is true.
         """
-        grid = obs_seq.grid
-        if frames > 1:
-            grid, carry = _stack_sequence(grid, carry, resets)
-        features = conv_torso(params, grid, config)  # (T, B..., F)
-        extra = _extra_inputs(obs_seq, n_act)
-        if frames > 1:  # the stacking above did the resets; the dense core has no carry
-            q, _ = core_step(params, features, extra, ())
+        if frames > 1:  # the stacking does the resets; the dense core has no carry
+            grid, carry = _stack_sequence(obs_seq.grid, carry, resets)
+            features = conv_torso(params, grid, config)  # (T, B..., F)
+            q, _ = core_step(params, features, _extra_inputs(obs_seq, n_act), ())
             return q, carry
+        features, extra = inputs(params, obs_seq)
 
-        def body(carry, inputs):
-            feat, ext, reset = inputs
+        def body(carry, xs):
+            feat, ext, reset = xs
             carry = jax.tree.map(lambda x: jnp.where(reset[..., None], 0.0, x), carry)
             q, carry = core_step(params, feat, ext, carry)
             return carry, q

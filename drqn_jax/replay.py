@@ -1,10 +1,14 @@
 """Replay of whole episodes (paper Table II: M = 50; SPEC §7).
 
-Storage is compact: per observation a :class:`~drqn_jax.env.grid.GridInputs`
-record (6P + 2 floats) instead of the 45×30×4 grid, re-rasterised at sample
-time; per transition the action, reward and ``terminated`` flag. The speed and
-last-action inputs are rebuilt from the record and the stored actions. For
-M = 50 episodes of up to 1000 steps with P = 10 this is about 13 MB.
+Per observation the replay stores a *record*, any pytree the environment's
+task chooses (:mod:`drqn_jax.task`), and turns records into the network's
+observations at sample time with the task's ``observe``. For the paper's env
+the record is compact: a :class:`~drqn_jax.env.grid.GridInputs` (6P + 2
+floats) instead of the 45×30×4 grid, re-rasterised at sample time, the speed
+and last-action inputs rebuilt from the record and the stored actions (about
+13 MB for M = 50 episodes of up to 1000 steps with P = 10); for a flat-vector
+env it is the observation itself. Per transition the replay stores the
+action, reward and ``terminated`` flag.
 
 The ring holds M episode slots. With N parallel environments each writes its
 episodes, oldest first, into its own ``M // N`` slots, so two writers never
@@ -20,13 +24,18 @@ never crosses an episode start and never reads an unwritten step.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.env.grid import GridInputs, rasterize
-from drqn_jax.env.params import EnvParams, StaticEnvParams
-from drqn_jax.env.state import NO_ACTION, Observation
+from drqn_jax.env.state import NO_ACTION
 from drqn_jax.pytree import pytree_dataclass
+
+#: ``observe(records, last_action) -> observations``: the network's inputs of
+#: records with leaves (T, B, …) and the actions before them (T, B) int32.
+Observe = Callable[[Any, jax.Array], Any]
 
 __all__ = [
     "WINDOW_STARTS",
@@ -36,7 +45,6 @@ __all__ = [
     "begin_episodes",
     "end_episodes",
     "init_replay",
-    "observations",
     "replay_bytes",
     "sample_windows",
 ]
@@ -52,7 +60,7 @@ class EpisodeReplay:
     """Ring of M episode slots of up to L transitions, written by N environments.
 
     Attributes:
-        records: GridInputs with leaves (M, L + 1, …): the observations.
+        records: the task's records with leaves (M, L + 1, …): the observations.
         action: (M, L) int32; reward: (M, L) float32; terminated: (M, L) bool.
         length: (M,) int32, transitions stored in each slot.
         complete: (M,) bool, the slot holds a whole episode (may be sampled).
@@ -60,7 +68,7 @@ class EpisodeReplay:
         episodes: (N,) int32, episodes each environment has begun.
     """
 
-    records: GridInputs
+    records: Any
     action: jax.Array
     reward: jax.Array
     terminated: jax.Array
@@ -87,9 +95,10 @@ class Windows:
     """A sampled minibatch, time-major.
 
     Attributes:
-        obs: Observation with leaves (W + 1, B, …), rasterised.
-        records: GridInputs with leaves (W + 1, B, …): what ``obs`` was rasterised
-            from (the true state's ego and pedestrians).
+        obs: the network's observations, leaves (W + 1, B, …) (rasterised
+            grids for the paper's env).
+        records: the records with leaves (W + 1, B, …) that ``obs`` was made
+            from (for the paper's env the true state's ego and pedestrians).
         action, reward, terminated, mask: (W, B); ``mask`` is false on padding
             and on the burn-in steps.
         slot, start: (B,) int32, where each window came from (``start``: its first
@@ -99,8 +108,8 @@ class Windows:
             episode's start (all false without burn-in: the carry starts at zero).
     """
 
-    obs: Observation
-    records: GridInputs
+    obs: Any
+    records: Any
     action: jax.Array
     reward: jax.Array
     terminated: jax.Array
@@ -110,31 +119,21 @@ class Windows:
     resets: jax.Array
 
 
-def init_replay(
-    capacity: int, max_length: int, num_writers: int, static: StaticEnvParams
-) -> EpisodeReplay:
-    """An empty replay of ``capacity`` episodes of up to ``max_length`` transitions."""
+def init_replay(capacity: int, max_length: int, num_writers: int, record: Any) -> EpisodeReplay:
+    """An empty replay of ``capacity`` episodes of up to ``max_length`` transitions
+    whose observations are stored as pytrees shaped like ``record`` (one step's)."""
     if num_writers < 1 or capacity < 2 * num_writers:
         raise ValueError(
             f"replay capacity = {capacity} episodes: must be >= 2 × the number of parallel "
             f"environments ({num_writers}); each writes its own slots and needs one to fill "
             "while another holds a complete episode"
         )
-    m, n_obs, p = capacity, max_length + 1, static.num_pedestrians
-    f32 = jnp.float32
-    records = GridInputs(
-        s=jnp.zeros((m, n_obs), f32),
-        v=jnp.zeros((m, n_obs), f32),
-        position=jnp.zeros((m, n_obs, p, 2), f32),
-        velocity=jnp.zeros((m, n_obs, p, 2), f32),
-        heading=jnp.zeros((m, n_obs, p), f32),
-        speed=jnp.zeros((m, n_obs, p), f32),
-        visible=jnp.zeros((m, n_obs, p), bool),
-    )
+    m, n_obs = capacity, max_length + 1
+    records = jax.tree.map(lambda x: jnp.zeros((m, n_obs, *jnp.shape(x)), x.dtype), record)
     return EpisodeReplay(
         records=records,
         action=jnp.zeros((m, max_length), jnp.int32),
-        reward=jnp.zeros((m, max_length), f32),
+        reward=jnp.zeros((m, max_length), jnp.float32),
         terminated=jnp.zeros((m, max_length), bool),
         length=jnp.zeros((m,), jnp.int32),
         complete=jnp.zeros((m,), bool),
@@ -159,7 +158,7 @@ def _set(buffer: jax.Array, where: jax.Array, index: tuple, value: jax.Array) ->
     return buffer.at[(slot, *index[1:])].set(value, mode="drop", unique_indices=True)
 
 
-def begin_episodes(replay: EpisodeReplay, starting: jax.Array, first: GridInputs) -> EpisodeReplay:
+def begin_episodes(replay: EpisodeReplay, starting: jax.Array, first: Any) -> EpisodeReplay:
     """Writers flagged in ``starting`` (N,) start an episode with observation ``first``.
 
     Each takes the oldest of its own slots, which stops being sampleable.
@@ -186,7 +185,7 @@ def add_transition(
     action: jax.Array,
     reward: jax.Array,
     terminated: jax.Array,
-    next_record: GridInputs,
+    next_record: Any,
     active: jax.Array | None = None,
 ) -> EpisodeReplay:
     """Append one transition per writer (N,) to its current episode.
@@ -219,30 +218,12 @@ def end_episodes(replay: EpisodeReplay, ending: jax.Array) -> EpisodeReplay:
     return replay.replace(complete=_set(replay.complete, ending, (replay.slot,), ones))
 
 
-def observations(
-    records: GridInputs,
-    last_action: jax.Array,
-    params: EnvParams,
-    static: StaticEnvParams,
-) -> Observation:
-    """Rasterise records of any leading shape into observations (as the env does)."""
-    lead = records.s.shape
-    flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[len(lead) :])), records)
-    grid = jax.vmap(rasterize, (0, None, None))(flat, params, static)
-    return Observation(
-        grid=grid.reshape((*lead, *grid.shape[1:])),
-        speed=(records.v * (1.0 / params.v_ref)).astype(jnp.float32),
-        last_action=last_action.astype(jnp.int32),
-    )
-
-
 def sample_windows(
     replay: EpisodeReplay,
     key: jax.Array,
     batch: int,
     window: int,
-    params: EnvParams,
-    static: StaticEnvParams,
+    observe: Observe,
     window_start: int | jax.Array = WINDOW_INSIDE,
     burn_in: int = 0,
 ) -> Windows:
@@ -261,6 +242,9 @@ def sample_windows(
     have L + W transitions, the first L masked out of the loss; steps before the
     episode's start are padding, and the LSTM restarts at its first observation
     (``resets``). The trained steps are those of ``burn_in = 0``'s windows.
+
+    ``observe`` turns the windows' records into the network's observations
+    (:func:`observations` with the env's parameters for the paper's env).
     """
     key_slot, key_start = jax.random.split(key)
     logits = jnp.where(replay.complete, 0.0, -jnp.inf)
@@ -279,7 +263,7 @@ def sample_windows(
     prev = jnp.maximum(t_obs - 1, 0)
     last_action = jnp.where(t_obs == 0, NO_ACTION, replay.action[slot[None, :], prev])
     return Windows(
-        obs=observations(records, last_action, params, static),
+        obs=observe(records, last_action),
         records=records,
         action=replay.action[slot[None, :], t],
         reward=jnp.where(mask, replay.reward[slot[None, :], t], 0.0),

@@ -51,12 +51,23 @@ from drqn_jax.config import RENAMED_LEAVES, Config, added_leaves, load_config
 from drqn_jax.evaluation import evaluate
 from drqn_jax.networks import NETWORK_KINDS, Network
 from drqn_jax.train import (
-    METRIC_NAMES,
     NOT_LEARNED,
     Trainer,
     TrainState,
     make_train,
     teacher_label,
+)
+
+#: The order of ``metrics.csv``'s columns (a task's other metrics come after, by name).
+METRIC_COLUMNS = (
+    "episode_return",
+    "length",
+    "collision",
+    "goal",
+    "distance",
+    "mean_speed",
+    "epsilon",
+    "mean_loss",
 )
 
 __all__ = [
@@ -166,7 +177,13 @@ def recorded_metrics(state: TrainState | Mapping[str, Any]) -> dict[str, np.ndar
     metrics = {name: np.asarray(v) for name, v in source.items()}
     done = metrics["length"] > 0
     out = {"episode": np.flatnonzero(done)}
-    out.update({name: metrics[name][done] for name in METRIC_NAMES})
+    columns = sorted(
+        metrics,
+        key=lambda n: (
+            (METRIC_COLUMNS.index(n), n) if n in METRIC_COLUMNS else (len(METRIC_COLUMNS), n)
+        ),
+    )
+    out.update({name: metrics[name][done] for name in columns})
     return out
 
 

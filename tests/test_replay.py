@@ -10,7 +10,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from drqn_jax.env.grid import GridInputs
-from drqn_jax.env.params import StaticEnvParams
+from drqn_jax.env.params import EnvParams, StaticEnvParams
 from drqn_jax.replay import (
     WINDOW_ANYWHERE,
     WINDOW_INSIDE,
@@ -18,12 +18,22 @@ from drqn_jax.replay import (
     begin_episodes,
     end_episodes,
     init_replay,
-    observations,
     replay_bytes,
     sample_windows,
 )
+from drqn_jax.task import observations
 
 STATIC = StaticEnvParams(num_pedestrians=2)
+
+
+def _empty(static: StaticEnvParams) -> GridInputs:
+    return GridInputs.empty(static.num_pedestrians)
+
+
+def _observe(records, last_action):
+    return observations(records, last_action, EnvParams(), STATIC)
+
+
 MAX_LEN, WINDOW, BATCH = 20, 8, 64
 
 
@@ -78,9 +88,7 @@ def _fill(replay, lengths, episode_ids):
 
 
 def _sample(replay, key, window_start):  # always traced: one program for both modes
-    from drqn_jax.env.params import EnvParams
-
-    return sample_windows(replay, key, BATCH, WINDOW, EnvParams(), STATIC, window_start)
+    return sample_windows(replay, key, BATCH, WINDOW, _observe, window_start)
 
 
 sample = jax.jit(_sample)
@@ -101,7 +109,7 @@ def test_windows_stay_inside_one_complete_episode(
     capacity = max(capacity, 2 * writers)
     lengths = np.array(lengths[: episodes * writers]).reshape(episodes, writers)
     ids = np.arange(episodes * writers).reshape(episodes, writers) + 1
-    replay = _fill(init_replay(capacity, MAX_LEN, writers, STATIC), lengths, ids)
+    replay = _fill(init_replay(capacity, MAX_LEN, writers, _empty(STATIC)), lengths, ids)
     # sampling needs a complete episode (training starts learning only then)
     assume(bool(np.asarray(replay.complete).any()))
     w = sample(replay, jax.random.key(seed), window_start)
@@ -140,9 +148,7 @@ BURN_IN = 5
 
 @jax.jit
 def _sample_burn_in(replay, key):
-    from drqn_jax.env.params import EnvParams
-
-    return sample_windows(replay, key, BATCH, WINDOW, EnvParams(), STATIC, WINDOW_INSIDE, BURN_IN)
+    return sample_windows(replay, key, BATCH, WINDOW, _observe, WINDOW_INSIDE, BURN_IN)
 
 
 def test_burn_in_prepends_the_steps_before_each_window():
@@ -151,7 +157,7 @@ def test_burn_in_prepends_the_steps_before_each_window():
     episode's start are padding and the LSTM restarts at its first observation."""
     lengths = np.array([[12, 7], [20, 3], [15, 9], [4, 4]])
     ids = np.arange(8).reshape(4, 2) + 1
-    replay = _fill(init_replay(6, MAX_LEN, 2, STATIC), lengths, ids)
+    replay = _fill(init_replay(6, MAX_LEN, 2, _empty(STATIC)), lengths, ids)
     key = jax.random.key(3)
     plain, burnt = sample(replay, key, WINDOW_INSIDE), _sample_burn_in(replay, key)
     np.testing.assert_array_equal(np.asarray(plain.slot), np.asarray(burnt.slot))
@@ -178,7 +184,9 @@ def test_burn_in_prepends_the_steps_before_each_window():
 def test_window_start_anywhere_covers_the_last_steps_as_often_as_the_others():
     """One complete 20-step episode: inside, its last step is in 1 window of every
     13 and a middle step in 8 of 13; anywhere, both are in 8 of every 20."""
-    replay = _fill(init_replay(2, MAX_LEN, 1, STATIC), np.array([[20], [1]]), np.array([[1], [2]]))
+    replay = _fill(
+        init_replay(2, MAX_LEN, 1, _empty(STATIC)), np.array([[20], [1]]), np.array([[1], [2]])
+    )
     for window_start, expected_last, expected_middle in (
         (WINDOW_INSIDE, 1 / 13, 8 / 13),
         (WINDOW_ANYWHERE, 8 / 20, 8 / 20),
@@ -194,7 +202,7 @@ def test_window_start_anywhere_covers_the_last_steps_as_often_as_the_others():
 
 
 def test_only_whole_episodes_are_sampled_and_oldest_are_replaced():
-    replay = init_replay(2, MAX_LEN, 1, STATIC)
+    replay = init_replay(2, MAX_LEN, 1, _empty(STATIC))
     lengths = np.array([[5], [6], [7], [3]])
     replay = _fill(replay, lengths, np.array([[1], [2], [3], [4]]))
     # episodes 2 and 3 are complete (1 was replaced by 3); episode 4 is in progress in
@@ -207,7 +215,9 @@ def test_only_whole_episodes_are_sampled_and_oldest_are_replaced():
 
 
 def test_last_action_and_terminal_flags():
-    replay = _fill(init_replay(2, MAX_LEN, 1, STATIC), np.array([[5], [1]]), np.array([[1], [2]]))
+    replay = _fill(
+        init_replay(2, MAX_LEN, 1, _empty(STATIC)), np.array([[5], [1]]), np.array([[1], [2]])
+    )
     w = sample(replay, jax.random.key(1), WINDOW_INSIDE)
     b = 0
     assert int(w.start[b]) == 0  # 5 < window: the window starts at 0, padded
@@ -220,14 +230,14 @@ def test_last_action_and_terminal_flags():
 
 def test_too_many_writers_is_refused():
     with pytest.raises(ValueError, match="capacity"):
-        init_replay(5, MAX_LEN, 3, STATIC)
+        init_replay(5, MAX_LEN, 3, _empty(STATIC))
 
 
 def test_memory_of_the_paper_replay_fits_target():
-    replay = jax.eval_shape(lambda: init_replay(50, 1000, 1, StaticEnvParams()))
+    replay = jax.eval_shape(lambda: init_replay(50, 1000, 1, _empty(StaticEnvParams())))
     nbytes = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(replay))
     assert nbytes <= 32 * 2**20, nbytes
-    assert replay_bytes(init_replay(2, 10, 1, StaticEnvParams())) > 0
+    assert replay_bytes(init_replay(2, 10, 1, _empty(StaticEnvParams()))) > 0
 
 
 def test_rasterised_observation_equals_the_envs(env_params):

@@ -17,6 +17,7 @@ from drqn_jax.loss import sequence_loss
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.replay import WINDOW_ANYWHERE, sample_windows
 from drqn_jax.runner import init_program
+from drqn_jax.task import observations
 from drqn_jax.train import (
     IMITATION_STATES,
     Hyperparams,
@@ -28,6 +29,11 @@ from drqn_jax.train import (
 from tests.helpers import assert_tree_equal, take, tiny_train_config
 
 TINY = tiny_train_config()
+
+
+def _observe(state, static):
+    """The replay's ``observe`` of the paper's env with ``state``'s parameters."""
+    return lambda records, last: observations(records, last, state.env_params, static)
 
 
 @pytest.fixture(scope="module")
@@ -155,7 +161,7 @@ def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked, update_
     def losses(state, key):  # n = 3 and n = 1 on the windows the update samples
         hp = state.hparams
         static = trainer.env.static
-        w = sample_windows(state.replay, key, 4, 4, state.env_params, static, hp.window_start)
+        w = sample_windows(state.replay, key, 4, 4, _observe(state, static), hp.window_start)
         net = trainer.network
         return [
             sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, n)[0]
@@ -179,7 +185,7 @@ def test_value_rescale_reaches_the_gradient_update(tiny_chunked, update_n3):
     def losses(state, key):
         hp = state.hparams
         static = trainer.env.static
-        w = sample_windows(state.replay, key, 4, 4, state.env_params, static, hp.window_start)
+        w = sample_windows(state.replay, key, 4, 4, _observe(state, static), hp.window_start)
         net, n = trainer.network, TINY_N3.n_step
         return [
             sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, n, **kw)[0]
@@ -211,7 +217,7 @@ def test_burn_in_reaches_the_gradient_update(tiny_chunked):
         hp = state.hparams
         static = trainer.env.static
         w = sample_windows(
-            state.replay, key, 4, 4, state.env_params, static, hp.window_start, burn_in=2
+            state.replay, key, 4, 4, _observe(state, static), hp.window_start, burn_in=2
         )
         assert w.action.shape == (6, 4)
         return sequence_loss(
@@ -247,7 +253,7 @@ def test_imitation_reaches_the_gradient_update(tiny_chunked, update_n3):
     def expected(state, key, weight, everywhere, teacher):
         hp = state.hparams
         w = sample_windows(
-            state.replay, key, 4, 4, state.env_params, trainer.env.static, hp.window_start
+            state.replay, key, 4, 4, _observe(state, trainer.env.static), hp.window_start
         )
         states = jax.tree.map(lambda x: x[:-1], w.records)
         static = trainer.env.static

@@ -153,6 +153,20 @@ class GridInputs:
             visible=peds.visible,
         )
 
+    @classmethod
+    def empty(cls, num_pedestrians: int) -> GridInputs:
+        """Zeros shaped as one step's record (what a replay allocates per observation)."""
+        p, f32 = num_pedestrians, jnp.float32
+        return cls(
+            s=jnp.zeros((), f32),
+            v=jnp.zeros((), f32),
+            position=jnp.zeros((p, 2), f32),
+            velocity=jnp.zeros((p, 2), f32),
+            heading=jnp.zeros((p,), f32),
+            speed=jnp.zeros((p,), f32),
+            visible=jnp.zeros((p,), bool),
+        )
+
 
 def rasterize_grid(
     ego: EgoState, peds: PedestrianState, params: EnvParams, static: StaticEnvParams
