@@ -276,6 +276,14 @@ class TrainConfig:
                 f"TrainConfig.replay_episodes = {self.replay_episodes}: must be >= 2 × num_envs "
                 f"({2 * self.num_envs}); each environment writes its own replay slots"
             )
+        most_complete = self.num_envs * (self.replay_episodes // self.num_envs - 1)
+        if int(self.hyperparams.learning_starts) > most_complete:
+            starts = int(self.hyperparams.learning_starts)
+            raise ValueError(
+                f"Hyperparams.learning_starts = {starts}: must be <= {most_complete}, the most "
+                f"complete episodes a replay of {self.replay_episodes} holds while "
+                f"{self.num_envs} environments write (learning would never start)"
+            )
 
     def program_key(self) -> tuple:
         """Every field but ``hyperparams``: what a compiled program of ``make_train``'s

@@ -41,16 +41,19 @@ def chosen_candidate(validation: dict[str, jax.Array], hp: Hyperparams) -> jax.A
       return; the final parameters when none is as fast.
 
     Of equal candidates, the latest. The final parameters (K) while any metric
-    is NaN (not validated yet).
+    is NaN (not validated yet). A task that measures the return alone (a gymnax
+    env, :mod:`drqn_jax.task`) has no ``"safe"`` choice: the best return.
     """
     returns = validation["return"]
     last = returns.shape[-1] - 1
+    unusable = jnp.any(jnp.isnan(jnp.stack(list(validation.values()))))
+    if "speed" not in validation:  # a task that measures returns only: select_by "return"
+        return jnp.where(unusable, last, last - jnp.argmax(returns[::-1])).astype(jnp.int32)
     fast = validation["speed"] >= hp.select_speed_floor
     safest = jnp.max(jnp.where(fast, validation["collision_free"], -jnp.inf))
     safe = fast & (validation["collision_free"] == safest)
     score = jnp.where((hp.select_by != SELECT_SAFE) | safe, returns, -jnp.inf)
     best = last - jnp.argmax(score[::-1])
-    unusable = jnp.any(jnp.isnan(jnp.stack(list(validation.values()))))
     unusable |= (hp.select_by == SELECT_SAFE) & ~jnp.any(fast)
     return jnp.where(unusable, last, best).astype(jnp.int32)
 
@@ -64,19 +67,18 @@ def selection(validation: dict[str, Any] | None, hp: Hyperparams) -> dict[str, A
     if validation is None:
         return {}
     validation = {name: jnp.asarray(v) for name, v in validation.items()}
-    speed_kmh = validation["speed"] * 3.6
-    return {
-        "validation_returns": [float(r) for r in validation["return"]],
-        "validation_collision_free": [float(r) for r in validation["collision_free"]],
-        "validation_speed_kmh": [float(v) for v in speed_kmh],
-        "selected": int(chosen_candidate(validation, hp)),
-    }
+    out = {"validation_returns": [float(r) for r in validation["return"]]}
+    if "collision_free" in validation:
+        out["validation_collision_free"] = [float(r) for r in validation["collision_free"]]
+        out["validation_speed_kmh"] = [float(v) for v in validation["speed"] * 3.6]
+    return {**out, "selected": int(chosen_candidate(validation, hp))}
 
 
-def unvalidated(snapshots: int) -> dict[str, jax.Array]:
+def unvalidated(snapshots: int, names: tuple[str, ...] = VALIDATION_METRICS) -> dict:
     """``TrainState.validation`` before validation: NaN for each of the
-    ``snapshots`` + 1 candidates and each of ``VALIDATION_METRICS``."""
-    return {name: jnp.full((snapshots + 1,), jnp.nan, jnp.float32) for name in VALIDATION_METRICS}
+    ``snapshots`` + 1 candidates and each of ``names`` (the task's validation
+    metrics; the paper's env: ``VALIDATION_METRICS``)."""
+    return {name: jnp.full((snapshots + 1,), jnp.nan, jnp.float32) for name in names}
 
 
 def snapshot_thresholds(config: TrainConfig) -> tuple[int, ...]:

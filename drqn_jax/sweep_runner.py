@@ -397,7 +397,7 @@ def validation_program(
     after another."""
     cache_key = (trainer.config.program_key(), size, tuple(devices), strategy)
     if cache_key not in _VALIDATE:
-        nan = unvalidated(trainer.config.snapshots)
+        nan = unvalidated(trainer.config.snapshots, trainer.task.validation_metrics)
 
         def validate_if_real(state: TrainState, is_real: jax.Array) -> dict[str, jax.Array]:
             return jax.lax.cond(is_real, trainer.validation_metrics, lambda s: nan, state)

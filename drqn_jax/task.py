@@ -12,8 +12,10 @@ few things the learner needs beyond that contract:
   conv stack for the paper's grid (+ speed + last action), an MLP for a flat
   vector;
 * the per-episode metrics beyond return and length (``metrics``);
-* optionally a teacher (the rule-based agent, SPEC §6) and validation
-  episodes (snapshot selection), which only the paper's env has.
+* greedy validation episodes (snapshot selection): return, collision-free
+  share and speed for the paper's env, the return for others;
+* optionally a teacher (the rule-based agent, SPEC §6), which only the
+  paper's env has.
 
 :func:`urban_task` is the paper's env (``drqn_jax`` ids, :mod:`drqn_jax.registry`);
 :func:`gymnax_task` any gymnax env (ids ``"gymnax:<name>"``, e.g.
@@ -49,6 +51,7 @@ __all__ = [
     "Step",
     "Task",
     "Teacher",
+    "greedy_returns",
     "gymnax_task",
     "make_task",
     "observations",
@@ -110,8 +113,9 @@ class Task(NamedTuple):
         episode_metrics: ``(step, length, params) -> {name: (N,)}`` of ``metrics``.
         explore_bias: ``hp -> (A,)`` the action distribution of biased exploration.
         teacher: the rule-based agent, or None (no guidance, no imitation).
-        validate: ``(network, params, keys, env_params) -> {metric: ()}`` for
-            snapshot selection, or None (no snapshots).
+        validate: ``(network, params, keys, env_params) -> {metric: ()}``, the
+            candidates' greedy validation episodes (snapshot selection).
+        validation_metrics: the names ``validate`` returns.
     """
 
     env_id: str
@@ -128,8 +132,9 @@ class Task(NamedTuple):
     metrics: tuple[tuple[str, Any], ...]
     episode_metrics: Callable[[Step, jax.Array, Any], dict[str, jax.Array]]
     explore_bias: Callable[[Any], jax.Array]
+    validate: Callable[..., dict[str, jax.Array]]
+    validation_metrics: tuple[str, ...]
     teacher: Teacher | None = None
-    validate: Callable[..., dict[str, jax.Array]] | None = None
 
 
 def make_task(env_id: str, overrides: tuple[tuple[str, Any], ...] = ()) -> Task:
@@ -216,6 +221,7 @@ def urban_task(env_id: str = "UrbanPedestrians-v0", **overrides: Any) -> Task:
         validate=lambda network, params, keys, env_params: _urban_validation(
             env, network, params, keys, env_params
         ),
+        validation_metrics=("return", "collision_free", "speed"),
     )
 
 
@@ -278,7 +284,7 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
             {},
         )
 
-    return Task(
+    task = Task(
         env_id=GYMNAX_PREFIX + name,
         env=env,
         env_params=params,
@@ -295,31 +301,63 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
         metrics=(),
         episode_metrics=lambda step, length, params: {},
         explore_bias=lambda hp: jnp.full((n_actions,), 1.0 / n_actions),
+        validate=lambda network, params, keys, env_params: {
+            "return": jnp.mean(greedy_returns(task, network, params, keys, env_params))
+        },
+        validation_metrics=("return",),
     )
+    return task
+
+
+def greedy_returns(
+    task: Task, network: Any, params: Any, keys: jax.Array, env_params: Any = None
+) -> jax.Array:
+    """(E,) float32 returns of the greedy network (``argmax Q``, its carry from
+    zeros) over one episode of ``task`` per key of ``keys`` (E,)."""
+
+    def act(obs, carry):
+        q, carry = network.step(params, obs, carry)
+        return jnp.argmax(q).astype(jnp.int32), carry
+
+    def play(key):
+        return play_greedy(task, act, network.initial_carry(()), key, env_params)[0]
+
+    return jax.vmap(play)(keys)
 
 
 def play_greedy(
-    task: Task, act: Callable[[Any, Any], tuple[jax.Array, Any]], carry: Any, key: jax.Array
+    task: Task,
+    act: Callable[[Any, Any], tuple[jax.Array, Any]],
+    carry: Any,
+    key: jax.Array,
+    env_params: Any = None,
 ) -> tuple[jax.Array, jax.Array]:
-    """Play one episode of ``task`` (default parameters) with ``act(obs, carry) ->
-    (action, carry)`` from ``carry``: its return () float32 and length () int32.
+    """Play one episode of ``task`` (``env_params``, default the task's) with
+    ``act(obs, carry) -> (action, carry)`` from ``carry``: its return () float32
+    and length () int32.
 
     Runs ``max_steps`` steps (branch-free under ``vmap``); steps after the
     episode's end are not counted.
     """
+    env_params = task.env_params if env_params is None else env_params
     k_reset, k_run = jax.random.split(key)
-    obs, state = task.reset(k_reset, task.env_params)
+    obs, state = task.reset(k_reset, env_params)
 
     def body(loop, k):
         obs, state, carry, ret, length, done = loop
         action, carry = act(obs, carry)
-        out = task.step(k, state, action, task.env_params)
+        out = task.step(k, state, action, env_params)
         live = ~done
         ret = ret + jnp.where(live, out.reward, 0.0)
         length = length + live.astype(jnp.int32)
         done = done | out.terminated | out.truncated
         return (out.obs, out.state, carry, ret, length, done), None
 
-    init = (obs, state, carry, jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32), False)
+    zero_f, zero_i, false = (
+        jnp.zeros((), jnp.float32),
+        jnp.zeros((), jnp.int32),
+        jnp.zeros((), bool),
+    )
+    init = (obs, state, carry, zero_f, zero_i, false)
     (_, _, _, ret, length, _), _ = jax.lax.scan(body, init, jax.random.split(k_run, task.max_steps))
     return ret, length

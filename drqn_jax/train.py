@@ -62,6 +62,7 @@ from drqn_jax.replay import (
     init_replay,
 )
 from drqn_jax.selection import (
+    SELECT_SAFE,
     VALIDATION_METRICS,
     candidates,
     chosen_candidate,
@@ -190,10 +191,9 @@ def _check_task(config: TrainConfig, task: Task) -> None:
                     f"Hyperparams.{name} = {float(getattr(hp, name))}: {config.env_id} has no "
                     "teacher (the rule-based agent drives the paper's env only); use 0"
                 )
-    if task.validate is None and config.snapshots:
+    if "collision_free" not in task.validation_metrics and int(hp.select_by) == SELECT_SAFE:
         raise ValueError(
-            f"TrainConfig.snapshots = {config.snapshots}: {config.env_id} has no validation "
-            "episodes (snapshot selection is for the paper's env); use 0"
+            f"Hyperparams.select_by = 'safe': {config.env_id} measures no collisions; use 'return'"
         )
 
 
@@ -242,11 +242,12 @@ def _make_train(config: TrainConfig) -> Trainer:
         return agent_params(state), state.metrics
 
     def validation_metrics(state: TrainState) -> dict[str, jax.Array]:
-        """``VALIDATION_METRICS``, each (K + 1,) float32: every candidate's mean
-        greedy return, share of collision-free episodes and mean speed (m/s, the
-        mean over episodes of distance / time, SPEC §8) over ``validation_episodes``
-        episodes of ``fold_in(state.key, VALIDATION_STREAM)`` (the same episodes
-        for every candidate). Needs K > 0."""
+        """The task's validation metrics, each (K + 1,) float32 — for the paper's
+        env ``VALIDATION_METRICS``: every candidate's mean greedy return, share of
+        collision-free episodes and mean speed (m/s, the mean over episodes of
+        distance / time, SPEC §8); for a gymnax env the mean greedy return — over
+        ``validation_episodes`` episodes of ``fold_in(state.key, VALIDATION_STREAM)``
+        (the same episodes for every candidate). Needs K > 0."""
         if not config.snapshots:
             raise ValueError("validation_metrics: the run keeps no snapshots (train.snapshots = 0)")
         keys = episode_keys(
@@ -306,7 +307,7 @@ def _init_state(
     snapshots = validation = None
     if config.snapshots:
         snapshots = jax.tree.map(lambda p: jnp.stack([p] * config.snapshots), online)
-        validation = unvalidated(config.snapshots)
+        validation = unvalidated(config.snapshots, task.validation_metrics)
     return TrainState(
         key=key,
         hparams=hp,

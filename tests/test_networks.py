@@ -124,6 +124,36 @@ def test_memory_matters_for_drqn_not_dqn():
         assert net.initial_carry((1,)) == () if kind == "dqn" else True
 
 
+def test_mlp_torso_for_flat_observations():
+    """torso = "mlp" (a gymnax env's flat vector): the torso's dense layers feed the
+    same core and head, with no speed or last-action inputs; the DRQN's unroll is
+    its steps with resets, and its LSTM remembers what the DQN's dense core forgets."""
+    obs = jax.random.normal(jax.random.key(4), (5, 2, 3))
+    resets = jnp.zeros((5, 2), bool).at[2, 0].set(True)
+    for kind in ("drqn", "dqn"):
+        config = NetworkConfig(
+            kind=kind, torso="mlp", obs_size=3, mlp=(16, 8), recurrent=8, hidden=8, num_actions=2
+        )
+        net = make_network(config)
+        params = net.init(jax.random.key(0))
+        assert [layer["w"].shape for layer in params["torso"]] == [(3, 16), (16, 8)]
+        assert "conv" not in params and config.extra_inputs == 0
+        q_seq, _ = net.unroll(params, obs, net.initial_carry((2,)), resets)
+        carry = net.initial_carry((2,))
+        for t in range(5):
+            carry = jax.tree.map(lambda x, t=t: jnp.where(resets[t][:, None], 0.0, x), carry)
+            q, carry = net.step(params, obs[t], carry)
+            np.testing.assert_allclose(np.asarray(q_seq[t]), np.asarray(q), rtol=1e-5, atol=1e-6)
+        other = obs.at[0].set(0.0)
+        q_other, _ = net.unroll(params, other, net.initial_carry((2,)), jnp.zeros((5, 2), bool))
+        q_same, _ = net.unroll(params, obs, net.initial_carry((2,)), jnp.zeros((5, 2), bool))
+        assert (not np.allclose(q_other[1], q_same[1])) == (kind == "drqn"), kind
+    with pytest.raises(ValueError, match="obs_size"):
+        NetworkConfig(torso="mlp", obs_size=0)
+    with pytest.raises(ValueError, match="torso"):
+        NetworkConfig(torso="transformer")
+
+
 STACKED = NetworkConfig(kind="dqn", recurrent=32, hidden=32, frames=3)
 
 

@@ -394,6 +394,10 @@ def test_config_validation():
         TrainConfig(num_envs=4, replay_episodes=6)
     with pytest.raises(ValueError, match="num_episodes"):
         TrainConfig(num_episodes=0)
+    # 10 writers of 20 slots hold at most 10 complete episodes: 11 would never start
+    TrainConfig(num_envs=10, replay_episodes=20, hyperparams=Hyperparams(learning_starts=10))
+    with pytest.raises(ValueError, match=r"learning_starts = 11: must be <= 10"):
+        TrainConfig(num_envs=10, replay_episodes=20, hyperparams=Hyperparams(learning_starts=11))
     with pytest.raises(ValueError, match="explore_"):
         Hyperparams(explore_accelerate=0.9)
     with pytest.raises(ValueError, match="learning_rate"):

@@ -1,0 +1,180 @@
+"""The learner on benchmarks nobody here wrote: gymnax CartPole-v1 and MemoryChain-bsuite.
+
+Before the learner is tuned on our env it must reproduce published behaviour
+on outside environments (gymnax 1.0.1, installed with ``--no-deps``; see the
+README):
+
+* ``cartpole-dqn``: the memoryless ``dqn`` variant on ``CartPole-v1``, with
+  PureJaxRL's DQN recipe as far as ours has the knobs (:func:`cartpole_config`)
+  and its budget of about 5·10⁵ env steps (3000 episodes). Target: mean
+  greedy return ≥ 475 (of 500), every seed.
+* ``memory-drqn`` / ``memory-dqn``: bsuite's MemoryChain (gymnax defaults:
+  memory length 5, one context bit): the first observation shows a bit that
+  the last action must repeat (+1, else −1). The DRQN sees whole episodes in
+  its 8-step windows. Target: DRQN ≥ 90 % success, the memoryless DQN near
+  chance (50 %).
+
+Each recipe trains ``--seeds`` seeds in one ``vmap`` and plays
+``--episodes`` greedy episodes per seed on a key of its own. Usage::
+
+    python -m benchmarks.gymnax_validation [--seeds 3] [--episodes 100] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from benchmarks.harness import base_parser, markdown_table, report
+from drqn_jax.evaluation import episode_keys
+from drqn_jax.networks import NetworkConfig
+from drqn_jax.task import greedy_returns
+from drqn_jax.train import Hyperparams, TrainConfig, make_train
+
+__all__ = ["RECIPES", "cartpole_config", "main", "memory_config", "run_recipe"]
+
+#: Small dense networks for flat observations: MLP torso 64 → core 64 → FC 64.
+SMALL = {"recurrent": 64, "hidden": 64, "mlp": (64,)}
+#: MemoryChain's episodes: memory_length + 1 = 6 steps (the replay's slot length).
+MEMORY_STEPS = 6
+
+
+def cartpole_config(num_episodes: int = 3000, snapshots: int = 19, **hyper: Any) -> TrainConfig:
+    """The memoryless DQN on gymnax CartPole-v1: PureJaxRL's DQN recipe where ours
+    has the knob (10 envs, batch 128 one-step transitions, lr 2.5e-4, γ 0.99,
+    target copy every 500 updates, one update per vector step, ε 1 → 0.05), and
+    three of the project's options, each measured (benchmarks/RESULTS.md): ε falls
+    over the first 30 % of the episodes, R2D2's value rescaling, and the agent
+    chosen among ``snapshots`` + 1 candidates on 10 greedy validation episodes."""
+    hp = dict(
+        learning_rate=2.5e-4,
+        gamma=0.99,
+        epsilon_start=1.0,
+        epsilon_end=0.05,
+        epsilon_fraction=0.3,
+        explore_bias_fraction=0.0,
+        target_period=500,
+        learning_starts=20,
+        value_rescale=1,
+    )
+    return TrainConfig(
+        env_id="gymnax:CartPole-v1",
+        network=NetworkConfig(kind="dqn", **SMALL),
+        num_envs=10,
+        num_episodes=num_episodes,
+        replay_episodes=100,
+        batch_size=128,
+        window=1,
+        chunk_iterations=500,
+        snapshots=snapshots,
+        validation_episodes=10,
+        hyperparams=Hyperparams(**{**hp, **hyper}),
+    )
+
+
+def memory_config(kind: str, num_episodes: int = 3000, **hyper: Any) -> TrainConfig:
+    """A DRQN (``kind = "drqn"``) or memoryless DQN on gymnax MemoryChain-bsuite."""
+    hp = dict(
+        learning_rate=1e-3,
+        gamma=0.99,
+        epsilon_start=1.0,
+        epsilon_end=0.05,
+        explore_bias_fraction=0.0,
+        target_period=100,
+        learning_starts=20,
+    )
+    return TrainConfig(
+        env_id="gymnax:MemoryChain-bsuite",
+        env_overrides=(("max_steps", MEMORY_STEPS),),
+        network=NetworkConfig(kind=kind, **SMALL),
+        num_envs=10,
+        num_episodes=num_episodes,
+        replay_episodes=500,
+        batch_size=32,
+        window=8,
+        chunk_iterations=500,
+        hyperparams=Hyperparams(**{**hp, **hyper}),
+    )
+
+
+#: name -> (config, success threshold on the mean greedy return, target text).
+RECIPES = {
+    "cartpole-dqn": (cartpole_config, 475.0, "mean greedy return ≥ 475"),
+    "memory-drqn": (lambda: memory_config("drqn"), None, "success ≥ 90 %"),
+    "memory-dqn": (lambda: memory_config("dqn"), None, "success near 50 % (no memory)"),
+}
+
+
+def run_recipe(config: TrainConfig, seeds: int, episodes: int, seed0: int = 0) -> dict[str, Any]:
+    """Train ``seeds`` seeds of ``config`` at once, then play ``episodes`` greedy
+    episodes each: per seed the mean greedy return and the success rate (return
+    > 0), the env steps trained, and the wall time (compile included)."""
+    trainer = make_train(config)
+    keys = jax.vmap(jax.random.key)(jnp.arange(seed0, seed0 + seeds))
+    start = time.perf_counter()
+    params, metrics = jax.block_until_ready(jax.jit(jax.vmap(trainer.train))(keys))
+    train_s = time.perf_counter() - start
+    eval_keys = jax.vmap(lambda k: jax.random.fold_in(k, 7))(keys)
+
+    def play(params, key):
+        keys = episode_keys(key, episodes)
+        return greedy_returns(trainer.task, trainer.network, params, keys)
+
+    returns = jax.jit(jax.vmap(play))(params, eval_keys)
+    returns = np.asarray(returns)
+    return {
+        "mean_return": [float(r) for r in returns.mean(axis=1)],
+        "success": [float(s) for s in (returns > 0).mean(axis=1)],
+        "env_steps": [int(n) for n in np.asarray(metrics["length"]).sum(axis=1)],
+        "train_s": train_s,
+    }
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    parser = base_parser("gymnax_validation", __doc__)
+    parser.add_argument("--seeds", type=int, default=3, help="seeds per recipe (default 3)")
+    parser.add_argument(
+        "--episodes", type=int, default=100, help="greedy episodes per seed (default 100)"
+    )
+    parser.add_argument(
+        "--recipes", nargs="+", default=list(RECIPES), choices=list(RECIPES), help="which to run"
+    )
+    args = parser.parse_args(argv)
+    rows = []
+    for name in args.recipes:
+        make_config, threshold, target = RECIPES[name]
+        out = run_recipe(make_config(), args.seeds, args.episodes)
+        passed = all(r >= threshold for r in out["mean_return"]) if threshold is not None else None
+        rows.append(
+            {
+                "recipe": name,
+                "target": target,
+                "mean_return": " / ".join(f"{r:.1f}" for r in out["mean_return"]),
+                "success": " / ".join(f"{100 * s:.0f} %" for s in out["success"]),
+                "env_steps": " / ".join(f"{n:,}" for n in out["env_steps"]),
+                "train_s": out["train_s"],
+                "met": {True: "yes", False: "no", None: "see success"}[passed],
+                **{f"raw_{k}": v for k, v in out.items()},
+            }
+        )
+    columns = {
+        "recipe": "recipe",
+        "target": "target",
+        "mean_return": "greedy return per seed",
+        "success": "success (return > 0) per seed",
+        "env_steps": "env steps trained per seed",
+        "train_s": "train wall s (all seeds)",
+        "met": "target met",
+    }
+    lines = markdown_table(rows, columns)
+    lines += ["", f"{args.seeds} seeds trained in one vmap; {args.episodes} greedy episodes each."]
+    return report("gymnax_validation", "The learner on gymnax", {"rows": rows}, lines, args.out)
+
+
+if __name__ == "__main__":
+    main()
