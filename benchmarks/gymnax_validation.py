@@ -8,6 +8,9 @@ README):
   PureJaxRL's DQN recipe as far as ours has the knobs (:func:`cartpole_config`)
   and its budget of about 5·10⁵ env steps (3000 episodes). Target: mean
   greedy return ≥ 475 (of 500), every seed.
+* ``cartpole-ppo``: recurrent PPO (:mod:`drqn_jax.ppo`) on ``CartPole-v1``
+  with PureJaxRL's ppo_rnn recipe and budget (5·10⁵ env steps). Target: mean
+  greedy return ≥ 475, every seed.
 * ``memory-drqn`` / ``memory-dqn``: bsuite's MemoryChain (gymnax defaults:
   memory length 5, one context bit): the first observation shows a bit that
   the last action must repeat (+1, else −1). The DRQN sees whole episodes in
@@ -33,10 +36,11 @@ import numpy as np
 from benchmarks.harness import base_parser, markdown_table, report
 from drqn_jax.evaluation import episode_keys
 from drqn_jax.networks import NetworkConfig
+from drqn_jax.ppo import PPOConfig, make_ppo, policy_network
 from drqn_jax.task import greedy_returns
 from drqn_jax.train import Hyperparams, TrainConfig, make_train
 
-__all__ = ["RECIPES", "cartpole_config", "main", "memory_config", "run_recipe"]
+__all__ = ["RECIPES", "cartpole_config", "main", "memory_config", "ppo_config", "run_recipe"]
 
 #: Small dense networks for flat observations: MLP torso 64 → core 64 → FC 64.
 SMALL = {"recurrent": 64, "hidden": 64, "mlp": (64,)}
@@ -102,35 +106,63 @@ def memory_config(kind: str, num_episodes: int = 3000, **hyper: Any) -> TrainCon
     )
 
 
+def ppo_config(num_updates: int = 976) -> PPOConfig:
+    """Recurrent PPO on gymnax CartPole-v1 with PureJaxRL's ppo_rnn recipe (4 envs ×
+    128 steps, 4 epochs of 4 minibatches, lr 2.5e-4 annealed, γ 0.99, λ 0.95,
+    clip 0.2, entropy 0.01, value 0.5, grad norm 0.5) and its budget: 976
+    updates = 5·10⁵ env steps. Our core is two LSTMs of 64 after a 64-wide MLP
+    torso (theirs one GRU of 128 between dense layers)."""
+    return PPOConfig(
+        env_id="gymnax:CartPole-v1",
+        network=NetworkConfig(kind="drqn", **SMALL),
+        num_envs=4,
+        num_steps=128,
+        num_updates=num_updates,
+        update_epochs=4,
+        num_minibatches=4,
+    )
+
+
 #: name -> (config, success threshold on the mean greedy return, target text).
 RECIPES = {
     "cartpole-dqn": (cartpole_config, 475.0, "mean greedy return ≥ 475"),
+    "cartpole-ppo": (ppo_config, 475.0, "mean greedy return ≥ 475"),
     "memory-drqn": (lambda: memory_config("drqn"), None, "success ≥ 90 %"),
     "memory-dqn": (lambda: memory_config("dqn"), None, "success near 50 % (no memory)"),
 }
 
 
-def run_recipe(config: TrainConfig, seeds: int, episodes: int, seed0: int = 0) -> dict[str, Any]:
-    """Train ``seeds`` seeds of ``config`` at once, then play ``episodes`` greedy
-    episodes each: per seed the mean greedy return and the success rate (return
-    > 0), the env steps trained, and the wall time (compile included)."""
-    trainer = make_train(config)
+def run_recipe(
+    config: TrainConfig | PPOConfig, seeds: int, episodes: int, seed0: int = 0
+) -> dict[str, Any]:
+    """Train ``seeds`` seeds of ``config`` (a DQN/DRQN or a PPO config) at once, then
+    play ``episodes`` greedy episodes each: per seed the mean greedy return and
+    the success rate (return > 0), the env steps trained, and the wall time
+    (compile included)."""
+    if isinstance(config, PPOConfig):
+        trainer = make_ppo(config)
+        network = policy_network(trainer.network, trainer.task.num_actions)
+    else:
+        trainer = make_train(config)
+        network = trainer.network
     keys = jax.vmap(jax.random.key)(jnp.arange(seed0, seed0 + seeds))
     start = time.perf_counter()
     params, metrics = jax.block_until_ready(jax.jit(jax.vmap(trainer.train))(keys))
     train_s = time.perf_counter() - start
+    if isinstance(config, PPOConfig):
+        steps = [config.num_updates * config.num_steps * config.num_envs] * seeds
+    else:
+        steps = [int(n) for n in np.asarray(metrics["length"]).sum(axis=1)]
     eval_keys = jax.vmap(lambda k: jax.random.fold_in(k, 7))(keys)
 
     def play(params, key):
-        keys = episode_keys(key, episodes)
-        return greedy_returns(trainer.task, trainer.network, params, keys)
+        return greedy_returns(trainer.task, network, params, episode_keys(key, episodes))
 
-    returns = jax.jit(jax.vmap(play))(params, eval_keys)
-    returns = np.asarray(returns)
+    returns = np.asarray(jax.jit(jax.vmap(play))(params, eval_keys))
     return {
         "mean_return": [float(r) for r in returns.mean(axis=1)],
         "success": [float(s) for s in (returns > 0).mean(axis=1)],
-        "env_steps": [int(n) for n in np.asarray(metrics["length"]).sum(axis=1)],
+        "env_steps": steps,
         "train_s": train_s,
     }
 

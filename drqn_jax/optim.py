@@ -5,6 +5,7 @@ No optax at run time: ``adam(lr, b1, b2, eps)`` returns a
 ``update(grads, state, params) -> (updates, state)``; :func:`apply_updates`
 adds the updates to the parameters; :func:`clip` is optax's ``clip`` (the
 ``clip = "grad"`` switch: gradients clamped to [−max, max] element-wise);
+:func:`clip_by_global_norm` is optax's (PPO's gradient-norm limit);
 :func:`chain` composes transformations. Hyperparameters may be traced
 arrays, so a sweep can ``vmap`` over the learning rate.
 """
@@ -17,7 +18,15 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-__all__ = ["AdamState", "GradientTransformation", "adam", "apply_updates", "chain", "clip"]
+__all__ = [
+    "AdamState",
+    "GradientTransformation",
+    "adam",
+    "apply_updates",
+    "chain",
+    "clip",
+    "clip_by_global_norm",
+]
 
 Params = Any
 
@@ -78,6 +87,18 @@ def clip(max_delta: float | jax.Array) -> GradientTransformation:
 
     def update(grads: Params, state: Any, params: Params | None = None):
         return jax.tree.map(lambda g: jnp.clip(g, -max_delta, max_delta), grads), state
+
+    return GradientTransformation(lambda params: (), update)
+
+
+def clip_by_global_norm(max_norm: float | jax.Array) -> GradientTransformation:
+    """Scale the gradients so that their global L2 norm is at most ``max_norm``
+    (optax.clip_by_global_norm; PPO's ``max_grad_norm``)."""
+
+    def update(grads: Params, state: Any, params: Params | None = None):
+        norm = jnp.sqrt(sum(jnp.sum(g * g) for g in jax.tree.leaves(grads)))
+        scale = jnp.where(norm < max_norm, 1.0, max_norm / norm)
+        return jax.tree.map(lambda g: (g * scale).astype(g.dtype), grads), state
 
     return GradientTransformation(lambda params: (), update)
 

@@ -8,7 +8,7 @@ import numpy as np
 import optax
 import pytest
 
-from drqn_jax.optim import adam, apply_updates, chain, clip
+from drqn_jax.optim import adam, apply_updates, chain, clip, clip_by_global_norm
 
 
 def _problem(seed=0):
@@ -70,6 +70,19 @@ def test_clip_and_chain_match_optax():
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-7)
     clipped, _ = clip(1.0).update(g, (), params)
     assert float(jnp.max(jnp.abs(clipped["w"]))) == 1.0
+
+
+@pytest.mark.parametrize("scale", [1e-3, 50.0])
+def test_clip_by_global_norm_matches_optax(scale):
+    """Below the limit the gradients pass unchanged; above it they are scaled to it."""
+    params, grad = _problem(3)
+    g = jax.tree.map(lambda x: scale * x, grad(params))
+    ours, _ = clip_by_global_norm(0.5).update(g, (), params)
+    theirs, _ = optax.clip_by_global_norm(0.5).update(g, optax.EmptyState(), params)
+    for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(theirs), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-9)
+    norm = float(optax.global_norm(ours))
+    assert norm <= 0.5 + 1e-6 and (norm > 0.49) == (scale > 1)
 
 
 def test_adam_jits_and_vmaps_over_learning_rate():
