@@ -45,10 +45,10 @@ def test_gymnax_task_steps_as_the_contract_says():
 
 
 def test_dqn_learns_cartpole():
-    """A CartPole-v1 run of 2/3 of the benchmark's episodes (about 1.5·10⁵ env
-    steps): every seed's chosen greedy policy balances far longer than a random
-    one (about 22 steps)."""
-    out = run_recipe(cartpole_config(num_episodes=2000, snapshots=3), SEEDS, episodes=20)
+    """A CartPole-v1 run of half the benchmark's episodes (about 10⁵ env steps):
+    every seed's chosen greedy policy balances far longer than a random one
+    (about 22 steps)."""
+    out = run_recipe(cartpole_config(num_episodes=1000, snapshots=3), SEEDS, episodes=20)
     assert min(out["mean_return"]) > 100.0, out
 
 
