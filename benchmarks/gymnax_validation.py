@@ -16,6 +16,9 @@ README):
   the last action must repeat (+1, else −1). The DRQN sees whole episodes in
   its 8-step windows. Target: DRQN ≥ 90 % success, the memoryless DQN near
   chance (50 %).
+* ``memory12-drqn`` / ``memory12-drqn-stored``: memory length 12, longer than
+  the 8-step windows: a DRQN whose replayed windows start from zeros cannot
+  learn it; with R2D2's stored state (``train.stored_state = 1``) it can.
 
 Each recipe trains ``--seeds`` seeds in one ``vmap`` and plays
 ``--episodes`` greedy episodes per seed on a key of its own. Usage::
@@ -44,8 +47,6 @@ __all__ = ["RECIPES", "cartpole_config", "main", "memory_config", "ppo_config", 
 
 #: Small dense networks for flat observations: MLP torso 64 → core 64 → FC 64.
 SMALL = {"recurrent": 64, "hidden": 64, "mlp": (64,)}
-#: MemoryChain's episodes: memory_length + 1 = 6 steps (the replay's slot length).
-MEMORY_STEPS = 6
 
 
 def cartpole_config(num_episodes: int = 2000, snapshots: int = 19, **hyper: Any) -> TrainConfig:
@@ -85,8 +86,12 @@ def cartpole_config(num_episodes: int = 2000, snapshots: int = 19, **hyper: Any)
     )
 
 
-def memory_config(kind: str, num_episodes: int = 3000, **hyper: Any) -> TrainConfig:
-    """A DRQN (``kind = "drqn"``) or memoryless DQN on gymnax MemoryChain-bsuite."""
+def memory_config(
+    kind: str, num_episodes: int = 3000, memory_length: int = 5, stored_state: int = 0, **hyper: Any
+) -> TrainConfig:
+    """A DRQN (``kind = "drqn"``) or memoryless DQN on gymnax MemoryChain-bsuite with
+    its memory length (episodes of ``memory_length`` + 1 steps), the DRQN's
+    replayed windows starting from zeros or from the stored state (R2D2's)."""
     hp = dict(
         learning_rate=1e-3,
         gamma=0.99,
@@ -98,7 +103,7 @@ def memory_config(kind: str, num_episodes: int = 3000, **hyper: Any) -> TrainCon
     )
     return TrainConfig(
         env_id="gymnax:MemoryChain-bsuite",
-        env_overrides=(("max_steps", MEMORY_STEPS),),
+        env_overrides=(("max_steps", memory_length + 1), ("memory_length", memory_length)),
         network=NetworkConfig(kind=kind, **SMALL),
         num_envs=10,
         num_episodes=num_episodes,
@@ -133,6 +138,16 @@ RECIPES = {
     "cartpole-ppo": (ppo_config, 475.0, "mean greedy return ≥ 475"),
     "memory-drqn": (lambda: memory_config("drqn"), None, "success ≥ 90 %"),
     "memory-dqn": (lambda: memory_config("dqn"), None, "success near 50 % (no memory)"),
+    "memory12-drqn": (
+        lambda: memory_config("drqn", memory_length=12),
+        None,
+        "near 50 %: 8-step windows from zeros cannot span 13 steps",
+    ),
+    "memory12-drqn-stored": (
+        lambda: memory_config("drqn", memory_length=12, stored_state=1),
+        None,
+        "success ≥ 90 % (windows start from the stored state)",
+    ),
 }
 
 

@@ -88,6 +88,7 @@ ADDED_LATER = {
     ("train", "value_rescale"): 0,
     ("train", "burn_in"): 0,
     ("train", "epsilon_fraction"): 1.0,
+    ("train", "stored_state"): 0,
     ("network", "frames"): 1,
     # The 2026-11-25 revision (docs/spec.md, "The paper's world"): runs before it had
     # pedestrians yielding for ever (the timeout applies to them too: no standoffs in

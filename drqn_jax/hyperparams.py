@@ -225,6 +225,14 @@ class TrainConfig:
             "loss or gradient (R2D2's burn-in; 0 = the paper: the LSTM starts from zeros)"
         },
     )
+    stored_state: int = dataclasses.field(
+        default=0,
+        metadata={
+            "doc": "1: the replay keeps the acting LSTM's state with every observation and "
+            "each replayed window starts from it (R2D2's stored state; drqn only; 0 = the "
+            "paper: from zeros)"
+        },
+    )
     updates_per_step: int = 1
     chunk_iterations: int = 1000
     snapshots: int = dataclasses.field(
@@ -255,6 +263,13 @@ class TrainConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"TrainConfig.{name} = {value!r}: must be an integer >= 1")
+        if self.stored_state not in (0, 1) or isinstance(self.stored_state, bool):
+            raise ValueError(f"TrainConfig.stored_state = {self.stored_state!r}: must be 0 or 1")
+        if self.stored_state and self.network.kind != "drqn":
+            raise ValueError(
+                f"TrainConfig.stored_state = 1: network kind {self.network.kind!r} has no "
+                "recurrent state to store; use kind 'drqn' or stored_state = 0"
+            )
         if not isinstance(self.burn_in, int) or isinstance(self.burn_in, bool) or self.burn_in < 0:
             raise ValueError(f"TrainConfig.burn_in = {self.burn_in!r}: must be an integer >= 0")
         if self.n_step > self.window:

@@ -207,13 +207,17 @@ def sequence_loss(
         value_rescale: 1: R2D2's value rescaling (:func:`n_step_targets`); 0: the paper.
         burn_in: static L: the windows' first L steps only warm the LSTM (R2D2's
             burn-in; they are masked out of the loss and no gradient flows back
-            into them); 0: the paper, the LSTM starts from zeros.
+            into them); 0: the paper, the LSTM starts from zeros — or from
+            ``windows.carry``, the state stored while acting, when the replay
+            keeps one (R2D2's stored state).
     Returns:
         () float32 loss, and ``{"td_abs": mean |δ|, "q_mean": mean Q(s, a),
         "margin": mean weighted J_E}`` (``margin`` with an expert only).
     """
     batch = windows.action.shape[1]
     carry = network.initial_carry((batch,))
+    if windows.carry is not None:  # R2D2's stored state: data, not a path for gradients
+        carry = jax.lax.stop_gradient(windows.carry)
     q_online = _unroll(network, online, windows, carry, burn_in)  # (W + 1, B, A)
     q_target = _unroll(network, target, windows, carry, burn_in)
     q_taken = jnp.take_along_axis(q_online[:-1], windows.action[..., None], axis=-1)[..., 0]

@@ -66,6 +66,8 @@ class EpisodeReplay:
         complete: (M,) bool, the slot holds a whole episode (may be sampled).
         slot: (N,) int32, the slot each environment is writing.
         episodes: (N,) int32, episodes each environment has begun.
+        carry: with a stored state (R2D2's), the acting network's recurrent
+            state as it entered each observation, leaves (M, L + 1, …); else None.
     """
 
     records: Any
@@ -76,6 +78,7 @@ class EpisodeReplay:
     complete: jax.Array
     slot: jax.Array
     episodes: jax.Array
+    carry: Any = None
 
     @property
     def capacity(self) -> int:
@@ -106,6 +109,9 @@ class Windows:
         resets: (W + 1, B) bool, where the LSTM starts afresh: at the episode's
             first observation and before it, inside a burn-in reaching past the
             episode's start (all false without burn-in: the carry starts at zero).
+        carry: with a stored state, the recurrent state (leaves (B, …)) the acting
+            network entered each window's first observation with; else None
+            (the window's LSTM starts from zeros).
     """
 
     obs: Any
@@ -117,11 +123,16 @@ class Windows:
     slot: jax.Array
     start: jax.Array
     resets: jax.Array
+    carry: Any = None
 
 
-def init_replay(capacity: int, max_length: int, num_writers: int, record: Any) -> EpisodeReplay:
+def init_replay(
+    capacity: int, max_length: int, num_writers: int, record: Any, carry: Any = None
+) -> EpisodeReplay:
     """An empty replay of ``capacity`` episodes of up to ``max_length`` transitions
-    whose observations are stored as pytrees shaped like ``record`` (one step's)."""
+    whose observations are stored as pytrees shaped like ``record`` (one step's),
+    with the recurrent state shaped like ``carry`` (one env's) beside each when
+    given (R2D2's stored state)."""
     if num_writers < 1 or capacity < 2 * num_writers:
         raise ValueError(
             f"replay capacity = {capacity} episodes: must be >= 2 × the number of parallel "
@@ -129,9 +140,13 @@ def init_replay(capacity: int, max_length: int, num_writers: int, record: Any) -
             "while another holds a complete episode"
         )
     m, n_obs = capacity, max_length + 1
-    records = jax.tree.map(lambda x: jnp.zeros((m, n_obs, *jnp.shape(x)), x.dtype), record)
+
+    def buffer(example: Any) -> Any:
+        return jax.tree.map(lambda x: jnp.zeros((m, n_obs, *jnp.shape(x)), x.dtype), example)
+
     return EpisodeReplay(
-        records=records,
+        records=buffer(record),
+        carry=None if carry is None else buffer(carry),
         action=jnp.zeros((m, max_length), jnp.int32),
         reward=jnp.zeros((m, max_length), jnp.float32),
         terminated=jnp.zeros((m, max_length), bool),
@@ -158,8 +173,11 @@ def _set(buffer: jax.Array, where: jax.Array, index: tuple, value: jax.Array) ->
     return buffer.at[(slot, *index[1:])].set(value, mode="drop", unique_indices=True)
 
 
-def begin_episodes(replay: EpisodeReplay, starting: jax.Array, first: Any) -> EpisodeReplay:
-    """Writers flagged in ``starting`` (N,) start an episode with observation ``first``.
+def begin_episodes(
+    replay: EpisodeReplay, starting: jax.Array, first: Any, first_carry: Any = None
+) -> EpisodeReplay:
+    """Writers flagged in ``starting`` (N,) start an episode with observation ``first``
+    (and, with a stored state, the recurrent state ``first_carry`` it is seen with).
 
     Each takes the oldest of its own slots, which stops being sampleable.
     """
@@ -171,6 +189,11 @@ def begin_episodes(replay: EpisodeReplay, starting: jax.Array, first: Any) -> Ep
     records = jax.tree.map(
         lambda buf, x: _set(buf, starting, (slot, zero), x), replay.records, first
     )
+    if replay.carry is not None:
+        carry = jax.tree.map(
+            lambda buf, x: _set(buf, starting, (slot, zero), x), replay.carry, first_carry
+        )
+        replay = replay.replace(carry=carry)
     return replay.replace(
         records=records,
         length=_set(replay.length, starting, (slot,), zero),
@@ -187,12 +210,14 @@ def add_transition(
     terminated: jax.Array,
     next_record: Any,
     active: jax.Array | None = None,
+    next_carry: Any = None,
 ) -> EpisodeReplay:
     """Append one transition per writer (N,) to its current episode.
 
     ``next_record`` is the observation after the action (the pre-reset one
-    when the episode ended). Writers where ``active`` is false are skipped.
-    Past ``max_length`` transitions nothing more is stored.
+    when the episode ended), ``next_carry`` (with a stored state) the recurrent
+    state the acting network holds for it. Writers where ``active`` is false
+    are skipped. Past ``max_length`` transitions nothing more is stored.
     """
     n = replay.num_writers
     active = jnp.ones((n,), bool) if active is None else active
@@ -203,6 +228,11 @@ def add_transition(
     records = jax.tree.map(
         lambda buf, x: _set(buf, active, (slot, t + 1), x), replay.records, next_record
     )
+    if replay.carry is not None:
+        carry = jax.tree.map(
+            lambda buf, x: _set(buf, active, (slot, t + 1), x), replay.carry, next_carry
+        )
+        replay = replay.replace(carry=carry)
     return replay.replace(
         records=records,
         action=_set(replay.action, active, (slot, t), action.astype(jnp.int32)),
@@ -244,7 +274,9 @@ def sample_windows(
     (``resets``). The trained steps are those of ``burn_in = 0``'s windows.
 
     ``observe`` turns the windows' records into the network's observations
-    (:func:`observations` with the env's parameters for the paper's env).
+    (:func:`~drqn_jax.task.observations` with the env's parameters for the
+    paper's env). With a stored state the windows carry the recurrent state the
+    acting network entered their first observation with (burn-in included).
     """
     key_slot, key_start = jax.random.split(key)
     logits = jnp.where(replay.complete, 0.0, -jnp.inf)
@@ -272,4 +304,7 @@ def sample_windows(
         slot=slot,
         start=start,
         resets=resets,
+        carry=None
+        if replay.carry is None
+        else jax.tree.map(lambda buf: buf[slot, t_obs[0]], replay.carry),
     )

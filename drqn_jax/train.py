@@ -294,9 +294,11 @@ def _init_state(
     online = network.init(k_net)
     opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
     obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
-    replay = init_replay(config.replay_episodes, task.max_steps, n_env, task.record)
+    stored = network.initial_carry(()) if config.stored_state else None
+    replay = init_replay(config.replay_episodes, task.max_steps, n_env, task.record, stored)
+    first = jax.vmap(task.to_record)(obs, env_state)
     replay = begin_episodes(
-        replay, jnp.ones((n_env,), bool), jax.vmap(task.to_record)(obs, env_state)
+        replay, jnp.ones((n_env,), bool), first, network.initial_carry((n_env,))
     )
     episode = jnp.arange(n_env, dtype=jnp.int32)
     zeros_f = jnp.zeros((n_env,), jnp.float32)
@@ -335,9 +337,12 @@ def _init_state(
     )
 
 
-def _store(task: Task, replay: EpisodeReplay, action, step: Step, done, live) -> EpisodeReplay:
-    """The replay with one vector step stored: the transition, the end of the
-    episodes that ended and the first observation of those that begin."""
+def _store(
+    task: Task, network: Network, replay: EpisodeReplay, action, step: Step, carry, done, live
+) -> EpisodeReplay:
+    """The replay with one vector step stored: the transition (with the acting
+    network's ``carry`` for its next observation, when the replay keeps it), the
+    end of the episodes that ended and the first observation of those that begin."""
     replay = add_transition(
         replay,
         action,
@@ -345,9 +350,11 @@ def _store(task: Task, replay: EpisodeReplay, action, step: Step, done, live) ->
         step.terminated,
         step.final,
         active=jnp.broadcast_to(live, done.shape),
+        next_carry=carry,
     )
     replay = end_episodes(replay, done)
-    return begin_episodes(replay, done, jax.vmap(task.to_record)(step.obs, step.state))
+    first = jax.vmap(task.to_record)(step.obs, step.state)
+    return begin_episodes(replay, done, first, network.initial_carry(done.shape))
 
 
 def _iteration(
@@ -367,7 +374,7 @@ def _iteration(
         jax.random.split(k_env, n_env), state.env_state, action, state.env_params
     )
     done = (step.terminated | step.truncated) & live
-    replay = _store(task, state.replay, action, step, done, live)
+    replay = _store(task, network, state.replay, action, step, carry, done, live)
 
     can_learn = live & (jnp.sum(replay.complete) >= state.hparams.learning_starts)
     learner = Learner(state.online, state.target, state.opt_state, state.grad_steps)

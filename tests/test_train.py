@@ -107,6 +107,45 @@ def test_acting_lstm_restarts_at_every_episode(tiny):
     assert starts >= 2 * TINY.num_envs
 
 
+def test_stored_state_is_the_acting_lstms_state():
+    """train.stored_state = 1 (R2D2's stored state): with the parameters held still
+    (a learning rate of 1e-30), the state stored with observation t of a complete
+    episode is the LSTM's after the episode's observations 0 … t − 1 from zeros —
+    the state acting entered observation t with; a sampled window carries the
+    state stored at its first observation, and the loss starts from it. The
+    default stores none."""
+    config = dataclasses.replace(TINY, stored_state=1)
+    trainer = make_train(config)
+    hp = TINY.hyperparams.replace(learning_rate=1e-30)
+    state = jax.jit(trainer.init)(jax.random.key(5), hp)
+    state = jax.jit(trainer.run, static_argnums=1)(state, 45)
+    replay = state.replay
+    slot = int(np.flatnonzero(np.asarray(replay.complete))[0])
+    n = int(replay.length[slot])
+    episode = jax.tree.map(lambda x: x[slot, : n + 1], replay.records)
+    prev = jnp.concatenate([jnp.array([-1]), replay.action[slot, :n]])
+    obs = observations(episode, prev, state.env_params, trainer.env.static)
+    net, carry = trainer.network, trainer.network.initial_carry(())
+    for t in range(n + 1):
+        stored = jax.tree.map(lambda x, t=t: x[slot, t], replay.carry)
+        for a, b in zip(jax.tree.leaves(stored), jax.tree.leaves(carry), strict=True):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
+        _, carry = net.step(state.online, jax.tree.map(lambda x, t=t: x[t], obs), carry)
+    windows = sample_windows(
+        replay, jax.random.key(1), 4, 4, _observe(state, trainer.env.static), hp.window_start
+    )
+    first = jax.tree.map(lambda x: x[windows.slot, windows.start], replay.carry)
+    assert_tree_equal(windows.carry, first)
+    zero_start = sequence_loss(
+        state.online, state.target, windows.replace(carry=None), net, hp.gamma
+    )[0]
+    stored_start = sequence_loss(state.online, state.target, windows, net, hp.gamma)[0]
+    assert float(zero_start) != float(stored_start)
+    assert make_train(TINY).init(jax.random.key(5)).replay.carry is None
+    with pytest.raises(ValueError, match="stored_state = 1: network kind 'dqn'"):
+        dataclasses.replace(config, network=dataclasses.replace(config.network, kind="dqn"))
+
+
 @pytest.fixture(scope="module")
 def tiny_chunked(tiny):
     """The run of ``tiny_run`` in chunks of ``TINY.chunk_iterations``: (final state,
