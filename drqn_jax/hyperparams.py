@@ -21,7 +21,7 @@ import jax.numpy as jnp
 from drqn_jax.env.params import KMH
 from drqn_jax.loss import CLIP_MODES
 from drqn_jax.networks import NetworkConfig
-from drqn_jax.pytree import check_sums_to_one, param, pytree_dataclass, validate
+from drqn_jax.pytree import check_counts, check_sums_to_one, param, pytree_dataclass, validate
 from drqn_jax.replay import WINDOW_STARTS
 
 __all__ = [
@@ -249,20 +249,20 @@ class TrainConfig:
     hyperparams: Hyperparams = dataclasses.field(default_factory=Hyperparams)
 
     def __post_init__(self) -> None:
-        for name in (
-            "num_envs",
-            "num_episodes",
-            "replay_episodes",
-            "batch_size",
-            "window",
-            "n_step",
-            "updates_per_step",
-            "chunk_iterations",
-            "validation_episodes",
-        ):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"TrainConfig.{name} = {value!r}: must be an integer >= 1")
+        check_counts(
+            self,
+            (
+                "num_envs",
+                "num_episodes",
+                "replay_episodes",
+                "batch_size",
+                "window",
+                "n_step",
+                "updates_per_step",
+                "chunk_iterations",
+                "validation_episodes",
+            ),
+        )
         if self.stored_state not in (0, 1) or isinstance(self.stored_state, bool):
             raise ValueError(f"TrainConfig.stored_state = {self.stored_state!r}: must be 0 or 1")
         if self.stored_state and self.network.kind != "drqn":
@@ -270,8 +270,7 @@ class TrainConfig:
                 f"TrainConfig.stored_state = 1: network kind {self.network.kind!r} has no "
                 "recurrent state to store; use kind 'drqn' or stored_state = 0"
             )
-        if not isinstance(self.burn_in, int) or isinstance(self.burn_in, bool) or self.burn_in < 0:
-            raise ValueError(f"TrainConfig.burn_in = {self.burn_in!r}: must be an integer >= 0")
+        check_counts(self, ("burn_in",), low=0)
         if self.n_step > self.window:
             raise ValueError(
                 f"TrainConfig.n_step = {self.n_step}: must be <= window ({self.window}); "

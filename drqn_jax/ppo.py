@@ -32,7 +32,7 @@ import jax.numpy as jnp
 
 from drqn_jax.networks import Network, NetworkConfig, make_network
 from drqn_jax.optim import adam, apply_updates, clip_by_global_norm
-from drqn_jax.pytree import param, pytree_dataclass, validate
+from drqn_jax.pytree import check_counts, param, pytree_dataclass, validate
 from drqn_jax.task import Task, make_task
 
 __all__ = [
@@ -79,10 +79,9 @@ class PPOConfig:
     num_minibatches: int = 4
 
     def __post_init__(self) -> None:
-        for name in ("num_envs", "num_steps", "num_updates", "update_epochs", "num_minibatches"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"PPOConfig.{name} = {value!r}: must be an integer >= 1")
+        check_counts(
+            self, ("num_envs", "num_steps", "num_updates", "update_epochs", "num_minibatches")
+        )
         if self.num_envs % self.num_minibatches:
             raise ValueError(
                 f"PPOConfig.num_minibatches = {self.num_minibatches}: must divide num_envs "

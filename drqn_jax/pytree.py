@@ -25,6 +25,7 @@ import numpy as np
 T = TypeVar("T")
 
 __all__ = [
+    "check_counts",
     "check_order",
     "check_sums_to_one",
     "is_concrete",
@@ -170,6 +171,17 @@ def show_value(value: Any) -> str:
     if arr.ndim == 0 and np.issubdtype(arr.dtype, np.integer):
         return str(arr.item())
     return repr(value)
+
+
+def check_counts(obj: Any, names: Sequence[str], *, low: int = 1) -> None:
+    """Raise a one-line ``ValueError`` unless each of ``obj``'s fields ``names`` is an
+    integer (not a bool) ``>= low``."""
+    for name in names:
+        value = getattr(obj, name)
+        if not isinstance(value, int) or isinstance(value, bool) or value < low:
+            raise ValueError(
+                f"{type(obj).__name__}.{name} = {value!r}: must be an integer >= {low}"
+            )
 
 
 def check_order(obj: Any, lower: str, upper: str, *, strict: bool = False) -> None:

@@ -15,19 +15,25 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from drqn_jax.evaluation import episode_keys
 from drqn_jax.hyperparams import SELECT_BY, Hyperparams, TrainConfig
 
 __all__ = [
     "VALIDATION_METRICS",
+    "VALIDATION_STREAM",
+    "candidate_metrics",
     "chosen_candidate",
+    "run_agent",
     "selection",
     "snapshot_thresholds",
     "take_snapshot",
     "unvalidated",
 ]
 
-#: What validation measures per candidate, each (K + 1,) float32.
+#: What validation measures per candidate of the paper's env, each (K + 1,) float32.
 VALIDATION_METRICS = ("return", "collision_free", "speed")
+#: ``fold_in`` index of the validation episodes' key (from the finished state's key).
+VALIDATION_STREAM = 2
 SELECT_SAFE = SELECT_BY.index("safe")
 
 
@@ -114,3 +120,32 @@ def take_snapshot(
 def candidates(snapshots: Any, online: Any) -> Any:
     """The K snapshots and the final online parameters, stacked: leaves [K + 1, ...]."""
     return jax.tree.map(lambda s, o: jnp.concatenate([s, o[None]]), snapshots, online)
+
+
+def candidate_metrics(config: TrainConfig, task: Any, network: Any, state: Any) -> dict:
+    """The task's validation metrics of a finished run's candidates, each (K + 1,)
+    float32 — for the paper's env ``VALIDATION_METRICS``: every candidate's mean
+    greedy return, share of collision-free episodes and mean speed (m/s, the mean
+    over episodes of distance / time, SPEC §8); for a gymnax env the mean greedy
+    return — over ``validation_episodes`` episodes of ``fold_in(state.key,
+    VALIDATION_STREAM)`` (the same episodes for every candidate). Needs K > 0."""
+    if not config.snapshots:
+        raise ValueError("validation_metrics: the run keeps no snapshots (train.snapshots = 0)")
+    keys = episode_keys(
+        jax.random.fold_in(state.key, VALIDATION_STREAM), config.validation_episodes
+    )
+
+    def measure(params: Any) -> dict[str, jax.Array]:
+        return task.validate(network, params, keys, state.env_params)
+
+    return jax.lax.map(measure, candidates(state.snapshots, state.online))
+
+
+def run_agent(config: TrainConfig, state: Any) -> Any:
+    """The run's agent: the final online parameters, or with K > 0 and
+    ``state.validation`` filled in, the candidate that ``select_by`` prefers
+    (:func:`chosen_candidate`)."""
+    if not config.snapshots:
+        return state.online
+    best = chosen_candidate(state.validation, state.hparams)
+    return jax.tree.map(lambda c: c[best], candidates(state.snapshots, state.online))

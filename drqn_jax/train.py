@@ -39,7 +39,6 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.acting import epsilon_of, explore
-from drqn_jax.evaluation import episode_keys
 from drqn_jax.hyperparams import (
     IMITATION_STATES,
     NOT_LEARNED,
@@ -64,8 +63,10 @@ from drqn_jax.replay import (
 from drqn_jax.selection import (
     SELECT_SAFE,
     VALIDATION_METRICS,
-    candidates,
+    VALIDATION_STREAM,
+    candidate_metrics,
     chosen_candidate,
+    run_agent,
     selection,
     snapshot_thresholds,
     take_snapshot,
@@ -81,6 +82,7 @@ __all__ = [
     "REWARD_ALONE",
     "SELECT_BY",
     "VALIDATION_METRICS",
+    "VALIDATION_STREAM",
     "Hyperparams",
     "TrainConfig",
     "TrainState",
@@ -94,8 +96,6 @@ __all__ = [
     "unvalidated",
 ]
 
-#: ``fold_in`` index of the validation episodes' key (from the finished state's key).
-VALIDATION_STREAM = 2
 #: Per-episode metrics of every task; a task adds its own (the paper's env:
 #: collision, goal, distance, mean speed).
 METRIC_NAMES = ("episode_return", "length", "epsilon", "mean_loss")
@@ -242,31 +242,10 @@ def _make_train(config: TrainConfig) -> Trainer:
         return agent_params(state), state.metrics
 
     def validation_metrics(state: TrainState) -> dict[str, jax.Array]:
-        """The task's validation metrics, each (K + 1,) float32 — for the paper's
-        env ``VALIDATION_METRICS``: every candidate's mean greedy return, share of
-        collision-free episodes and mean speed (m/s, the mean over episodes of
-        distance / time, SPEC §8); for a gymnax env the mean greedy return — over
-        ``validation_episodes`` episodes of ``fold_in(state.key, VALIDATION_STREAM)``
-        (the same episodes for every candidate). Needs K > 0."""
-        if not config.snapshots:
-            raise ValueError("validation_metrics: the run keeps no snapshots (train.snapshots = 0)")
-        keys = episode_keys(
-            jax.random.fold_in(state.key, VALIDATION_STREAM), config.validation_episodes
-        )
-
-        def measure(params: Any) -> dict[str, jax.Array]:
-            return task.validate(network, params, keys, state.env_params)
-
-        return jax.lax.map(measure, candidates(state.snapshots, state.online))
+        return candidate_metrics(config, task, network, state)
 
     def agent_params(state: TrainState) -> Any:
-        """The run's agent: the final online parameters, or with K > 0 and
-        ``state.validation`` filled in, the candidate that ``select_by`` prefers
-        (:func:`~drqn_jax.selection.chosen_candidate`)."""
-        if not config.snapshots:
-            return state.online
-        best = chosen_candidate(state.validation, state.hparams)
-        return jax.tree.map(lambda c: c[best], candidates(state.snapshots, state.online))
+        return run_agent(config, state)
 
     return Trainer(
         config=config,
