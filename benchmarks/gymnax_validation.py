@@ -111,6 +111,7 @@ def memory_config(
         batch_size=32,
         window=8,
         chunk_iterations=500,
+        stored_state=stored_state,
         hyperparams=Hyperparams(**{**hp, **hyper}),
     )
 
