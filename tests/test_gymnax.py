@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from benchmarks.gymnax_validation import cartpole_config, memory_config, run_recipe
+from benchmarks.gymnax_validation import RECIPES, cartpole_config, memory_config, run_recipe
 from drqn_jax.task import make_task
 from drqn_jax.train import make_train
 
@@ -60,3 +60,15 @@ def test_drqn_remembers_where_the_dqn_cannot():
     dqn = run_recipe(memory_config("dqn", num_episodes=400), SEEDS, episodes=100)
     assert min(drqn["success"]) >= 0.9, drqn
     assert max(dqn["success"]) <= 0.7, dqn
+
+
+def test_memory_recipes_differ_only_where_they_say():
+    """The MemoryChain recipes of the benchmark: the DQN differs from the DRQN in
+    its kind alone; the stored-state DRQN from the zero-start one in stored_state
+    alone (a dropped field once made the two rows the same run)."""
+    configs = {name: make() for name, (make, _, _) in RECIPES.items()}
+    drqn, dqn = configs["memory-drqn"], configs["memory-dqn"]
+    assert dataclasses.replace(dqn, network=drqn.network) == drqn
+    zero, stored = configs["memory12-drqn"], configs["memory12-drqn-stored"]
+    assert (zero.stored_state, stored.stored_state) == (0, 1)
+    assert dataclasses.replace(stored, stored_state=0) == zero
