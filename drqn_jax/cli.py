@@ -339,8 +339,9 @@ SUITE = (
     "evaluation",
     "sweep_throughput",
 )
-#: Benchmark tools run by name only (not by ``all``): the op-by-op profile.
-TOOLS = ("profile",)
+#: Benchmark tools run by name only (not by ``all``): the op-by-op profile, and the
+#: learners on outside benchmarks (gymnax; minutes of training, not a throughput figure).
+TOOLS = ("profile", "gymnax_validation")
 
 
 def _default_run_dir(prefix: str, config_name: str) -> Path:
