@@ -240,8 +240,8 @@ def _urban_validation(env, network, params, keys, env_params) -> dict[str, jax.A
 
 
 def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Task:
-    """A gymnax environment (``gymnax.make(name)``) with a flat vector observation
-    (its step as either contract above).
+    """A gymnax environment (``gymnax.make(name)``), its observation flattened to
+    a float vector for the MLP torso (its step as either contract above).
 
     Args:
         name: a gymnax id, e.g. ``"CartPole-v1"`` or ``"MemoryChain-bsuite"``.
@@ -266,6 +266,15 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
     longest = int(params.max_steps_in_episode) if max_steps is None else max_steps
     n_actions = int(env.num_actions)
 
+    size = math.prod(shape)
+
+    def flat(obs: Any) -> jax.Array:  # the MLP torso reads a flat float vector
+        return jnp.asarray(obs, jnp.float32).reshape(size)
+
+    def reset(key, params) -> tuple[jax.Array, Any]:
+        obs, state = env.reset(key, params)
+        return flat(obs), state
+
     def step(key, state, action, params) -> Step:
         out = env.step(key, state, action, params)
         if len(out) == 5:  # gymnax < 1.0: (obs, state, reward, done, info)
@@ -275,12 +284,12 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
             obs, state, reward, terminated, truncated, info = out
             final = info["final_observation"]
         return Step(
-            obs,
+            flat(obs),
             state,
             jnp.asarray(reward, jnp.float32),
             jnp.asarray(terminated, bool),
             jnp.asarray(truncated, bool),
-            jnp.asarray(final, jnp.float32),
+            flat(final),
             {},
         )
 
@@ -290,13 +299,13 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
         env_params=params,
         num_actions=n_actions,
         max_steps=longest,
-        record=jnp.zeros(shape, jnp.float32),
-        reset=env.reset,
+        record=jnp.zeros((size,), jnp.float32),
+        reset=reset,
         step=step,
-        to_record=lambda obs, state: jnp.asarray(obs, jnp.float32),
+        to_record=lambda obs, state: obs,
         observe=lambda records, last, params: records,
         network=lambda net: dataclasses.replace(
-            net, torso="mlp", obs_size=math.prod(shape), num_actions=n_actions
+            net, torso="mlp", obs_size=size, num_actions=n_actions
         ),
         metrics=(),
         episode_metrics=lambda step, length, params: {},

@@ -19,9 +19,9 @@ SEEDS = 2
 
 
 def test_gymnax_task_steps_as_the_contract_says():
-    """A gymnax env as a task: flat float observations, the MLP torso sized from
-    them, the pre-reset observation of an ended episode as its final record, and
-    no teacher (guided exploration is refused in one line)."""
+    """A gymnax env as a task: flat float observations (an image flattened), the
+    MLP torso sized from them, the pre-reset observation of an ended episode as
+    its final record, and no teacher (guided exploration is refused in one line)."""
     task = make_task("gymnax:CartPole-v1")
     assert task.num_actions == 2 and task.max_steps == 500 and task.teacher is None
     net = task.network(cartpole_config().network)
@@ -36,6 +36,10 @@ def test_gymnax_task_steps_as_the_contract_says():
         state = step.state
     assert ended is not None and not bool(ended.truncated)
     assert not np.array_equal(np.asarray(ended.final), np.asarray(ended.obs))  # reset after
+    minatar = make_task("gymnax:Breakout-MinAtar")  # a (10, 10, 4) observation, flattened
+    obs, _ = minatar.reset(jax.random.key(0), minatar.env_params)
+    assert minatar.record.shape == obs.shape == (400,)
+    assert minatar.network(cartpole_config().network).obs_size == 400
     bad = cartpole_config()
     bad = dataclasses.replace(bad, hyperparams=bad.hyperparams.replace(explore_guide=0.5))
     with pytest.raises(
