@@ -227,7 +227,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     lines = markdown_table(rows, columns)
     seeds = f"seeds {args.first_seed}–{args.first_seed + args.seeds - 1}"
     lines += ["", f"{seeds} trained in one vmap; {args.episodes} greedy episodes each."]
-    return report("gymnax_validation", "The learner on gymnax", {"rows": rows}, lines, args.out)
+    title = "The learner on gymnax"
+    return report("gymnax_validation", title, {"rows": rows}, lines, args.out, argv)
 
 
 if __name__ == "__main__":

@@ -170,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         ),
     ]
     result = {"program": args.program, "what": what, "wall_ms": wall_ms, "per": per, "ops": rows}
-    return report("profile", f"Profile: {args.program}", result, lines, args.out)
+    return report("profile", f"Profile: {args.program}", result, lines, args.out, argv)
 
 
 if __name__ == "__main__":
