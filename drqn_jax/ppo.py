@@ -32,7 +32,7 @@ import jax.numpy as jnp
 
 from drqn_jax.networks import Network, NetworkConfig, make_network
 from drqn_jax.optim import adam, apply_updates, clip_by_global_norm
-from drqn_jax.pytree import check_counts, param, pytree_dataclass, validate
+from drqn_jax.pytree import check_counts, param, pytree_dataclass, tree_where, validate
 from drqn_jax.task import Task, make_task
 
 __all__ = [
@@ -245,6 +245,12 @@ def _make_ppo(config: PPOConfig) -> PPOTrainer:
     return PPOTrainer(config, task, network, init, update, train)
 
 
+def _restarted(network: Network, state: PPOState) -> Any:
+    """The carry (leaves (N, …)) the next step starts from: zeros where the last
+    step ended an episode."""
+    return tree_where(state.done, network.initial_carry(state.done.shape), state.carry)
+
+
 def _rollout(config: PPOConfig, task: Task, network: Network, state: PPOState):
     """``num_steps`` steps of the N envs with actions sampled from the policy:
     the moved state, the trajectory (leaves (T, N, …)) and the (sum, count) of
@@ -254,11 +260,7 @@ def _rollout(config: PPOConfig, task: Task, network: Network, state: PPOState):
     def step(loop, _):
         state, ret_sum, ret_count = loop
         key, k_act, k_env = jax.random.split(state.key, 3)
-        carry = jax.tree.map(
-            lambda x: jnp.where(state.done.reshape((-1,) + (1,) * (x.ndim - 1)), 0.0, x),
-            state.carry,
-        )
-        out, carry = network.step(state.params, state.obs, carry)
+        out, carry = network.step(state.params, state.obs, _restarted(network, state))
         logits, value = out[..., :n_act], out[..., n_act]
         action = jax.random.categorical(k_act, logits).astype(jnp.int32)
         log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[:, None], axis=-1)[:, 0]
@@ -297,10 +299,7 @@ def _learn(
     """The update of one rollout: GAE, then epochs of minibatch gradient steps
     (global-norm clip, Adam with the annealed rate), and the update's metrics."""
     hp = state.hparams
-    carry = jax.tree.map(
-        lambda x: jnp.where(state.done.reshape((-1,) + (1,) * (x.ndim - 1)), 0.0, x), state.carry
-    )
-    out, _ = network.step(state.params, state.obs, carry)
+    out, _ = network.step(state.params, state.obs, _restarted(network, state))
     advantage, target = gae(traj.value, traj.reward, traj.done, out[..., n_act], hp)
     frac = 1.0 - state.updates.astype(jnp.float32) / config.num_updates
     lr = hp.learning_rate * jnp.where(hp.anneal_lr == 1, frac, 1.0)

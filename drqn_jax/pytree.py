@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from typing import Any, TypeVar
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 T = TypeVar("T")
@@ -31,6 +32,7 @@ __all__ = [
     "is_concrete",
     "param",
     "pytree_dataclass",
+    "tree_where",
     "validate",
 ]
 
@@ -171,6 +173,16 @@ def show_value(value: Any) -> str:
     if arr.ndim == 0 and np.issubdtype(arr.dtype, np.integer):
         return str(arr.item())
     return repr(value)
+
+
+def tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
+    """Leaf-wise ``where(cond, a, b)`` with ``cond`` (N,) broadcast over the
+    leaves' trailing axes (a per-env choice between two batched pytrees)."""
+
+    def pick(x, y):
+        return jnp.where(cond.reshape(cond.shape + (1,) * (x.ndim - cond.ndim)), x, y)
+
+    return jax.tree.map(pick, a, b)
 
 
 def check_counts(obj: Any, names: Sequence[str], *, low: int = 1) -> None:

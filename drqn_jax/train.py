@@ -52,7 +52,7 @@ from drqn_jax.hyperparams import (
 )
 from drqn_jax.networks import Network, make_network
 from drqn_jax.optim import adam
-from drqn_jax.pytree import pytree_dataclass
+from drqn_jax.pytree import pytree_dataclass, tree_where
 from drqn_jax.replay import (
     EpisodeReplay,
     add_transition,
@@ -153,15 +153,6 @@ class Trainer(NamedTuple):
     gradient_update: Callable[..., tuple[tuple, jax.Array]]
     validation_metrics: Callable[[TrainState], dict[str, jax.Array]]
     agent_params: Callable[[TrainState], Any]
-
-
-def _tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
-    """Leaf-wise ``where`` with ``cond`` (N,) broadcast over trailing axes."""
-
-    def pick(x, y):
-        return jnp.where(cond.reshape(cond.shape + (1,) * (x.ndim - cond.ndim)), x, y)
-
-    return jax.tree.map(pick, a, b)
 
 
 def _small_leaves(state: TrainState) -> TrainState:
@@ -369,7 +360,7 @@ def _iteration(
     )
     n_updates = jnp.where(can_learn, config.updates_per_step, 0)
     moved, metrics = _bookkeeping(config, task, state, step, done, loss_sum, n_updates)
-    moved = moved.replace(key=key, carry=_tree_where(done, network.initial_carry((n_env,)), carry))
+    moved = moved.replace(key=key, carry=tree_where(done, network.initial_carry((n_env,)), carry))
     small = jax.tree.map(
         lambda new, old: jnp.where(live, new, old), _small_leaves(moved), _small_leaves(state)
     )
