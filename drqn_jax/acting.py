@@ -35,11 +35,18 @@ __all__ = ["GUIDE_STREAM", "epsilon_of", "explore"]
 GUIDE_STREAM = 1
 
 
-def epsilon_of(episode: jax.Array, hp: Hyperparams, num_episodes: int) -> jax.Array:
+def epsilon_of(
+    episode: jax.Array, hp: Hyperparams, num_episodes: int, steps: jax.Array | None = None
+) -> jax.Array:
     """ε (same shape as ``episode``, float32) of training episode ``episode``:
     linear from ``epsilon_start`` (episode 0) to ``epsilon_end`` (the last, or
-    the ``epsilon_fraction`` share of them), then constant."""
-    frac = jnp.clip(episode * (1.0 / max(num_episodes - 1, 1)) / hp.epsilon_fraction, 0.0, 1.0)
+    the ``epsilon_fraction`` share of them), then constant. With a step budget,
+    ``steps`` is the share of it taken when the episode starts
+    (:func:`~drqn_jax.hyperparams.step_share`), and the further of the two counts."""
+    frac = episode * (1.0 / max(num_episodes - 1, 1))
+    if steps is not None:
+        frac = jnp.maximum(frac, steps)
+    frac = jnp.clip(frac / hp.epsilon_fraction, 0.0, 1.0)
     return (hp.epsilon_start + (hp.epsilon_end - hp.epsilon_start) * frac).astype(jnp.float32)
 
 

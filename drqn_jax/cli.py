@@ -26,6 +26,7 @@ from drqn_jax.agents import drqn_agent
 from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, config_names, load_config
 from drqn_jax.evaluation import metrics_table
+from drqn_jax.hyperparams import agent_name
 from drqn_jax.runner import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
@@ -90,7 +91,8 @@ def _agent_options(parser: argparse.ArgumentParser, verb: str) -> None:
         "--agent",
         choices=_AGENTS,
         default=None,
-        help=f"agent to {verb} (default: drqn with RUN_DIR, rule-based without)",
+        help=f"agent to {verb}; drqn: the run's trained agent, whatever its learner "
+        "(default: drqn with RUN_DIR, rule-based without)",
     )
 
 
@@ -415,7 +417,8 @@ def _train_and_evaluate(
 
 
 def _trained(result: Any) -> Any:
-    return drqn_agent(result.trainer.network, result.trainer.agent_params(result.state))
+    params = result.trainer.agent_params(result.state)
+    return drqn_agent(result.trainer.network, params, agent_name(result.trainer.config))
 
 
 def _run_summary(result: Any) -> dict[str, Any]:
@@ -434,15 +437,16 @@ def _run_summary(result: Any) -> dict[str, Any]:
 def _chosen_agent(args: argparse.Namespace, overrides: list[str]) -> tuple[Config, Any, Any, Any]:
     """``(config, agent, network, network_params)`` for ``[RUN_DIR] --agent``.
 
-    The DRQN comes from the run's last checkpoint (trained with the run's own
+    The trained agent (``--agent drqn``: the run's DRQN, DQN or PPO policy, named
+    by :func:`agent_name`) comes from the run's last checkpoint (trained with the run's own
     config; ``overrides`` apply on top for the episodes); a built-in agent uses
     the run's config, or ``--config``. ``network`` is None for a built-in agent.
     """
-    agent_name = args.agent or ("drqn" if args.run_dir else "rule-based")
-    if agent_name != "drqn":
+    chosen = args.agent or ("drqn" if args.run_dir else "rule-based")
+    if chosen != "drqn":
         source = Path(args.run_dir) / "config.toml" if args.run_dir else args.config
         config = load_config(source, overrides)
-        return config, builtin_agent(agent_name, config), None, None
+        return config, builtin_agent(chosen, config), None, None
     if args.run_dir is None:
         raise ConfigError("--agent drqn needs a RUN_DIR (a trained run)")
     network, params, meta = load_trained_network(load_run(args.run_dir, ()), args.run_dir)
@@ -453,7 +457,8 @@ def _chosen_agent(args: argparse.Namespace, overrides: list[str]) -> tuple[Confi
             file=sys.stderr,
         )
     config = load_run(args.run_dir, tuple(overrides))
-    return config, drqn_agent(network, params), network, params
+    name = agent_name(config.train_config())
+    return config, drqn_agent(network, params, name), network, params
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:

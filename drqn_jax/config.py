@@ -89,6 +89,16 @@ ADDED_LATER = {
     ("train", "burn_in"): 0,
     ("train", "epsilon_fraction"): 1.0,
     ("train", "stored_state"): 0,
+    ("train", "algorithm"): "dqn",
+    ("train", "num_env_steps"): 0,
+    ("train", "rollout_steps"): 128,
+    ("train", "update_epochs"): 4,
+    ("train", "num_minibatches"): 4,
+    ("train", "gae_lambda"): 0.95,
+    ("train", "clip_eps"): 0.2,
+    ("train", "ent_coef"): 0.01,
+    ("train", "vf_coef"): 0.5,
+    ("train", "max_grad_norm"): 0.5,
     ("network", "frames"): 1,
     # The 2026-11-25 revision (docs/spec.md, "The paper's world"): runs before it had
     # pedestrians yielding for ever (the timeout applies to them too: no standoffs in
@@ -113,7 +123,7 @@ REVISED = (("env", "ped_behaviour_to_car"), ("env", "collision_model"))
 RENAMED_LEAVES = {".env_params.ped_yield": ".env_params.ped_behaviour_to_car"}
 
 #: State leaves added after checkpoints existed, with the value they start from.
-ADDED_STATE_LEAVES = {".env_state.pedestrians.waited": 0.0}
+ADDED_STATE_LEAVES = {".env_state.pedestrians.waited": 0.0, ".step_budget": 0}
 
 
 def added_leaves(hparams: Hyperparams, env_params: EnvParams) -> dict[str, Any]:
@@ -160,8 +170,9 @@ def _fields_of(cls: type, skip: Sequence[str] = ()) -> dict[str, _Field]:
             continue
         choices = f.metadata.get("choices")
         default = f.default
-        if choices is not None:
-            out[f.name] = _Field(choices[default], "str", choices, f.metadata.get("doc", ""))
+        if choices is not None:  # an index (a traced switch) or the name itself
+            name = default if isinstance(default, str) else choices[default]
+            out[f.name] = _Field(name, "str", choices, f.metadata.get("doc", ""))
         elif isinstance(default, int) and not isinstance(default, bool):
             out[f.name] = _Field(default, "int", doc=f.metadata.get("doc", ""))
         elif isinstance(default, float):
@@ -487,6 +498,8 @@ class Config:
             self.rule_based_params()
         except ValueError as err:
             raise ConfigError(_in_config_words(str(err))) from None
+        if train["algorithm"] == "ppo":  # no replay: its sizes are unused
+            return
         max_steps = env.static.max_steps
         if train["window"] > max_steps:
             raise ConfigError(
@@ -497,14 +510,6 @@ class Config:
             raise ConfigError(
                 f"train.batch_size = {train['batch_size']}: must be <= train.replay_episodes "
                 f"({train['replay_episodes']}); a minibatch draws its windows from the replay"
-            )
-        writers = train["num_envs"]
-        storable = writers * (train["replay_episodes"] // writers - 1)
-        if train["learning_starts"] > storable:
-            raise ConfigError(
-                f"train.learning_starts = {train['learning_starts']}: must be <= {storable}, the "
-                f"complete episodes a replay of {train['replay_episodes']} holds while "
-                f"{writers} env(s) write (learning would never start)"
             )
 
     # -- output ---------------------------------------------------------------

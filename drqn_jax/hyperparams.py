@@ -25,13 +25,17 @@ from drqn_jax.pytree import check_counts, check_sums_to_one, param, pytree_datac
 from drqn_jax.replay import WINDOW_STARTS
 
 __all__ = [
+    "ALGORITHMS",
     "IMITATION_STATES",
+    "LEARNED_AGENTS",
     "NOT_LEARNED",
     "REWARD_ALONE",
     "SELECT_BY",
     "Hyperparams",
     "TrainConfig",
+    "agent_name",
     "annealed",
+    "step_share",
     "teacher_label",
     "teachers_of",
 ]
@@ -41,6 +45,9 @@ IMITATION_STATES = ("brake", "all")
 IMITATION_ALL = IMITATION_STATES.index("all")
 #: How the run's agent is chosen among its candidates (``Hyperparams.select_by``).
 SELECT_BY = ("return", "safe")
+#: The learners (``TrainConfig.algorithm``): the paper's (D)RQN, trained by
+#: Double-DQN on an episode replay, or recurrent PPO (:mod:`drqn_jax.ppo`).
+ALGORITHMS = ("dqn", "ppo")
 
 
 @pytree_dataclass
@@ -150,6 +157,20 @@ class Hyperparams:
         doc="m/s: with select_by = 'safe', candidates slower than this on the validation "
         "episodes are not chosen (none as fast: the final parameters)",
     )
+    gae_lambda: float = param(
+        0.95, low=0.0, high=1.0, doc="ppo: λ of the generalised advantage estimates"
+    )
+    clip_eps: float = param(
+        0.2, low=0.0, low_open=True, doc="ppo: clip range of the probability ratio and the value"
+    )
+    ent_coef: float = param(0.01, low=0.0, doc="ppo: weight of the policy's entropy bonus")
+    vf_coef: float = param(0.5, low=0.0, doc="ppo: weight of the value loss")
+    max_grad_norm: float = param(
+        0.5,
+        low=0.0,
+        low_open=True,
+        doc="ppo: gradients are scaled down to this global norm (PureJaxRL: 0.5)",
+    )
 
     def __post_init__(self) -> None:
         validate(self)
@@ -181,18 +202,43 @@ def teacher_label(hp: Hyperparams) -> str:
     return " + ".join(teachers) or REWARD_ALONE
 
 
+#: Names of trained agents in results tables (:func:`agent_name`).
+LEARNED_AGENTS = ("drqn", "dqn", "ppo", "ppo-ff")
+
+
+def agent_name(config: TrainConfig) -> str:
+    """The name of the agent ``config`` trains, in results tables: the network kind
+    of the paper's learner (``"drqn"``, ``"dqn"``), or ``"ppo"`` (recurrent) /
+    ``"ppo-ff"`` (feed-forward, network kind ``"dqn"``)."""
+    if config.algorithm == "ppo":
+        return "ppo" if config.network.kind == "drqn" else "ppo-ff"
+    return config.network.kind
+
+
 def teachers_of(results: Any) -> str:
     """The teacher column of a row pooling several runs' results (their distinct
     ``teacher`` labels; – for results written before the column existed)."""
     return " / ".join(sorted({r.get("teacher") or "–" for r in results}))
 
 
-def annealed(hp: Hyperparams, recorded: jax.Array, num_episodes: int) -> Hyperparams:
+def step_share(config: TrainConfig, env_steps: jax.Array) -> jax.Array | None:
+    """() float32 share of ``num_env_steps`` taken, or None without a step budget."""
+    if not config.num_env_steps:
+        return None
+    return jnp.minimum(env_steps * (1.0 / config.num_env_steps), 1.0)
+
+
+def annealed(
+    hp: Hyperparams, recorded: jax.Array, num_episodes: int, steps: jax.Array | None = None
+) -> Hyperparams:
     """``hp`` with the learning rate of this point of the run: linear from
     ``learning_rate`` (no episode recorded) to ``learning_rate · learning_rate_end``
-    (all ``num_episodes`` recorded); exactly ``learning_rate`` when
-    ``learning_rate_end`` = 1 (the paper's constant rate)."""
+    (all ``num_episodes`` recorded, or the ``steps`` share of a step budget
+    (:func:`step_share`) reached 1, whichever is further); exactly
+    ``learning_rate`` when ``learning_rate_end`` = 1 (the paper's constant rate)."""
     frac = jnp.minimum(recorded * (1.0 / num_episodes), 1.0)
+    if steps is not None:
+        frac = jnp.maximum(frac, steps)
     scale = 1.0 + (hp.learning_rate_end - 1.0) * frac
     return hp.replace(learning_rate=hp.learning_rate * scale)
 
@@ -209,8 +255,24 @@ class TrainConfig:
     env_id: str = "UrbanPedestrians-v0"
     env_overrides: tuple[tuple[str, Any], ...] = ()
     network: NetworkConfig = dataclasses.field(default_factory=NetworkConfig)
+    algorithm: str = dataclasses.field(
+        default="dqn",
+        metadata={
+            "choices": ALGORITHMS,
+            "doc": "the learner: 'dqn' (the paper: Double-DQN on an episode replay) or 'ppo' "
+            "(recurrent PPO, PureJaxRL's ppo_rnn; the replay and ε fields are unused)",
+        },
+    )
     num_envs: int = 1
     num_episodes: int = 200
+    num_env_steps: int = dataclasses.field(
+        default=0,
+        metadata={
+            "doc": "if > 0, the run also ends after this many env steps (all envs together), "
+            "and ε and the learning rate follow the larger share of either budget; "
+            "0 = the paper: num_episodes alone"
+        },
+    )
     replay_episodes: int = 50
     batch_size: int = 32
     window: int = 8
@@ -234,7 +296,10 @@ class TrainConfig:
         },
     )
     updates_per_step: int = 1
-    chunk_iterations: int = 1000
+    chunk_iterations: int = dataclasses.field(
+        default=1000,
+        metadata={"doc": "iterations per host chunk: env steps (dqn) or updates (ppo)"},
+    )
     snapshots: int = dataclasses.field(
         default=0,
         metadata={
@@ -245,6 +310,16 @@ class TrainConfig:
     validation_episodes: int = dataclasses.field(
         default=100,
         metadata={"doc": "greedy episodes per candidate when snapshots > 0"},
+    )
+    rollout_steps: int = dataclasses.field(
+        default=128, metadata={"doc": "ppo: steps per env in each update's rollout"}
+    )
+    update_epochs: int = dataclasses.field(
+        default=4, metadata={"doc": "ppo: passes over each rollout"}
+    )
+    num_minibatches: int = dataclasses.field(
+        default=4,
+        metadata={"doc": "ppo: minibatches per pass, of whole env sequences; divides num_envs"},
     )
     hyperparams: Hyperparams = dataclasses.field(default_factory=Hyperparams)
 
@@ -261,21 +336,23 @@ class TrainConfig:
                 "updates_per_step",
                 "chunk_iterations",
                 "validation_episodes",
+                "rollout_steps",
+                "update_epochs",
+                "num_minibatches",
             ),
         )
+        check_counts(self, ("burn_in", "num_env_steps"), low=0)
+        if self.num_env_steps and self.snapshots:
+            raise ValueError(
+                f"TrainConfig.snapshots = {self.snapshots}: snapshots are taken at shares of "
+                "num_episodes, which a run with num_env_steps > 0 may not reach; use 0"
+            )
+        if self.algorithm not in ALGORITHMS:
+            raise ValueError(
+                f"TrainConfig.algorithm = {self.algorithm!r}: must be one of {ALGORITHMS}"
+            )
         if self.stored_state not in (0, 1) or isinstance(self.stored_state, bool):
             raise ValueError(f"TrainConfig.stored_state = {self.stored_state!r}: must be 0 or 1")
-        if self.stored_state and self.network.kind != "drqn":
-            raise ValueError(
-                f"TrainConfig.stored_state = 1: network kind {self.network.kind!r} has no "
-                "recurrent state to store; use kind 'drqn' or stored_state = 0"
-            )
-        check_counts(self, ("burn_in",), low=0)
-        if self.n_step > self.window:
-            raise ValueError(
-                f"TrainConfig.n_step = {self.n_step}: must be <= window ({self.window}); "
-                "an n-step target sums rewards inside one window"
-            )
         if not isinstance(self.snapshots, int) or isinstance(self.snapshots, bool):
             raise ValueError(f"TrainConfig.snapshots = {self.snapshots!r}: must be an integer")
         most = self.num_episodes // self.num_envs - 1
@@ -284,6 +361,23 @@ class TrainConfig:
                 f"TrainConfig.snapshots = {self.snapshots}: must be in [0, {most}] "
                 f"(num_episodes // num_envs - 1): snapshots are taken at least num_envs "
                 "episodes apart, the most that end in one iteration"
+            )
+        if self.algorithm == "ppo":
+            self._check_ppo()
+        else:
+            self._check_dqn()
+
+    def _check_dqn(self) -> None:
+        """The replay's rules (algorithm ``"dqn"``)."""
+        if self.stored_state and self.network.kind != "drqn":
+            raise ValueError(
+                f"TrainConfig.stored_state = 1: network kind {self.network.kind!r} has no "
+                "recurrent state to store; use kind 'drqn' or stored_state = 0"
+            )
+        if self.n_step > self.window:
+            raise ValueError(
+                f"TrainConfig.n_step = {self.n_step}: must be <= window ({self.window}); "
+                "an n-step target sums rewards inside one window"
             )
         if self.replay_episodes < 2 * self.num_envs:
             raise ValueError(
@@ -298,6 +392,27 @@ class TrainConfig:
                 f"complete episodes a replay of {self.replay_episodes} holds while "
                 f"{self.num_envs} environments write (learning would never start)"
             )
+
+    def _check_ppo(self) -> None:
+        """PPO's rules (algorithm ``"ppo"``): whole env sequences per minibatch, and
+        none of the replay learner's options that would change what it learns."""
+        if self.num_envs % self.num_minibatches:
+            raise ValueError(
+                f"TrainConfig.num_minibatches = {self.num_minibatches}: must divide num_envs "
+                f"({self.num_envs}); a minibatch holds whole env sequences"
+            )
+        for name in ("stored_state", "burn_in", "snapshots"):
+            if getattr(self, name):
+                raise ValueError(
+                    f"TrainConfig.{name} = {getattr(self, name)}: algorithm 'ppo' has no "
+                    "replay and no snapshot selection; use 0"
+                )
+        for name in ("explore_guide", "imitation_weight", "value_rescale"):
+            if float(getattr(self.hyperparams, name)) > 0.0:
+                raise ValueError(
+                    f"Hyperparams.{name} = {float(getattr(self.hyperparams, name))}: "
+                    "algorithm 'ppo' learns from the reward alone, without it; use 0"
+                )
 
     def program_key(self) -> tuple:
         """Every field but ``hyperparams``: what a compiled program of ``make_train``'s

@@ -122,9 +122,13 @@ def forward_bytes_per_step(network: NetworkConfig) -> int:
 
 
 def activation_bytes(config: Config) -> int:
-    """Estimated temporaries of one gradient update (and of acting, which is smaller)."""
+    """Estimated temporaries of one gradient update (and of acting, which is smaller):
+    the DQN's minibatch of windows, or PPO's rollout (whose minibatches are parts of it)."""
     train = config["train"]
-    samples = train["batch_size"] * (train["burn_in"] + train["window"] + 1)
+    if train["algorithm"] == "ppo":
+        samples = train["rollout_steps"] * train["num_envs"]
+    else:
+        samples = train["batch_size"] * (train["burn_in"] + train["window"] + 1)
     forward = samples * forward_bytes_per_step(config.network_config())
     return int(ACTIVATION_FACTOR * forward)
 
@@ -135,8 +139,8 @@ def run_memory(config: Config) -> RunMemory:
 
     trainer = make_train(config.train_config())
     state = jax.eval_shape(trainer.init, config.keys()[0])
-    replay = _nbytes(state.replay)
-    params = _nbytes((state.online, state.target, state.snapshots))
+    replay = _nbytes(getattr(state, "replay", None))  # PPO's state has no replay
+    params = _nbytes((state.online, getattr(state, "target", None), state.snapshots))
     optimiser = _nbytes(state.opt_state)
     other = _nbytes(state) - replay - params - optimiser
     activations = activation_bytes(config) + PARAM_TEMPORARIES * _nbytes(state.online)

@@ -1,17 +1,27 @@
 """Recurrent PPO, a learner of another family (Schulman et al. 2017; the project's).
 
-Laid out like PureJaxRL's ``ppo_rnn.py``: ``make_ppo(config)`` returns a
-:class:`PPOTrainer` of pure functions — ``init(key, hparams) -> PPOState``,
-``update(state) -> PPOState`` (one rollout of ``num_steps`` steps on
-``num_envs`` envs, generalised advantage estimation, ``update_epochs`` epochs
-of clipped-surrogate updates over ``num_minibatches`` minibatches of whole
-env sequences) and ``train(key, hparams) -> (params, metrics)`` (``lax.scan``
-over ``num_updates`` updates). It shares the DRQN's environment interface
-(:class:`~drqn_jax.task.Task`, any env of the gymnax contract), its torso and
-recurrent core (:mod:`drqn_jax.networks`: the network has one output more
-than there are actions — the logits, then the value), its Adam and its
-greedy evaluation (:func:`policy_network` for
-:func:`~drqn_jax.task.greedy_returns` or :func:`~drqn_jax.agents.drqn.drqn_agent`).
+Laid out like PureJaxRL's ``ppo_rnn.py`` and served through the same
+:class:`~drqn_jax.train.Trainer` as the DQN (``TrainConfig.algorithm =
+"ppo"``; :func:`drqn_jax.train.make_train` builds it), so the host loop,
+checkpoints, sweeps, evaluation and the study treat both alike. An
+iteration is one update: a rollout of ``rollout_steps`` steps on
+``num_envs`` envs, generalised advantage estimation, then ``update_epochs``
+epochs of clipped-surrogate gradient steps over ``num_minibatches``
+minibatches of whole env sequences (global-norm clip, Adam). The run's
+budget is the project's: ``num_episodes`` training episodes, written with
+the DQN's per-episode metrics (:mod:`drqn_jax.episodes`; ``mean_loss`` is
+the mean loss of the updates made while the episode ran); updates after
+the budget is met change nothing, so a run split into chunks ends
+bit-identical to a one-shot run. The learning rate falls as the DQN's does,
+in recorded episodes (``learning_rate_end``; PureJaxRL's annealing to 0 is
+``learning_rate_end = 0``).
+
+It shares the DRQN's environment interface (:class:`~drqn_jax.task.Task`,
+any env of the gymnax contract), torso and recurrent core
+(:mod:`drqn_jax.networks`: the network has one output more than there are
+actions — the logits, then the value) and its Adam. The trainer's
+``network`` is :func:`policy_network`, the logits alone, whose argmax is the
+greedy agent that evaluation plays (:func:`~drqn_jax.agents.drqn.drqn_agent`).
 
 The recurrent state is zeroed before the first step of every episode, in
 acting and in the update's unroll (the ``resets`` of each step are the
@@ -24,69 +34,29 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.networks import Network, NetworkConfig, make_network
+from drqn_jax.episodes import budget_met, init_metrics, record_episodes
+from drqn_jax.hyperparams import Hyperparams, TrainConfig, annealed, step_share
+from drqn_jax.networks import Network, make_network
 from drqn_jax.optim import adam, apply_updates, clip_by_global_norm
-from drqn_jax.pytree import check_counts, param, pytree_dataclass, tree_where, validate
+from drqn_jax.pytree import pytree_dataclass, tree_where
+from drqn_jax.selection import candidate_metrics, run_agent
 from drqn_jax.task import Task, make_task
+from drqn_jax.trainer import Trainer, whole_run
 
 __all__ = [
-    "PPOConfig",
-    "PPOHyperparams",
     "PPOState",
-    "PPOTrainer",
+    "Transition",
+    "actor_critic",
     "gae",
     "make_ppo",
     "policy_network",
     "ppo_loss",
 ]
-
-
-@pytree_dataclass
-class PPOHyperparams:
-    """Traced PPO hyperparameters (PureJaxRL's ppo_rnn defaults for CartPole-v1)."""
-
-    learning_rate: float = param(2.5e-4, low=0.0, low_open=True)
-    anneal_lr: int = param(1, low=0, high=1, doc="1: the rate falls linearly to 0")
-    adam_eps: float = param(1e-5, low=0.0, low_open=True)
-    gamma: float = param(0.99, low=0.0, high=1.0)
-    gae_lambda: float = param(0.95, low=0.0, high=1.0)
-    clip_eps: float = param(0.2, low=0.0, low_open=True)
-    ent_coef: float = param(0.01, low=0.0)
-    vf_coef: float = param(0.5, low=0.0)
-    max_grad_norm: float = param(0.5, low=0.0, low_open=True)
-
-    def __post_init__(self) -> None:
-        validate(self)
-
-
-@dataclasses.dataclass(frozen=True)
-class PPOConfig:
-    """Shape-setting PPO settings (hashable; a change recompiles)."""
-
-    env_id: str = "UrbanPedestrians-v0"
-    env_overrides: tuple[tuple[str, Any], ...] = ()
-    network: NetworkConfig = dataclasses.field(default_factory=NetworkConfig)
-    num_envs: int = 4
-    num_steps: int = 128
-    num_updates: int = 100
-    update_epochs: int = 4
-    num_minibatches: int = 4
-
-    def __post_init__(self) -> None:
-        check_counts(
-            self, ("num_envs", "num_steps", "num_updates", "update_epochs", "num_minibatches")
-        )
-        if self.num_envs % self.num_minibatches:
-            raise ValueError(
-                f"PPOConfig.num_minibatches = {self.num_minibatches}: must divide num_envs "
-                f"({self.num_envs}); a minibatch holds whole env sequences"
-            )
 
 
 class Transition(NamedTuple):
@@ -104,32 +74,50 @@ class Transition(NamedTuple):
 
 @pytree_dataclass
 class PPOState:
-    """Everything a PPO run carries between updates; per-env leaves (N, …);
-    ``metrics``: per update, the mean return and count of the episodes that
-    ended in its rollout, (num_updates,) each."""
+    """Everything a PPO run carries between updates (and checkpoints).
+
+    Per-env leaves have a leading N axis. ``online`` holds the network's
+    parameters (the name the DQN's state gives the parameters it trains, so
+    the host loop and agent selection read both alike); ``done`` (N,) says
+    which envs ended an episode at the last step; the episode counters and
+    ``metrics`` are :func:`~drqn_jax.episodes.record_episodes`'.
+    """
 
     key: jax.Array
-    hparams: PPOHyperparams
-    params: Any
-    opt_state: Any
+    hparams: Hyperparams
+    env_params: Any
     env_state: Any
     obs: Any
     carry: Any
     done: jax.Array
+    online: Any
+    opt_state: Any
+    episode: jax.Array
     ep_return: jax.Array
+    ep_length: jax.Array
+    ep_loss_sum: jax.Array
+    ep_loss_count: jax.Array
+    episodes_started: jax.Array
+    recorded: jax.Array
+    grad_steps: jax.Array
+    env_steps: jax.Array
+    step_budget: jax.Array  # () int32 TrainConfig.num_env_steps (0: none)
     updates: jax.Array
     metrics: dict[str, jax.Array]
+    snapshots: Any = None  # always None: snapshot selection is the DQN's (snapshots = 0)
+    validation: Any = None
+
+    @property
+    def finished(self) -> jax.Array:
+        return budget_met(self)
 
 
-class PPOTrainer(NamedTuple):
-    """The pure functions of one PPO configuration (see the module docstring)."""
-
-    config: PPOConfig
-    task: Task
-    network: Network
-    init: Callable[..., PPOState]
-    update: Callable[[PPOState], PPOState]
-    train: Callable[..., tuple[Any, dict[str, jax.Array]]]
+def actor_critic(config: TrainConfig, task: Task) -> Network:
+    """The network PPO trains: the task's torso (``config.network`` completed from
+    the observation) and recurrent core, with A + 1 outputs — A logits, then the
+    value."""
+    net_config = task.network(config.network)
+    return make_network(dataclasses.replace(net_config, num_actions=task.num_actions + 1))
 
 
 def policy_network(network: Network, num_actions: int) -> Network:
@@ -148,7 +136,7 @@ def policy_network(network: Network, num_actions: int) -> Network:
 
 
 def gae(
-    value: jax.Array, reward: jax.Array, done: jax.Array, last_value: jax.Array, hp: PPOHyperparams
+    value: jax.Array, reward: jax.Array, done: jax.Array, last_value: jax.Array, hp: Hyperparams
 ) -> tuple[jax.Array, jax.Array]:
     """Generalised advantage estimates and value targets, (T, N) each, of a
     rollout's values, rewards and end-of-episode flags (T, N) and the value of
@@ -176,7 +164,7 @@ def ppo_loss(
     batch: Transition,
     advantage: jax.Array,
     target: jax.Array,
-    hp: PPOHyperparams,
+    hp: Hyperparams,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """The clipped-surrogate loss of a minibatch of whole sequences (T, B, …)
     unrolled from ``carry`` (B, …): actor + vf_coef · clipped value loss −
@@ -196,53 +184,100 @@ def ppo_loss(
     return total, {"actor": actor, "critic": critic, "entropy": entropy}
 
 
-def make_ppo(config: PPOConfig | None = None) -> PPOTrainer:
-    """Build the pure PPO functions for ``config`` (equal configs: the same functions)."""
-    return _make_ppo(PPOConfig() if config is None else config)
+def make_ppo(config: TrainConfig) -> Trainer:
+    """The :class:`~drqn_jax.train.Trainer` of a ``config`` with ``algorithm =
+    "ppo"`` (equal configs: the same functions). ``make_train`` calls it."""
+    if config.algorithm != "ppo":
+        raise ValueError(f"make_ppo: TrainConfig.algorithm = {config.algorithm!r}; use 'ppo'")
+    return _make_ppo(config)
 
 
 @functools.lru_cache(maxsize=16)
-def _make_ppo(config: PPOConfig) -> PPOTrainer:
+def _make_ppo(config: TrainConfig) -> Trainer:
     task = make_task(config.env_id, config.env_overrides)
-    n_act, n_env = task.num_actions, config.num_envs
-    net_config = task.network(config.network)
-    network = make_network(dataclasses.replace(net_config, num_actions=n_act + 1))
+    n_act = task.num_actions
+    network = actor_critic(config, task)
+    policy = policy_network(network, n_act)
 
-    def init(key: jax.Array, hparams: PPOHyperparams | None = None) -> PPOState:
-        hp = PPOHyperparams() if hparams is None else hparams
-        key, k_net, k_env = jax.random.split(key, 3)
-        params = network.init(k_net)
-        obs, env_state = jax.vmap(task.reset, (0, None))(
-            jax.random.split(k_env, n_env), task.env_params
-        )
-        return PPOState(
-            key=key,
-            hparams=hp,
-            params=params,
-            opt_state=adam(hp.learning_rate, eps=hp.adam_eps).init(params),
-            env_state=env_state,
-            obs=obs,
-            carry=network.initial_carry((n_env,)),
-            done=jnp.zeros((n_env,), bool),
-            ep_return=jnp.zeros((n_env,), jnp.float32),
-            updates=jnp.zeros((), jnp.int32),
-            metrics={
-                "episode_return": jnp.zeros((config.num_updates,), jnp.float32),
-                "episodes": jnp.zeros((config.num_updates,), jnp.int32),
-            },
-        )
+    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
+        hp = config.hyperparams if hparams is None else hparams
+        env_params = task.env_params if env_params is None else env_params
+        return _init_state(config, task, network, key, hp, env_params)
+
+    def act(state: PPOState, key: jax.Array) -> tuple[jax.Array, Any]:
+        """Actions (N,) sampled from the policy and the advanced carry."""
+        out, carry = network.step(state.online, state.obs, _restarted(network, state))
+        return jax.random.categorical(key, out[..., :n_act]).astype(jnp.int32), carry
 
     def update(state: PPOState) -> PPOState:
         carry0 = state.carry
-        state, traj, ended = _rollout(config, task, network, state)
-        return _learn(config, network, n_act, state, traj, carry0, ended)
+        state, traj = _rollout(config, task, network, state)
+        return _learn(config, network, n_act, state, traj, carry0)
 
-    def train(key: jax.Array, hparams: PPOHyperparams | None = None):
-        state = init(key, hparams)
-        state, _ = jax.lax.scan(lambda s, _: (update(s), None), state, None, config.num_updates)
-        return state.params, state.metrics
+    def run(state: PPOState, num_iterations: int) -> PPOState:
+        """``num_iterations`` updates; those after the run finished change nothing."""
 
-    return PPOTrainer(config, task, network, init, update, train)
+        def body(state, _):
+            return jax.lax.cond(state.finished, lambda s: s, update, state), None
+
+        return jax.lax.scan(body, state, None, length=num_iterations)[0]
+
+    def validation_metrics(state: PPOState) -> dict[str, jax.Array]:
+        return candidate_metrics(config, task, policy, state)
+
+    def agent_params(state: PPOState) -> Any:
+        return run_agent(config, state)
+
+    train = whole_run(config, init, run, validation_metrics, agent_params)
+    return Trainer(
+        config=config,
+        task=task,
+        env=task.env,
+        env_params=task.env_params,
+        network=policy,
+        init=init,
+        act=act,
+        run=run,
+        train=train,
+        gradient_update=None,
+        validation_metrics=validation_metrics,
+        agent_params=agent_params,
+    )
+
+
+def _init_state(
+    config: TrainConfig, task: Task, network: Network, key: jax.Array, hp: Hyperparams, env_params
+) -> PPOState:
+    """The state before the first update: N envs reset, a fresh network and Adam,
+    empty metrics."""
+    n_env = config.num_envs
+    key, k_net, k_env = jax.random.split(key, 3)
+    params = network.init(k_net)
+    obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
+    zeros_f, zeros_i = jnp.zeros((n_env,), jnp.float32), jnp.zeros((n_env,), jnp.int32)
+    return PPOState(
+        key=key,
+        hparams=hp,
+        env_params=env_params,
+        env_state=env_state,
+        obs=obs,
+        carry=network.initial_carry((n_env,)),
+        done=jnp.zeros((n_env,), bool),
+        online=params,
+        opt_state=adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps).init(params),
+        episode=jnp.arange(n_env, dtype=jnp.int32),
+        ep_return=zeros_f,
+        ep_length=zeros_i,
+        ep_loss_sum=zeros_f,
+        ep_loss_count=zeros_i,
+        episodes_started=jnp.asarray(n_env, jnp.int32),
+        recorded=jnp.zeros((), jnp.int32),
+        grad_steps=jnp.zeros((), jnp.int32),
+        env_steps=jnp.zeros((), jnp.int32),
+        step_budget=jnp.asarray(config.num_env_steps, jnp.int32),
+        updates=jnp.zeros((), jnp.int32),
+        metrics=init_metrics(task, config.num_episodes),
+    )
 
 
 def _restarted(network: Network, state: PPOState) -> Any:
@@ -251,59 +286,52 @@ def _restarted(network: Network, state: PPOState) -> Any:
     return tree_where(state.done, network.initial_carry(state.done.shape), state.carry)
 
 
-def _rollout(config: PPOConfig, task: Task, network: Network, state: PPOState):
-    """``num_steps`` steps of the N envs with actions sampled from the policy:
-    the moved state, the trajectory (leaves (T, N, …)) and the (sum, count) of
-    the returns of the episodes that ended."""
+def _rollout(
+    config: TrainConfig, task: Task, network: Network, state: PPOState
+) -> tuple[PPOState, Transition]:
+    """``rollout_steps`` steps of the N envs with actions sampled from the policy:
+    the moved state (its ended episodes recorded) and the trajectory (leaves
+    (T, N, …))."""
     n_act = task.num_actions
+    zero_f, zero_i = jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32)
 
-    def step(loop, _):
-        state, ret_sum, ret_count = loop
+    def step(state, _):
         key, k_act, k_env = jax.random.split(state.key, 3)
-        out, carry = network.step(state.params, state.obs, _restarted(network, state))
+        out, carry = network.step(state.online, state.obs, _restarted(network, state))
         logits, value = out[..., :n_act], out[..., n_act]
         action = jax.random.categorical(k_act, logits).astype(jnp.int32)
         log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[:, None], axis=-1)[:, 0]
         env = jax.vmap(task.step, (0, 0, 0, None))(
-            jax.random.split(k_env, config.num_envs), state.env_state, action, task.env_params
+            jax.random.split(k_env, config.num_envs), state.env_state, action, state.env_params
         )
         done = env.terminated | env.truncated
-        ep_return = state.ep_return + env.reward
-        ret_sum = ret_sum + jnp.sum(jnp.where(done, ep_return, 0.0))
-        ret_count = ret_count + jnp.sum(done, dtype=jnp.int32)
         traj = Transition(state.obs, action, env.reward, done, value, log_prob, state.done)
-        state = state.replace(
-            key=key,
-            env_state=env.state,
-            obs=env.obs,
-            carry=carry,
-            done=done,
-            ep_return=jnp.where(done, 0.0, ep_return),
+        moved, metrics = record_episodes(
+            task, config.num_episodes, state, env, done, zero_f, zero_i
         )
-        return (state, ret_sum, ret_count), traj
+        return moved.replace(key=key, carry=carry, done=done, metrics=metrics), traj
 
-    zero = (jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32))
-    (state, ret_sum, ret_count), traj = jax.lax.scan(step, (state, *zero), None, config.num_steps)
-    return state, traj, (ret_sum, ret_count)
+    return jax.lax.scan(step, state, None, config.rollout_steps)
 
 
 def _learn(
-    config: PPOConfig,
+    config: TrainConfig,
     network: Network,
     n_act: int,
     state: PPOState,
     traj: Transition,
     carry0: Any,
-    ended: tuple[jax.Array, jax.Array],
 ) -> PPOState:
     """The update of one rollout: GAE, then epochs of minibatch gradient steps
-    (global-norm clip, Adam with the annealed rate), and the update's metrics."""
+    (global-norm clip, Adam at the annealed rate); the update's mean loss joins
+    every running episode's."""
     hp = state.hparams
-    out, _ = network.step(state.params, state.obs, _restarted(network, state))
+    out, _ = network.step(state.online, state.obs, _restarted(network, state))
     advantage, target = gae(traj.value, traj.reward, traj.done, out[..., n_act], hp)
-    frac = 1.0 - state.updates.astype(jnp.float32) / config.num_updates
-    lr = hp.learning_rate * jnp.where(hp.anneal_lr == 1, frac, 1.0)
-    opt = adam(lr, eps=hp.adam_eps)
+    lr = annealed(
+        hp, state.recorded, config.num_episodes, step_share(config, state.env_steps)
+    ).learning_rate
+    opt = adam(lr, hp.adam_b1, hp.adam_b2, hp.adam_eps)
     per_mb = config.num_envs // config.num_minibatches
 
     def minibatch(learner, envs):
@@ -311,31 +339,36 @@ def _learn(
         take = functools.partial(jnp.take, indices=envs, axis=1)
         batch = jax.tree.map(take, traj)
         mb_carry = jax.tree.map(functools.partial(jnp.take, indices=envs, axis=0), carry0)
-        grads, _ = jax.grad(ppo_loss, has_aux=True)(
+        grads, loss = jax.grad(_total_loss, has_aux=True)(
             params, network, n_act, mb_carry, batch, take(advantage), take(target), hp
         )
         grads, _ = clip_by_global_norm(hp.max_grad_norm).update(grads, ())
         updates, opt_state = opt.update(grads, opt_state, params)
-        return (apply_updates(params, updates), opt_state), None
+        return (apply_updates(params, updates), opt_state), loss
 
     def epoch(loop, _):
         learner, key = loop
         key, k_perm = jax.random.split(key)
         envs = jax.random.permutation(k_perm, config.num_envs)
-        learner, _ = jax.lax.scan(minibatch, learner, envs.reshape(-1, per_mb))
-        return (learner, key), None
+        learner, losses = jax.lax.scan(minibatch, learner, envs.reshape(-1, per_mb))
+        return (learner, key), losses
 
     key, k_epochs = jax.random.split(state.key)
-    ((params, opt_state), _), _ = jax.lax.scan(
-        epoch, ((state.params, state.opt_state), k_epochs), None, config.update_epochs
+    ((params, opt_state), _), losses = jax.lax.scan(
+        epoch, ((state.online, state.opt_state), k_epochs), None, config.update_epochs
     )
-    ret_sum, ret_count = ended
-    i = state.updates
-    mean_return = jnp.where(ret_count > 0, ret_sum / jnp.maximum(ret_count, 1), jnp.nan)
-    metrics = {
-        "episode_return": state.metrics["episode_return"].at[i].set(mean_return),
-        "episodes": state.metrics["episodes"].at[i].set(ret_count),
-    }
     return state.replace(
-        key=key, params=params, opt_state=opt_state, updates=i + 1, metrics=metrics
+        key=key,
+        online=params,
+        opt_state=opt_state,
+        ep_loss_sum=state.ep_loss_sum + jnp.mean(losses),
+        ep_loss_count=state.ep_loss_count + 1,
+        grad_steps=state.grad_steps + config.update_epochs * config.num_minibatches,
+        updates=state.updates + 1,
     )
+
+
+def _total_loss(*args: Any) -> tuple[jax.Array, jax.Array]:
+    """:func:`ppo_loss` with the total as its auxiliary output too."""
+    total, _ = ppo_loss(*args)
+    return total, total

@@ -49,7 +49,8 @@ from drqn_jax.checkpoint import (
 )
 from drqn_jax.config import RENAMED_LEAVES, Config, added_leaves, load_config
 from drqn_jax.evaluation import evaluate
-from drqn_jax.networks import NETWORK_KINDS, Network
+from drqn_jax.hyperparams import LEARNED_AGENTS
+from drqn_jax.networks import Network
 from drqn_jax.train import (
     NOT_LEARNED,
     Trainer,
@@ -173,7 +174,7 @@ def recorded_metrics(state: TrainState | Mapping[str, Any]) -> dict[str, np.ndar
     ``(num_episodes,)``). With N parallel environments episodes finish out of
     order; an episode is recorded once it ended (its ``length`` is then >= 1).
     """
-    source = state.metrics if isinstance(state, TrainState) else state
+    source = state if isinstance(state, Mapping) else state.metrics
     metrics = {name: np.asarray(v) for name, v in source.items()}
     done = metrics["length"] > 0
     out = {"episode": np.flatnonzero(done)}
@@ -332,7 +333,8 @@ def _chunks(
     """
     every = config["run"]["checkpoint_every_s"]
     last_save = time.perf_counter()
-    with _progress_bar(config["train"]["num_episodes"], int(state.recorded), quiet) as bar:
+    total, unit, done = _budget(config)
+    with _progress_bar(total, done(state), quiet, unit) as bar:
         while not bool(state.finished):
             if stop.signal is not None:
                 return "interrupted", state, chunks
@@ -344,7 +346,7 @@ def _chunks(
             if not quiet:  # the postfix copies the metrics to the host: only when shown
                 steps = int(state.env_steps) - steps0
                 steps_per_s = steps / max(time.perf_counter() - t0, 1e-9)
-                bar.update(int(state.recorded) - bar.n)
+                bar.update(done(state) - bar.n)
                 bar.set_postfix(_progress_postfix(state, steps_per_s), refresh=False)
             if time.perf_counter() - last_save >= every and not bool(state.finished):
                 _save(run_dir, config, state, elapsed(), chunks)
@@ -352,14 +354,23 @@ def _chunks(
     return "finished", state, chunks
 
 
-def _progress_bar(total: int, initial: int, quiet: bool) -> Any:
+def _budget(config: Config) -> tuple[int, str, Callable[[Any], int]]:
+    """The run's budget for its progress bar: (total, unit, how much of it a state
+    has used): ``train.num_env_steps`` env steps when set, else ``num_episodes``."""
+    steps = config["train"]["num_env_steps"]
+    if steps:
+        return steps, "step", lambda state: min(int(state.env_steps), steps)
+    return config["train"]["num_episodes"], "ep", lambda state: int(state.recorded)
+
+
+def _progress_bar(total: int, initial: int, quiet: bool, unit: str = "ep") -> Any:
     """A tqdm bar on stderr that appears only on runs longer than 2 s."""
     from tqdm.auto import tqdm
 
     return tqdm(
         total=total,
         initial=initial,
-        unit="ep",
+        unit=unit,
         desc="training",
         disable=quiet,
         delay=2.0,
@@ -423,7 +434,7 @@ def evaluate_agents(config: Config, agents: list[Agent]) -> list[dict[str, Any]]
     return [
         {
             **evaluate(a, eval_key, episodes, env, env_params, batch_size=batch),
-            "teacher": learned if a.name in NETWORK_KINDS else NOT_LEARNED,
+            "teacher": learned if a.name in LEARNED_AGENTS else NOT_LEARNED,
         }
         for a in agents
     ]

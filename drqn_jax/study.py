@@ -454,6 +454,7 @@ def cross_results(
             their agents: train it again in a new directory).
     """
     from drqn_jax.agents import drqn_agent
+    from drqn_jax.hyperparams import agent_name
     from drqn_jax.runner import evaluate_agents, json_ready, load_run, load_trained_network
     from drqn_jax.sweep_runner import agent_dir
 
@@ -466,8 +467,10 @@ def cross_results(
                 f"{directory}: no trained agent to evaluate on {env_id} (the run ended before "
                 "sweeps kept their agents); run the study in a new --out"
             )
-        network, params, _ = load_trained_network(load_run(directory), directory)
-        (result,) = evaluate_agents(config, [drqn_agent(network, params)])
+        trained = load_run(directory)
+        network, params, _ = load_trained_network(trained, directory)
+        name = agent_name(trained.train_config())
+        (result,) = evaluate_agents(config, [drqn_agent(network, params, name)])
         return {"index": run["index"], "values": run["values"], **json_ready(result)}
 
     cache = out / arm.name / "cross" / env_id

@@ -64,6 +64,7 @@ from drqn_jax.checkpoint import (
 )
 from drqn_jax.config import RENAMED_LEAVES, ConfigError, added_leaves
 from drqn_jax.evaluation import evaluate
+from drqn_jax.hyperparams import agent_name
 from drqn_jax.memory import (
     RunMemory,
     available_memory,
@@ -480,7 +481,8 @@ def evaluate_runs(
     out = []
     for i, point in enumerate(points):
         env, env_params = point.config.make_env()
-        agent = drqn_agent(network, jax.tree.map(lambda x, i=i: x[i], params))
+        name = agent_name(point.config.train_config())
+        agent = drqn_agent(network, jax.tree.map(lambda x, i=i: x[i], params), name)
         settings = point.config["evaluate"]
         batch = settings["batch_size"] or None
         result = evaluate(agent, eval_key, settings["episodes"], env, env_params, batch_size=batch)

@@ -1,6 +1,8 @@
 """Training a (D)RQN end to end inside one jitted program (paper §V-B, Table II; SPEC §7).
 
-``make_train(config)`` returns a :class:`Trainer` whose functions are pure:
+``make_train(config)`` returns a :class:`~drqn_jax.trainer.Trainer` whose
+functions are pure (``config.algorithm = "ppo"``: recurrent PPO's,
+:mod:`drqn_jax.ppo`; else the DQN's, described here):
 
 * ``init(key, hparams, env_params) -> TrainState``;
 * ``run(state, num_iterations) -> TrainState``: ``lax.scan`` over iterations
@@ -33,12 +35,13 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 
 from drqn_jax.acting import epsilon_of, explore
+from drqn_jax.episodes import BASE_METRICS, budget_met, init_metrics, record_episodes
 from drqn_jax.hyperparams import (
     IMITATION_STATES,
     NOT_LEARNED,
@@ -47,11 +50,13 @@ from drqn_jax.hyperparams import (
     Hyperparams,
     TrainConfig,
     annealed,
+    step_share,
     teacher_label,
     teachers_of,
 )
 from drqn_jax.networks import Network, make_network
 from drqn_jax.optim import adam
+from drqn_jax.ppo import make_ppo
 from drqn_jax.pytree import pytree_dataclass, tree_where
 from drqn_jax.replay import (
     EpisodeReplay,
@@ -73,6 +78,7 @@ from drqn_jax.selection import (
     unvalidated,
 )
 from drqn_jax.task import Step, Task, make_task
+from drqn_jax.trainer import Trainer, whole_run
 from drqn_jax.update import Learner, gradient_update, learn
 
 __all__ = [
@@ -96,9 +102,9 @@ __all__ = [
     "unvalidated",
 ]
 
-#: Per-episode metrics of every task; a task adds its own (the paper's env:
-#: collision, goal, distance, mean speed).
-METRIC_NAMES = ("episode_return", "length", "epsilon", "mean_loss")
+#: Per-episode metrics of the DQN learner on every task; a task adds its own
+#: (the paper's env: collision, goal, distance, mean speed).
+METRIC_NAMES = (*BASE_METRICS, "epsilon")
 
 
 @pytree_dataclass
@@ -129,30 +135,14 @@ class TrainState:
     recorded: jax.Array  # () int32 training episodes whose metrics are written
     grad_steps: jax.Array
     env_steps: jax.Array
+    step_budget: jax.Array  # () int32 TrainConfig.num_env_steps (0: none)
     metrics: dict[str, jax.Array]
     snapshots: Any = None  # [K, ...] online parameters during training; None when K = 0
     validation: Any = None  # {VALIDATION_METRICS: (K + 1,) float32}, NaN until validated
 
     @property
     def finished(self) -> jax.Array:
-        return self.recorded >= self.metrics["length"].shape[-1]
-
-
-class Trainer(NamedTuple):
-    """The pure functions of one training configuration (see the module docstring)."""
-
-    config: TrainConfig
-    task: Task
-    env: Any
-    env_params: Any
-    network: Network
-    init: Callable[..., TrainState]
-    act: Callable[[TrainState, jax.Array], tuple[jax.Array, Any]]
-    run: Callable[[TrainState, int], TrainState]
-    train: Callable[..., tuple[Any, dict[str, jax.Array]]]
-    gradient_update: Callable[..., tuple[tuple, jax.Array]]
-    validation_metrics: Callable[[TrainState], dict[str, jax.Array]]
-    agent_params: Callable[[TrainState], Any]
+        return budget_met(self)
 
 
 def _small_leaves(state: TrainState) -> TrainState:
@@ -164,12 +154,16 @@ def _small_leaves(state: TrainState) -> TrainState:
 
 
 def make_train(config: TrainConfig | None = None) -> Trainer:
-    """Build the pure training functions for ``config``.
+    """Build the pure training functions for ``config``: the DQN's, or PPO's
+    (``algorithm = "ppo"``, :func:`drqn_jax.ppo.make_ppo`).
 
     Equal configurations get the same :class:`Trainer` (the same function
     objects), so ``jax.jit`` reuses what it compiled for them.
     """
-    return _make_train(TrainConfig() if config is None else config)
+    config = TrainConfig() if config is None else config
+    if config.algorithm == "ppo":
+        return make_ppo(config)
+    return _make_train(config)
 
 
 def _check_task(config: TrainConfig, task: Task) -> None:
@@ -222,16 +216,6 @@ def _make_train(config: TrainConfig) -> Trainer:
         state, _ = jax.lax.scan(body, state, None, length=num_iterations)
         return state
 
-    def train(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
-        """A whole training run: the run's agent's parameters and per-episode metrics."""
-        state = init(key, hparams, env_params)
-        state = jax.lax.while_loop(
-            lambda s: ~s.finished, lambda s: run(s, config.chunk_iterations), state
-        )
-        if config.snapshots:
-            state = state.replace(validation=validation_metrics(state))
-        return agent_params(state), state.metrics
-
     def validation_metrics(state: TrainState) -> dict[str, jax.Array]:
         return candidate_metrics(config, task, network, state)
 
@@ -247,7 +231,7 @@ def _make_train(config: TrainConfig) -> Trainer:
         init=init,
         act=act,
         run=run,
-        train=train,
+        train=whole_run(config, init, run, validation_metrics, agent_params),
         gradient_update=update,
         validation_metrics=validation_metrics,
         agent_params=agent_params,
@@ -273,9 +257,7 @@ def _init_state(
     episode = jnp.arange(n_env, dtype=jnp.int32)
     zeros_f = jnp.zeros((n_env,), jnp.float32)
     zeros_i = jnp.zeros((n_env,), jnp.int32)
-    dtypes = {**dict.fromkeys(METRIC_NAMES, jnp.float32), "length": jnp.int32}
-    dtypes.update(dict(task.metrics))
-    metrics = {name: jnp.zeros((n_episodes,), dtype) for name, dtype in dtypes.items()}
+    metrics = init_metrics(task, n_episodes, ("epsilon",))
     snapshots = validation = None
     if config.snapshots:
         snapshots = jax.tree.map(lambda p: jnp.stack([p] * config.snapshots), online)
@@ -301,6 +283,7 @@ def _init_state(
         recorded=jnp.zeros((), jnp.int32),
         grad_steps=jnp.zeros((), jnp.int32),
         env_steps=jnp.zeros((), jnp.int32),
+        step_budget=jnp.asarray(config.num_env_steps, jnp.int32),
         metrics=metrics,
         snapshots=snapshots,
         validation=validation,
@@ -347,6 +330,7 @@ def _iteration(
     replay = _store(task, network, state.replay, action, step, carry, done, live)
 
     can_learn = live & (jnp.sum(replay.complete) >= state.hparams.learning_starts)
+    steps = step_share(config, state.env_steps)
     learner = Learner(state.online, state.target, state.opt_state, state.grad_steps)
     learner, loss_sum = jax.lax.cond(
         can_learn,
@@ -354,13 +338,24 @@ def _iteration(
         lambda learner, *_: (learner, jnp.zeros((), jnp.float32)),
         learner,
         replay,
-        annealed(state.hparams, state.recorded, config.num_episodes),
+        annealed(state.hparams, state.recorded, config.num_episodes, steps),
         state.env_params,
         k_learn,
     )
     n_updates = jnp.where(can_learn, config.updates_per_step, 0)
-    moved, metrics = _bookkeeping(config, task, state, step, done, loss_sum, n_updates)
-    moved = moved.replace(key=key, carry=tree_where(done, network.initial_carry((n_env,)), carry))
+    extra = {"epsilon": state.epsilon}
+    moved, metrics = record_episodes(
+        task, config.num_episodes, state, step, done, loss_sum, n_updates, extra
+    )
+    moved = moved.replace(
+        key=key,
+        carry=tree_where(done, network.initial_carry((n_env,)), carry),
+        epsilon=jnp.where(
+            done,
+            epsilon_of(moved.episode, state.hparams, config.num_episodes, steps),
+            state.epsilon,
+        ),
+    )
     small = jax.tree.map(
         lambda new, old: jnp.where(live, new, old), _small_leaves(moved), _small_leaves(state)
     )
@@ -375,52 +370,3 @@ def _iteration(
             config, state.snapshots, learner.online, state.recorded, moved.recorded
         ),
     )
-
-
-def _bookkeeping(
-    config: TrainConfig,
-    task: Task,
-    state: TrainState,
-    step: Step,
-    done: jax.Array,
-    loss_sum: jax.Array,
-    n_updates: jax.Array,
-) -> tuple[TrainState, dict[str, jax.Array]]:
-    """Episode bookkeeping of one iteration: the state's per-env counters moved on
-    (those of ended episodes reset, their next episode's ε), and the metrics
-    with each ended training episode's values written at its index."""
-    n_episodes = config.num_episodes
-    ep_return = state.ep_return + step.reward
-    ep_length = state.ep_length + 1
-    ep_loss_sum = state.ep_loss_sum + loss_sum
-    ep_loss_count = state.ep_loss_count + n_updates
-    record = done & (state.episode < n_episodes)
-    index = jnp.where(record, state.episode, n_episodes)  # out of range: dropped
-    values = {
-        "episode_return": ep_return,
-        "length": ep_length,
-        **task.episode_metrics(step, ep_length, state.env_params),
-        "epsilon": state.epsilon,
-        "mean_loss": ep_loss_sum / jnp.maximum(ep_loss_count, 1).astype(jnp.float32),
-    }
-    metrics = {
-        name: state.metrics[name].at[index].set(values[name].astype(buf.dtype), mode="drop")
-        for name, buf in state.metrics.items()
-    }
-    new_episode = state.episodes_started + jnp.cumsum(done.astype(jnp.int32)) - 1
-    episode = jnp.where(done, new_episode, state.episode)
-    zero_f, zero_i = jnp.zeros_like(ep_return), jnp.zeros_like(ep_length)
-    moved = state.replace(
-        env_state=step.state,
-        obs=step.obs,
-        episode=episode,
-        epsilon=jnp.where(done, epsilon_of(episode, state.hparams, n_episodes), state.epsilon),
-        ep_return=jnp.where(done, zero_f, ep_return),
-        ep_length=jnp.where(done, zero_i, ep_length),
-        ep_loss_sum=jnp.where(done, zero_f, ep_loss_sum),
-        ep_loss_count=jnp.where(done, zero_i, ep_loss_count),
-        episodes_started=state.episodes_started + jnp.sum(done, dtype=jnp.int32),
-        recorded=state.recorded + jnp.sum(record, dtype=jnp.int32),
-        env_steps=state.env_steps + config.num_envs,
-    )
-    return moved, metrics

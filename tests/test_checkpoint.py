@@ -350,15 +350,16 @@ def test_leaves_added_later_are_filled(tmp_path, tiny, template):
 
 def test_checkpoints_written_before_the_revision_load(tmp_path, tiny, template):
     """A checkpoint of the time before the 2026-11-25 revision holds
-    ``.env_params.ped_yield`` (same codes as ``ped_behaviour_to_car``) and no
-    pedestrians' ``waited``: the runner's ``renamed`` and ``fill`` load it."""
+    ``.env_params.ped_yield`` (same codes as ``ped_behaviour_to_car``), no
+    pedestrians' ``waited`` and no ``step_budget``: the runner's ``renamed`` and
+    ``fill`` load it."""
     state5 = tiny[3]
     save_checkpoint(tmp_path, state5, {})
     npz = tmp_path / CHECKPOINT_NPZ
     manifest = read_manifest(npz)
-    waited = ".env_state.pedestrians.waited"
-    leaves = [e for e in manifest["leaves"] if e["path"] != waited]
-    assert len(leaves) == len(manifest["leaves"]) - 1
+    added = (".env_state.pedestrians.waited", ".step_budget")
+    leaves = [e for e in manifest["leaves"] if e["path"] not in added]
+    assert len(leaves) == len(manifest["leaves"]) - 2
     for entry in leaves:
         if entry["path"] == ".env_params.ped_behaviour_to_car":
             entry["path"] = ".env_params.ped_yield"

@@ -124,6 +124,38 @@ def test_interrupt_then_resume_is_bit_identical(straight, tmp_path, monkeypatch,
     )
 
 
+#: Recurrent PPO on the smoke config, with a budget of 64 env steps: 4 updates of
+#: 2 envs × 8 steps, in 2 chunks.
+PPO = [
+    *SMOKE,
+    *("--set", "train.algorithm=ppo", "--set", "train.num_minibatches=2"),
+    *("--set", "train.rollout_steps=8", "--set", "train.num_env_steps=64"),
+    *("--set", "train.chunk_iterations=2"),
+]
+
+
+def test_ppo_trains_resumes_bit_identical_and_evaluates(tmp_path, monkeypatch, capsys):
+    """``train.algorithm = "ppo"`` runs through the same host loop: the step budget
+    ends it, an interrupted run resumes bit for bit, metrics.csv has no ε, and
+    its agent is evaluated under its own name."""
+    straight, interrupted = tmp_path / "straight", tmp_path / "interrupted"
+    assert cli.main(["train", *PPO, "--run-dir", str(straight)]) == 0
+    meta = json.loads((straight / CHECKPOINT_JSON).read_text())
+    assert meta["finished"] and meta["env_steps"] == 64 and meta["chunks"] == 2
+    header = (straight / "metrics.csv").read_text().splitlines()[0].split(",")
+    assert "epsilon" not in header and "mean_loss" in header
+    (agent,) = json.loads((straight / "evaluation.json").read_text())["agents"]
+    assert agent["agent"] == "ppo" and agent["teacher"] == "none (reward alone)"
+    _interrupt_after(monkeypatch, 1)
+    assert cli.main(["train", *PPO, "--run-dir", str(interrupted)]) == 130
+    monkeypatch.undo()
+    assert cli.main(["train", "--resume", str(interrupted), "--quiet"]) == 0
+    _assert_same_checkpoint(straight, interrupted)
+    capsys.readouterr()
+    assert cli.main(["evaluate", str(straight), "--episodes", "4"]) == 0
+    assert "| ppo | none (reward alone) | 4 |" in capsys.readouterr().out
+
+
 def test_sigterm_in_a_subprocess_saves_and_exits_130(tmp_path):
     """A real signal from outside, delivered while the process trains."""
     run_dir = tmp_path / "run"

@@ -263,12 +263,29 @@ def test_set_overrides_and_parsing():
         ("evaluate.episodes=0", r"evaluate\.episodes = 0: must be >= 1"),
         ("train.explore_brake=0.3", r"explore_brake \(0\.3\).*must sum to 1"),
         ("env.ped_speed_min=2", r"env\.ped_speed_min = 2 and env\.ped_speed_max"),
+        ("train.algorithm=sac", r"train\.algorithm = 'sac': must be one of 'dqn', 'ppo'"),
+        ("train.num_env_steps=-1", r"train\.num_env_steps = -1: must be an integer >= 0"),
+        ("train.algorithm=ppo", r"train\.num_minibatches = 4: must divide num_envs \(2\)"),
     ],
 )
 def test_bad_values_name_field_value_and_rule(override, message):
     with pytest.raises(ConfigError, match=message) as info:
         load_config("smoke", [override])
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("train.explore_guide=0.5", r"train\.explore_guide = 0\.5: algorithm 'ppo' learns"),
+        ("train.stored_state=1", r"train\.stored_state = 1: algorithm 'ppo' has no replay"),
+        ("train.snapshots=1", r"train\.snapshots = 1: algorithm 'ppo' has no replay"),
+    ],
+)
+def test_ppo_refuses_what_it_cannot_do(override, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config("ppo", [override])
+    assert load_config("ppo").train_config().algorithm == "ppo"
 
 
 def test_unknown_fields_in_files_and_bad_toml(tmp_path):

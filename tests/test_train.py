@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 
 import drqn_jax
+from drqn_jax.acting import epsilon_of
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action, rule_based_labels
 from drqn_jax.env.road_map import lane_centre_y
 from drqn_jax.env.state import BRAKE
+from drqn_jax.hyperparams import step_share
 from drqn_jax.loss import sequence_loss
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.replay import WINDOW_ANYWHERE, sample_windows
@@ -420,6 +422,29 @@ def test_learning_rate_anneals_linearly_over_the_episodes():
     constant = Hyperparams(learning_rate=3e-3)  # learning_rate_end = 1: the paper's rate
     for e in (0, 77, 200):
         assert float(annealed(constant, jnp.int32(e), 200).learning_rate) == np.float32(3e-3)
+
+
+def test_step_budget_ends_the_run_and_drives_the_schedules():
+    """``num_env_steps`` ends a run at that many env steps, even with episodes to go;
+    ε and the learning rate follow the larger share of the two budgets; a run in
+    chunks of 1 ends bit-identical to ``train``."""
+    config = tiny_train_config(num_env_steps=40, num_episodes=50, chunk_iterations=7)
+    trainer = make_train(config)
+    key = jax.random.key(5)
+    params, metrics = jax.jit(trainer.train)(key)
+    state = trainer.init(key)
+    run = jax.jit(trainer.run, static_argnums=1)
+    while not bool(state.finished):
+        state = run(state, 1)
+    assert int(state.env_steps) == 40 and int(state.recorded) < 50
+    assert_tree_equal((params, metrics), (state.online, state.metrics))
+    hp = config.hyperparams  # ε of an episode: at least the share of steps taken
+    late = epsilon_of(jnp.int32(1), hp, 50, step_share(config, jnp.int32(30)))
+    np.testing.assert_allclose(float(late), 1.0 - 0.9 * 0.75, rtol=1e-6)
+    lr = annealed(hp.replace(learning_rate_end=0.0), jnp.int32(1), 50, jnp.float32(0.5))
+    np.testing.assert_allclose(float(lr.learning_rate), 0.5 * float(hp.learning_rate), rtol=1e-6)
+    with pytest.raises(ValueError, match="snapshots = 1: snapshots are taken at shares"):
+        tiny_train_config(num_env_steps=40, snapshots=1)
 
 
 def test_config_equality_and_hash():

@@ -19,7 +19,8 @@ __all__ = ["drqn_agent"]
 
 
 def drqn_agent(network: Network, params: Any, name: str | None = None) -> Agent:
-    """Wrap a network and its parameters as a greedy agent."""
+    """Wrap a network and its parameters as a greedy agent (argmax of its outputs:
+    Q-values, or PPO's logits); ``name`` defaults to the network kind."""
 
     def init_fn(params: Any, key: jax.Array) -> Any:
         return network.initial_carry(())
@@ -28,17 +29,20 @@ def drqn_agent(network: Network, params: Any, name: str | None = None) -> Agent:
         q, carry = network.step(params, obs, carry)
         return jnp.argmax(q).astype(jnp.int32), carry
 
+    name = name or network.config.kind
     return Agent(
         params=params,
-        name=name or network.config.kind,
-        init_fn=_cached(network, "init", init_fn),
-        act_fn=_cached(network, "act", act_fn),
+        name=name,
+        init_fn=_cached(network, name, "init", init_fn),
+        act_fn=_cached(network, name, "act", act_fn),
     )
 
 
-_FUNCTIONS: dict[tuple[Any, str], Any] = {}
+_FUNCTIONS: dict[tuple[Any, str, str], Any] = {}
 
 
-def _cached(network: Network, role: str, fn: Any) -> Any:
-    """One function object per (network config, role), so ``jit`` reuses its compilation."""
-    return _FUNCTIONS.setdefault((network.config, role), fn)
+def _cached(network: Network, name: str, role: str, fn: Any) -> Any:
+    """One function object per (network config, agent name, role), so ``jit`` reuses
+    its compilation (PPO's policy, :func:`drqn_jax.ppo.policy_network`, is named
+    apart from a Q-network of the same config)."""
+    return _FUNCTIONS.setdefault((network.config, name, role), fn)
