@@ -250,6 +250,12 @@ class TrainConfig:
     The defaults are the paper's protocol (SPEC §7): one environment, 200
     episodes, replay of 50 episodes, minibatch 32 windows × 8 steps, one
     gradient step per environment step.
+
+    ``hyperparams`` is only the default a run starts from: ``init`` copies it
+    (or the ``hparams`` it is given) into the state, and everything traced
+    reads that copy alone (``state.hparams``), which sweeps ``vmap`` over and a
+    resume restores. Equality and hashing compare it; the compiled programs
+    depend on :meth:`program_key`, which leaves it out.
     """
 
     env_id: str = "UrbanPedestrians-v0"

@@ -447,6 +447,22 @@ def test_step_budget_ends_the_run_and_drives_the_schedules():
         tiny_train_config(num_env_steps=40, snapshots=1)
 
 
+def test_training_reads_its_hyperparameters_from_the_state_alone(tiny, tiny_run):
+    """``TrainConfig.hyperparams`` is only ``init``'s default: a trainer built with
+    other hyperparameters, given the tiny run's as ``init``'s argument, trains
+    bit for bit as the tiny run (what sweeps and resumes rely on)."""
+    trainer, _ = tiny
+    other = dataclasses.replace(
+        trainer.config,
+        hyperparams=Hyperparams(
+            learning_rate=3e-2, gamma=0.5, target_period=3, epsilon_end=0.5, learning_starts=2
+        ),
+    )
+    assert make_train(other) is not trainer
+    got = jax.jit(make_train(other).train)(jax.random.key(0), trainer.config.hyperparams)
+    assert_tree_equal(got, tiny_run)
+
+
 def test_config_equality_and_hash():
     assert TrainConfig() == TrainConfig() and hash(TrainConfig()) == hash(TrainConfig())
     assert TrainConfig() != TrainConfig(hyperparams=Hyperparams(gamma=0.5))
