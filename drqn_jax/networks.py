@@ -227,7 +227,46 @@ def lstm_cell(p: Params, x: jax.Array, state: LSTMState) -> tuple[jax.Array, LST
         h' (..., H) and the new state (h', c').
     """
     h, c = state
-    gates = affine(jnp.concatenate([x, h], axis=-1), p["w"], p["b"])
+    return _lstm_gates(affine(jnp.concatenate([x, h], axis=-1), p["w"], p["b"]), c)
+
+
+#: Steps of an LSTM's ``lax.scan`` unrolled into one loop iteration: the paper's
+#: windows (8 transitions, 9 observations) whole; longer sequences (PPO's
+#: rollouts) in blocks, so that their programs stay small.
+UNROLL = 9
+
+
+def _lstm_layer(
+    p: Params, x: jax.Array, extra: jax.Array | None, state: LSTMState, resets: jax.Array
+) -> tuple[jax.Array, LSTMState]:
+    """One LSTM over a time-major sequence: outputs (T, B..., H) and the last state.
+
+    The same function as :func:`lstm_cell` step by step on ``[x, extra]``
+    (``extra`` (T, B..., E) or None), with the state zeroed where ``resets``
+    (T, B...) is true; the input projection of every step is one matrix
+    product before the ``lax.scan``, which multiplies only the recurrent state.
+    """
+    n_x = x.shape[-1]
+    w = p["w"]
+    x_gates = affine(x, w[:n_x], p["b"])
+    n_in = n_x
+    if extra is not None:
+        n_in += extra.shape[-1]
+        x_gates = x_gates + extra @ w[n_x:n_in]
+    w_h = w[n_in:]
+
+    def body(state, xs):
+        gates, reset = xs
+        h, c = jax.tree.map(lambda s: jnp.where(reset[..., None], 0.0, s), state)
+        h, state = _lstm_gates(gates + h @ w_h, c)
+        return state, h
+
+    state, h = jax.lax.scan(body, state, (x_gates, resets), unroll=min(x.shape[0], UNROLL))
+    return h, state
+
+
+def _lstm_gates(gates: jax.Array, c: jax.Array) -> tuple[jax.Array, LSTMState]:
+    """h' and (h', c') from the pre-activations (..., 4H) of the gates (i, f, g, o)."""
     i, f, g, o = jnp.split(gates, 4, axis=-1)
     c = jax.nn.sigmoid(f) * c + jax.nn.sigmoid(i) * jnp.tanh(g)
     h = jax.nn.sigmoid(o) * jnp.tanh(c)
@@ -369,18 +408,26 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         zeros = jnp.zeros((*batch_shape, width), jnp.float32)
         return ((zeros, zeros), (zeros, zeros))
 
-    def core_step(params: Params, features: jax.Array, extra: jax.Array, carry: Carry):
-        """The recurrent (or dense) part and the head for one time step."""
+    def core(params: Params, features: jax.Array, extra: jax.Array, carry: Carry):
+        """The recurrent (or dense) part for one time step: LSTM2's (or dense2's)
+        output (..., H) and the new carry."""
         if config.kind == "drqn":
             h1, s1 = lstm_cell(params["lstm1"], features, carry[0])
             h2, s2 = lstm_cell(params["lstm2"], jnp.concatenate([h1, extra], -1), carry[1])
-            carry = (s1, s2)
-        else:
-            h1 = jax.nn.relu(affine(features, params["dense1"]["w"], params["dense1"]["b"]))
-            x2 = jnp.concatenate([h1, extra], -1)
-            h2 = jax.nn.relu(affine(x2, params["dense2"]["w"], params["dense2"]["b"]))
+            return h2, (s1, s2)
+        h1 = jax.nn.relu(affine(features, params["dense1"]["w"], params["dense1"]["b"]))
+        x2 = jnp.concatenate([h1, extra], -1)
+        return jax.nn.relu(affine(x2, params["dense2"]["w"], params["dense2"]["b"])), carry
+
+    def head(params: Params, h2: jax.Array) -> jax.Array:
+        """Q-values (..., A) of the core's outputs (..., H): FC + ReLU, then linear."""
         hidden = jax.nn.relu(affine(h2, params["fc"]["w"], params["fc"]["b"]))
-        return affine(hidden, params["q"]["w"], params["q"]["b"]), carry
+        return affine(hidden, params["q"]["w"], params["q"]["b"])
+
+    def core_step(params: Params, features: jax.Array, extra: jax.Array, carry: Carry):
+        """The core and the head for one time step."""
+        h2, carry = core(params, features, extra, carry)
+        return head(params, h2), carry
 
     def inputs(params: Params, obs: Any) -> tuple[jax.Array, jax.Array]:
         """The torso's features and the extra inputs of unstacked observations."""
@@ -414,15 +461,12 @@ def make_network(config: NetworkConfig | None = None) -> Network:
             q, _ = core_step(params, features, _extra_inputs(obs_seq, n_act), ())
             return q, carry
         features, extra = inputs(params, obs_seq)
-
-        def body(carry, xs):
-            feat, ext, reset = xs
-            carry = jax.tree.map(lambda x: jnp.where(reset[..., None], 0.0, x), carry)
-            q, carry = core_step(params, feat, ext, carry)
-            return carry, q
-
-        carry, q = jax.lax.scan(body, carry, (features, extra, resets))
-        return q, carry
+        if config.kind == "dqn":  # no carry: every step at once
+            return core_step(params, features, extra, carry)
+        first, second = carry
+        h1, first = _lstm_layer(params["lstm1"], features, None, first, resets)
+        h2, second = _lstm_layer(params["lstm2"], h1, extra, second, resets)
+        return head(params, h2), (first, second)
 
     return Network(config=config, init=init, initial_carry=initial_carry, step=step, unroll=unroll)
 
