@@ -452,8 +452,11 @@ def make_network(config: NetworkConfig | None = None) -> Network:
     ) -> tuple[jax.Array, Carry]:
         """Q-values (T, B..., A) over a time-major sequence.
 
-        The torso runs on all T·B observations at once; the recurrent core is a
-        ``lax.scan`` over T whose carry is zeroed where ``resets`` (T, B...) is true.
+        The torso, each LSTM's input projection and the head run on all T·B
+        steps at once; each LSTM is a ``lax.scan`` over T of its recurrent
+        product alone (:func:`_lstm_layer`), its state zeroed where ``resets``
+        (T, B...) is true. The same function as :meth:`step` step by step (sums
+        in another order: equal to float32 rounding).
         """
         if frames > 1:  # the stacking does the resets; the dense core has no carry
             grid, carry = _stack_sequence(obs_seq.grid, carry, resets)
