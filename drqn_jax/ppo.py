@@ -44,9 +44,8 @@ from drqn_jax.hyperparams import Hyperparams, TrainConfig, annealed, step_share
 from drqn_jax.networks import Network, make_network
 from drqn_jax.optim import adam, apply_updates, clip_by_global_norm
 from drqn_jax.pytree import pytree_dataclass, tree_where
-from drqn_jax.selection import candidate_metrics, run_agent
 from drqn_jax.task import Task, make_task
-from drqn_jax.trainer import Trainer, whole_run
+from drqn_jax.trainer import Trainer, make_trainer
 
 __all__ = [
     "PPOState",
@@ -222,27 +221,7 @@ def _make_ppo(config: TrainConfig) -> Trainer:
 
         return jax.lax.scan(body, state, None, length=num_iterations)[0]
 
-    def validation_metrics(state: PPOState) -> dict[str, jax.Array]:
-        return candidate_metrics(config, task, policy, state)
-
-    def agent_params(state: PPOState) -> Any:
-        return run_agent(config, state)
-
-    train = whole_run(config, init, run, validation_metrics, agent_params)
-    return Trainer(
-        config=config,
-        task=task,
-        env=task.env,
-        env_params=task.env_params,
-        network=policy,
-        init=init,
-        act=act,
-        run=run,
-        train=train,
-        gradient_update=None,
-        validation_metrics=validation_metrics,
-        agent_params=agent_params,
-    )
+    return make_trainer(config, task, policy, init, act, run)
 
 
 def _init_state(

@@ -69,16 +69,14 @@ from drqn_jax.selection import (
     SELECT_SAFE,
     VALIDATION_METRICS,
     VALIDATION_STREAM,
-    candidate_metrics,
     chosen_candidate,
-    run_agent,
     selection,
     snapshot_thresholds,
     take_snapshot,
     unvalidated,
 )
 from drqn_jax.task import Step, Task, make_task
-from drqn_jax.trainer import Trainer, whole_run
+from drqn_jax.trainer import Trainer, make_trainer
 from drqn_jax.update import Learner, gradient_update, learn
 
 __all__ = [
@@ -216,26 +214,7 @@ def _make_train(config: TrainConfig) -> Trainer:
         state, _ = jax.lax.scan(body, state, None, length=num_iterations)
         return state
 
-    def validation_metrics(state: TrainState) -> dict[str, jax.Array]:
-        return candidate_metrics(config, task, network, state)
-
-    def agent_params(state: TrainState) -> Any:
-        return run_agent(config, state)
-
-    return Trainer(
-        config=config,
-        task=task,
-        env=task.env,
-        env_params=task.env_params,
-        network=network,
-        init=init,
-        act=act,
-        run=run,
-        train=whole_run(config, init, run, validation_metrics, agent_params),
-        gradient_update=update,
-        validation_metrics=validation_metrics,
-        agent_params=agent_params,
-    )
+    return make_trainer(config, task, network, init, act, run, update)
 
 
 def _init_state(

@@ -18,7 +18,9 @@ from typing import Any, NamedTuple
 
 import jax
 
-__all__ = ["Trainer", "whole_run"]
+from drqn_jax.selection import candidate_metrics, run_agent
+
+__all__ = ["Trainer", "make_trainer"]
 
 
 class Trainer(NamedTuple):
@@ -49,19 +51,30 @@ class Trainer(NamedTuple):
     agent_params: Callable[[Any], Any]
 
 
-def whole_run(
+def make_trainer(
     config: Any,
+    task: Any,
+    network: Any,
     init: Callable[..., Any],
+    act: Callable[[Any, jax.Array], tuple[jax.Array, Any]],
     run: Callable[[Any, int], Any],
-    validation_metrics: Callable[[Any], Any],
-    agent_params: Callable[[Any], Any],
-) -> Callable[..., tuple[Any, dict[str, jax.Array]]]:
-    """``train(key, hparams=None, env_params=None) -> (agent params, metrics)``: init,
-    then chunks of ``config.chunk_iterations`` in a ``lax.while_loop`` until the
-    run finished, then the choice of the run's agent. ``jax.jit(jax.vmap(train))``
-    runs several seeds at once."""
+    gradient_update: Callable[..., tuple[tuple, jax.Array]] | None = None,
+) -> Trainer:
+    """A learner's :class:`Trainer` from its ``init``, ``act`` and ``run``: the
+    whole run, validation and agent choice are the same for every learner
+    (``network`` is the one the greedy agent plays)."""
+
+    def validation_metrics(state: Any) -> dict[str, jax.Array]:
+        return candidate_metrics(config, task, network, state)
+
+    def agent_params(state: Any) -> Any:
+        return run_agent(config, state)
 
     def train(key: jax.Array, hparams: Any = None, env_params: Any = None):
+        """Init, then chunks of ``config.chunk_iterations`` in a ``lax.while_loop``
+        until the run finished, then the choice of the run's agent:
+        ``(agent params, metrics)``. ``jax.jit(jax.vmap(train))`` runs several
+        seeds at once."""
         state = init(key, hparams, env_params)
         state = jax.lax.while_loop(
             lambda s: ~s.finished, lambda s: run(s, config.chunk_iterations), state
@@ -70,4 +83,17 @@ def whole_run(
             state = state.replace(validation=validation_metrics(state))
         return agent_params(state), state.metrics
 
-    return train
+    return Trainer(
+        config=config,
+        task=task,
+        env=task.env,
+        env_params=task.env_params,
+        network=network,
+        init=init,
+        act=act,
+        run=run,
+        train=train,
+        gradient_update=gradient_update,
+        validation_metrics=validation_metrics,
+        agent_params=agent_params,
+    )
