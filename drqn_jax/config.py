@@ -320,8 +320,10 @@ def _is_sweep_file(path: Path) -> bool:
 
 
 def _read_toml(source: str | Path) -> tuple[dict[str, Any], str]:
+    """A config file's tables and its path: ``source`` is a file, or the name of a
+    built-in config (a directory of that name, a run directory say, is not a config)."""
     path = Path(source)
-    if not path.suffix and not path.exists():
+    if not path.suffix and not path.is_file():
         path = CONFIG_DIR / f"{source}.toml"
     if not path.is_file():
         names = ", ".join(config_names()) or "(none found)"

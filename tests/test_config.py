@@ -288,6 +288,16 @@ def test_ppo_refuses_what_it_cannot_do(override, message):
     assert load_config("ppo").train_config().algorithm == "ppo"
 
 
+def test_a_directory_named_like_a_preset_does_not_hide_it(tmp_path, monkeypatch):
+    """A run directory called ``default`` in the working directory (``drqn-jax
+    reproduce --run-dir default``) is no config: the preset, and the presets
+    that extend it, still load."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "default").mkdir()
+    assert load_config("default").values == load_config(CONFIG_DIR / "default.toml").values
+    assert load_config("dqn")["network"]["kind"] == "dqn"
+
+
 def test_unknown_fields_in_files_and_bad_toml(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[train]\nbatchsize = 4\n")
