@@ -1,7 +1,7 @@
 """Recurrent PPO, a learner of another family (Schulman et al. 2017; the project's).
 
 Laid out like PureJaxRL's ``ppo_rnn.py`` and served through the same
-:class:`~drqn_jax.train.Trainer` as the DQN (``TrainConfig.algorithm =
+:class:`~drqn_jax.trainer.Trainer` as the DQN (``TrainConfig.algorithm =
 "ppo"``; :func:`drqn_jax.train.make_train` builds it), so the host loop,
 checkpoints, sweeps, evaluation and the study treat both alike. An
 iteration is one update: a rollout of ``rollout_steps`` steps on
@@ -184,7 +184,7 @@ def ppo_loss(
 
 
 def make_ppo(config: TrainConfig) -> Trainer:
-    """The :class:`~drqn_jax.train.Trainer` of a ``config`` with ``algorithm =
+    """The :class:`~drqn_jax.trainer.Trainer` of a ``config`` with ``algorithm =
     "ppo"`` (equal configs: the same functions). ``make_train`` calls it."""
     if config.algorithm != "ppo":
         raise ValueError(f"make_ppo: TrainConfig.algorithm = {config.algorithm!r}; use 'ppo'")
