@@ -101,7 +101,6 @@ class PPOState:
     grad_steps: jax.Array
     env_steps: jax.Array
     step_budget: jax.Array  # () int32 TrainConfig.num_env_steps (0: none)
-    updates: jax.Array
     metrics: dict[str, jax.Array]
     snapshots: Any = None  # always None: snapshot selection is the DQN's (snapshots = 0)
     validation: Any = None
@@ -254,7 +253,6 @@ def _init_state(
         grad_steps=jnp.zeros((), jnp.int32),
         env_steps=jnp.zeros((), jnp.int32),
         step_budget=jnp.asarray(config.num_env_steps, jnp.int32),
-        updates=jnp.zeros((), jnp.int32),
         metrics=init_metrics(task, config.num_episodes),
     )
 
@@ -343,7 +341,6 @@ def _learn(
         ep_loss_sum=state.ep_loss_sum + jnp.mean(losses),
         ep_loss_count=state.ep_loss_count + 1,
         grad_steps=state.grad_steps + config.update_epochs * config.num_minibatches,
-        updates=state.updates + 1,
     )
 
 
