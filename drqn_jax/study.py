@@ -44,6 +44,7 @@ import numpy as np
 from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import wilson_interval
+from drqn_jax.hyperparams import agent_name
 from drqn_jax.recording import running_mean
 from drqn_jax.registry import registered_envs
 from drqn_jax.stats import t_interval
@@ -454,7 +455,6 @@ def cross_results(
             their agents: train it again in a new directory).
     """
     from drqn_jax.agents import drqn_agent
-    from drqn_jax.hyperparams import agent_name
     from drqn_jax.runner import evaluate_agents, json_ready, load_run, load_trained_network
     from drqn_jax.sweep_runner import agent_dir
 
@@ -547,10 +547,10 @@ def run_study(
     }
     trained: list[tuple[dict[str, Any], Config]] = []  # each row and the config it was evaluated on
     for arm in done:
-        kind = arm.config["network"]["kind"]
-        trained.append((study_row(f"drqn_jax: {arm.name}", kind, runs[arm.name]), arm.config))
+        agent = agent_name(arm.config.train_config())
+        trained.append((study_row(f"drqn_jax: {arm.name}", agent, runs[arm.name]), arm.config))
         for env, results in cross[arm.name].items():
-            row = study_row(f"drqn_jax: {arm.name} on {env}", kind, results)
+            row = study_row(f"drqn_jax: {arm.name} on {env}", agent, results)
             trained.append((row, cross_configs[arm.name][env]))
     rows = [*paper_rows(), *(row for row, _ in trained), *baselines.values()]
     comparisons = [compare(row, baselines[env_key(config)]) for row, config in trained]

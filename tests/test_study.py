@@ -164,6 +164,20 @@ def test_the_study_writes_the_table_and_the_curves(study):
     assert (study / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_a_ppo_arm_is_named_by_its_learner(tmp_path):
+    """A config with ``train.algorithm = "ppo"`` trains, is evaluated and gets a
+    row named ``ppo``, not after its network kind."""
+    config = tmp_path / "smoke-ppo.toml"
+    config.write_text(
+        'extends = "smoke"\n[train]\nalgorithm = "ppo"\nnum_minibatches = 2\nrollout_steps = 8\n'
+    )
+    out = tmp_path / "out"
+    args = ["--configs", str(config), "--seeds", "1", "--episodes", "2", "--quiet"]
+    assert cli.main(["study", *args, "--out", str(out)]) == 0
+    rows = json.loads((out / "study.json").read_text())["rows"]
+    assert ("drqn_jax: smoke-ppo", "ppo") in [(r["label"], r["agent"]) for r in rows]
+
+
 def test_the_curves_are_the_logged_metrics(study):
     curves = load_curves([metrics_path(study / "smoke", i) for i in range(2)], smooth=1)
     for i in range(2):
