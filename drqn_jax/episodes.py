@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from drqn_jax.task import Step, Task
 
-__all__ = ["BASE_METRICS", "budget_met", "init_metrics", "record_episodes"]
+__all__ = ["BASE_METRICS", "budget_met", "init_counters", "init_metrics", "record_episodes"]
 
 #: Per-episode metrics of every learner and task; a learner adds its own (the
 #: DQN: ε), a task its own (the paper's env: collision, goal, distance, speed).
@@ -32,6 +32,25 @@ def budget_met(state: Any) -> jax.Array:
     steps is taken."""
     by_steps = (state.step_budget > 0) & (state.env_steps >= state.step_budget)
     return (state.recorded >= state.metrics["length"].shape[-1]) | by_steps
+
+
+def init_counters(num_envs: int, num_env_steps: int) -> dict[str, jax.Array]:
+    """The counters a state starts with: env i in training episode i, running sums
+    (N,) at zero, none recorded, no step or gradient step taken, and the step
+    budget (0: none)."""
+    zeros_f, zeros_i = jnp.zeros((num_envs,), jnp.float32), jnp.zeros((num_envs,), jnp.int32)
+    return {
+        "episode": jnp.arange(num_envs, dtype=jnp.int32),
+        "ep_return": zeros_f,
+        "ep_length": zeros_i,
+        "ep_loss_sum": zeros_f,
+        "ep_loss_count": zeros_i,
+        "episodes_started": jnp.asarray(num_envs, jnp.int32),
+        "recorded": jnp.zeros((), jnp.int32),
+        "grad_steps": jnp.zeros((), jnp.int32),
+        "env_steps": jnp.zeros((), jnp.int32),
+        "step_budget": jnp.asarray(num_env_steps, jnp.int32),
+    }
 
 
 def init_metrics(task: Task, num_episodes: int, extra: tuple[str, ...] = ()) -> dict:

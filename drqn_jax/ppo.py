@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.episodes import budget_met, init_metrics, record_episodes
+from drqn_jax.episodes import budget_met, init_counters, init_metrics, record_episodes
 from drqn_jax.hyperparams import Hyperparams, TrainConfig, annealed, step_share
 from drqn_jax.networks import Network, make_network
 from drqn_jax.optim import adam, apply_updates, clip_by_global_norm
@@ -232,7 +232,6 @@ def _init_state(
     key, k_net, k_env = jax.random.split(key, 3)
     params = network.init(k_net)
     obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
-    zeros_f, zeros_i = jnp.zeros((n_env,), jnp.float32), jnp.zeros((n_env,), jnp.int32)
     return PPOState(
         key=key,
         hparams=hp,
@@ -243,17 +242,8 @@ def _init_state(
         done=jnp.zeros((n_env,), bool),
         online=params,
         opt_state=adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps).init(params),
-        episode=jnp.arange(n_env, dtype=jnp.int32),
-        ep_return=zeros_f,
-        ep_length=zeros_i,
-        ep_loss_sum=zeros_f,
-        ep_loss_count=zeros_i,
-        episodes_started=jnp.asarray(n_env, jnp.int32),
-        recorded=jnp.zeros((), jnp.int32),
-        grad_steps=jnp.zeros((), jnp.int32),
-        env_steps=jnp.zeros((), jnp.int32),
-        step_budget=jnp.asarray(config.num_env_steps, jnp.int32),
         metrics=init_metrics(task, config.num_episodes),
+        **init_counters(n_env, config.num_env_steps),
     )
 
 

@@ -41,7 +41,13 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.acting import epsilon_of, explore
-from drqn_jax.episodes import BASE_METRICS, budget_met, init_metrics, record_episodes
+from drqn_jax.episodes import (
+    BASE_METRICS,
+    budget_met,
+    init_counters,
+    init_metrics,
+    record_episodes,
+)
 from drqn_jax.hyperparams import (
     IMITATION_STATES,
     NOT_LEARNED,
@@ -233,9 +239,7 @@ def _init_state(
     replay = begin_episodes(
         replay, jnp.ones((n_env,), bool), first, network.initial_carry((n_env,))
     )
-    episode = jnp.arange(n_env, dtype=jnp.int32)
-    zeros_f = jnp.zeros((n_env,), jnp.float32)
-    zeros_i = jnp.zeros((n_env,), jnp.int32)
+    counters = init_counters(n_env, config.num_env_steps)
     metrics = init_metrics(task, n_episodes, ("epsilon",))
     snapshots = validation = None
     if config.snapshots:
@@ -252,18 +256,9 @@ def _init_state(
         target=online,
         opt_state=opt.init(online),
         replay=replay,
-        episode=episode,
-        epsilon=epsilon_of(episode, hp, n_episodes),
-        ep_return=zeros_f,
-        ep_length=zeros_i,
-        ep_loss_sum=zeros_f,
-        ep_loss_count=zeros_i,
-        episodes_started=jnp.asarray(n_env, jnp.int32),
-        recorded=jnp.zeros((), jnp.int32),
-        grad_steps=jnp.zeros((), jnp.int32),
-        env_steps=jnp.zeros((), jnp.int32),
-        step_budget=jnp.asarray(config.num_env_steps, jnp.int32),
+        epsilon=epsilon_of(counters["episode"], hp, n_episodes),
         metrics=metrics,
+        **counters,
         snapshots=snapshots,
         validation=validation,
     )
