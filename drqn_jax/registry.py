@@ -30,6 +30,15 @@ _PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
         {},
         {"ped_behaviour_to_car": "ignore", "collision_model": "contact"},
     ),
+    # The paper's world where each pedestrian drops out of the grid with probability
+    # 0.5 per step (partial observability: what a memory can make up for).
+    "UrbanPedestriansOccluded-v0": ({}, {"occlusion_prob": 0.5}),
+    # A map no preset trains on: 4 intersections 40 m apart (paper's world: 3, 50 m)
+    # and 15 pedestrians alive (paper: 10), for agents tested beyond their training.
+    "UrbanPedestriansUnseenMap-v0": (
+        {"num_pedestrians": 15, "num_intersections": 4},
+        {"first_intersection_x": 40.0, "intersection_spacing": 40.0},
+    ),
 }
 
 __all__ = ["make", "preset", "registered_envs"]

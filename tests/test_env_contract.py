@@ -96,7 +96,13 @@ def test_registered_ids_and_overrides():
         "UrbanPedestriansHeedless-v0",
         "UrbanPedestriansMixed-v0",
         "UrbanPedestriansYielding-v0",
+        "UrbanPedestriansOccluded-v0",
+        "UrbanPedestriansUnseenMap-v0",
     }
+    unseen, unseen_params = drqn_jax.make("UrbanPedestriansUnseenMap-v0")
+    assert unseen.static.num_pedestrians == 15 and unseen.static.num_intersections == 4
+    assert float(unseen_params.intersection_spacing) == 40.0
+    assert float(drqn_jax.make("UrbanPedestriansOccluded-v0")[1].occlusion_prob) == 0.5
     _, realistic = drqn_jax.make("UrbanPedestriansRealistic-v0")
     assert float(realistic.ped_speed_min) == 0.5 and float(realistic.ped_speed_max) == 1.5
     _, mixed = drqn_jax.make("UrbanPedestriansMixed-v0")

@@ -105,6 +105,12 @@ SCENARIOS = {
     "yielding": Scenario(  # pedestrians wait for the car, at most 5 s, then strike it
         "UrbanPedestriansYielding-v0", {}, "random", 3, 300, ("collision", "struck", "yielded")
     ),
+    "occluded": Scenario(  # the sensitivity world with occlusion p = 0.5
+        "UrbanPedestriansOccluded-v0", {}, "driving", 1, 250, ("occluded",)
+    ),
+    "unseen-map": Scenario(  # 4 intersections 40 m apart, 15 pedestrians
+        "UrbanPedestriansUnseenMap-v0", {}, "driving", 0, 300, ("collision",)
+    ),
     "truncation": Scenario(
         "UrbanPedestrians-v0", {"max_steps": 100}, "random", 3, 250, ("truncated",)
     ),
