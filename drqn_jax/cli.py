@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import shlex
 import sys
 import time
 from collections.abc import Sequence
@@ -27,6 +28,7 @@ from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, config_names, load_config
 from drqn_jax.evaluation import metrics_table
 from drqn_jax.hyperparams import agent_name
+from drqn_jax.report import SECTION_NAME
 from drqn_jax.runner import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
@@ -268,7 +270,32 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="train nothing: the table and curves of the runs that have finished so far",
     )
+    study.add_argument(
+        "--results",
+        metavar="PATH",
+        help="also store the table's rows, this command and its wall time as section "
+        "--section of this results file (e.g. docs/results.json; other sections stay)",
+    )
+    study.add_argument(
+        "--section", help="the section of --results (default: the study directory's name)"
+    )
     study.add_argument("--quiet", action="store_true", help="no progress bars")
+
+    report = sub.add_parser(
+        "report",
+        help="fill the results blocks of documents from the results file a study wrote",
+        description=_REPORT_DOC,
+        formatter_class=_Formatter,
+    )
+    report.add_argument("documents", nargs="+", help="Markdown files with results blocks")
+    report.add_argument(
+        "--results", default="docs/results.json", help="the results file (study --results)"
+    )
+    report.add_argument(
+        "--check",
+        action="store_true",
+        help="change nothing: exit 1 if a document's blocks differ from the results file",
+    )
 
     bench = sub.add_parser(
         "bench",
@@ -292,6 +319,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+_REPORT_DOC = """Regenerate every block between '<!-- results:NAME -->' and '<!-- /results -->'
+in the documents from section NAME of the results file (drqn-jax study --results FILE
+--section NAME writes it): its table, comparisons, command and wall time, so that no
+document retypes a number."""
 _TRAIN_DOC = """Train the DRQN of a config; writes config.toml, metrics.csv, checkpoints,
 evaluation.json and results.md to the run directory. Ctrl-C (or SIGTERM) saves a
 checkpoint and exits with status 130; --resume continues bit-identically."""
@@ -404,8 +435,8 @@ def _train_and_evaluate(
         agents.append(builtin_agent("rule-based", config))
     results = evaluate_agents(config, agents)
     wall = time.perf_counter() - start
-    tables = [paper_comparison(results)] if reproduce else []
-    table = "\n\n".join([*tables, metrics_table(results)])
+    world = config["env"]["id"]
+    table = paper_comparison(results, world) if reproduce else metrics_table(results)
     write_evaluation(run_dir, results, {**_run_summary(result), "total_wall_time_s": wall}, table)
     print(table)
     print(
@@ -485,11 +516,21 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def paper_comparison(results: list[dict[str, Any]]) -> str:
-    """The paper's Table III rows (with the interval its 10 episodes allow) beside ours."""
+def paper_comparison(results: list[dict[str, Any]], world: str) -> str:
+    """The paper's Table III rows (with the interval its 10 episodes allow) beside ours
+    (one trained DRQN, then the rule-based agent), and the verdict on the paper's claim."""
+    from drqn_jax.report import claim_verdict
     from drqn_jax.study import baseline_row, paper_rows, study_table
 
-    return study_table(paper_rows() + [baseline_row("drqn_jax", r) for r in results])
+    ours = [baseline_row("drqn_jax", r, world=world) for r in results]
+    return "\n\n".join(
+        [
+            study_table(paper_rows() + ours),
+            claim_verdict(*ours)
+            + " One training seed: its interval holds the episodes' variation, not the"
+            " training's (docs/results.md has five seeds).",
+        ]
+    )
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -658,6 +699,10 @@ def cmd_study(args: argparse.Namespace) -> int:
     eval_envs = [e.strip() for e in args.eval_envs.split(",") if e.strip()]
     arms = plan_study(configs, args.seeds, args.episodes, args.overrides, eval_envs)
     out = Path(args.out or Path("runs") / f"study-{'-'.join(a.name for a in arms)}")
+    if args.results and not SECTION_NAME.fullmatch(args.section or out.name):
+        raise ConfigError(
+            f"--section {args.section or out.name!r}: must be letters, digits, '_', '.' or '-'"
+        )
     for arm in arms:
         print(f"{arm.name}: {arm.sweep.describe()}", file=sys.stderr)
     if not args.no_png:
@@ -679,8 +724,40 @@ def cmd_study(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_INTERRUPTED
+    wall = time.perf_counter() - start
+    if args.results:
+        from drqn_jax.machine import machine_info
+        from drqn_jax.report import write_results
+
+        about = {"command": args.command_line, "wall_time_s": wall, "machine": machine_info()}
+        section = args.section or out.name
+        write_results(args.results, section, outcome.rows, outcome.comparisons, about)
+        print(f"rows stored as section {section!r} of {args.results}", file=sys.stderr)
     print(outcome.table)
-    print(f"\nwall time {time.perf_counter() - start:.1f} s; study in {out}")
+    print(f"\nwall time {wall:.1f} s; study in {out}")
+    return EXIT_OK
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from drqn_jax.report import load_results, stale_documents, update_document
+
+    if not Path(args.results).is_file():
+        raise ConfigError(f"--results {args.results}: no such file (a study writes it)")
+    record = load_results(args.results)
+    missing = [d for d in args.documents if not Path(d).is_file()]
+    if missing:
+        raise ConfigError(f"{missing[0]}: no such document")
+    try:
+        stale = stale_documents(args.documents, record)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+    if args.check:
+        for doc in stale:
+            print(f"{doc}: its results blocks differ from {args.results}", file=sys.stderr)
+        return EXIT_FAILED if stale else EXIT_OK
+    for doc in stale:
+        atomic_write_text(Path(doc), update_document(Path(doc).read_text(), record))
+        print(f"updated {doc}", file=sys.stderr)
     return EXIT_OK
 
 
@@ -691,6 +768,7 @@ COMMANDS = {
     "replay": cmd_replay,
     "sweep": cmd_sweep,
     "study": cmd_study,
+    "report": cmd_report,
     "bench": cmd_bench,
 }
 
@@ -698,6 +776,7 @@ COMMANDS = {
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``drqn-jax`` console script; returns the exit status."""
     args = build_parser().parse_args(argv)
+    args.command_line = shlex.join(["drqn-jax", *(sys.argv[1:] if argv is None else argv)])
     try:
         return COMMANDS[args.command](args)
     except (ConfigError, CheckpointError) as err:

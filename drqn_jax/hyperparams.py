@@ -35,6 +35,7 @@ __all__ = [
     "TrainConfig",
     "agent_name",
     "annealed",
+    "has_teacher",
     "step_share",
     "teacher_label",
     "teachers_of",
@@ -213,6 +214,12 @@ def agent_name(config: TrainConfig) -> str:
     if config.algorithm == "ppo":
         return "ppo" if config.network.kind == "drqn" else "ppo-ff"
     return config.network.kind
+
+
+def has_teacher(label: str | None) -> bool:
+    """Whether a :func:`teacher_label` names a teacher (False for the reward alone,
+    a policy that did not learn, or a result without the label)."""
+    return label not in (None, "–", REWARD_ALONE, NOT_LEARNED)
 
 
 def teachers_of(results: Any) -> str:

@@ -122,6 +122,7 @@ __all__ = [
 
 STEP_TIMELINE = "step"
 EPISODE_TIMELINE = "episode"
+ENV_STEPS_TIMELINE = "env_steps"  # a study's curves (issue 41)
 OCCLUDED_ALPHA = 70  # alpha of a pedestrian the grid leaves out this step
 GRID_CHANNELS = ("occupancy", "heading", "speed", "semantics")  # SPEC §4 channel order
 COLLISION_RATE_WINDOW = 20  # episodes in the running collision/goal rates (as the progress bar)
@@ -772,25 +773,31 @@ def record_training(
         _close(rec)
 
 
-def _series_blueprint(views: Mapping[str, str]) -> rrb.Blueprint:
-    """One time-series view per ``name → origin entity``, on the episode timeline."""
+def _series_blueprint(views: Mapping[str, str], timeline: str = EPISODE_TIMELINE) -> rrb.Blueprint:
+    """One time-series view per ``name → origin entity``, on ``timeline``."""
     return rrb.Blueprint(
         rrb.Grid(*[rrb.TimeSeriesView(name=name, origin=o) for name, o in views.items()]),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(state="collapsed", timeline=EPISODE_TIMELINE),
+        rrb.TimePanel(state="collapsed", timeline=timeline),
     )
 
 
 def _send_series(
-    rec: rr.RecordingStream, entity: str, name: str, episodes: np.ndarray, values: np.ndarray
+    rec: rr.RecordingStream,
+    entity: str,
+    name: str,
+    at: np.ndarray,
+    values: np.ndarray,
+    timeline: str = EPISODE_TIMELINE,
 ) -> None:
-    """A line named ``name`` at ``entity``: ``values`` (E,) at the ``episodes`` (E,)."""
+    """A line named ``name`` at ``entity``: ``values`` (E,) at the sequence ``at`` (E,)
+    of ``timeline``."""
     rec.log(entity, rr.SeriesLines(names=name), static=True)
-    if len(episodes):
+    if len(at):
         rec.send_columns(
             entity,
-            indexes=[rr.TimeColumn(EPISODE_TIMELINE, sequence=episodes)],
+            indexes=[rr.TimeColumn(timeline, sequence=np.asarray(at, np.int64))],
             columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
         )
 
@@ -805,18 +812,22 @@ def record_study_curves(
 
     Entities ``curves/<metric>/<config>/{mean,low,high}`` (the running mean's
     mean and min–max over seeds) and ``curves/<metric>/<config>/seed<k>``
-    (each seed's raw values), on the ``episode`` timeline; one time-series
-    view per metric (``episode_return``, ``length``).
+    (each seed's raw values at the env steps its episodes ended), on the
+    ``env_steps`` timeline; one time-series view per metric (``episode_return``,
+    ``length``).
     """
     metrics = sorted({m for by_metric in curves.values() for m in by_metric})
-    rec = _open(path, application_id, _series_blueprint({m: f"/curves/{m}" for m in metrics}))
+    views = {m: f"/curves/{m}" for m in metrics}
+    rec = _open(path, application_id, _series_blueprint(views, ENV_STEPS_TIMELINE))
     try:
         for name, by_metric in curves.items():
             for metric, c in by_metric.items():
-                series = {"mean": c.mean, "low": c.low, "high": c.high}
-                series |= {f"seed{k}": values for k, values in enumerate(c.seeds)}
-                for part, values in series.items():
+                series = {part: (c.env_steps, getattr(c, part)) for part in ("mean", "low", "high")}
+                series |= {
+                    f"seed{k}": xy for k, xy in enumerate(zip(c.seed_steps, c.seeds, strict=True))
+                }
+                for part, (at, values) in series.items():
                     entity = f"curves/{metric}/{name}/{part}"
-                    _send_series(rec, entity, f"{name} {part}", c.episode, values)
+                    _send_series(rec, entity, f"{name} {part}", at, values, ENV_STEPS_TIMELINE)
     finally:
         _close(rec)

@@ -44,12 +44,12 @@ import numpy as np
 from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import wilson_interval
-from drqn_jax.hyperparams import agent_name
+from drqn_jax.hyperparams import NOT_LEARNED, REWARD_ALONE, agent_name, has_teacher, teachers_of
 from drqn_jax.recording import running_mean
 from drqn_jax.registry import registered_envs
+from drqn_jax.report import strict_json
 from drqn_jax.stats import t_interval
 from drqn_jax.sweep import Sweep, build_sweep
-from drqn_jax.train import NOT_LEARNED, REWARD_ALONE, teachers_of
 
 __all__ = [
     "PAPER_TABLE_III",
@@ -77,6 +77,8 @@ PAPER_TABLE_III = (
     ("DRQN", 7, 6.09, 123.1),
 )
 PAPER_EPISODES = 10
+#: The world column of the paper's rows.
+PAPER_WORLD = "CARLA (paper)"
 
 #: The curves of the paper's "Training performance" figure: metrics.csv column, label.
 CURVES = (
@@ -177,10 +179,13 @@ def _std(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
     return float(np.std(values, ddof=1)) if len(values) > 1 else math.nan
 
 
-def study_row(label: str, agent: str, runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+def study_row(
+    label: str, agent: str, runs: Sequence[Mapping[str, Any]], *, world: str
+) -> dict[str, Any]:
     """One table row from the evaluations of an agent's runs (one per seed).
 
-    ``runs``: :func:`drqn_jax.evaluation.evaluate` results as JSON (``json_ready``).
+    ``runs``: :func:`drqn_jax.evaluation.evaluate` results as JSON (``json_ready``);
+    ``world``: the env id they were evaluated in.
     The collision-free interval is the 95 % Student-t interval of the mean
     across seeds (it holds the training's variation as well as the episodes'),
     cut to [0, 1]; with one run, the Wilson interval over its episodes. Collisions per km are
@@ -203,7 +208,9 @@ def study_row(label: str, agent: str, runs: Sequence[Mapping[str, Any]]) -> dict
     return {
         "label": label,
         "agent": agent,
-        "teacher": teachers_of(runs),
+        "world": world,
+        "teacher": any(has_teacher(r.get("teacher")) for r in runs),
+        "learned": teachers_of(runs),
         "seeds": len(runs),
         "episodes": int(episodes[0]),
         "diverged": sum(bool(r.get("diverged")) for r in runs),
@@ -225,9 +232,9 @@ def study_row(label: str, agent: str, runs: Sequence[Mapping[str, Any]]) -> dict
     }
 
 
-def baseline_row(label: str, result: Mapping[str, Any]) -> dict[str, Any]:
+def baseline_row(label: str, result: Mapping[str, Any], *, world: str) -> dict[str, Any]:
     """A row for a single policy evaluated once (the rule-based agent): Wilson interval."""
-    return study_row(label, result["agent"], [result])
+    return study_row(label, result["agent"], [result], world=world)
 
 
 def paper_rows() -> list[dict[str, Any]]:
@@ -238,7 +245,9 @@ def paper_rows() -> list[dict[str, Any]]:
             {
                 "label": "paper (CARLA)",
                 "agent": agent,
-                "teacher": NOT_LEARNED if agent == "rule-based" else REWARD_ALONE,
+                "world": PAPER_WORLD,
+                "teacher": False,
+                "learned": NOT_LEARNED if agent == "rule-based" else REWARD_ALONE,
                 "seeds": 1,
                 "episodes": PAPER_EPISODES,
                 "diverged": 0,
@@ -282,7 +291,7 @@ def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
         if r["diverged"]:
             seeds += f" ({r['diverged']} diverged)"
         lines.append(
-            f"| {r['label']} | {r['agent']} | {r.get('teacher', '–')} | {seeds} "
+            f"| {r['label']} | {r['agent']} | {r.get('learned', '–')} | {seeds} "
             f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
             f"| {_cell(r.get('struck_while_stopped_rate'), '.1f', 100.0)} "
             f"| {speed} | {_cell(r.get('avg_speed_authors_kmh'), '.2f')} "
@@ -307,14 +316,27 @@ def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class Curve:
-    """A training curve over seeds: per training episode (E,) the mean, min and max
-    across seeds of a running mean over ``smooth`` episodes; ``seeds`` (S, E) raw."""
+    """A training curve over seeds against env steps (issue 41: a learner that ends
+    episodes early or runs many envs gets no credit from an episode axis).
 
-    episode: np.ndarray
+    ``env_steps`` (G,): a common grid from 0 to the fewest env steps any seed took;
+    ``mean``, ``low``, ``high`` (G,): the mean and min–max across seeds of each seed's
+    running mean over ``smooth`` episodes, read at the grid (linear between episodes);
+    ``seeds`` (S, E): each seed's raw values per training episode, in the order
+    they ended; ``seed_steps`` (S, E): the env steps taken when each had ended
+    (the running total of episode lengths).
+    """
+
+    env_steps: np.ndarray
     mean: np.ndarray
     low: np.ndarray
     high: np.ndarray
     seeds: np.ndarray
+    seed_steps: np.ndarray
+
+
+#: Points of a :class:`Curve`'s env-step grid.
+CURVE_POINTS = 200
 
 
 def _read_csv(path: Path) -> dict[str, np.ndarray]:
@@ -326,7 +348,8 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
 
 
 def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Curve]:
-    """The :data:`CURVES` of one config over its seeds' ``metrics.csv`` files.
+    """The :data:`CURVES` of one config over its seeds' ``metrics.csv`` files, against
+    env steps (:class:`Curve`).
 
     Seeds are cut to the episodes they all recorded. Raises ValueError when a
     file is missing or empty.
@@ -342,16 +365,21 @@ def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Cu
             raise ValueError(f"{path}: no recorded episodes")
         tables.append(table)
     n = min(len(t["episode"]) for t in tables)
+    steps = np.stack([np.cumsum(t["length"][:n]) for t in tables])
+    grid = np.linspace(0.0, steps[:, -1].min(), CURVE_POINTS)
     curves = {}
     for column, _ in CURVES:
         raw = np.stack([t[column][:n] for t in tables])
-        smoothed = np.stack([running_mean(x, smooth) for x in raw])
+        read = np.stack(
+            [np.interp(grid, x, running_mean(y, smooth)) for x, y in zip(steps, raw, strict=True)]
+        )
         curves[column] = Curve(
-            episode=np.arange(n),
-            mean=smoothed.mean(axis=0),
-            low=smoothed.min(axis=0),
-            high=smoothed.max(axis=0),
+            env_steps=grid,
+            mean=read.mean(axis=0),
+            low=read.min(axis=0),
+            high=read.max(axis=0),
             seeds=raw,
+            seed_steps=steps,
         )
     return curves
 
@@ -383,11 +411,11 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
             c = by_metric[column]
             seeds = c.seeds.shape[0]
             plural = "s" if seeds > 1 else ""
-            (line,) = ax.plot(c.episode, c.mean, label=f"{name} ({seeds} seed{plural})")
-            ax.fill_between(c.episode, c.low, c.high, color=line.get_color(), alpha=0.2, lw=0)
-        ax.set_xlabel("training episode")
+            (line,) = ax.plot(c.env_steps, c.mean, label=f"{name} ({seeds} seed{plural})")
+            ax.fill_between(c.env_steps, c.low, c.high, color=line.get_color(), alpha=0.2, lw=0)
+        ax.set_xlabel("env steps")
         ax.set_ylabel(label)
-        ax.set_title(f"{label}: mean and min–max over seeds (running mean of {smooth})")
+        ax.set_title(f"{label}: mean and min–max over seeds (running mean of {smooth} episodes)")
         ax.title.set_fontsize(9)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
@@ -401,13 +429,15 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
 
 @dataclasses.dataclass
 class StudyOutcome:
-    """``finished`` (``rows``: the table; ``runs``: config → its runs' results) or
+    """``finished`` (``rows``: the table; ``runs``: config → its runs' results;
+    ``comparisons``: each trained row against its world's rule-based agent) or
     ``interrupted`` (checkpoints saved; the same command continues)."""
 
     status: str
     rows: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     runs: dict[str, list[dict[str, Any]]] = dataclasses.field(default_factory=dict)
     table: str = ""
+    comparisons: list[str] = dataclasses.field(default_factory=list)
 
 
 def rule_based_results(
@@ -484,7 +514,7 @@ def compare(row: Mapping[str, Any], baseline: Mapping[str, Any]) -> str:
     """Whether ``row``'s collision-free interval lies above, below or overlaps ``baseline``'s,
     as a sentence for the report."""
     (low, high), (b_low, b_high) = row["collision_free_ci"], baseline["collision_free_ci"]
-    verdict = "above" if low > b_high else "below" if high < b_low else "overlapping"
+    verdict = "above" if low > b_high else "below" if high < b_low else "not distinguishable"
     return (
         f"{row['label']} ({row['agent']}) against {baseline['label']} ({baseline['agent']}): "
         f"collision-free interval {verdict} ({100 * low:.1f}–{100 * high:.1f} % against "
@@ -542,15 +572,17 @@ def run_study(
     }
     configs = [a.config for a in arms] + [c for cs in cross_configs.values() for c in cs.values()]
     baselines = {
-        key: baseline_row(f"drqn_jax: {env}", r)
+        key: baseline_row(f"drqn_jax: {env}", r, world=env)
         for key, (env, r) in rule_based_results(configs, out).items()
     }
     trained: list[tuple[dict[str, Any], Config]] = []  # each row and the config it was evaluated on
     for arm in done:
         agent = agent_name(arm.config.train_config())
-        trained.append((study_row(f"drqn_jax: {arm.name}", agent, runs[arm.name]), arm.config))
+        own = arm.config["env"]["id"]
+        row = study_row(f"drqn_jax: {arm.name}", agent, runs[arm.name], world=own)
+        trained.append((row, arm.config))
         for env, results in cross[arm.name].items():
-            row = study_row(f"drqn_jax: {arm.name} on {env}", agent, results)
+            row = study_row(f"drqn_jax: {arm.name} on {env}", agent, results, world=env)
             trained.append((row, cross_configs[arm.name][env]))
     rows = [*paper_rows(), *(row for row, _ in trained), *baselines.values()]
     comparisons = [compare(row, baselines[env_key(config)]) for row, config in trained]
@@ -562,7 +594,7 @@ def run_study(
     }
     table = "\n\n".join([study_table(rows), "\n".join(f"* {c}" for c in comparisons)])
     atomic_write_text(out / "study.md", table + "\n")
-    record = _finite_json(
+    record = strict_json(
         {"rows": rows, "comparisons": comparisons, "runs": runs, "cross": cross, "smooth": smooth}
     )
     atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
@@ -570,15 +602,4 @@ def run_study(
         record_study_curves(out / "curves.rrd", curves)
         if png:
             plot_curves(curves, out / "curves.png", smooth)
-    return StudyOutcome("finished", rows, runs, table)
-
-
-def _finite_json(value: Any) -> Any:
-    """``value`` with tuples as lists and non-finite floats as None (strict JSON)."""
-    if isinstance(value, dict):
-        return {k: _finite_json(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite_json(v) for v in value]
-    if isinstance(value, float | np.floating):
-        return float(value) if math.isfinite(value) else None
-    return value
+    return StudyOutcome("finished", rows, runs, table, comparisons)

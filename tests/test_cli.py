@@ -305,6 +305,9 @@ def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
     assert "| drqn_jax | drqn | none (reward alone) | 1 × 8 |" in out
     assert "| drqn_jax | rule-based | – (not learned) | 1 × 8 |" in out
     assert "wall time" in out
+    verdict = [line for line in out.splitlines() if line.startswith("The paper's claim")]
+    assert len(verdict) == 1 and "One training seed" in verdict[0], out
+    assert any(word in verdict[0] for word in ("supported:", "reversed:", "not shown:"))
     agents = json.loads((run_dir / "evaluation.json").read_text())["agents"]
     assert [a["agent"] for a in agents] == ["drqn", "rule-based"]
 

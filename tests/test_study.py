@@ -52,7 +52,7 @@ def test_paper_rows_show_the_interval_of_ten_episodes():
 def test_a_row_pools_seeds():
     runs = [_run(0.9, distance=100.0, free_distance=110.0), _run(0.8, distance=110.0)]
     runs.append(_run(0.7, distance=120.0, free_distance=130.0))
-    row = study_row("drqn_jax: x", "drqn", runs)
+    row = study_row("drqn_jax: x", "drqn", runs, world="W")
     assert row["seeds"] == 3 and row["episodes"] == 100
     assert row["collision_free_rate"] == pytest.approx(0.8)
     low, high = t_interval(np.array([0.9, 0.8, 0.7]))
@@ -69,7 +69,7 @@ def test_a_row_pools_seeds():
 
 
 def test_a_single_policy_keeps_its_wilson_interval():
-    row = baseline_row("drqn_jax: env", _run(0.95))
+    row = baseline_row("drqn_jax: env", _run(0.95), world="W")
     assert row["collision_free_ci"] == pytest.approx((0.9, 1.0))
     assert row["interval"] == "Wilson over episodes" and math.isnan(row["avg_speed_kmh_std"])
     table = study_table([*paper_rows(), row])
@@ -79,15 +79,21 @@ def test_a_single_policy_keeps_its_wilson_interval():
     assert ours + " 11.40 |" in table
     # a run evaluated before the struck-while-stopped rate and the authors' speed existed
     old = {k: v for k, v in _run(0.95).items() if k not in ("struck_while_stopped_rate",)}
-    assert "| 95.0 (90.0–100.0) | – | 9.50 | 11.40 |" in study_table([baseline_row("old", old)])
+    assert "| 95.0 (90.0–100.0) | – | 9.50 | 11.40 |" in study_table(
+        [baseline_row("old", old, world="W")]
+    )
 
 
 def test_compare_says_where_the_interval_lies():
     from drqn_jax.study import compare
 
     rule_based, drqn = paper_rows()
-    assert "interval overlapping (39.7–89.2 % against 16.8–68.7 %)" in compare(drqn, rule_based)
-    safe = baseline_row("drqn_jax: env", {**_run(1.0), "collision_free_ci": [0.996, 1.0]})
+    assert "interval not distinguishable (39.7–89.2 % against 16.8–68.7 %)" in compare(
+        drqn, rule_based
+    )
+    safe = baseline_row(
+        "drqn_jax: env", {**_run(1.0), "collision_free_ci": [0.996, 1.0]}, world="W"
+    )
     assert "interval below" in compare(rule_based, safe)
     assert "interval above" in compare(safe, rule_based)
 
@@ -99,19 +105,26 @@ def _write_metrics(path, returns, lengths):
     path.write_text("\n".join(lines) + "\n")
 
 
-def test_curves_are_running_means_over_the_episodes_all_seeds_recorded(tmp_path):
+def test_curves_are_running_means_against_env_steps_over_the_episodes_all_seeds_recorded(
+    tmp_path,
+):
     a, b = tmp_path / "a.csv", tmp_path / "b.csv"
     _write_metrics(a, [1.0, 3.0, 5.0, 7.0], [10, 20, 30, 40])
     _write_metrics(b, [3.0, 5.0, 7.0], [30, 30, 30])
     curves = load_curves([a, b], smooth=2)
     assert set(curves) == {column for column, _ in CURVES}
     ret = curves["episode_return"]
-    np.testing.assert_array_equal(ret.episode, [0, 1, 2])
     np.testing.assert_array_equal(ret.seeds, [[1.0, 3.0, 5.0], [3.0, 5.0, 7.0]])
-    # running means of 2: a → 1, 2, 4; b → 3, 4, 6
-    np.testing.assert_allclose(ret.mean, [2.0, 3.0, 5.0])
-    np.testing.assert_allclose(ret.low, [1.0, 2.0, 4.0])
-    np.testing.assert_allclose(ret.high, [3.0, 4.0, 6.0])
+    # episodes end at env steps a → 10, 30, 60; b → 30, 60, 90: the grid ends at 60
+    np.testing.assert_array_equal(ret.seed_steps, [[10, 30, 60], [30, 60, 90]])
+    assert ret.env_steps[0] == 0.0 and ret.env_steps[-1] == 60.0
+    # running means of 2: a → 1, 2, 4 and b → 3, 4, 6, linear between the episode ends
+    seed_a = np.interp(ret.env_steps, [10, 30, 60], [1.0, 2.0, 4.0])
+    seed_b = np.interp(ret.env_steps, [30, 60, 90], [3.0, 4.0, 6.0])
+    np.testing.assert_allclose(ret.mean, (seed_a + seed_b) / 2)
+    np.testing.assert_allclose(ret.low, np.minimum(seed_a, seed_b))
+    np.testing.assert_allclose(ret.high, np.maximum(seed_a, seed_b))
+    np.testing.assert_allclose([ret.low[-1], ret.high[-1]], [4.0, 4.0])  # both at 60 steps
     with pytest.raises(ValueError, match="no training metrics"):
         load_curves([a, tmp_path / "missing.csv"])
 
@@ -135,8 +148,25 @@ STUDY += [arg for setting in SMOKE_SWEEP_SET for arg in ("--set", setting)]
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
     out = tmp_path_factory.mktemp("study") / "out"
-    assert cli.main(["study", *STUDY, "--out", str(out)]) == 0
+    results = ["--results", str(out.parent / "results.json"), "--section", "table"]
+    assert cli.main(["study", *STUDY, "--out", str(out), *results]) == 0
     return out
+
+
+def test_the_study_stores_its_rows_in_the_results_file(study):
+    """Issue 41: docs/results.json's rows come from the study command, with the world,
+    whether a teacher was used, and the command that reproduces them."""
+    record = json.loads((study.parent / "results.json").read_text())
+    table = json.loads((study / "study.json").read_text())
+    assert [r["section"] for r in record["rows"]] == ["table"] * len(table["rows"])
+    assert [{k: v for k, v in r.items() if k != "section"} for r in record["rows"]] == table["rows"]
+    worlds = {(r["agent"], r["world"], r["teacher"]) for r in record["rows"]}
+    assert ("rule-based", "UrbanPedestrians-v0", False) in worlds
+    assert ("drqn", "UrbanPedestrians-v0", False) in worlds
+    about = record["sections"]["table"]
+    assert about["command"].startswith("drqn-jax study --configs smoke --seeds 2")
+    assert about["wall_time_s"] > 0 and about["machine"]["jax_version"]
+    assert about["comparisons"] == table["comparisons"]
 
 
 def test_the_study_writes_the_table_and_the_curves(study):
@@ -183,7 +213,9 @@ def test_the_curves_are_the_logged_metrics(study):
     for i in range(2):
         logged = np.loadtxt(metrics_path(study / "smoke", i), delimiter=",", skiprows=1)
         np.testing.assert_array_equal(curves["length"].seeds[i], logged[:, 2])
-    np.testing.assert_allclose(curves["length"].mean, curves["length"].seeds.mean(axis=0))
+        np.testing.assert_array_equal(curves["length"].seed_steps[i], np.cumsum(logged[:, 2]))
+    end = curves["length"].seed_steps[:, -1].min()
+    assert curves["length"].env_steps[-1] == end  # the grid stops where every seed has data
 
 
 def test_running_the_study_again_continues_it_without_training(study, monkeypatch):

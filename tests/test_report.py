@@ -1,0 +1,98 @@
+"""The results file and the documents that quote it (issue 41): sections replace
+their own rows only, blocks regenerate from the file, and drift is caught."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from drqn_jax import cli
+from drqn_jax.report import (
+    claim_verdict,
+    load_results,
+    render_section,
+    stale_documents,
+    update_document,
+    write_results,
+)
+from drqn_jax.study import baseline_row, paper_rows
+
+ROOT = Path(__file__).resolve().parents[1]
+ABOUT = {"command": "drqn-jax study --configs x", "wall_time_s": 600.0, "machine": {}}
+
+
+def _run(free: float, speed: float = 9.0) -> dict:
+    return {
+        "agent": "drqn",
+        "num_episodes": 1000,
+        "collision_free_rate": free,
+        "collision_free_ci": [free - 0.03, free + 0.03],
+        "avg_speed_kmh": speed,
+        "avg_distance_m": 100.0,
+        "goal_rate": 0.5,
+        "teacher": "none (reward alone)",
+    }
+
+
+def test_a_section_replaces_its_own_rows_only(tmp_path):
+    path = tmp_path / "results.json"
+    a = [baseline_row("a", _run(0.5), world="W")]
+    b = [baseline_row("b", _run(0.6), world="W"), *paper_rows()]
+    write_results(path, "one", a, ["c1"], ABOUT)
+    write_results(path, "two", b, [], {**ABOUT, "command": "other"})
+    write_results(path, "one", [baseline_row("a2", _run(0.7), world="W")], [], ABOUT)
+    record = load_results(path)
+    assert [(r["section"], r["label"]) for r in record["rows"]] == [
+        ("two", "b"),
+        ("two", "paper (CARLA)"),
+        ("two", "paper (CARLA)"),
+        ("one", "a2"),
+    ]
+    assert record["sections"]["two"]["command"] == "other"
+    assert record["sections"]["one"]["comparisons"] == []
+    text = path.read_text()
+    assert "NaN" not in text and json.loads(text) == record  # strict JSON: NaN stored as null
+    with pytest.raises(ValueError, match="--section 'a b'"):
+        write_results(path, "a b", a, [], ABOUT)
+
+
+def test_blocks_regenerate_from_the_file_and_drift_is_caught(tmp_path):
+    path = tmp_path / "results.json"
+    record = write_results(path, "t", [baseline_row("ours", _run(0.5), world="W")], [], ABOUT)
+    doc = tmp_path / "doc.md"
+    doc.write_text("intro\n<!-- results:t -->\nold numbers\n<!-- /results -->\nend\n")
+    assert stale_documents([doc], record) == [str(doc)]
+    text = update_document(doc.read_text(), record)
+    assert text.startswith("intro\n<!-- results:t -->\n| source |") and text.endswith("end\n")
+    assert "| ours | drqn | none (reward alone) | 1 × 1000 | 50.0 (47.0–53.0) |" in text
+    assert "drqn-jax study --configs x" in text and "wall time 10 min" in text
+    doc.write_text(text)
+    assert stale_documents([doc], record) == []
+    doc.write_text(text.replace("50.0 (47.0", "51.0 (47.0"))  # a retyped number
+    assert stale_documents([doc], record) == [str(doc)]
+    with pytest.raises(ValueError, match="section 'nope'"):
+        render_section(record, "nope")
+
+
+def test_the_report_command_fills_and_checks(tmp_path, capsys):
+    path = tmp_path / "results.json"
+    write_results(path, "t", [baseline_row("ours", _run(0.5), world="W")], [], ABOUT)
+    doc = tmp_path / "doc.md"
+    doc.write_text("<!-- results:t -->\n<!-- /results -->\n")
+    args = ["report", str(doc), "--results", str(path)]
+    assert cli.main([*args, "--check"]) == 1
+    assert cli.main(args) == 0
+    assert cli.main([*args, "--check"]) == 0
+    assert cli.main(["report", str(doc), "--results", str(tmp_path / "none.json")]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_the_verdict_follows_the_intervals():
+    rule = baseline_row("rb", _run(0.2, speed=9.0), world="W")
+    above = claim_verdict(baseline_row("d", _run(0.8, speed=8.5), world="W"), rule)
+    assert "is supported:" in above and "0.50 km/h below" in above
+    overlap = claim_verdict(baseline_row("d", _run(0.22), world="W"), rule)
+    assert "not shown:" in overlap and "not distinguishable" in overlap
+    assert "reversed:" in claim_verdict(rule, baseline_row("d", _run(0.8), world="W"))
