@@ -1,4 +1,4 @@
-"""Where a trained agent departs from the rule-based agent, step by step (docs/results.md §9).
+"""Where a trained agent departs from the rule-based agent, step by step (docs/notebook/yielding-world.md §9).
 
 Plays a run directory's greedy agent and the rule-based agent (SPEC §6) on the
 same episodes and splits every step by what the rule-based agent would do in
@@ -6,7 +6,7 @@ that state: where it brakes (a pedestrian on the road in its corridor) and
 where it drives on. Prints the share of each action there, the speed where
 it drives on, and the collisions: whether the car was stopped, where the
 pedestrian met it (its front, side or rear) and what the pedestrian was
-doing (docs/results.md §10: among heedless pedestrians, who walk into cars)::
+doing (docs/notebook/yielding-world.md §10: among heedless pedestrians, who walk into cars)::
 
     python docs/action_trace.py runs/reproduce --episodes 64
 """

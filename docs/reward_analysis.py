@@ -1,4 +1,4 @@
-"""Which driver does the paper's reward prefer? A table for docs/results.md.
+"""Which driver does the paper's reward prefer? A table for docs/notebook/yielding-world.md.
 
 Two scripted drivers on the same 1000 evaluation episodes of a config: the
 rule-based agent (brakes for any pedestrian on the road within 7 m of its

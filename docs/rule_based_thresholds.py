@@ -1,4 +1,4 @@
-"""The rule-based agent (SPEC §6) over its two thresholds (docs/results.md §9).
+"""The rule-based agent (SPEC §6) over its two thresholds (docs/notebook/yielding-world.md §9).
 
 Evaluates it on the same 1000 episodes for every corridor margin and look-ahead
 given, on the paper's and the realistic pedestrians, and prints a Markdown

@@ -25,7 +25,7 @@ _PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
         {"ped_behaviour_to_car": "yield", "collision_model": "contact"},
     ),
     # Pedestrians that ignore the car with box-disc contact as the collision test
-    # (the world of docs/results.md §10).
+    # (the world of docs/notebook/yielding-world.md §10).
     "UrbanPedestriansHeedless-v0": (
         {},
         {"ped_behaviour_to_car": "ignore", "collision_model": "contact"},
