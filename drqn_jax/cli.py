@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from drqn_jax import __version__
 from drqn_jax.agents import drqn_agent
 from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, config_names, load_config
@@ -49,8 +50,16 @@ from drqn_jax.train import selection
 __all__ = ["main"]
 
 
-class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-    pass
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Help with each option's default, once: not where the help text names it already,
+    nor for defaults that say nothing (None, False, an empty list)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        silent = action.default in (None, False, [], argparse.SUPPRESS)
+        if "(default" in text or silent or not action.option_strings:
+            return text
+        return text + " (default: %(default)s)"
 
 
 def _config_options(parser: argparse.ArgumentParser, default: str) -> None:
@@ -121,6 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="JAX DRQN for urban driving among pedestrians (Deshpande et al.)",
         formatter_class=_Formatter,
     )
+    parser.add_argument("--version", action="version", version=f"drqn-jax {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     train = sub.add_parser(
@@ -152,6 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--json", default=None, metavar="PATH", help="write the metrics as JSON ('-': stdout)"
     )
     _config_options(ev, "default")
+    ev.add_argument("--quiet", action="store_true", help="no status messages on stderr")
 
     rep = sub.add_parser(
         "reproduce",
@@ -181,6 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     replay.add_argument("--seed", type=int, default=None, help="run.seed for the evaluation key")
     _config_options(replay, "default")
+    replay.add_argument("--quiet", action="store_true", help="no line per episode")
 
     sweep = sub.add_parser(
         "sweep",
@@ -291,6 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument(
         "--results", default="docs/results.json", help="the results file (study --results)"
     )
+    report.add_argument("--quiet", action="store_true", help="no status messages")
     report.add_argument(
         "--check",
         action="store_true",
@@ -500,13 +513,24 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         overrides.append(f"run.seed={args.seed}")
     config, agent, _, _ = _chosen_agent(args, overrides)
     start = time.perf_counter()
+    seed = config["run"]["seed"]
+    episodes, world = config["evaluate"]["episodes"], config["env"]["id"]
+    if not args.quiet:
+        print(
+            f"evaluating {agent.name} on {episodes} episodes of {world} "
+            f"(evaluation key of seed {seed}; compiling first)...",
+            file=sys.stderr,
+        )
     (result,) = evaluate_agents(config, [agent])
     wall = time.perf_counter() - start
     # with --json - stdout carries only the JSON (pipe it to jq); the table goes to stderr
     table_out = sys.stderr if args.json == "-" else sys.stdout
     print(metrics_table([result]), file=table_out)
-    seed = config["run"]["seed"]
-    print(f"\n{result['num_episodes']} episodes, seed {seed}, {wall:.1f} s", file=table_out)
+    print(
+        f"\n{result['num_episodes']} episodes of {world}, evaluation key of seed {seed}, "
+        f"{wall:.1f} s",
+        file=table_out,
+    )
     if args.json is not None:
         text = json.dumps({**json_ready(result), "seed": seed}, indent=2) + "\n"
         if args.json == "-":
@@ -570,13 +594,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
         write_episodes(out, record, env, env_params)
     except OSError as err:
         raise ConfigError(f"--out {out}: {err.strerror or err}") from None
-    for i in range(record.num_episodes):
+    for i in range(0 if args.quiet else record.num_episodes):
         print(
             f"episode {i}: {int(record.length[i])} steps, "
             f"return {float(record.episode_return[i]):.2f}, {record.outcome(i)}"
         )
-    seed = config["run"]["seed"]
-    print(f"wrote {record.num_episodes} episodes of {agent.name} (seed {seed}) to {out}")
+    seed, n = config["run"]["seed"], record.num_episodes
+    print(f"wrote {n} episode{'s' if n != 1 else ''} of {agent.name} (seed {seed}) to {out}")
     print(f"view with: rerun {out}")
     return EXIT_OK
 
@@ -727,10 +751,13 @@ def cmd_study(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - start
     if args.results:
         from drqn_jax.machine import machine_info
-        from drqn_jax.report import write_results
+        from drqn_jax.report import load_results, write_results
 
         about = {"command": args.command_line, "wall_time_s": wall, "machine": machine_info()}
         section = args.section or out.name
+        earlier = load_results(args.results)["sections"].get(section)
+        if args.report_only and earlier:  # the runs' provenance stays the command that made them
+            about = {**earlier, "report_command": args.command_line}
         write_results(args.results, section, outcome.rows, outcome.comparisons, about)
         print(f"rows stored as section {section!r} of {args.results}", file=sys.stderr)
     print(outcome.table)
@@ -757,7 +784,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         return EXIT_FAILED if stale else EXIT_OK
     for doc in stale:
         atomic_write_text(Path(doc), update_document(Path(doc).read_text(), record))
-        print(f"updated {doc}", file=sys.stderr)
+        if not args.quiet:
+            print(f"updated {doc}", file=sys.stderr)
     return EXIT_OK
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -356,6 +357,28 @@ def test_help_lists_every_option_with_its_default(command, capsys):
             assert action.option_strings[-1] in text
             if action.default not in (None, False, [], "==SUPPRESS=="):
                 assert f"(default: {action.default})" in " ".join(text.split())
+
+
+def test_every_command_takes_quiet_and_the_program_its_version(capsys):
+    parser = cli.build_parser()
+    commands = parser._subparsers._group_actions[0].choices
+    for name, sub in commands.items():
+        if name != "bench":  # bench passes its options to the benchmark it runs
+            assert any("--quiet" in a.option_strings for a in sub._actions), name
+    with pytest.raises(SystemExit) as info:
+        cli.main(["--version"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.startswith("drqn-jax ")
+
+
+@pytest.mark.parametrize("command", ["evaluate", "replay", "study"])
+def test_help_names_each_default_once(command, capsys):
+    with pytest.raises(SystemExit):
+        cli.main([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(default: None)" not in text and "(default: False)" not in text
+    # a default the help names already is not repeated
+    assert not re.search(r"\(default: [^)]*\) \(default:", text), text
 
 
 def test_console_script_is_installed():

@@ -71,7 +71,7 @@ def test_paper_config_is_the_papers_protocol():
 
 
 def test_default_is_the_budget_with_the_safety_recipe():
-    """default.toml = budget.toml + the departures of docs/notebook/yielding-world.md §5 that are not a
+    """default.toml = budget.toml + the departures of the notebook §5 that are not a
     teacher (§5's guided exploration is in the *-teacher presets), no others."""
     budget, default = load_config("budget").training_dict(), load_config("default").training_dict()
     changed = {
@@ -148,7 +148,7 @@ def test_beyond_is_safe_with_a_faster_teacher_on_both_pedestrians():
     realistic = load_config("beyond-realistic-teacher")
     assert realistic["env"] == load_config("safe-realistic-teacher")["env"]
     assert realistic["train"] == beyond["train"]
-    # docs/notebook/yielding-world.md §9's study ran `safe` with these --set overrides: the same runs
+    # the notebook §9's study ran `safe` with these --set overrides: the same runs
     teacher = (
         "train.imitation_v_max=4.027777777777778",
         "train.imitation_corridor_margin=0.45",
@@ -164,7 +164,7 @@ def test_beyond_long_is_beyond_trained_twice_as_long():
     realistic = load_config("beyond-long-realistic-teacher")
     assert realistic["env"] == load_config("beyond-realistic-teacher")["env"]
     assert realistic["train"] == long["train"]
-    # docs/notebook/yielding-world.md §9 ("Longer training") ran `beyond` with this --set: the same runs
+    # the notebook §9 ("Longer training") ran `beyond` with this --set: the same runs
     for name, base in (
         ("beyond-long-teacher", "beyond-teacher"),
         ("beyond-long-realistic-teacher", "beyond-realistic-teacher"),
@@ -174,7 +174,7 @@ def test_beyond_long_is_beyond_trained_twice_as_long():
 
 
 def test_beyond_long_mixed_is_beyond_long_among_both_kinds():
-    """docs/notebook/yielding-world.md §9 ("Trained among both kinds"): only the pedestrians differ."""
+    """the notebook §9 ("Trained among both kinds"): only the pedestrians differ."""
     long, mixed = load_config("beyond-long-teacher"), load_config("beyond-long-mixed-teacher")
     assert mixed["train"] == long["train"] and mixed["network"] == long["network"]
     # the env id brings its registered preset: walking speeds up to 1.5 m/s
@@ -182,7 +182,7 @@ def test_beyond_long_mixed_is_beyond_long_among_both_kinds():
 
 
 def test_anticipate_is_beyond_long_mixed_with_an_anticipating_narrower_teacher():
-    """docs/notebook/yielding-world.md §9 ("A teacher that anticipates"): only the imitated teacher
+    """the notebook §9 ("A teacher that anticipates"): only the imitated teacher
     differs; the compared rule-based agent and the exploration guide keep SPEC §6's rule."""
     mixed, anticipate = load_config("beyond-long-mixed-teacher"), load_config("anticipate-teacher")
     assert anticipate["env"] == mixed["env"] and anticipate["network"] == mixed["network"]
@@ -193,7 +193,7 @@ def test_anticipate_is_beyond_long_mixed_with_an_anticipating_narrower_teacher()
 
 
 def test_anticipate_narrow_is_anticipate_with_a_025_m_teacher():
-    """docs/notebook/yielding-world.md §9 ("A corridor margin of 0.25 m"): only the teacher's margin
+    """the notebook §9 ("A corridor margin of 0.25 m"): only the teacher's margin
     differs, and the preset trains what the documented ``--set`` study trained."""
     anticipate, narrow = load_config("anticipate-teacher"), load_config("anticipate-narrow-teacher")
     assert narrow["env"] == anticipate["env"] and narrow["network"] == anticipate["network"]
@@ -205,7 +205,7 @@ def test_anticipate_narrow_is_anticipate_with_a_025_m_teacher():
 
 
 def test_anticipate_narrow_dqn_is_its_ablation_and_trains_the_studied_runs():
-    """docs/notebook/yielding-world.md §9 ("The memory, with the teacher"): only the network kind
+    """the notebook §9 ("The memory, with the teacher"): only the network kind
     differs, and the preset trains what the documented ``--set`` study trained."""
     narrow, ablation = (
         load_config("anticipate-narrow-teacher"),
