@@ -58,6 +58,7 @@ __all__ = [
     "StudyOutcome",
     "baseline_row",
     "compare",
+    "compare_paired",
     "cross_results",
     "finished_results",
     "load_curves",
@@ -510,15 +511,46 @@ def cross_results(
     ]
 
 
+def _verdict(low: float, high: float, b_low: float, b_high: float) -> str:
+    return "above" if low > b_high else "below" if high < b_low else "not distinguishable"
+
+
 def compare(row: Mapping[str, Any], baseline: Mapping[str, Any]) -> str:
     """Whether ``row``'s collision-free interval lies above, below or overlaps ``baseline``'s,
-    as a sentence for the report."""
+    and its average speed against the baseline's, as a sentence for the report."""
     (low, high), (b_low, b_high) = row["collision_free_ci"], baseline["collision_free_ci"]
-    verdict = "above" if low > b_high else "below" if high < b_low else "not distinguishable"
+    gap = row["avg_speed_kmh"] - baseline["avg_speed_kmh"]
     return (
         f"{row['label']} ({row['agent']}) against {baseline['label']} ({baseline['agent']}): "
-        f"collision-free interval {verdict} ({100 * low:.1f}–{100 * high:.1f} % against "
-        f"{100 * b_low:.1f}–{100 * b_high:.1f} %)"
+        f"collision-free interval {_verdict(low, high, b_low, b_high)} ({100 * low:.1f}–"
+        f"{100 * high:.1f} % against {100 * b_low:.1f}–{100 * b_high:.1f} %), average speed "
+        f"{abs(gap):.2f} km/h {'below' if gap < 0 else 'above'} it"
+    )
+
+
+def _by_seed(runs: Sequence[Mapping[str, Any]]) -> dict[Any, Mapping[str, Any]]:
+    return {r["values"].get("run.seed"): r for r in runs}
+
+
+def compare_paired(
+    name: str, runs: Sequence[Mapping[str, Any]], other: str, others: Sequence[Mapping[str, Any]]
+) -> str | None:
+    """``name``'s collision-free rate against ``other``'s, paired over the seeds both
+    trained (seed i against seed i, on the same evaluation episodes): the mean
+    difference in percentage points with its 95 % Student-t interval; None with
+    fewer than 2 common seeds."""
+    mine, theirs = _by_seed(runs), _by_seed(others)
+    common = sorted(set(mine) & set(theirs))
+    if len(common) < 2:
+        return None
+    diff = np.array(
+        [mine[k]["collision_free_rate"] - theirs[k]["collision_free_rate"] for k in common]
+    )
+    low, high = t_interval(diff)
+    return (
+        f"{name} − {other}, collision-free, paired over {len(common)} seeds: "
+        f"{100 * diff.mean():+.1f} points ({100 * low:+.1f} to {100 * high:+.1f}): "
+        f"{name} {_verdict(low, high, 0.0, 0.0)}"
     )
 
 
@@ -586,6 +618,10 @@ def run_study(
             trained.append((row, cross_configs[arm.name][env]))
     rows = [*paper_rows(), *(row for row, _ in trained), *baselines.values()]
     comparisons = [compare(row, baselines[env_key(config)]) for row, config in trained]
+    if done:  # the first arm (the headline agent) against each other arm, seed by seed
+        first = done[0].name
+        paired = [compare_paired(first, runs[first], a.name, runs[a.name]) for a in done[1:]]
+        comparisons += [c for c in paired if c is not None]
     curves = {
         arm.name: load_curves(
             [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth

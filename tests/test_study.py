@@ -14,6 +14,7 @@ from drqn_jax.stats import t_interval
 from drqn_jax.study import (
     CURVES,
     baseline_row,
+    compare_paired,
     load_curves,
     paper_rows,
     plan_study,
@@ -103,6 +104,34 @@ def _write_metrics(path, returns, lengths):
     lines = ["episode,episode_return,length"]
     lines += [f"{i},{r},{n}" for i, (r, n) in enumerate(zip(returns, lengths, strict=True))]
     path.write_text("\n".join(lines) + "\n")
+
+
+def test_paired_comparison_is_over_the_seeds_both_arms_trained():
+    def runs(rates):
+        return [{"values": {"run.seed": k}, "collision_free_rate": r} for k, r in rates.items()]
+
+    a = runs({0: 0.9, 1: 0.8, 2: 0.85, 3: 0.5})
+    b = runs({0: 0.5, 1: 0.45, 2: 0.5})  # seed 3 untrained: left out of the pairs
+    line = compare_paired("drqn", a, "dqn", b)
+    assert line.startswith("drqn − dqn, collision-free, paired over 3 seeds: +36.7 points")
+    assert line.endswith("drqn above")
+    close = runs({0: 0.5, 1: 0.6, 2: 0.4})
+    assert compare_paired("drqn", close, "dqn", runs({0: 0.55, 1: 0.5, 2: 0.42})).endswith(
+        "drqn not distinguishable"
+    )
+    assert compare_paired("drqn", a[:1], "dqn", b) is None
+
+
+def test_a_report_only_run_keeps_the_provenance_of_the_runs(study):
+    """--report-only rewrites a section's rows, but its command and wall time stay
+    those of the study that trained the runs (the report command is added)."""
+    path = study.parent / "results.json"
+    before = json.loads(path.read_text())["sections"]["table"]
+    argv = ["study", *STUDY, "--out", str(study), "--no-png", "--report-only"]
+    assert cli.main([*argv, "--results", str(path), "--section", "table"]) == 0
+    after = json.loads(path.read_text())["sections"]["table"]
+    assert (after["command"], after["wall_time_s"]) == (before["command"], before["wall_time_s"])
+    assert "--report-only" in after["report_command"]
 
 
 def test_curves_are_running_means_against_env_steps_over_the_episodes_all_seeds_recorded(
