@@ -93,6 +93,8 @@ def test_the_verdict_follows_the_intervals():
     rule = baseline_row("rb", _run(0.2, speed=9.0), world="W")
     above = claim_verdict(baseline_row("d", _run(0.8, speed=8.5), world="W"), rule)
     assert "is supported:" in above and "0.50 km/h below" in above
+    standing = claim_verdict(baseline_row("d", _run(0.99, speed=0.5), world="W"), rule)
+    assert "not shown:" in standing and "more than 1 km/h slower" in standing
     overlap = claim_verdict(baseline_row("d", _run(0.22), world="W"), rule)
     assert "not shown:" in overlap and "not distinguishable" in overlap
     assert "reversed:" in claim_verdict(rule, baseline_row("d", _run(0.8), world="W"))
