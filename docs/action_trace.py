@@ -1,4 +1,4 @@
-"""Where a trained agent departs from the rule-based agent, step by step (docs/notebook/yielding-world.md §9).
+"""Where a trained agent departs from the rule-based agent, step by step (the notebook §9).
 
 Plays a run directory's greedy agent and the rule-based agent (SPEC §6) on the
 same episodes and splits every step by what the rule-based agent would do in

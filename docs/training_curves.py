@@ -1,4 +1,4 @@
-"""Make a training-curves figure for docs/notebook/yielding-world.md from runs' ``metrics.csv`` files.
+"""Make a training-curves figure from runs' ``metrics.csv`` files (docs/notebook/).
 
 The paper's "Training performance" figure (average reward and steps per
 episode against training episode) for any set of runs: a ``drqn-jax train``

@@ -307,9 +307,19 @@ def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: An
 
 
 def config_names() -> tuple[str, ...]:
-    """The configs shipped in ``configs/`` (``paper``, ``default``, …), sweep files
-    (a top-level ``[axes]`` table, e.g. ``sweep.toml``) left out."""
+    """The run presets at the top of ``configs/`` (``paper``, ``default``, …). The
+    configs in its folders (``teacher/``, ``notebook/``) load by name too; sweep files
+    (a top-level ``[axes]`` table, in ``sweeps/``) are not configs."""
     return tuple(sorted(p.stem for p in CONFIG_DIR.glob("*.toml") if not _is_sweep_file(p)))
+
+
+def _named_config(name: str) -> Path:
+    """``configs/NAME.toml``, else the one ``configs/*/NAME.toml`` (a missing path if none)."""
+    top = CONFIG_DIR / f"{name}.toml"
+    if top.is_file():
+        return top
+    found = sorted(p for p in CONFIG_DIR.glob(f"*/{name}.toml") if not _is_sweep_file(p))
+    return found[0] if len(found) == 1 else top
 
 
 def _is_sweep_file(path: Path) -> bool:
@@ -324,7 +334,7 @@ def _read_toml(source: str | Path) -> tuple[dict[str, Any], str]:
     built-in config (a directory of that name, a run directory say, is not a config)."""
     path = Path(source)
     if not path.suffix and not path.is_file():
-        path = CONFIG_DIR / f"{source}.toml"
+        path = _named_config(str(source))
     if not path.is_file():
         names = ", ".join(config_names()) or "(none found)"
         raise ConfigError(f"config {str(source)!r}: no such file; built-in names: {names}")

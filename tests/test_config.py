@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import tomllib
+from pathlib import Path
 
 import pytest
 
@@ -25,36 +27,70 @@ def changed(preset, base, section: str) -> dict:
     return {k: v for k, v in preset[section].items() if v != base[section][k]}
 
 
+def _shipped(folder: str = "*") -> list[Path]:
+    """Every config file under configs/ (sweep files included), top level and folders."""
+    return sorted(CONFIG_DIR.glob("*.toml")) + sorted(CONFIG_DIR.glob(f"{folder}/*.toml"))
+
+
 def test_presets_say_when_they_have_a_teacher():
-    """Teacher-free by default: a shipped preset learns from the reward alone unless
+    """Teacher-free by default: a shipped config learns from the reward alone unless
     its name says ``teacher`` (and then it has one: guided exploration or imitation);
     a sweep whose name does not say so has no teacher at any point."""
+    from drqn_jax.config import _is_sweep_file
     from drqn_jax.sweep import load_sweep
     from drqn_jax.train import REWARD_ALONE, teacher_label
 
-    for name in config_names():
-        label = teacher_label(load_config(name).hyperparams())
-        assert (label != REWARD_ALONE) == ("teacher" in name), (name, label)
-    for path in sorted(CONFIG_DIR.glob("*.toml")):
-        if path.stem in config_names() or "teacher" in path.stem:
+    for path in _shipped():
+        if _is_sweep_file(path):
+            if "teacher" not in path.stem:
+                for point in load_sweep(path).points:
+                    assert teacher_label(point.config.hyperparams()) == REWARD_ALONE, path
             continue
-        for point in load_sweep(path).points:
-            assert teacher_label(point.config.hyperparams()) == REWARD_ALONE, path
+        label = teacher_label(load_config(path.stem).hyperparams())
+        assert (label != REWARD_ALONE) == ("teacher" in path.stem), (path, label)
 
 
-def test_shipped_configs_load():
-    assert {"paper", "budget", "default", "realistic", "smoke"} <= set(config_names())
-    for name in config_names():
-        config = load_config(name)
+def test_configs_are_laid_out_by_purpose():
+    """Issue 42: at most 8 run presets at the top of configs/, sweeps only in sweeps/,
+    every config within 2 levels of ``extends``, and every name unique (names load from
+    the folders too)."""
+    from drqn_jax.config import _is_sweep_file, _read_toml
+
+    top = sorted(CONFIG_DIR.glob("*.toml"))
+    assert len(top) <= 8 and not any(_is_sweep_file(p) for p in top), top
+    assert set(config_names()) == {p.stem for p in top}
+    assert {"paper", "default", "realistic", "smoke"} <= set(config_names())
+    assert all(_is_sweep_file(p) for p in CONFIG_DIR.glob("sweeps/*.toml"))
+    stems = [p.stem for p in _shipped()]
+    assert len(stems) == len(set(stems)), "two configs share a name"
+    for path in _shipped():
+        raw, levels = tomllib.loads(path.read_text()), 0
+        while "extends" in raw:
+            raw, levels = _read_toml(raw["extends"])[0], levels + 1
+        assert levels <= 2, (path, levels)
+
+
+def test_shipped_configs_load_and_run_directories_do_not_need_them(tmp_path):
+    """Every shipped config builds; the config.toml a run writes is self-contained
+    (no ``extends``), so a run of a preset since moved or changed still loads alike."""
+    from drqn_jax.config import _is_sweep_file
+
+    for path in _shipped():
+        if _is_sweep_file(path):
+            continue
+        config = load_config(path.stem)
         config.train_config()  # builds every object
+        written = tmp_path / f"{path.stem}.toml"
+        written.write_text(config.to_toml())
+        assert "extends" not in tomllib.loads(written.read_text())
+        assert load_config(written).training_hash() == config.training_hash(), path
 
 
 def test_shipped_sweep_files_validate():
-    """Every sweep file in configs/ (a top-level [axes]) names valid points."""
-    from drqn_jax.config import CONFIG_DIR, _is_sweep_file
+    """Every sweep file in configs/sweeps/ names valid points."""
     from drqn_jax.sweep import load_sweep
 
-    sweeps = [p for p in sorted(CONFIG_DIR.glob("*.toml")) if _is_sweep_file(p)]
+    sweeps = sorted(CONFIG_DIR.glob("sweeps/*.toml"))
     assert {p.stem for p in sweeps} >= {"sweep", "reward", "occlusion"}
     for path in sweeps:
         assert load_sweep(path).points
@@ -283,8 +319,8 @@ def test_bad_values_name_field_value_and_rule(override, message):
     ],
 )
 def test_ppo_refuses_what_it_cannot_do(override, message):
-    with pytest.raises(ConfigError, match=message):
-        load_config("ppo", [override])
+    with pytest.raises(ConfigError, match=message):  # (no step budget: snapshots need none)
+        load_config("ppo", ["train.num_env_steps=0", override])
     assert load_config("ppo").train_config().algorithm == "ppo"
 
 
