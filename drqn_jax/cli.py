@@ -384,6 +384,7 @@ SUITE = (
     "train_throughput",
     "evaluation",
     "sweep_throughput",
+    "gymnasium_throughput",
 )
 #: Benchmark tools run by name only (not by ``all``): the op-by-op profile, and the
 #: learners on outside benchmarks (gymnax; minutes of training, not a throughput figure).

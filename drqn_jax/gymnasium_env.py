@@ -323,41 +323,85 @@ def _single_step(
     return held, obs, state, reward, terminated, truncated, info
 
 
+#: Most sub-environments restarted sparsely in one vector step: up to this many, only
+#: theirs are reset; more at once (rare), every one is computed and selected.
+SPARSE_RESETS = 8
+
+
+def _restart_where(
+    env: UrbanPedestrians,
+    restart: jax.Array,
+    reset_key_data: jax.Array,
+    held: jax.Array,
+    states: EnvState,
+    params: EnvParams,
+) -> tuple[jax.Array, EnvState]:
+    """``held`` (N, w) key data and ``states`` (N, …) with the sub-environments where
+    ``restart`` (N,) bool starts a fresh episode from ``reset_key_data`` (N, w), split
+    as :func:`_single_reset` splits it. Only the restarting envs' resets are
+    computed (none when none restarts; all when more than :data:`SPARSE_RESETS`
+    do); each env's fresh state depends on its own key alone, so the result is the
+    same whichever way it is computed."""
+    n = restart.shape[0]
+    k = min(n, SPARSE_RESETS)
+
+    def reset_one(key_data):
+        fresh_held, reset_key = _split(key_data)
+        return fresh_held, env.reset_state(reset_key, params)
+
+    def none(_):
+        return held, states
+
+    def sparse(_):
+        index = jnp.nonzero(restart, size=k, fill_value=n)[0]  # (k,); n: no env, dropped
+        fresh_held, fresh = jax.vmap(reset_one)(reset_key_data[jnp.minimum(index, n - 1)])
+
+        def put(into: jax.Array, rows: jax.Array) -> jax.Array:
+            return into.at[index].set(rows, mode="drop")
+
+        return put(held, fresh_held), jax.tree.map(put, states, fresh)
+
+    def dense(_):
+        fresh_held, fresh = jax.vmap(reset_one)(reset_key_data)
+        select = functools.partial(jax.vmap(jnp.where), restart)
+        return select(fresh_held, held), jax.tree.map(select, fresh, states)
+
+    count = jnp.sum(restart)
+    branch = jnp.where(count == 0, 0, jnp.where(count <= k, 1, 2))
+    return jax.lax.switch(branch, (none, sparse, dense), None)
+
+
 def _vector_step(
     env: UrbanPedestrians,
     same_step: bool,
     key_data: jax.Array,
     reset_key_data: jax.Array,
-    state: EnvState,
-    action: jax.Array,
+    states: EnvState,
+    actions: jax.Array,
     autoreset: jax.Array,
     params: EnvParams,
 ):
-    """One sub-environment's step with select-style auto-reset (vmapped by the caller).
+    """A batch of N sub-environments' steps with auto-reset (arrays (N, …)).
 
-    The step (``step_env`` with a key split from the held one) and a fresh
-    episode (``reset_state`` from ``reset_key_data``, split as
-    :func:`_single_reset` splits it) are both computed and selected leaf by
-    leaf; the observation is rasterised from the selected state. NEXT_STEP
-    restarts where ``autoreset`` (the previous step ended the episode), with
-    reward 0 and no termination; SAME_STEP restarts where this step ends it and
-    also returns the final observation.
+    Every env steps (``step_env`` with a key split from its held one); the envs
+    that restart get a fresh episode (:func:`_restart_where`) and their
+    observation is rasterised from it. NEXT_STEP restarts where ``autoreset``
+    (the previous step ended the episode), with reward 0 and no termination;
+    SAME_STEP restarts where this step ends it and also returns the final
+    observation.
     """
-    held, step_key = _split(key_data)
-    obs_final, stepped, reward, terminated, truncated, info = env.step_env(
-        step_key, state, action, params
+    step = jax.vmap(functools.partial(_single_step, env), in_axes=(0, 0, 0, None))
+    held, obs_final, stepped, reward, terminated, truncated, info = step(
+        key_data, states, actions, params
     )
-    fresh_held, reset_key = _split(reset_key_data)
-    fresh = env.reset_state(reset_key, params)
     restart = (terminated | truncated) if same_step else autoreset
-    new_state = jax.tree.map(lambda a, b: jnp.where(restart, a, b), fresh, stepped)
-    new_held = jnp.where(restart, fresh_held, held)
-    obs = env.observation(new_state, params)
+    new_held, new_states = _restart_where(env, restart, reset_key_data, held, stepped, params)
+    obs = jax.vmap(env.observation, (0, None))(new_states, params)
     if not same_step:
         reward = jnp.where(restart, jnp.zeros_like(reward), reward)
         terminated = terminated & ~restart
         truncated = truncated & ~restart
-    return new_held, obs, new_state, reward, terminated, truncated, info, obs_final, restart
+    return new_held, obs, new_states, reward, terminated, truncated, info, obs_final, restart
 
 
 @functools.cache
@@ -376,14 +420,11 @@ def _vector_fns(env: UrbanPedestrians) -> _VectorFns:
     reset = jax.vmap(functools.partial(_single_reset, env), in_axes=(0, None))
 
     def reset_masked(key_data, held, states, mask, params):
-        new_held, _, fresh = reset(key_data, params)
-        select = functools.partial(jax.vmap(jnp.where), mask)
-        states = jax.tree.map(select, fresh, states)
-        return select(new_held, held), jax.vmap(env.observation, (0, None))(states, params), states
+        held, states = _restart_where(env, mask, key_data, held, states, params)
+        return held, jax.vmap(env.observation, (0, None))(states, params), states
 
     def step(same_step: bool):
-        fn = functools.partial(_vector_step, env, same_step)
-        return jax.jit(jax.vmap(fn, in_axes=(0, 0, 0, 0, 0, None)))
+        return jax.jit(functools.partial(_vector_step, env, same_step))
 
     return _VectorFns(
         reset=jax.jit(reset),

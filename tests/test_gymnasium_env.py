@@ -66,6 +66,8 @@ def test_registration_ids_entry_points_and_idempotence():
         ("drqn_jax/UrbanPedestriansHeedless-v0", "UrbanPedestriansHeedless-v0"),
         ("drqn_jax/UrbanPedestriansMixed-v0", "UrbanPedestriansMixed-v0"),
         ("drqn_jax/UrbanPedestriansYielding-v0", "UrbanPedestriansYielding-v0"),
+        ("drqn_jax/UrbanPedestriansOccluded-v0", "UrbanPedestriansOccluded-v0"),
+        ("drqn_jax/UrbanPedestriansUnseenMap-v0", "UrbanPedestriansUnseenMap-v0"),
     )
     for gym_id, env_id in ids:
         spec = gymnasium.spec(gym_id)
@@ -466,3 +468,35 @@ def test_third_party_linear_q_learning_client():
                 obs, _ = env.reset()
     assert len(returns) >= 4
     assert np.all(np.isfinite(weights)) and np.any(weights != 0.0)
+
+
+@pytest.mark.parametrize("restarting", [(), (1, 4, 10), tuple(range(12))])
+def test_the_vector_env_resets_exactly_the_envs_that_restart(restarting):
+    """Issue 42: a vector step computes fresh episodes only for the envs that restart
+    (none; a few, sparsely; more than SPARSE_RESETS, all computed and selected), and
+    each gets exactly the episode its own reset key gives, whichever path ran."""
+    env, params = drqn_jax.make()
+    n = 12
+    assert len(restarting) == 0 or len(restarting) <= ge.SPARSE_RESETS < n or len(restarting) == n
+    mask = np.isin(np.arange(n), restarting)
+    keys = jax.random.split(jax.random.key(7), 3 * n)
+    states = jax.vmap(env.reset_state, (0, None))(keys[:n], params)
+    held = jax.random.key_data(keys[n : 2 * n])
+    reset_data = jax.random.key_data(keys[2 * n :])
+    restart = jax.jit(lambda *a: ge._restart_where(env, *a))
+    new_held, new_states = restart(mask, reset_data, held, states, params)
+
+    def row(tree, i):
+        return jax.tree.map(lambda x: x[i], tree)
+
+    for i in range(n):
+        if mask[i]:
+            want_held, _, want_state = ge._single_reset(env, reset_data[i], params)
+        else:
+            want_held, want_state = held[i], row(states, i)
+        np.testing.assert_array_equal(new_held[i], want_held)
+        got = row(new_states, i)
+        assert all(
+            np.array_equal(a, b)
+            for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want_state), strict=True)
+        ), i
