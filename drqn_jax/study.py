@@ -616,7 +616,9 @@ def run_study(
         for env, results in cross[arm.name].items():
             row = study_row(f"drqn_jax: {arm.name} on {env}", agent, results, world=env)
             trained.append((row, cross_configs[arm.name][env]))
-    rows = [*paper_rows(), *(row for row, _ in trained), *baselines.values()]
+    # configs that differ only in what the rule-based agent ignores (the reward) share its row
+    shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines.values()}
+    rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]
     comparisons = [compare(row, baselines[env_key(config)]) for row, config in trained]
     if done:  # the first arm (the headline agent) against each other arm, seed by seed
         first = done[0].name

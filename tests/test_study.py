@@ -237,6 +237,20 @@ def test_a_ppo_arm_is_named_by_its_learner(tmp_path):
     assert ("drqn_jax: smoke-ppo", "ppo") in [(r["label"], r["agent"]) for r in rows]
 
 
+def test_configs_differing_only_in_reward_share_one_rule_based_row(tmp_path):
+    """The rule-based agent ignores the reward: a config that changes only the reward
+    adds no second, identical rule-based row (it did in Table III's first run)."""
+    config = tmp_path / "smoke-reward.toml"
+    config.write_text('extends = "smoke"\n[env]\nreward_collision = -50.0\n')
+    out = tmp_path / "out"
+    args = ["--configs", f"smoke,{config}", "--seeds", "1", "--episodes", "2", "--quiet"]
+    args += [arg for setting in SMOKE_SWEEP_SET for arg in ("--set", setting)]
+    assert cli.main(["study", *args, "--out", str(out), "--no-png"]) == 0
+    rows = json.loads((out / "study.json").read_text())["rows"]
+    assert len(list((out / "baselines").glob("rule-based-*.json"))) == 2  # two env keys
+    assert [r["agent"] for r in rows].count("rule-based") == 2  # the paper's and ours
+
+
 def test_the_curves_are_the_logged_metrics(study):
     curves = load_curves([metrics_path(study / "smoke", i) for i in range(2)], smooth=1)
     for i in range(2):
