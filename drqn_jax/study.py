@@ -47,7 +47,7 @@ from drqn_jax.evaluation import wilson_interval
 from drqn_jax.hyperparams import NOT_LEARNED, REWARD_ALONE, agent_name, has_teacher, teachers_of
 from drqn_jax.recording import running_mean
 from drqn_jax.registry import registered_envs
-from drqn_jax.report import strict_json
+from drqn_jax.report import claim_verdict, strict_json
 from drqn_jax.stats import t_interval
 from drqn_jax.sweep import Sweep, build_sweep
 
@@ -622,6 +622,9 @@ def run_study(
     comparisons = [compare(row, baselines[env_key(config)]) for row, config in trained]
     if done:  # the first arm (the headline agent) against each other arm, seed by seed
         first = done[0].name
+        headline, config = trained[0]
+        if headline["agent"] == "drqn":
+            comparisons.insert(0, claim_verdict(headline, baselines[env_key(config)]))
         paired = [compare_paired(first, runs[first], a.name, runs[a.name]) for a in done[1:]]
         comparisons += [c for c in paired if c is not None]
     curves = {

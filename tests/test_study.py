@@ -219,6 +219,7 @@ def test_the_study_writes_the_table_and_the_curves(study):
     assert f"| drqn_jax: smoke | drqn | none (reward alone) | 2 × {EPISODES} |" in table
     assert "* drqn_jax: smoke (drqn) against drqn_jax: UrbanPedestrians-v0 (rule-based)" in table
     assert record["comparisons"] == [line[2:] for line in table.splitlines() if line[:2] == "* "]
+    assert record["comparisons"][0].startswith("The paper's claim (DRQN safer than")  # headline
     assert (study / "curves.rrd").stat().st_size > 0
     assert (study / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -316,7 +317,7 @@ def test_eval_envs_evaluate_the_trained_agents_among_other_pedestrians(
         ("drqn_jax: UrbanPedestrians-v0", "rule-based"),
         (f"drqn_jax: {realistic}", "rule-based"),
     ]
-    assert record["comparisons"][1].startswith(
+    assert record["comparisons"][2].startswith(
         f"drqn_jax: smoke on {realistic} (drqn) against drqn_jax: {realistic} (rule-based)"
     )
     cross = record["cross"]["smoke"][realistic]
