@@ -623,7 +623,7 @@ def run_study(
     if done:  # the first arm (the headline agent) against each other arm, seed by seed
         first = done[0].name
         headline, config = trained[0]
-        if headline["agent"] == "drqn":
+        if headline["agent"] == "drqn" and not headline["teacher"]:  # the paper's claim
             comparisons.insert(0, claim_verdict(headline, baselines[env_key(config)]))
         paired = [compare_paired(first, runs[first], a.name, runs[a.name]) for a in done[1:]]
         comparisons += [c for c in paired if c is not None]
