@@ -167,5 +167,6 @@ def claim_verdict(drqn: Mapping[str, Any], rule_based: Mapping[str, Any]) -> str
     return (
         f"The paper's claim (DRQN safer than the rule-based agent) is {verdict} "
         f"({100 * low:.1f}–{100 * high:.1f} % against {100 * b_low:.1f}–{100 * b_high:.1f} %; "
-        f"average speed {abs(gap):.2f} km/h {'below' if gap < 0 else 'above'} its)."
+        f"the DRQN's average speed is {abs(gap):.2f} km/h {'below' if gap < 0 else 'above'} "
+        "the rule-based agent's)."
     )

@@ -98,3 +98,19 @@ def test_the_verdict_follows_the_intervals():
     overlap = claim_verdict(baseline_row("d", _run(0.22), world="W"), rule)
     assert "not shown:" in overlap and "not distinguishable" in overlap
     assert "reversed:" in claim_verdict(rule, baseline_row("d", _run(0.8), world="W"))
+
+
+def test_the_documents_quote_the_results_file():
+    """README.md and docs/results.md agree with docs/results.json, block by block
+    (regenerate with: drqn-jax report README.md docs/results.md), and the file holds
+    Table III's rule-based and teacher-free DRQN rows in the paper's world."""
+    record = load_results(ROOT / "docs" / "results.json")
+    docs = [ROOT / "README.md", ROOT / "docs" / "results.md"]
+    assert all("<!-- results:" in d.read_text() for d in docs)
+    assert stale_documents(docs, record) == []
+    paper_world = [r for r in record["rows"] if r["world"] == "UrbanPedestrians-v0"]
+    assert any(r["agent"] == "rule-based" for r in paper_world)
+    assert any(r["agent"] == "drqn" and r["teacher"] is False for r in paper_world)
+    for row in record["rows"]:
+        low, high = row["collision_free_ci"]
+        assert 0.0 <= low <= row["collision_free_rate"] <= high <= 1.0, row["label"]
