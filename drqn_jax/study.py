@@ -547,6 +547,7 @@ def compare_paired(
         [mine[k]["collision_free_rate"] - theirs[k]["collision_free_rate"] for k in common]
     )
     low, high = t_interval(diff)
+    low, high = max(low, -1.0), min(high, 1.0)  # a difference of two rates
     return (
         f"{name} − {other}, collision-free, paired over {len(common)} seeds: "
         f"{100 * diff.mean():+.1f} points ({100 * low:+.1f} to {100 * high:+.1f}): "
