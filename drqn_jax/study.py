@@ -414,11 +414,14 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
             plural = "s" if seeds > 1 else ""
             (line,) = ax.plot(c.env_steps, c.mean, label=f"{name} ({seeds} seed{plural})")
             ax.fill_between(c.env_steps, c.low, c.high, color=line.get_color(), alpha=0.2, lw=0)
-        ax.set_xlabel("env steps")
+        ax.set_xlabel("env steps (thousands)")
+        ax.xaxis.set_major_formatter(lambda x, _: f"{x / 1000:g}")
         ax.set_ylabel(label)
-        ax.set_title(f"{label}: mean and min–max over seeds (running mean of {smooth} episodes)")
-        ax.title.set_fontsize(9)
         ax.grid(alpha=0.3)
+    fig.suptitle(
+        f"Mean and min–max over seeds of a running mean over {smooth} training episodes",
+        fontsize=10,
+    )
     axes[0].legend(fontsize=8)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
