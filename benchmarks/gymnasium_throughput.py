@@ -9,11 +9,11 @@ What a Gymnasium user gets (issue 42): ``gym.make("drqn_jax/UrbanPedestrians-v0"
 stepped from Python with random actions (NumPy observations out, one jitted
 call per step), and ``gym.make_vec(…, num_envs=N)`` (``UrbanPedestriansVectorEnv``:
 one jitted call per step for all N envs, auto-reset included), each against the
-bare ``jit(vmap(step))`` of the JAX env at the same N (device arrays in and out,
-no host transfer, auto-reset inside ``step``): the ceiling a Python-side client
-can approach. Run s = median of ``--repeats`` timed loops of ``--steps`` steps
+bare ``jit(vmap(step_env))`` of the JAX env at the same N (device arrays in and out,
+no host transfer, no reset at all: episodes run on past their end): the ceiling a
+Python-side client can approach. Run s = median of ``--repeats`` timed loops of ``--steps`` steps
 after a warm-up loop. Targets (issue 42): the single env ≥ 5,000 steps/s; the
-vector env ≥ 50 % of ``jit(vmap(step))``'s env steps/s at 256 envs.
+vector env ≥ 50 % of ``jit(vmap(step_env))``'s env steps/s at 256 envs.
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ def bench_jax(num_envs: int, steps: int, repeats: int, seed: int) -> dict[str, A
     env, params = drqn_jax.make(ENV_ID)
     keys = jax.random.split(jax.random.key(seed), num_envs)
     _, states = jax.vmap(env.reset, (0, None))(keys, params)
-    step = jax.jit(jax.vmap(env.step, (0, 0, 0, None)))
+    step = jax.jit(jax.vmap(env.step_env, (0, 0, 0, None)))
     actions = jnp.asarray(np.random.default_rng(seed).integers(0, 4, size=(steps, num_envs)))
 
     def one(carry: Any, action: Any) -> Any:
@@ -94,7 +94,7 @@ def bench_jax(num_envs: int, steps: int, repeats: int, seed: int) -> dict[str, A
     _, timing = time_calls(_loop(one, actions), (jax.random.key(seed + 1), states), repeats)
     rate = num_envs * steps / timing["run_s"]
     return {
-        "client": "jit(vmap(env.step)) (JAX, no host)",
+        "client": "jit(vmap(env.step_env)) (JAX, no host, no reset)",
         "envs": num_envs,
         **timing,
         "steps_per_s": rate,
@@ -132,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         "",
         f"- single env: {single['steps_per_s']:,.0f} steps/s (target >= 5,000: "
         f"{'met' if single['steps_per_s'] >= 5000 else 'not met'})",
-        f"- vector env at {args.num_envs} envs: {100 * share:.0f} % of jit(vmap(step)) "
+        f"- vector env at {args.num_envs} envs: {100 * share:.0f} % of jit(vmap(step_env)) "
         f"(target >= 50 % at 256 envs: {'met' if share >= 0.5 else 'not met'})",
     ]
     result = {"config": vars(args), "rows": [single, vector, ceiling], "vector_share": share}
