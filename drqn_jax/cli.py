@@ -57,7 +57,7 @@ class _Formatter(argparse.RawDescriptionHelpFormatter):
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
         silent = action.default in (None, False, [], argparse.SUPPRESS)
-        if "(default" in text or silent or not action.option_strings:
+        if "(default:" in text or silent or not action.option_strings:
             return text
         return text + " (default: %(default)s)"
 
