@@ -566,6 +566,26 @@ def finished_results(directory: Path) -> list[dict[str, Any]]:
     return [results[i] for i in sorted(results)]
 
 
+def _comparisons(
+    trained: Sequence[tuple[dict[str, Any], Config]],
+    baselines: Mapping[str, dict[str, Any]],
+    names: Sequence[str],
+    runs: Mapping[str, Sequence[Mapping[str, Any]]],
+) -> list[str]:
+    """The sentences under a study's table: the verdict on the paper's claim (a
+    teacher-free headline DRQN, the first arm), each trained row against its world's
+    rule-based agent, and the first arm against each other arm, seed by seed."""
+    comparisons = [compare(row, baselines[env_key(config)]) for row, config in trained]
+    if not names:
+        return comparisons
+    headline, config = trained[0]
+    if headline["agent"] == "drqn" and not headline["teacher"]:
+        comparisons.insert(0, claim_verdict(headline, baselines[env_key(config)]))
+    first = names[0]
+    paired = [compare_paired(first, runs[first], name, runs[name]) for name in names[1:]]
+    return comparisons + [c for c in paired if c is not None]
+
+
 def run_study(
     arms: Sequence[Arm],
     out: str | Path,
@@ -623,14 +643,7 @@ def run_study(
     # configs that differ only in what the rule-based agent ignores (the reward) share its row
     shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines.values()}
     rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]
-    comparisons = [compare(row, baselines[env_key(config)]) for row, config in trained]
-    if done:  # the first arm (the headline agent) against each other arm, seed by seed
-        first = done[0].name
-        headline, config = trained[0]
-        if headline["agent"] == "drqn" and not headline["teacher"]:  # the paper's claim
-            comparisons.insert(0, claim_verdict(headline, baselines[env_key(config)]))
-        paired = [compare_paired(first, runs[first], a.name, runs[a.name]) for a in done[1:]]
-        comparisons += [c for c in paired if c is not None]
+    comparisons = _comparisons(trained, baselines, [a.name for a in done], runs)
     curves = {
         arm.name: load_curves(
             [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth
