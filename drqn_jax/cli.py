@@ -447,6 +447,14 @@ def _train_and_evaluate(
     agents = [_trained(result)]
     if reproduce:
         agents.append(builtin_agent("rule-based", config))
+    if not quiet:
+        names = " and ".join(a.name for a in agents)
+        print(
+            f"evaluating {names} on {config['evaluate']['episodes']} episodes of "
+            f"{config['env']['id']} (evaluation key of seed {config['run']['seed']})...",
+            file=sys.stderr,
+            flush=True,
+        )
     results = evaluate_agents(config, agents)
     wall = time.perf_counter() - start
     world = config["env"]["id"]

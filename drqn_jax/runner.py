@@ -277,6 +277,8 @@ def train_run(
     stop = _StopRequest()
     with stop.installed():  # a signal while compiling also stops cleanly
         start = time.perf_counter()
+        if not quiet:
+            print("compiling the training program...", file=sys.stderr, flush=True)
         run = _compiled_run(trainer, state)
         compile_s = time.perf_counter() - start
         if not resume:

@@ -387,3 +387,14 @@ def test_console_script_is_installed():
     assert out.returncode == 0
     for command in ("train", "evaluate", "reproduce", "replay", "bench"):
         assert command in out.stdout
+
+
+def test_long_phases_say_what_they_do_unless_quiet(tmp_path, capsys):
+    """Issue 42: compiling and evaluating print a line each on stderr; --quiet none."""
+    assert cli.main(["train", "--config", "smoke", "--run-dir", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    assert "compiling the training program" in err
+    assert "evaluating drqn on 8 episodes of UrbanPedestrians-v0" in err
+    assert cli.main(["train", *SMOKE, "--run-dir", str(tmp_path / "b")]) == 0
+    err = capsys.readouterr().err
+    assert "compiling" not in err and "evaluating" not in err
