@@ -29,7 +29,7 @@ from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, config_names, load_config
 from drqn_jax.evaluation import metrics_table
 from drqn_jax.hyperparams import agent_name
-from drqn_jax.report import SECTION_NAME
+from drqn_jax.report import check_section
 from drqn_jax.runner import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
@@ -448,13 +448,7 @@ def _train_and_evaluate(
     if reproduce:
         agents.append(builtin_agent("rule-based", config))
     if not quiet:
-        names = " and ".join(a.name for a in agents)
-        print(
-            f"evaluating {names} on {config['evaluate']['episodes']} episodes of "
-            f"{config['env']['id']} (evaluation key of seed {config['run']['seed']})...",
-            file=sys.stderr,
-            flush=True,
-        )
+        _say_evaluating(config, agents)
     results = evaluate_agents(config, agents)
     wall = time.perf_counter() - start
     world = config["env"]["id"]
@@ -467,6 +461,17 @@ def _train_and_evaluate(
         f"\nrun directory: {run_dir}"
     )
     return EXIT_OK
+
+
+def _say_evaluating(config: Config, agents: Sequence[Any]) -> None:
+    """The status line of an evaluation (stderr): agents, episodes, world and key."""
+    names = " and ".join(a.name for a in agents)
+    print(
+        f"evaluating {names} on {config['evaluate']['episodes']} episodes of "
+        f"{config['env']['id']} (evaluation key of seed {config['run']['seed']})...",
+        file=sys.stderr,
+        flush=True,
+    )
 
 
 def _trained(result: Any) -> Any:
@@ -522,14 +527,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         overrides.append(f"run.seed={args.seed}")
     config, agent, _, _ = _chosen_agent(args, overrides)
     start = time.perf_counter()
-    seed = config["run"]["seed"]
-    episodes, world = config["evaluate"]["episodes"], config["env"]["id"]
+    seed, world = config["run"]["seed"], config["env"]["id"]
     if not args.quiet:
-        print(
-            f"evaluating {agent.name} on {episodes} episodes of {world} "
-            f"(evaluation key of seed {seed}; compiling first)...",
-            file=sys.stderr,
-        )
+        _say_evaluating(config, [agent])
     (result,) = evaluate_agents(config, [agent])
     wall = time.perf_counter() - start
     # with --json - stdout carries only the JSON (pipe it to jq); the table goes to stderr
@@ -732,10 +732,11 @@ def cmd_study(args: argparse.Namespace) -> int:
     eval_envs = [e.strip() for e in args.eval_envs.split(",") if e.strip()]
     arms = plan_study(configs, args.seeds, args.episodes, args.overrides, eval_envs)
     out = Path(args.out or Path("runs") / f"study-{'-'.join(a.name for a in arms)}")
-    if args.results and not SECTION_NAME.fullmatch(args.section or out.name):
-        raise ConfigError(
-            f"--section {args.section or out.name!r}: must be letters, digits, '_', '.' or '-'"
-        )
+    if args.results:
+        try:
+            check_section(args.section or out.name)
+        except ValueError as err:
+            raise ConfigError(str(err)) from None
     for arm in arms:
         print(f"{arm.name}: {arm.sweep.describe()}", file=sys.stderr)
     if not args.no_png:

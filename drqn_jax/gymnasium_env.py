@@ -345,9 +345,9 @@ def _restart_where(
     n = restart.shape[0]
     k = min(n, SPARSE_RESETS)
 
-    def reset_one(key_data):
-        fresh_held, reset_key = _split(key_data)
-        return fresh_held, env.reset_state(reset_key, params)
+    def reset_one(key_data):  # _single_reset's; jit drops the unused observation
+        fresh_held, _, fresh = _single_reset(env, key_data, params)
+        return fresh_held, fresh
 
     def none(_):
         return held, states
@@ -428,11 +428,7 @@ def _unpack_step(
         k: bool(v) if dtype == np.bool_ else np.asarray(v).astype(dtype)[()]
         for (k, dtype), v in zip(dtypes, packed[5:], strict=True)
     }
-    obs = {
-        "grid": np.array(grid, np.float32),
-        "speed": np.array([speed], np.float32),
-        "last_action": np.int64(last_action),
-    }
+    obs = _numpy_observation(Observation(grid=grid, speed=speed, last_action=last_action))
     return obs, float(reward), bool(terminated), bool(truncated), info
 
 

@@ -29,6 +29,7 @@ from drqn_jax.checkpoint import atomic_write_text
 __all__ = [
     "SECTION_NAME",
     "SPEED_TOLERANCE_KMH",
+    "check_section",
     "claim_verdict",
     "load_results",
     "render_section",
@@ -42,7 +43,8 @@ __all__ = [
 SECTION_NAME = re.compile(r"[\w.-]+")
 #: A generated block of a document: its section name and its current body.
 BLOCK = re.compile(
-    r"(?P<open><!-- results:(?P<section>[\w.-]+) -->\n)(?P<body>.*?)(?P<close><!-- /results -->)",
+    rf"(?P<open><!-- results:(?P<section>{SECTION_NAME.pattern}) -->\n)(?P<body>.*?)"
+    r"(?P<close><!-- /results -->)",
     re.S,
 )
 
@@ -56,6 +58,12 @@ def strict_json(value: Any) -> Any:
     if isinstance(value, float | np.floating):
         return float(value) if math.isfinite(value) else None
     return value
+
+
+def check_section(section: str) -> None:
+    """ValueError unless ``section`` is a valid section name (:data:`SECTION_NAME`)."""
+    if not SECTION_NAME.fullmatch(section):
+        raise ValueError(f"--section {section!r}: must be letters, digits, '_', '.' or '-'")
 
 
 def load_results(path: str | Path) -> dict[str, Any]:
@@ -79,8 +87,7 @@ def write_results(
     command, its wall time, the machine) and ``comparisons`` are stored under
     ``sections[section]``. Returns the whole record written.
     """
-    if not SECTION_NAME.fullmatch(section):
-        raise ValueError(f"--section {section!r}: must be letters, digits, '_', '.' or '-'")
+    check_section(section)
     record = load_results(path)
     kept = [r for r in record["rows"] if r.get("section") != section]
     record["rows"] = kept + [{"section": section, **r} for r in rows]
