@@ -25,7 +25,10 @@ Observation (SPEC §4), a ``Dict``:
   (the JAX observation's ``()`` scalar as a length-1 vector, the shape common
   libraries — ``FlattenObservation``, Stable-Baselines3's ``MultiInputPolicy`` —
   expect of a Box);
-* ``last_action``: ``Discrete(5, start=-1)``: −1 at episode start, else 0–3.
+* ``last_action``: ``Discrete(5)``: the previous action 0–3, or
+  :data:`NO_ACTION_YET` (4) at episode start. The JAX observation writes −1
+  there; Gymnasium's space starts at 0 because Stable-Baselines3 and most
+  one-hot encoders take only such spaces (:func:`gymnasium_last_action`).
 
 Actions: ``Discrete(4)`` (0 accelerate, 1 slow_down, 2 brake, 3 steer; paper
 §IV-B). Termination and truncation are the JAX env's (``step_env``: collision or
@@ -66,13 +69,14 @@ from gymnasium.vector.utils import batch_space
 from drqn_jax.env.collision import classify_hits
 from drqn_jax.env.params import SPEED_RELATIVE, EnvParams
 from drqn_jax.env.road_map import CROSSING_AREA, OFF_ROAD, ROAD, WALKWAY, semantic_class
-from drqn_jax.env.state import NUM_ACTIONS, EnvState, Observation
+from drqn_jax.env.state import NO_ACTION, NUM_ACTIONS, EnvState, Observation
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.registry import make as make_jax_env
 from drqn_jax.registry import registered_envs
 
 __all__ = [
     "NAMESPACE",
+    "NO_ACTION_YET",
     "RENDER_AHEAD_M",
     "RENDER_BEHIND_M",
     "RENDER_HALF_WIDTH_M",
@@ -81,12 +85,14 @@ __all__ = [
     "UrbanPedestriansVectorEnv",
     "grid_speed_high",
     "gymnasium_ids",
+    "gymnasium_last_action",
     "gymnasium_observation_space",
     "register_gymnasium_envs",
     "render_frame",
 ]
 
 NAMESPACE = "drqn_jax"
+NO_ACTION_YET = NUM_ACTIONS  # Gymnasium's ``last_action`` at episode start
 SPEED_CHANNEL = 2  # the grid channel without a fixed upper bound (SPEC §4)
 # Float32 rounding margin on the bounds derived from EnvParams (relative).
 _BOUND_MARGIN = 1e-5
@@ -154,7 +160,7 @@ def gymnasium_observation_space(env: UrbanPedestrians, params: EnvParams) -> spa
 
     Returns:
         ``Dict(grid=Box((rows, cols, 4), float32), speed=Box((1,), float32),
-        last_action=Discrete(5, start=-1))``.
+        last_action=Discrete(5))``.
     """
     jax_space = env.observation_space(params)
     grid = jax_space.spaces["grid"]
@@ -164,25 +170,31 @@ def gymnasium_observation_space(env: UrbanPedestrians, params: EnvParams) -> spa
     if not np.all(np.isfinite(low)) or not np.all(np.isfinite(high)):
         raise ValueError("grid bounds must be finite: a channel has no known bound")
     speed = jax_space.spaces["speed"]
-    last_action = jax_space.spaces["last_action"]
     return spaces.Dict(
         {
             "grid": spaces.Box(low, high, grid.shape, np.float32),
             "speed": spaces.Box(
                 np.float32(speed.low), _round_up_f32(float(speed.high)), (1,), np.float32
             ),
-            "last_action": spaces.Discrete(last_action.n, start=last_action.start),
+            "last_action": spaces.Discrete(NUM_ACTIONS + 1),
         }
     )
+
+
+def gymnasium_last_action(last_action: np.ndarray) -> np.ndarray:
+    """The JAX ``last_action`` (any shape; −1 before the first action, else 0–3) as
+    Gymnasium's ``Discrete(5)`` value: the action itself, or :data:`NO_ACTION_YET`."""
+    return np.where(last_action == NO_ACTION, NO_ACTION_YET, last_action)
 
 
 def _numpy_observation(obs: Observation) -> dict[str, Any]:
     """NumPy (fresh, writable) observation dict; leading batch axes are kept.
 
     ``grid`` (..., rows, cols, 4) float32, ``speed`` (..., 1) float32,
-    ``last_action`` (...) int64 (a NumPy scalar when unbatched).
+    ``last_action`` (...) int64 (a NumPy scalar when unbatched), in
+    :func:`gymnasium_last_action`'s encoding.
     """
-    last_action = np.array(obs.last_action, np.int64)
+    last_action = gymnasium_last_action(np.array(obs.last_action, np.int64))
     return {
         "grid": np.array(obs.grid, np.float32),
         "speed": np.array(obs.speed, np.float32)[..., None],

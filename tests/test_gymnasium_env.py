@@ -126,7 +126,7 @@ def test_observation_space_has_the_true_bounds():
     assert speed.shape == (1,) and speed.dtype == np.float32 and speed.low[0] == 0.0
     assert tight(speed.high, 50.0 / 15.0)  # max vehicle speed / v_ref
     last = space["last_action"]
-    assert isinstance(last, gymnasium.spaces.Discrete) and (last.n, last.start) == (5, -1)
+    assert last == gymnasium.spaces.Discrete(5)  # SB3 takes only Discrete spaces from 0
     assert env.action_space == gymnasium.spaces.Discrete(4)
 
 
@@ -174,7 +174,7 @@ def test_single_env_is_the_jax_env_with_the_documented_keys(short_env):
     for action in [0, 0, 3, 1, 2]:
         assert np.array_equal(obs_g["grid"], np.asarray(obs_j.grid))
         assert obs_g["speed"][0] == np.asarray(obs_j.speed)
-        assert obs_g["last_action"] == int(obs_j.last_action)
+        assert obs_g["last_action"] == ge.gymnasium_last_action(np.asarray(obs_j.last_action))
         key, step_key = jax.random.split(key)
         obs_j, state, r, term, trunc, info = step_env(step_key, state, action, params)
         obs_g, r_g, term_g, trunc_g, info_g = short_env.step(action)
@@ -255,12 +255,10 @@ def test_vector_spaces_and_batch_shapes():
     assert env.action_space == gymnasium.spaces.MultiDiscrete([4] * n)
     assert env.observation_space["grid"].shape == (n, 45, 30, 4)
     assert env.observation_space["speed"].shape == (n, 1)
-    assert env.observation_space["last_action"] == gymnasium.spaces.MultiDiscrete(
-        [5] * n, start=[-1] * n
-    )
+    assert env.observation_space["last_action"] == gymnasium.spaces.MultiDiscrete([5] * n)
     obs, info = env.reset(seed=0)
     assert obs in env.observation_space and info == {}
-    assert np.all(obs["last_action"] == -1)
+    assert np.all(obs["last_action"] == ge.NO_ACTION_YET)
     env.action_space.seed(0)
     for _ in range(2 * SHORT + 2):
         obs, rewards, terminated, truncated, info = env.step(env.action_space.sample())
@@ -323,7 +321,7 @@ def test_next_step_autoreset_contract():
     assert np.all(info["_time"]) and np.all(info["time"][truncated] == SHORT)
     obs, rewards, terminated, truncated, info = env.step(np.array([1, 3]))  # actions ignored
     assert np.all(rewards == 0.0) and not terminated.any() and not truncated.any()
-    assert np.all(obs["last_action"] == -1) and info == {}
+    assert np.all(obs["last_action"] == ge.NO_ACTION_YET) and info == {}
     assert np.all(np.asarray(env.unwrapped.states.time) == 0)
     obs, *_, info = env.step(np.array([1, 3]))
     assert np.all(obs["last_action"] == [1, 3]) and np.all(info["time"] == 1)
@@ -338,7 +336,7 @@ def test_same_step_autoreset_contract():
     obs, _, terminated, truncated, info = env.step(np.array([0, 2]))
     done = terminated | truncated
     assert np.all(done)
-    assert np.all(obs["last_action"] == -1)  # already the next episode
+    assert np.all(obs["last_action"] == ge.NO_ACTION_YET)  # already the next episode
     assert np.all(info["_final_obs"] == done) and np.all(info["_final_info"] == done)
     assert info["final_obs"].dtype == object
     for i, action in enumerate([0, 2]):
@@ -414,7 +412,7 @@ def test_disabled_autoreset_and_reset_mask():
         env.step(np.array([0, 0]))
     mask = np.array([True, False])
     obs1, info = env.reset(options={"reset_mask": mask})
-    assert info == {} and obs1["last_action"][0] == -1
+    assert info == {} and obs1["last_action"][0] == ge.NO_ACTION_YET
     assert np.array_equal(obs1["grid"][1], obs["grid"][1])  # sub-environment 1 untouched
     # Sub-environment 0's second episode is the one SyncVectorEnv would start.
     sync = make_sync(2, AutoresetMode.DISABLED)
@@ -468,6 +466,26 @@ def test_third_party_linear_q_learning_client():
                 obs, _ = env.reset()
     assert len(returns) >= 4
     assert np.all(np.isfinite(weights)) and np.any(weights != 0.0)
+
+
+def test_stable_baselines3_trains_on_the_registered_id_without_wrappers():
+    """SB3's DQN and PPO with ``MultiInputPolicy`` take the env as ``gymnasium.make``
+    returns it (issue 42: ``Discrete(5, start=-1)`` crashed SB3's one-hot encoding)."""
+    from stable_baselines3 import DQN, PPO
+    from stable_baselines3.common.env_checker import check_env
+
+    env = gymnasium.make(ID, max_steps=100)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    # SB3 still calls the float grid "an image"; nothing may concern last_action.
+    assert not [w for w in caught if "last_action" in str(w.message)]
+    dqn = DQN("MultiInputPolicy", env, learning_starts=100, buffer_size=1000, seed=0)
+    dqn.learn(300)
+    assert dqn.num_timesteps == 300 and dqn._n_updates > 0
+    ppo = PPO("MultiInputPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0)
+    ppo.learn(128)
+    assert ppo.num_timesteps == 128
 
 
 @pytest.mark.parametrize("restarting", [(), (1, 4, 10), tuple(range(12))])
