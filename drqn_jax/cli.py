@@ -16,7 +16,9 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import os
 import shlex
+import subprocess
 import sys
 import time
 from collections.abc import Sequence
@@ -124,18 +126,12 @@ def _rrd_option(parser: argparse.ArgumentParser) -> None:
 _AGENTS = ("drqn", "rule-based", "random", "accelerate")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="drqn-jax",
-        description="JAX DRQN for urban driving among pedestrians (Deshpande et al.)",
-        formatter_class=_Formatter,
-    )
-    parser.add_argument("--version", action="version", version=f"drqn-jax {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+def _command(sub: Any, name: str, help_text: str, doc: str) -> argparse.ArgumentParser:
+    return sub.add_parser(name, help=help_text, description=doc, formatter_class=_Formatter)
 
-    train = sub.add_parser(
-        "train", help="train the DRQN", description=_TRAIN_DOC, formatter_class=_Formatter
-    )
+
+def _train_parser(sub: Any) -> None:
+    train = _command(sub, "train", "train the DRQN", _TRAIN_DOC)
     _config_options(train, "default")
     _run_dir_option(train, "train")
     train.add_argument(
@@ -147,12 +143,9 @@ def build_parser() -> argparse.ArgumentParser:
     _rrd_option(train)
     _quiet_option(train)
 
-    ev = sub.add_parser(
-        "evaluate",
-        help="evaluate a trained run or a built-in agent",
-        description=_EVALUATE_DOC,
-        formatter_class=_Formatter,
-    )
+
+def _evaluate_parser(sub: Any) -> None:
+    ev = _command(sub, "evaluate", "evaluate a trained run or a built-in agent", _EVALUATE_DOC)
     _agent_options(ev, "evaluate")
     ev.add_argument(
         "--episodes", type=int, default=None, help="episodes (default: evaluate.episodes)"
@@ -164,22 +157,26 @@ def build_parser() -> argparse.ArgumentParser:
     _config_options(ev, "default")
     ev.add_argument("--quiet", action="store_true", help="no status messages on stderr")
 
-    rep = sub.add_parser(
+
+def _reproduce_parser(sub: Any) -> None:
+    rep = _command(
+        sub,
         "reproduce",
-        help="train, evaluate and print the paper's Table III beside ours",
-        description=_REPRODUCE_DOC,
-        formatter_class=_Formatter,
+        "train, evaluate and print the paper's Table III beside ours",
+        _REPRODUCE_DOC,
     )
     _config_options(rep, "default")
     _run_dir_option(rep, "reproduce")
     _rrd_option(rep)
     _quiet_option(rep)
 
-    replay = sub.add_parser(
+
+def _replay_parser(sub: Any) -> None:
+    replay = _command(
+        sub,
         "replay",
-        help="record episodes of a trained run or a built-in agent for the rerun viewer",
-        description=_REPLAY_DOC,
-        formatter_class=_Formatter,
+        "record episodes of a trained run or a built-in agent for the rerun viewer",
+        _REPLAY_DOC,
     )
     _agent_options(replay, "record")
     replay.add_argument("--episodes", type=int, default=5, help="episodes to record")
@@ -194,11 +191,13 @@ def build_parser() -> argparse.ArgumentParser:
     _config_options(replay, "default")
     replay.add_argument("--quiet", action="store_true", help="no line per episode")
 
-    sweep = sub.add_parser(
+
+def _sweep_parser(sub: Any) -> None:
+    sweep = _command(
+        sub,
         "sweep",
-        help="train and evaluate a grid of seeds x hyperparameters as one program per shape",
-        description=_SWEEP_DOC,
-        formatter_class=_Formatter,
+        "train and evaluate a grid of seeds x hyperparameters as one program per shape",
+        _SWEEP_DOC,
     )
     sweep.add_argument("sweep_file", help="the sweep TOML (base config, [set], [axes])")
     _set_option(sweep, "override one field of every point (repeatable)")
@@ -211,7 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument(
         "--resume", action="store_true", help="continue the sweep in --out from its checkpoints"
     )
-    sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    _quiet_option(sweep)
     sweep.add_argument(
         "--no-agents",
         action="store_true",
@@ -238,12 +237,14 @@ def build_parser() -> argparse.ArgumentParser:
     group.add_argument("--num-processes", type=int, metavar="N", help="processes in all")
     group.add_argument("--process-id", type=int, metavar="I", help="this process (0 … N-1)")
 
-    study = sub.add_parser(
+
+def _study_parser(sub: Any) -> None:
+    study = _command(
+        sub,
         "study",
-        help="configs x seeds trained and evaluated on the same episodes, beside the "
+        "configs x seeds trained and evaluated on the same episodes, beside the "
         "rule-based agent: Table III with intervals, and training curves",
-        description=_STUDY_DOC,
-        formatter_class=_Formatter,
+        _STUDY_DOC,
     )
     study.add_argument(
         "--configs",
@@ -293,11 +294,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     study.add_argument("--quiet", action="store_true", help="no progress bars")
 
-    report = sub.add_parser(
+
+def _report_parser(sub: Any) -> None:
+    report = _command(
+        sub,
         "report",
-        help="fill the results blocks of documents from the results file a study wrote",
-        description=_REPORT_DOC,
-        formatter_class=_Formatter,
+        "fill the results blocks of documents from the results file a study wrote",
+        _REPORT_DOC,
     )
     report.add_argument("documents", nargs="+", help="Markdown files with results blocks")
     report.add_argument(
@@ -310,11 +313,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="change nothing: exit 1 if a document's blocks differ from the results file",
     )
 
-    bench = sub.add_parser(
+
+def _bench_parser(sub: Any) -> None:
+    bench = _command(
+        sub,
         "bench",
-        help="run the benchmark suite (or one of its benchmarks) on this machine",
-        description=_BENCH_DOC,
-        formatter_class=_Formatter,
+        "run the benchmark suite (or one of its benchmarks) on this machine",
+        _BENCH_DOC,
     )
     bench.add_argument(
         "name",
@@ -329,6 +334,28 @@ def build_parser() -> argparse.ArgumentParser:
         nargs=argparse.REMAINDER,
         help="the benchmark's own options (drqn-jax bench NAME --help lists them)",
     )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``drqn-jax`` parser: one subparser per command, each built by its own function."""
+    parser = argparse.ArgumentParser(
+        prog="drqn-jax",
+        description="JAX DRQN for urban driving among pedestrians (Deshpande et al.)",
+        formatter_class=_Formatter,
+    )
+    parser.add_argument("--version", action="version", version=f"drqn-jax {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add_parser in (
+        _train_parser,
+        _evaluate_parser,
+        _reproduce_parser,
+        _replay_parser,
+        _sweep_parser,
+        _study_parser,
+        _report_parser,
+        _bench_parser,
+    ):
+        add_parser(sub)
     return parser
 
 
@@ -625,19 +652,18 @@ def _quick_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _benchmark_module(name: str) -> Any:
-    """``benchmarks.NAME`` of the clone this package was installed from."""
-    import importlib
-
+def _run_benchmark(name: str, args: Sequence[str]) -> int:
+    """``python -m benchmarks.NAME ARGS`` of the clone this package was installed from, in
+    a child process (this one's ``sys.path`` stays as it is); returns its exit status."""
     root = Path(__file__).resolve().parents[1]
     if not (root / "benchmarks" / "__init__.py").is_file():
         raise ConfigError(
             f"bench {name}: the suite lives in benchmarks/ of a clone of the repository "
             f"(not found beside {Path(__file__).parent}); install with pip install -e ."
         )
-    if str(root) not in sys.path:
-        sys.path.insert(0, str(root))
-    return importlib.import_module(f"benchmarks.{name}")
+    path = os.pathsep.join(p for p in (str(root), os.environ.get("PYTHONPATH")) if p)
+    command = [sys.executable, "-m", f"benchmarks.{name}", *args]
+    return subprocess.run(command, env={**os.environ, "PYTHONPATH": path}).returncode
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -654,8 +680,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print("\n".join(machine_lines(machine_info())))
         return EXIT_OK
     if args.name != "all":
-        _benchmark_module(args.name).main(args.args)
-        return EXIT_OK
+        return _run_benchmark(args.name, args.args)
     common = argparse.ArgumentParser(prog="drqn-jax bench all")
     common.add_argument("--repeats", type=int)
     common.add_argument("--out", metavar="DIR")
@@ -664,10 +689,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     passed = ["--repeats", str(options.repeats)] if options.repeats else []
     passed += ["--out", options.out] if options.out else []
     passed += ["--quick"] if options.quick else []
+    status = EXIT_OK
     for name in SUITE:
         print(f"\n# drqn-jax bench {name} {' '.join(passed)}\n", flush=True)
-        _benchmark_module(name).main(passed)
-    return EXIT_OK
+        status = max(status, _run_benchmark(name, passed))
+    return status
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

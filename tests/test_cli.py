@@ -322,8 +322,9 @@ def test_bench_quick_prints_throughput(capsys):
     assert "env steps/s at 4 envs" in out and "JAX" in out
 
 
-def test_bench_runs_a_suite_benchmark_and_writes_json_and_markdown(tmp_path, capsys):
-    # the --quick rollout of stages, roofline and peers: one program
+def test_bench_runs_a_suite_benchmark_and_writes_json_and_markdown(tmp_path, capfd):
+    """As a module in a child process; this process's sys.path stays as it was."""
+    path = list(sys.path)
     n, steps = QUICK_ENVS, QUICK_STEPS
     argv = ["bench", "env_throughput", "--batch-sizes", str(n), "--steps", str(steps)]
     argv += ["--repeats", "2"]
@@ -335,7 +336,8 @@ def test_bench_runs_a_suite_benchmark_and_writes_json_and_markdown(tmp_path, cap
     assert len(row["run_times_s"]) == 2 and row["run_s"] == np.median(row["run_times_s"])
     assert row["env_steps_per_s"] == pytest.approx(n * steps / row["run_s"])
     md = (tmp_path / "env_throughput.md").read_text()
-    assert f"| {n} |" in md and "JAX" in md and md in capsys.readouterr().out
+    assert f"| {n} |" in md and "JAX" in md and md in capfd.readouterr().out
+    assert sys.path == path
 
 
 def test_bench_all_takes_only_the_common_options(capsys):
