@@ -11,8 +11,9 @@ and whichever episodes run beside it.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from functools import partial
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -24,11 +25,13 @@ from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.pytree import pytree_dataclass
 
 __all__ = [
+    "Decision",
     "EpisodeMetrics",
     "episode_keys",
     "evaluate",
     "map_episodes",
     "metrics_table",
+    "play_episode",
     "rollout_episode",
     "run_episodes",
     "summarize",
@@ -79,21 +82,30 @@ def episode_keys(key: jax.Array, num_episodes: int, offset: int = 0) -> jax.Arra
     return jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, idx)
 
 
-def rollout_episode(
-    agent: Agent, key: jax.Array, env: UrbanPedestrians, params: EnvParams
-) -> EpisodeMetrics:
-    """Play one episode to its end (at most ``max_steps``) and measure it.
+class Decision(NamedTuple):
+    """One decision of an episode, as :func:`play_episode` hands it to ``trace``.
 
-    The scan always runs ``max_steps`` steps (branch-free under ``vmap``);
-    steps after the episode ended are not counted.
+    Attributes:
+        obs: the Observation the action was chosen on; state: its EnvState.
+        carry: the agent's carry after choosing (a recording reads its Q-values there).
+        action: () int32; reward: () float32; terminated, truncated: () bool.
+        info: ``step_env``'s info of the step the action led to.
     """
-    key_reset, key_carry, key_run = jax.random.split(key, 3)
-    obs, state = env.reset_env(key_reset, params)
-    carry = agent.init_carry(key_carry)
-    zero_f = jnp.zeros((), jnp.float32)
-    zero_i = jnp.zeros((), jnp.int32)
+
+    obs: Any
+    state: Any
+    carry: Any
+    action: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    info: dict[str, jax.Array]
+
+
+def _no_metrics() -> EpisodeMetrics:
+    zero_f, zero_i = jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32)
     false = jnp.zeros((), bool)
-    metrics = EpisodeMetrics(
+    return EpisodeMetrics(
         episode_return=zero_f,
         length=zero_i,
         collision=false,
@@ -107,40 +119,82 @@ def rollout_episode(
         authors_speed=zero_f,  # the sum of the moving steps' speeds until the end
     )
 
+
+def _accumulate(
+    m: EpisodeMetrics, live: jax.Array, reward: jax.Array, info: dict, params: EnvParams
+) -> EpisodeMetrics:
+    """``m`` after one more step; a step after the episode ended (``~live``) counts nothing."""
+    ttc = info["ttc"]
+    moving = live & (info["speed"] > AUTHORS_MOVING_SPEED)
+    return EpisodeMetrics(
+        episode_return=m.episode_return + jnp.where(live, reward, 0.0),
+        length=m.length + live.astype(jnp.int32),
+        collision=m.collision | (live & info["collision"]),
+        goal=m.goal | (live & info["goal"]),
+        distance=jnp.where(live, info["distance"], m.distance),
+        mean_speed=m.mean_speed,
+        min_ttc=jnp.where(live, jnp.minimum(m.min_ttc, ttc), m.min_ttc),
+        near_collision_steps=m.near_collision_steps
+        + (live & (ttc <= params.ttc_threshold)).astype(jnp.int32),
+        struck_while_stopped=m.struck_while_stopped | (live & info["struck_while_stopped"]),
+        moving_steps=m.moving_steps + moving.astype(jnp.int32),
+        authors_speed=m.authors_speed + jnp.where(moving, info["speed"], 0.0),
+    )
+
+
+def play_episode(
+    agent: Agent,
+    key: jax.Array,
+    env: UrbanPedestrians,
+    params: EnvParams,
+    trace: Callable[[Decision], Any] | None = None,
+) -> tuple[EpisodeMetrics, Any, Any, Any]:
+    """Play one episode to its end (at most ``max_steps`` = T) and measure it: the one
+    rollout of evaluation (:func:`rollout_episode`) and recording (``drqn_jax.recording``).
+
+    The scan always runs T steps (branch-free under ``vmap``); steps after the
+    episode ended are not counted. Keys: ``key`` splits into the reset, the agent's
+    carry and the run; each step's key into the action's and the env's.
+
+    Returns:
+        ``(metrics, traced, obs, state)``: the :class:`EpisodeMetrics`; ``trace``'s
+        output for each :class:`Decision`, leaves (T, ...) (None without ``trace``);
+        the Observation and EnvState after the T-th step.
+    """
+    key_reset, key_carry, key_run = jax.random.split(key, 3)
+    obs, state = env.reset_env(key_reset, params)
+
     def step(loop, step_key):
         obs, state, carry, m, done = loop
         key_act, key_env = jax.random.split(step_key)
         action, carry = agent.act(key_act, obs, carry, state, env, params)
-        obs, state, reward, terminated, truncated, info = env.step_env(
+        next_obs, next_state, reward, terminated, truncated, info = env.step_env(
             key_env, state, action, params
         )
-        live = ~done
-        ttc = info["ttc"]
-        moving = live & (info["speed"] > AUTHORS_MOVING_SPEED)
-        m = EpisodeMetrics(
-            episode_return=m.episode_return + jnp.where(live, reward, 0.0),
-            length=m.length + live.astype(jnp.int32),
-            collision=m.collision | (live & info["collision"]),
-            goal=m.goal | (live & info["goal"]),
-            distance=jnp.where(live, info["distance"], m.distance),
-            mean_speed=m.mean_speed,
-            min_ttc=jnp.where(live, jnp.minimum(m.min_ttc, ttc), m.min_ttc),
-            near_collision_steps=m.near_collision_steps
-            + (live & (ttc <= params.ttc_threshold)).astype(jnp.int32),
-            struck_while_stopped=m.struck_while_stopped | (live & info["struck_while_stopped"]),
-            moving_steps=m.moving_steps + moving.astype(jnp.int32),
-            authors_speed=m.authors_speed + jnp.where(moving, info["speed"], 0.0),
-        )
-        return (obs, state, carry, m, done | terminated | truncated), None
+        traced = None
+        if trace is not None:
+            decision = Decision(obs, state, carry, action, reward, terminated, truncated, info)
+            traced = trace(decision)
+        m = _accumulate(m, ~done, reward, info, params)
+        return (next_obs, next_state, carry, m, done | terminated | truncated), traced
 
+    init = (obs, state, agent.init_carry(key_carry), _no_metrics(), jnp.zeros((), bool))
     keys = jax.random.split(key_run, env.static.max_steps)
-    (_, _, _, m, _), _ = jax.lax.scan(step, (obs, state, carry, metrics, false), keys)
+    (obs, state, _, m, _), traced = jax.lax.scan(step, init, keys)
     duration = jnp.maximum(m.length, 1).astype(jnp.float32) * params.dt
     authors = m.authors_speed / jnp.maximum(m.moving_steps, 1).astype(jnp.float32)
-    return m.replace(
+    m = m.replace(
         mean_speed=(m.distance / duration).astype(jnp.float32),
         authors_speed=authors.astype(jnp.float32),
     )
+    return m, traced, obs, state
+
+
+def rollout_episode(
+    agent: Agent, key: jax.Array, env: UrbanPedestrians, params: EnvParams
+) -> EpisodeMetrics:
+    """The :class:`EpisodeMetrics` of one episode (:func:`play_episode`)."""
+    return play_episode(agent, key, env, params)[0]
 
 
 @partial(jax.jit, static_argnames=("env", "batch_size"))

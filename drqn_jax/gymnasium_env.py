@@ -71,6 +71,7 @@ from drqn_jax.env.params import SPEED_RELATIVE, EnvParams
 from drqn_jax.env.road_map import CROSSING_AREA, OFF_ROAD, ROAD, WALKWAY, semantic_class
 from drqn_jax.env.state import NO_ACTION, NUM_ACTIONS, EnvState, Observation
 from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.programs import cached_program
 from drqn_jax.registry import make as make_jax_env
 from drqn_jax.registry import registered_envs
 
@@ -304,7 +305,7 @@ class _VectorFns(NamedTuple):
     render: Any  # (states, params) -> (N, H, W, 3) uint8
 
 
-@functools.cache
+@cached_program
 def _key_data_shape() -> tuple[int, ...]:
     """Shape of one key's raw data under JAX's default PRNG implementation ((2,) for threefry)."""
     return jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0))).shape
@@ -452,7 +453,7 @@ def _info_dtypes(env: UrbanPedestrians, params: EnvParams) -> tuple[tuple[str, A
     return tuple((k, np.dtype(v.dtype)) for k, v in sorted(out[-1].items()))
 
 
-@functools.cache
+@cached_program
 def _single_fns(env: UrbanPedestrians) -> _SingleFns:
     """Jitted reset/step/render of one env, built once per static env."""
     return _SingleFns(
@@ -462,7 +463,7 @@ def _single_fns(env: UrbanPedestrians) -> _SingleFns:
     )
 
 
-@functools.cache
+@cached_program
 def _vector_fns(env: UrbanPedestrians) -> _VectorFns:
     """Jitted, vmapped reset/step/render of a batch of one static env."""
     reset = jax.vmap(functools.partial(_single_reset, env), in_axes=(0, None))

@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.env.state import NUM_ACTIONS, Observation
+from drqn_jax.programs import cached_program
 
 Params = dict[str, Any]
 LSTMState = tuple[jax.Array, jax.Array]  # (h, c)
@@ -351,8 +352,10 @@ def _stack_sequence(
     return _stacked(seen), seen[-1, ..., 1:, :, :, :]
 
 
+@cached_program
 def make_network(config: NetworkConfig | None = None) -> Network:
-    """Build the pure functions of a DRQN (or DQN) for ``config``."""
+    """Build the pure functions of a DRQN (or DQN) for ``config`` (once per config:
+    the same config gives the same functions, so ``jit`` reuses their compilations)."""
     config = NetworkConfig() if config is None else config
     width, n_act = config.recurrent, config.num_actions
     n_extra = config.extra_inputs

@@ -43,6 +43,7 @@ from drqn_jax.episodes import budget_met, init_counters, init_metrics, record_ep
 from drqn_jax.hyperparams import Hyperparams, TrainConfig, annealed, step_share
 from drqn_jax.networks import Network, make_network
 from drqn_jax.optim import adam, apply_updates, clip_by_global_norm
+from drqn_jax.programs import cached_program
 from drqn_jax.pytree import pytree_dataclass, tree_where
 from drqn_jax.task import Task, make_task
 from drqn_jax.trainer import Trainer, make_trainer
@@ -190,7 +191,7 @@ def make_ppo(config: TrainConfig) -> Trainer:
     return _make_ppo(config)
 
 
-@functools.lru_cache(maxsize=16)
+@cached_program
 def _make_ppo(config: TrainConfig) -> Trainer:
     task = make_task(config.env_id, config.env_overrides)
     n_act = task.num_actions

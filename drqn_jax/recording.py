@@ -83,7 +83,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from drqn_jax.agents.base import Agent
+from drqn_jax.agents.base import ActFn, Agent, InitFn
 from drqn_jax.env.collision import ego_box
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.road_map import (
@@ -95,8 +95,9 @@ from drqn_jax.env.road_map import (
 )
 from drqn_jax.env.state import ACTIONS, BEHAVIOURS, CROSSING, JAYWALKING, SIDEWALK, EnvState
 from drqn_jax.env.urban import UrbanPedestrians
-from drqn_jax.evaluation import episode_keys, map_episodes
+from drqn_jax.evaluation import Decision, episode_keys, map_episodes, play_episode
 from drqn_jax.networks import Network
+from drqn_jax.programs import cached_program
 from drqn_jax.pytree import pytree_dataclass
 
 __all__ = [
@@ -117,6 +118,7 @@ __all__ = [
     "record_training",
     "running_mean",
     "to_view",
+    "with_q_values",
     "write_episodes",
 ]
 
@@ -205,68 +207,59 @@ def _stack_last(seq: Any, last: Any) -> Any:
     return jax.tree.map(lambda s, x: jnp.concatenate([s, x[None]], axis=0), seq, last)
 
 
-@partial(jax.jit, static_argnames=("env", "network"))
+def with_q_values(agent: Agent, network: Network, network_params: Any) -> Agent:
+    """``agent``, with ``network`` stepping beside it on the same observations (its own
+    carry, zeros at reset): the carry becomes ``(agent's carry, network carry, Q)``, Q
+    (4,) float32 of the last observation. For ``drqn_agent(network, network_params)``
+    these are exactly the values whose argmax is the action."""
+    init, act = _q_values_beside(agent.init_fn, agent.act_fn, network)
+    return Agent(params=(agent.params, network_params), name=agent.name, init_fn=init, act_fn=act)
+
+
+@cached_program
+def _q_values_beside(init_fn: InitFn, act_fn: ActFn, network: Network) -> tuple[InitFn, ActFn]:
+    """:func:`with_q_values`'s functions, once per agent kind and network (one compile)."""
+
+    def init(params: Any, key: jax.Array) -> Any:
+        inner, _ = params
+        q = jnp.zeros((len(ACTIONS),), jnp.float32)
+        return init_fn(inner, key), network.initial_carry(()), q
+
+    def act(params: Any, key: jax.Array, obs: Any, carry: Any, *rest: Any) -> Any:
+        (inner, net), (inner_carry, q_carry, _) = params, carry
+        action, inner_carry = act_fn(inner, key, obs, inner_carry, *rest)
+        q, q_carry = network.step(net, obs, q_carry)
+        return action, (inner_carry, q_carry, q)
+
+    return init, act
+
+
+def _record_decision(with_q: bool) -> Any:
+    def trace(d: Decision) -> dict[str, Any]:
+        return {
+            "state": d.state,
+            "grid": d.obs.grid,
+            "action": d.action,
+            "q_values": d.carry[2] if with_q else None,
+            "reward": d.reward,
+            "ttc": d.info["ttc"],
+            "collision": d.info["collision"],
+            "struck_while_stopped": d.info["struck_while_stopped"],
+            "goal": d.info["goal"],
+            "truncated": d.truncated,
+        }
+
+    return trace
+
+
+@partial(jax.jit, static_argnames=("env", "with_q"))
 def _rollouts(
-    agent: Agent,
-    keys: jax.Array,
-    env: UrbanPedestrians,
-    params: EnvParams,
-    network: Network | None,
-    network_params: Any,
+    agent: Agent, keys: jax.Array, env: UrbanPedestrians, params: EnvParams, with_q: bool
 ) -> EpisodeRecord:
-    """One episode per key, vmapped; the key schedule of ``evaluation.rollout_episode``."""
+    """One episode per key: :func:`~drqn_jax.evaluation.play_episode`, traced."""
 
     def one(key: jax.Array) -> EpisodeRecord:
-        key_reset, key_carry, key_run = jax.random.split(key, 3)
-        obs, state = env.reset_env(key_reset, params)
-        carry = agent.init_carry(key_carry)
-        q_carry = None if network is None else network.initial_carry(())
-
-        def step(loop, step_key):
-            obs, state, carry, q_carry, done, length, ret = loop
-            key_act, key_env = jax.random.split(step_key)
-            action, carry = agent.act(key_act, obs, carry, state, env, params)
-            q = None
-            if network is not None:  # what the greedy DRQN agent computes on this obs
-                q, q_carry = network.step(network_params, obs, q_carry)
-            next_obs, next_state, reward, terminated, truncated, info = env.step_env(
-                key_env, state, action, params
-            )
-            live = ~done
-            out = {
-                "state": state,
-                "grid": obs.grid,
-                "action": action,
-                "q_values": q,
-                "reward": reward,
-                "ttc": info["ttc"],
-                "collision": info["collision"],
-                "struck_while_stopped": info["struck_while_stopped"],
-                "goal": info["goal"],
-                "truncated": truncated,
-            }
-            loop = (
-                next_obs,
-                next_state,
-                carry,
-                q_carry,
-                done | terminated | truncated,
-                length + live.astype(jnp.int32),
-                ret + jnp.where(live, reward, 0.0),
-            )
-            return loop, out
-
-        init = (
-            obs,
-            state,
-            carry,
-            q_carry,
-            jnp.zeros((), bool),
-            jnp.zeros((), jnp.int32),
-            jnp.zeros((), jnp.float32),
-        )
-        steps = jax.random.split(key_run, env.static.max_steps)
-        (obs, state, _, _, _, length, ret), out = jax.lax.scan(step, init, steps)
+        metrics, out, obs, state = play_episode(agent, key, env, params, _record_decision(with_q))
         states = _stack_last(out["state"], state)
         centre, half = ego_box(states.ego.s, params)
         return EpisodeRecord(
@@ -282,8 +275,8 @@ def _rollouts(
             struck_while_stopped=out["struck_while_stopped"],
             goal=out["goal"],
             truncated=out["truncated"],
-            length=length,
-            episode_return=ret,
+            length=metrics.length,
+            episode_return=metrics.episode_return,
         )
 
     return map_episodes(one, keys)
@@ -321,7 +314,9 @@ def collect_episodes(
         raise ValueError("network and network_params go together (both or neither)")
     env_params = env.default_params if env_params is None else env.check_params(env_params)
     keys = episode_keys(key, num_episodes)
-    record = _rollouts(agent, keys, env, env_params, network, network_params)
+    if network is not None:
+        agent = with_q_values(agent, network, network_params)
+    record = _rollouts(agent, keys, env, env_params, network is not None)
     return jax.tree.map(np.asarray, record)
 
 

@@ -63,6 +63,7 @@ from drqn_jax.hyperparams import (
 from drqn_jax.networks import Network, make_network
 from drqn_jax.optim import adam
 from drqn_jax.ppo import make_ppo
+from drqn_jax.programs import cached_program
 from drqn_jax.pytree import pytree_dataclass, tree_where
 from drqn_jax.replay import (
     EpisodeReplay,
@@ -186,7 +187,7 @@ def _check_task(config: TrainConfig, task: Task) -> None:
         )
 
 
-@functools.lru_cache(maxsize=32)
+@cached_program
 def _make_train(config: TrainConfig) -> Trainer:
     task = make_task(config.env_id, config.env_overrides)
     _check_task(config, task)

@@ -12,8 +12,9 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.agents.base import Agent
+from drqn_jax.agents.base import ActFn, Agent, InitFn
 from drqn_jax.networks import Network
+from drqn_jax.programs import cached_program
 
 __all__ = ["drqn_agent"]
 
@@ -22,6 +23,15 @@ def drqn_agent(network: Network, params: Any, name: str | None = None) -> Agent:
     """Wrap a network and its parameters as a greedy agent (argmax of its outputs:
     Q-values, or PPO's logits); ``name`` defaults to the network kind."""
 
+    name = name or network.config.kind
+    init_fn, act_fn = _greedy_functions(network)
+    return Agent(params=params, name=name, init_fn=init_fn, act_fn=act_fn)
+
+
+@cached_program
+def _greedy_functions(network: Network) -> tuple[InitFn, ActFn]:
+    """One ``(init_fn, act_fn)`` per network, so ``jit`` reuses its compilation."""
+
     def init_fn(params: Any, key: jax.Array) -> Any:
         return network.initial_carry(())
 
@@ -29,20 +39,4 @@ def drqn_agent(network: Network, params: Any, name: str | None = None) -> Agent:
         q, carry = network.step(params, obs, carry)
         return jnp.argmax(q).astype(jnp.int32), carry
 
-    name = name or network.config.kind
-    return Agent(
-        params=params,
-        name=name,
-        init_fn=_cached(network, name, "init", init_fn),
-        act_fn=_cached(network, name, "act", act_fn),
-    )
-
-
-_FUNCTIONS: dict[tuple[Any, str, str], Any] = {}
-
-
-def _cached(network: Network, name: str, role: str, fn: Any) -> Any:
-    """One function object per (network config, agent name, role), so ``jit`` reuses
-    its compilation (PPO's policy, :func:`drqn_jax.ppo.policy_network`, is named
-    apart from a Q-network of the same config)."""
-    return _FUNCTIONS.setdefault((network.config, name, role), fn)
+    return init_fn, act_fn

@@ -26,7 +26,6 @@ with that probability per step (:func:`occlusion_mask`), for studies of partial 
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 
 import jax
@@ -44,6 +43,7 @@ from drqn_jax.env.state import (
     EgoState,
     PedestrianState,
 )
+from drqn_jax.programs import cached_program
 
 _FAR = 1e6  # stands in for ±infinity in segment bounds
 _EDGE = 1e-3  # m kept between a sidewalk pedestrian's end point and a cross street
@@ -302,7 +302,7 @@ def respawn_pedestrians(
     return _respawn(static)(key, peds, replace, x_lo, x_hi, params)
 
 
-@functools.cache
+@cached_program
 def _respawn(static: StaticEnvParams) -> Callable[..., PedestrianState]:
     """:func:`respawn_pedestrians` for ``static``, with its batching rule."""
 

@@ -1,0 +1,69 @@
+"""The one cache of built programs (drqn_jax/programs.py; issue 42)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from drqn_jax import programs
+from drqn_jax.agents import drqn_agent
+from drqn_jax.networks import NetworkConfig, make_network
+from drqn_jax.programs import cached_program, clear_programs, program_counts
+
+PACKAGE = Path(programs.__file__).parent
+
+
+def test_a_builder_builds_once_per_arguments_and_evicts_the_least_recent(monkeypatch):
+    built = []
+
+    @cached_program
+    def build(x, scale=1):
+        built.append((x, scale))
+        return object()
+
+    clear_programs()
+    assert build(1) is build(1) and build(1, scale=2) is not build(1)
+    assert built == [(1, 1), (1, 2)]
+    assert program_counts() == {f"{__name__}.{build.__qualname__}": 2}
+    monkeypatch.setattr(programs, "MAX_PROGRAMS", 3)
+    build(2)
+    build(1)  # used again: now the most recent
+    build(3), build(4)  # two more: (1, scale=2) and 2 go, 1 stays
+    built.clear()
+    build(1), build(2)
+    assert built == [(2, 1)]
+
+
+def test_the_same_network_config_gives_the_same_functions_and_agents():
+    config = NetworkConfig(recurrent=8, hidden=8)
+    net = make_network(config)
+    assert make_network(config) is net
+    params = net.init(jax.random.key(0))
+    a, b = drqn_agent(net, params), drqn_agent(net, params)
+    assert (a.init_fn, a.act_fn) == (b.init_fn, b.act_fn)  # one jit compilation for both
+
+
+def test_cleared_programs_rebuild_with_identical_results():
+    config = NetworkConfig(recurrent=8, hidden=8)
+    net = make_network(config)
+    params = net.init(jax.random.key(0))
+    clear_programs()
+    rebuilt = make_network(config)
+    assert rebuilt is not net and not program_counts().get("drqn_jax.agents.drqn._greedy_functions")
+    same = jax.tree.map(np.array_equal, rebuilt.init(jax.random.key(0)), params)
+    assert all(jax.tree.leaves(same))
+
+
+def test_the_package_caches_programs_only_there():
+    """No second cache: functools.cache / lru_cache and module-level dicts of
+    functions are gone from every module but programs.py."""
+    pattern = re.compile(r"functools\.(lru_)?cache\b|@(lru_)?cache\b|_FUNCTIONS\s*[:=]")
+    found = [
+        str(path.relative_to(PACKAGE))
+        for path in PACKAGE.rglob("*.py")
+        if path.name != "programs.py" and pattern.search(path.read_text())
+    ]
+    assert found == []
