@@ -4,7 +4,8 @@
 compiled once only if the function behind it is built once. Everything the
 package builds from static (hashable) descriptions — a :class:`~drqn_jax.train.Trainer`
 per ``TrainConfig``, the Gymnasium env's jitted reset/step/render per static env,
-a DRQN agent's ``init``/``act`` per network — goes through :func:`cached_program`,
+a DRQN agent's ``init``/``act`` per network, a compiled training chunk per
+program key — goes through :func:`cached_program` (or :func:`cached`),
 into one least-recently-used store of at most :data:`MAX_PROGRAMS` entries.
 :func:`program_counts` says what it holds; :func:`clear_programs` empties it (the
 next use rebuilds and recompiles, with identical results).
@@ -17,7 +18,7 @@ import functools
 from collections.abc import Callable, Hashable
 from typing import Any, TypeVar
 
-__all__ = ["MAX_PROGRAMS", "cached_program", "clear_programs", "program_counts"]
+__all__ = ["MAX_PROGRAMS", "cached", "cached_program", "clear_programs", "program_counts"]
 
 #: Entries kept before the least recently used is dropped (each may hold compiled
 #: executables of several MB; a test session or a sweep builds a few dozen).
@@ -28,6 +29,19 @@ F = TypeVar("F", bound=Callable[..., Any])
 _STORE: collections.OrderedDict[tuple[str, Hashable], Any] = collections.OrderedDict()
 
 
+def cached(name: str, key: Hashable, build: Callable[[], Any]) -> Any:
+    """The program ``name`` for ``key``: ``build()``'s result, built on first use (for
+    programs built from unhashable inputs, e.g. lowered for a given state)."""
+    entry = (name, key)
+    if entry in _STORE:
+        _STORE.move_to_end(entry)
+        return _STORE[entry]
+    built = _STORE[entry] = build()
+    while len(_STORE) > MAX_PROGRAMS:
+        _STORE.popitem(last=False)
+    return built
+
+
 def cached_program(builder: F) -> F:
     """Decorate ``builder`` (hashable arguments only) so that each set of arguments
     builds once, kept in the one store under the builder's qualified name. Arguments
@@ -35,18 +49,11 @@ def cached_program(builder: F) -> F:
     name = f"{builder.__module__}.{builder.__qualname__}"
 
     @functools.wraps(builder)
-    def cached(*args: Hashable, **kwargs: Hashable) -> Any:
-        key = (name, (args, tuple(sorted(kwargs.items()))))
-        if key in _STORE:
-            _STORE.move_to_end(key)
-            return _STORE[key]
-        built = builder(*args, **kwargs)
-        _STORE[key] = built
-        while len(_STORE) > MAX_PROGRAMS:
-            _STORE.popitem(last=False)
-        return built
+    def built(*args: Hashable, **kwargs: Hashable) -> Any:
+        key = (args, tuple(sorted(kwargs.items())))
+        return cached(name, key, lambda: builder(*args, **kwargs))
 
-    return cached  # type: ignore[return-value]
+    return built  # type: ignore[return-value]
 
 
 def program_counts() -> dict[str, int]:

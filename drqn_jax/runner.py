@@ -19,17 +19,15 @@ A run directory holds:
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
 import functools
 import io
 import json
 import math
-import signal
 import sys
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -49,8 +47,10 @@ from drqn_jax.checkpoint import (
 )
 from drqn_jax.config import RENAMED_LEAVES, Config, added_leaves, load_config
 from drqn_jax.evaluation import evaluate
+from drqn_jax.host_loop import StopRequest, finite_training, progress_bar, run_chunks
 from drqn_jax.hyperparams import LEARNED_AGENTS
 from drqn_jax.networks import Network
+from drqn_jax.programs import cached
 from drqn_jax.train import (
     NOT_LEARNED,
     Trainer,
@@ -110,36 +110,6 @@ class RunResult:
     message: str = ""
 
 
-class _StopRequest:
-    """SIGINT/SIGTERM set a flag checked between chunks; a second signal aborts."""
-
-    def __init__(self) -> None:
-        self.signal: int | None = None
-
-    def _handler(self, signum: int, frame: Any) -> None:
-        if self.signal is not None:
-            raise KeyboardInterrupt
-        self.signal = signum
-        print(
-            f"\n{signal.Signals(signum).name}: stopping after this chunk and saving a checkpoint "
-            "(signal again to abort without saving)",
-            file=sys.stderr,
-            flush=True,
-        )
-
-    @contextlib.contextmanager
-    def installed(self) -> Iterator[_StopRequest]:
-        previous = {s: signal.signal(s, self._handler) for s in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            yield self
-        finally:
-            for s, handler in previous.items():
-                signal.signal(s, handler)
-
-
-_COMPILED: dict[tuple, Any] = {}
-
-
 def init_program(trainer: Trainer) -> Callable[[jax.Array], TrainState]:
     """``init(key) -> TrainState``: ``trainer.init`` jitted with the hyperparameters
     and env params as arguments, not constants: one program per shape, which the
@@ -153,18 +123,12 @@ def init_program(trainer: Trainer) -> Callable[[jax.Array], TrainState]:
 def _compiled_run(trainer: Trainer, state: TrainState) -> Any:
     """``run(state, chunk_iterations)`` compiled once per program and process (the
     hyperparameters are in the state: :meth:`TrainConfig.program_key`)."""
-    key = trainer.config.program_key()
-    if key not in _COMPILED:
+
+    def build() -> Any:
         run = jax.jit(trainer.run, static_argnums=1)
-        _COMPILED[key] = run.lower(state, trainer.config.chunk_iterations).compile()
-    return _COMPILED[key]
+        return run.lower(state, trainer.config.chunk_iterations).compile()
 
-
-@jax.jit
-def _finite(state: TrainState) -> jax.Array:
-    """() bool: online parameters, running episode losses and recorded losses all finite."""
-    leaves = [*jax.tree.leaves(state.online), state.ep_loss_sum, state.metrics["mean_loss"]]
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
+    return cached("runner.run", trainer.config.program_key(), build)
 
 
 def recorded_metrics(state: TrainState | Mapping[str, Any]) -> dict[str, np.ndarray]:
@@ -274,7 +238,7 @@ def train_run(
         atomic_write_text(run_dir / "config.toml", config.to_toml())
         state = init(train_key)
 
-    stop = _StopRequest()
+    stop = StopRequest()
     with stop.installed():  # a signal while compiling also stops cleanly
         start = time.perf_counter()
         if not quiet:
@@ -304,18 +268,15 @@ def train_run(
     return RunResult(status, state, trainer, run_dir, wall, compile_s, message)
 
 
-_VALIDATE: dict[tuple, Any] = {}
-
-
 def validated(trainer: Trainer, state: TrainState) -> TrainState:
     """A finished run's ``state`` with its candidates' validation metrics filled in
     (``train.snapshots`` > 0; :func:`~drqn_jax.train.make_train`); else unchanged."""
     if not trainer.config.snapshots or not bool(jnp.isnan(state.validation["return"]).any()):
         return state
-    key = trainer.config.program_key()
-    if key not in _VALIDATE:
-        _VALIDATE[key] = jax.jit(trainer.validation_metrics)
-    return state.replace(validation=_VALIDATE[key](state))
+    validate = cached(
+        "runner.validate", trainer.config.program_key(), lambda: jax.jit(trainer.validation_metrics)
+    )
+    return state.replace(validation=validate(state))
 
 
 def _chunks(
@@ -323,37 +284,35 @@ def _chunks(
     run: Any,
     state: TrainState,
     chunks: int,
-    stop: _StopRequest,
+    stop: StopRequest,
     quiet: bool,
     run_dir: Path,
     elapsed: Callable[[], float],
 ) -> tuple[str, TrainState, int]:
-    """Run chunks until the run finishes, a signal arrives or the loss turns non-finite.
-
-    Returns the status, the last good state and the number of chunks it has run;
-    saves a checkpoint every ``run.checkpoint_every_s`` on the way.
-    """
-    every = config["run"]["checkpoint_every_s"]
-    last_save = time.perf_counter()
+    """:func:`~drqn_jax.host_loop.run_chunks` for one run: a progress bar, a checkpoint
+    every ``run.checkpoint_every_s``, and a stop at the first non-finite loss."""
     total, unit, done = _budget(config)
-    with _progress_bar(total, done(state), quiet, unit) as bar:
-        while not bool(state.finished):
-            if stop.signal is not None:
-                return "interrupted", state, chunks
-            t0, steps0 = time.perf_counter(), int(state.env_steps)
-            new_state = run(state)
-            if not bool(_finite(new_state)):
-                return "diverged", state, chunks
-            state, chunks = new_state, chunks + 1
-            if not quiet:  # the postfix copies the metrics to the host: only when shown
-                steps = int(state.env_steps) - steps0
-                steps_per_s = steps / max(time.perf_counter() - t0, 1e-9)
-                bar.update(done(state) - bar.n)
-                bar.set_postfix(_progress_postfix(state, steps_per_s), refresh=False)
-            if time.perf_counter() - last_save >= every and not bool(state.finished):
-                _save(run_dir, config, state, elapsed(), chunks)
-                last_save = time.perf_counter()
-    return "finished", state, chunks
+    with progress_bar(total, done(state), quiet, unit) as bar:
+        clock = {"t": time.perf_counter(), "steps": int(state.env_steps)}
+
+        def show(state: TrainState) -> None:  # copies metrics to the host: only when shown
+            now, steps = time.perf_counter(), int(state.env_steps)
+            steps_per_s = (steps - clock["steps"]) / max(now - clock["t"], 1e-9)
+            clock.update(t=now, steps=steps)
+            bar.update(done(state) - bar.n)
+            bar.set_postfix(_progress_postfix(state, steps_per_s), refresh=False)
+
+        return run_chunks(
+            run,
+            state,
+            finished=lambda s: bool(s.finished),
+            stop=stop,
+            save=lambda s, n: _save(run_dir, config, s, elapsed(), n),
+            every_s=config["run"]["checkpoint_every_s"],
+            healthy=lambda s: bool(finite_training(s)),
+            on_chunk=None if quiet else show,
+            chunks=chunks,
+        )
 
 
 def _budget(config: Config) -> tuple[int, str, Callable[[Any], int]]:
@@ -363,22 +322,6 @@ def _budget(config: Config) -> tuple[int, str, Callable[[Any], int]]:
     if steps:
         return steps, "step", lambda state: min(int(state.env_steps), steps)
     return config["train"]["num_episodes"], "ep", lambda state: int(state.recorded)
-
-
-def _progress_bar(total: int, initial: int, quiet: bool, unit: str = "ep") -> Any:
-    """A tqdm bar on stderr that appears only on runs longer than 2 s."""
-    from tqdm.auto import tqdm
-
-    return tqdm(
-        total=total,
-        initial=initial,
-        unit=unit,
-        desc="training",
-        disable=quiet,
-        delay=2.0,
-        file=sys.stderr,
-        dynamic_ncols=True,
-    )
 
 
 def load_run(run_dir: str | Path, overrides: tuple[str, ...] = ()) -> Config:

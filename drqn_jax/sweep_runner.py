@@ -42,7 +42,6 @@ import hashlib
 import json
 import math
 import os
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -64,6 +63,7 @@ from drqn_jax.checkpoint import (
 )
 from drqn_jax.config import RENAMED_LEAVES, ConfigError, added_leaves
 from drqn_jax.evaluation import evaluate
+from drqn_jax.host_loop import StopRequest, finite_training, progress_bar, run_chunks
 from drqn_jax.hyperparams import agent_name
 from drqn_jax.memory import (
     RunMemory,
@@ -73,7 +73,8 @@ from drqn_jax.memory import (
     run_memory,
     runs_per_call,
 )
-from drqn_jax.runner import _finite, _progress_bar, _StopRequest, json_ready, metrics_csv
+from drqn_jax.programs import cached
+from drqn_jax.runner import json_ready, metrics_csv
 from drqn_jax.sweep import STRATEGIES, Sweep, SweepPoint
 from drqn_jax.train import (
     Trainer,
@@ -353,9 +354,6 @@ def _over_runs(
     return jax.jit(program, **jit_options)
 
 
-_COMPILED: dict[tuple, tuple[Callable, Callable]] = {}
-
-
 def call_programs(
     trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
 ) -> tuple[Callable, Callable]:
@@ -370,9 +368,9 @@ def call_programs(
     the runs (``shard_map``): batched (``vmap``) or one after another
     (``map``, where padding and finished runs cost nothing).
     """
-    cache_key = (trainer.config.program_key(), size, tuple(devices), strategy)
-    if cache_key not in _COMPILED:
-        chunk = trainer.config.chunk_iterations
+    chunk = trainer.config.chunk_iterations
+
+    def build() -> tuple[Callable, Callable]:
 
         def advance(state: TrainState) -> TrainState:
             return trainer.run(state, chunk)
@@ -382,11 +380,10 @@ def call_programs(
 
         init = jax.jit(jax.vmap(trainer.init), out_shardings=_sharding(devices))
         run = _over_runs(advance, advance_unless_done, devices, strategy, donate_argnums=0)
-        _COMPILED[cache_key] = (init, run)
-    return _COMPILED[cache_key]
+        return init, run
 
-
-_VALIDATE: dict[tuple, Callable] = {}
+    key = (trainer.config.program_key(), size, tuple(devices), strategy)
+    return cached("sweep_runner.call", key, build)
 
 
 def validation_program(
@@ -396,16 +393,18 @@ def validation_program(
     metrics of a call's finished runs (``train.snapshots`` = K > 0), sharded and
     batched as its ``run``; padding rows are skipped (NaN) when the runs go one
     after another."""
-    cache_key = (trainer.config.program_key(), size, tuple(devices), strategy)
-    if cache_key not in _VALIDATE:
+
+    def build() -> Callable:
         nan = unvalidated(trainer.config.snapshots, trainer.task.validation_metrics)
 
         def validate_if_real(state: TrainState, is_real: jax.Array) -> dict[str, jax.Array]:
             return jax.lax.cond(is_real, trainer.validation_metrics, lambda s: nan, state)
 
         validate = trainer.validation_metrics
-        _VALIDATE[cache_key] = _over_runs(validate, validate_if_real, devices, strategy)
-    return _VALIDATE[cache_key]
+        return _over_runs(validate, validate_if_real, devices, strategy)
+
+    key = (trainer.config.program_key(), size, tuple(devices), strategy)
+    return cached("sweep_runner.validate", key, build)
 
 
 @dataclasses.dataclass
@@ -427,7 +426,7 @@ def train_call(
     *,
     directory: Path | None = None,
     checkpoint_every_s: float = math.inf,
-    stop: _StopRequest | None = None,
+    stop: StopRequest | None = None,
     on_chunk: Callable[[TrainState], None] | None = None,
 ) -> CallOutcome:
     """Train the call's runs to the end, chunk by chunk; sharded over ``devices``.
@@ -449,17 +448,18 @@ def train_call(
         state = jax.device_put(state, _sharding(devices))
     else:
         state = init(*args)
-    last_save = time.perf_counter()
-    while not bool(jnp.all(state.finished)):
-        if stop is not None and stop.signal is not None:
-            _save_call(directory, call, state)
-            return CallOutcome("interrupted", trainer, state)
-        state = run(state, real)
-        if on_chunk is not None:
-            on_chunk(state)
-        if directory is not None and time.perf_counter() - last_save >= checkpoint_every_s:
-            _save_call(directory, call, state)
-            last_save = time.perf_counter()
+    status, state, _ = run_chunks(
+        lambda state: run(state, real),
+        state,
+        finished=lambda state: bool(jnp.all(state.finished)),
+        stop=StopRequest() if stop is None else stop,
+        save=lambda state, _: _save_call(directory, call, state),
+        every_s=checkpoint_every_s if directory is not None else math.inf,
+        on_chunk=on_chunk,
+    )
+    if status == "interrupted":
+        _save_call(directory, call, state)
+        return CallOutcome("interrupted", trainer, state)
     if trainer.config.snapshots:
         validate = validation_program(trainer, call.size, devices, call.strategy)
         state = state.replace(validation=validate(state, real))
@@ -505,7 +505,7 @@ def call_results(
     episodes) and whether it diverged."""
     n = len(call.points)
     returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
-    finite = np.asarray(jax.vmap(_finite)(outcome.state))[:n]
+    finite = np.asarray(jax.vmap(finite_training)(outcome.state))[:n]
     evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key)
     results = []
     rows = zip(call.points, evaluations, returns, finite, strict=True)
@@ -666,9 +666,9 @@ def run_sweep(
     every = first["run"]["checkpoint_every_s"]
     results: list[dict[str, Any]] = []
     total = sum(call.episodes for call in calls)
-    stop = _StopRequest()
+    stop = StopRequest()
     desc = f"sweep (process {dist.process})" if dist.processes > 1 else "sweep"
-    with stop.installed(), _progress_bar(total, 0, quiet or not dist.leader) as bar:
+    with stop.installed(), progress_bar(total, 0, quiet or not dist.leader) as bar:
         bar.set_description(desc)
         done_before = 0
         for call in calls:

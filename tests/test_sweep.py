@@ -17,8 +17,8 @@ import pytest
 
 from drqn_jax import cli
 from drqn_jax.config import ConfigError
+from drqn_jax.host_loop import StopRequest
 from drqn_jax.memory import USABLE_FRACTION, run_memory
-from drqn_jax.runner import _StopRequest
 from drqn_jax.stats import interquartile_mean
 from drqn_jax.sweep import load_sweep, summarize_sweep
 from drqn_jax.sweep_runner import (
@@ -309,7 +309,7 @@ def test_two_processes_on_localhost_match_one_process(sweep_file, cli_sweep, tmp
 def test_an_interrupted_call_resumes_bit_identically(sweep_file, trained, tmp_path):
     sweep, params, metrics = trained
     call = Call(0, tuple(sweep.points), 4)
-    stop = _StopRequest()
+    stop = StopRequest()
 
     def interrupt(state):
         stop.signal = 2  # as SIGINT's handler would, after the first chunk
