@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import drqn_jax
+from drqn_jax import gymnasium_env
 from drqn_jax.env import viewer
 from drqn_jax.env.collision import time_to_collision
 from drqn_jax.env.road_map import lane_centre_y
@@ -226,7 +227,7 @@ def test_the_font_covers_the_hud():
     assert set("".join(ACTIONS) + "step km/h TTC s 0123456789.-") <= set(viewer.GLYPHS)
 
 
-# --- jit and vmap ---------------------------------------------------------
+# --- jit, vmap, the backends ---------------------------------------------------------
 
 
 def test_a_batch_renders_as_each_state_alone(env_params, fns):
@@ -243,3 +244,12 @@ def test_a_batch_renders_as_each_state_alone(env_params, fns):
     for i, state in enumerate(states):
         np.testing.assert_array_equal(frames[i], np.asarray(fns["render"](state, params)))
     assert not np.array_equal(frames[0], frames[1])
+
+
+def test_gymnasium_renders_the_viewer_frame(env_params, fns):
+    env = gymnasium_env.UrbanPedestriansGymEnv(render_mode="rgb_array")
+    env.reset(seed=3)
+    for _ in range(5):
+        env.step(ACCELERATE)
+    np.testing.assert_array_equal(env.render(), fns["render"](env.state, env.params))
+    assert viewer.hud_text(fns["hud"](env.state, env.params)).startswith("step 5  ")
