@@ -7,7 +7,9 @@ check knows what it must see.
 
 from __future__ import annotations
 
+import ast
 from functools import partial
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -15,7 +17,7 @@ import numpy as np
 import pytest
 
 import drqn_jax
-from drqn_jax import gymnasium_env
+from drqn_jax import gymnasium_env, recording
 from drqn_jax.env import viewer
 from drqn_jax.env.collision import time_to_collision
 from drqn_jax.env.road_map import lane_centre_y
@@ -253,3 +255,28 @@ def test_gymnasium_renders_the_viewer_frame(env_params, fns):
         env.step(ACCELERATE)
     np.testing.assert_array_equal(env.render(), fns["render"](env.state, env.params))
     assert viewer.hud_text(fns["hud"](env.state, env.params)).startswith("step 5  ")
+
+
+def rgb_literals(module) -> list[str]:
+    """The 3-integer tuple or list literals in a module's code (docstrings aside)."""
+    tree = ast.parse(Path(module.__file__).read_text())
+    return [
+        ast.unparse(node)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Tuple | ast.List)
+        and len(node.elts) == 3
+        and all(isinstance(e, ast.Constant) and type(e.value) is int for e in node.elts)
+    ]
+
+
+def test_one_palette():
+    """recording and gymnasium_env take their colours and view from viewer, and
+    neither module spells an RGB colour of its own."""
+    for name in ("BEHAVIOUR_COLOURS", "OCCLUDED_ALPHA", "EGO_COLOUR", "EGO_COLLISION_COLOUR"):
+        assert getattr(recording, name) is getattr(viewer, name)
+    assert recording.hud_text is viewer.hud_text
+    for name in ("RENDER_AHEAD_M", "RENDER_BEHIND_M", "RENDER_HALF_WIDTH_M"):
+        assert getattr(gymnasium_env, name) is getattr(viewer, name)
+    assert gymnasium_env.RENDER_PIXELS_PER_M == viewer.RENDER_PIXELS_PER_M
+    assert rgb_literals(viewer)  # the check sees the palette where it is
+    assert rgb_literals(recording) == [] and rgb_literals(gymnasium_env) == []
