@@ -46,6 +46,12 @@ envs (``seed + i``), and auto-resets from that sub-environment's stream, so
 sub-environment ``i`` behaves exactly like ``gymnasium.make(id)`` reset with
 ``seed + i`` and driven by the same actions, whatever ``num_envs`` is.
 
+Rendering (``render_mode="rgb_array"``): ``render()`` returns :func:`render_frame`,
+the bird's-eye view that :mod:`drqn_jax.env.viewer` draws in pure JAX — a (240, 480, 3)
+uint8 frame of the map, the ego, the pedestrians coloured by behaviour and a HUD with
+the step, the speed (km/h), the last action and the TTC, in the palette the rerun
+recordings share; the vector env returns a tuple of N frames from one vmapped call.
+
 The jitted functions are built once per static env (a module-level cache keyed
 on the hashable JAX env) and take ``EnvParams`` as arguments, so creating
 more envs, or the realistic preset beside the paper's, compiles nothing new.
@@ -66,11 +72,16 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from drqn_jax.env.collision import classify_hits
+from drqn_jax.env import viewer
 from drqn_jax.env.params import SPEED_RELATIVE, EnvParams
-from drqn_jax.env.road_map import CROSSING_AREA, OFF_ROAD, ROAD, WALKWAY, semantic_class
 from drqn_jax.env.state import NO_ACTION, NUM_ACTIONS, EnvState, Observation
 from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.env.viewer import (
+    RENDER_AHEAD_M,
+    RENDER_BEHIND_M,
+    RENDER_HALF_WIDTH_M,
+    RENDER_PIXELS_PER_M,
+)
 from drqn_jax.programs import cached_program
 from drqn_jax.registry import make as make_jax_env
 from drqn_jax.registry import registered_envs
@@ -97,30 +108,6 @@ NO_ACTION_YET = NUM_ACTIONS  # Gymnasium's ``last_action`` at episode start
 SPEED_CHANNEL = 2  # the grid channel without a fixed upper bound (SPEC §4)
 # Float32 rounding margin on the bounds derived from EnvParams (relative).
 _BOUND_MARGIN = 1e-5
-
-# Bird's-eye view: metres behind / ahead of the ego centre, half width across
-# the main road's centre line, resolution.
-RENDER_BEHIND_M = 10.0
-RENDER_AHEAD_M = 50.0
-RENDER_HALF_WIDTH_M = 15.0
-RENDER_PIXELS_PER_M = 8
-
-# RGB colours of the map classes (SPEC §1), the ego and the behaviours (SPEC §3).
-_MAP_COLOURS = {
-    OFF_ROAD: (58, 66, 56),
-    WALKWAY: (168, 168, 158),
-    CROSSING_AREA: (232, 232, 222),  # light zebra stripes; the dark ones are road
-    ROAD: (78, 78, 84),
-}
-_LANE_MARK = (220, 220, 200)
-_GOAL_LINE = (250, 200, 40)
-_EGO = (40, 110, 235)
-_EGO_COLLIDED = (235, 40, 40)
-_BEHAVIOUR_COLOURS = (
-    (40, 190, 80),  # crossing: green
-    (235, 60, 50),  # jaywalking: red
-    (250, 165, 30),  # sidewalk: orange
-)
 
 
 # --- spaces -----------------------------------------------------------------
@@ -227,67 +214,24 @@ def render_frame(
     ahead_m: float = RENDER_AHEAD_M,
     half_width_m: float = RENDER_HALF_WIDTH_M,
     pixels_per_m: int = RENDER_PIXELS_PER_M,
+    hud: bool = True,
 ) -> jax.Array:
-    """Bird's-eye view of the scene around the ego (SPEC §1–3), pure JAX.
-
-    x (the ego's road) runs left to right from ``s - behind_m`` to
-    ``s + ahead_m``, y upwards from ``-half_width_m`` to ``half_width_m``.
-    Each pixel shows the map class at its centre (:func:`semantic_class`:
-    off-road, walkway, zebra-striped crossings, road, the dashed centre line,
-    the goal line), then the ego's box (blue, red when it overlaps a
-    pedestrian) and the pedestrians as discs coloured by behaviour (crossing
-    green, jaywalking red, sidewalk orange).
+    """:func:`drqn_jax.env.viewer.render_frame` of ``env``'s state (SPEC §1–5), pure JAX:
+    the bird's-eye view with (``hud``) the step, speed, last action and TTC.
 
     Returns:
-        (H, W, 3) uint8 with ``H = 2 * half_width_m * pixels_per_m`` and
-        ``W = (behind_m + ahead_m) * pixels_per_m`` (240 × 480 by default).
+        (H, W, 3) uint8, 240 × 480 by default.
     """
-    height = round(2 * half_width_m * pixels_per_m)
-    width = round((behind_m + ahead_m) * pixels_per_m)
-    pixel = 1.0 / pixels_per_m
-    s = state.ego.s
-    x = s - behind_m + (jnp.arange(width, dtype=jnp.float32) + 0.5) * pixel  # (W,)
-    y = half_width_m - (jnp.arange(height, dtype=jnp.float32) + 0.5) * pixel  # (H,)
-    xy = jnp.stack(jnp.broadcast_arrays(x[None, :], y[:, None]), axis=-1)  # (H, W, 2)
-    cls = semantic_class(xy, params, env.static)
-
-    palette = jnp.asarray([_MAP_COLOURS[c] for c in range(4)], jnp.uint8)
-    image = palette[cls]
-    # Zebra stripes, 0.5 m, parallel to the traffic they cross.
-    along = jnp.where(jnp.abs(xy[..., 1]) < params.lane_width, xy[..., 1], xy[..., 0])
-    dark_stripe = (cls == CROSSING_AREA) & (jnp.floor(along * 2.0) % 2 == 1)
-    image = jnp.where(dark_stripe[..., None], palette[ROAD], image)
-    # Dashed centre line, not across intersections (where the kerb side is no walkway).
-    kerb = jnp.stack([x, jnp.full_like(x, params.lane_width + 0.5 * params.sidewalk_width)], -1)
-    between_streets = semantic_class(kerb, params, env.static) == WALKWAY  # (W,)
-    centre_line = (
-        (cls == ROAD)
-        & between_streets[None, :]
-        & (jnp.abs(xy[..., 1]) < 0.1 + 0.5 * pixel)
-        & (jnp.floor(xy[..., 0] / 3.0) % 2 == 0)
+    return viewer.render_frame(
+        state,
+        params,
+        env.static,
+        behind_m=behind_m,
+        ahead_m=ahead_m,
+        half_width_m=half_width_m,
+        pixels_per_m=pixels_per_m,
+        hud=hud,
     )
-    image = jnp.where(centre_line[..., None], jnp.asarray(_LANE_MARK, jnp.uint8), image)
-    goal = (jnp.abs(xy[..., 0] - params.goal_x) < 0.25) & (jnp.abs(xy[..., 1]) < params.lane_width)
-    image = jnp.where(goal[..., None], jnp.asarray(_GOAL_LINE, jnp.uint8), image)
-
-    ego_y = -0.5 * params.lane_width
-    in_ego = (jnp.abs(xy[..., 0] - s) <= 0.5 * params.ego_length) & (
-        jnp.abs(xy[..., 1] - ego_y) <= 0.5 * params.ego_width
-    )
-    collided, _ = classify_hits(state.ego, state.pedestrians, params)
-    ego_colour = jnp.where(
-        collided, jnp.asarray(_EGO_COLLIDED, jnp.uint8), jnp.asarray(_EGO, jnp.uint8)
-    )
-    image = jnp.where(in_ego[..., None], ego_colour, image)
-
-    peds = state.pedestrians
-    radius = jnp.maximum(params.ped_radius, 2.0 * pixel)
-    d2 = jnp.sum((xy[:, :, None, :] - peds.position[None, None, :, :]) ** 2, axis=-1)  # (H,W,P)
-    inside = d2 <= radius * radius
-    first = jnp.argmax(inside, axis=-1)  # the lowest-index pedestrian on top
-    behaviour = jnp.clip(peds.behaviour[first], 0, len(_BEHAVIOUR_COLOURS) - 1)
-    ped_colour = jnp.asarray(_BEHAVIOUR_COLOURS, jnp.uint8)[behaviour]
-    return jnp.where(jnp.any(inside, axis=-1)[..., None], ped_colour, image)
 
 
 # --- compiled functions, one set per static env ------------------------------

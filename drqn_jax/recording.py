@@ -20,7 +20,8 @@ episode)::
 
     map/road, map/walkways, map/crosswalks   Boxes2D, static (SPEC §1 regions)
     map/centre_line, map/goal                 LineStrips2D, static
-    episode/<i>/world/ego                     Boxes2D, steps 0…L (yellow; red from a collision on)
+    episode/<i>/world/ego                     Boxes2D, steps 0…L, labelled with the HUD text
+                                              (blue; magenta from a collision on)
     episode/<i>/world/pedestrians             Points2D (radius = ped_radius), steps 0…L
     episode/<i>/world/headings                Arrows2D: velocity × ttc_horizon, steps 0…L
     episode/<i>/grid/<channel>                Image (45, 30) float32, steps 0…L, one entity
@@ -50,15 +51,32 @@ simulator's ``(x, -y)``, see :func:`to_view`. Grid images are the observation
 as the network sees it: row 0 is 5 m behind the ego (top), column 0 is 15 m
 to its right (SPEC §4).
 
-Pedestrian colours (legend; also an ``AnnotationContext`` on ``/`` labels the
-class ids 0, 1, 2 with the behaviour names):
+Colours: the palette of :mod:`drqn_jax.env.viewer`, which the Gymnasium
+envs' ``rgb_array`` frames use too (:data:`BEHAVIOUR_COLOURS`,
+:data:`OCCLUDED_ALPHA` are its names, re-exported). Map regions in
+``MAP_COLOURS`` (road dark grey, walkways light grey, crosswalks off-white; the
+view's background is the off-road colour), centre line ``LANE_MARK_COLOUR``,
+goal ``GOAL_COLOUR`` (yellow), ego ``EGO_COLOUR`` (blue) and
+``EGO_COLLISION_COLOUR`` (magenta), Q-value curves ``ACTION_COLOURS``
+(accelerate green, slow_down orange, brake red, steer blue). Pedestrians
+(legend; also an ``AnnotationContext`` on ``/`` labels the class ids 0, 1, 2
+with the behaviour names):
 
-* crossing (legal, on crosswalks): green ``(40, 170, 70)``;
-* jaywalking: red ``(230, 50, 40)``;
-* sidewalk (never enters the road): blue ``(50, 110, 230)``;
+* crossing (legal, on crosswalks): green;
+* jaywalking: red;
+* sidewalk (never enters the road): orange;
 
 faded (alpha :data:`OCCLUDED_ALPHA`) while occluded, i.e. left out of the
 observation grid (``EnvParams.occlusion_prob``).
+
+The ego's label at step t is the HUD of state t, the text the rendered frames
+show (:func:`drqn_jax.env.viewer.hud_glyphs` read back by
+:func:`~drqn_jax.env.viewer.hud_text`), e.g. ``step 12  36.0 km/h  accelerate
+TTC 1.5 s``: the step, the speed, the action that led to the state (``-`` at
+t = 0) and the TTC of state t itself (``-`` when infinite), computed for all
+states by one jitted ``vmap`` (:func:`hud_labels`). The ``ttc`` scalars are the
+step's ``info["ttc"]``, measured before far or finished pedestrians are
+replaced, so the two can differ on a step that replaced one.
 
 Entity layout of a training recording (timeline ``"episode"`` = the training
 episode's index): ``training/return``, ``training/length`` (steps),
@@ -88,13 +106,26 @@ from drqn_jax.env.collision import ego_box
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.road_map import (
     CROSSING_AREA,
+    OFF_ROAD,
     ROAD,
     WALKWAY,
     crosswalk_centres,
     intersection_centres,
 )
-from drqn_jax.env.state import ACTIONS, BEHAVIOURS, CROSSING, JAYWALKING, SIDEWALK, EnvState
+from drqn_jax.env.state import ACTIONS, BEHAVIOURS, EnvState
 from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.env.viewer import (
+    ACTION_COLOURS,
+    BEHAVIOUR_COLOURS,
+    EGO_COLLISION_COLOUR,
+    EGO_COLOUR,
+    GOAL_COLOUR,
+    LANE_MARK_COLOUR,
+    MAP_COLOURS,
+    OCCLUDED_ALPHA,
+    hud_glyphs,
+    hud_text,
+)
 from drqn_jax.evaluation import Decision, episode_keys, map_episodes, play_episode
 from drqn_jax.networks import Network
 from drqn_jax.programs import cached_program
@@ -111,6 +142,7 @@ __all__ = [
     "MapRegion",
     "collect_episodes",
     "episode_blueprint",
+    "hud_labels",
     "map_extent",
     "map_regions",
     "record_episodes",
@@ -125,20 +157,8 @@ __all__ = [
 STEP_TIMELINE = "step"
 EPISODE_TIMELINE = "episode"
 ENV_STEPS_TIMELINE = "env_steps"  # a study's curves (issue 41)
-OCCLUDED_ALPHA = 70  # alpha of a pedestrian the grid leaves out this step
 GRID_CHANNELS = ("occupancy", "heading", "speed", "semantics")  # SPEC §4 channel order
 COLLISION_RATE_WINDOW = 20  # episodes in the running collision/goal rates (as the progress bar)
-
-#: RGB of each pedestrian behaviour (SPEC §3), indexed by behaviour code.
-BEHAVIOUR_COLOURS: dict[int, tuple[int, int, int]] = {
-    CROSSING: (40, 170, 70),
-    JAYWALKING: (230, 50, 40),
-    SIDEWALK: (50, 110, 230),
-}
-EGO_COLOUR = (255, 200, 0)
-EGO_COLLISION_COLOUR = (255, 0, 0)
-_REGION_COLOURS = {ROAD: (150, 150, 150), WALKWAY: (190, 160, 110), CROSSING_AREA: (245, 245, 245)}
-_ACTION_COLOURS = ((40, 170, 70), (255, 165, 0), (230, 50, 40), (50, 110, 230))
 _VIEW_FLIP = np.array([1.0, -1.0], np.float32)
 
 
@@ -398,7 +418,7 @@ def _log_map(rec: rr.RecordingStream, env: UrbanPedestrians, params: EnvParams) 
             rr.Boxes2D(
                 mins=mins,
                 sizes=sizes,
-                colors=_REGION_COLOURS[semantic],
+                colors=MAP_COLOURS[semantic],
                 labels=[r.name for r in rs],
                 show_labels=False,
                 radii=0.08,
@@ -410,7 +430,9 @@ def _log_map(rec: rr.RecordingStream, env: UrbanPedestrians, params: EnvParams) 
     lane = _f(params.lane_width)
     rec.log(
         "map/centre_line",
-        rr.LineStrips2D([to_view([[x_min, 0.0], [x_max, 0.0]])], colors=(230, 200, 60), radii=0.1),
+        rr.LineStrips2D(
+            [to_view([[x_min, 0.0], [x_max, 0.0]])], colors=LANE_MARK_COLOUR, radii=0.1
+        ),
         static=True,
     )
     goal = _f(params.goal_x)
@@ -418,7 +440,7 @@ def _log_map(rec: rr.RecordingStream, env: UrbanPedestrians, params: EnvParams) 
         "map/goal",
         rr.LineStrips2D(
             [to_view([[goal, -lane], [goal, lane]])],
-            colors=(0, 220, 120),
+            colors=GOAL_COLOUR,
             radii=0.25,
             labels="goal",
         ),
@@ -452,14 +474,31 @@ def _scalars(rec: rr.RecordingStream, entity: str, steps: np.ndarray, values: np
         )
 
 
+@cached_program
+def _hud_program(env: UrbanPedestrians) -> Any:
+    """``(states, params) -> glyphs``: :func:`~drqn_jax.env.viewer.hud_glyphs` over
+    states with leaves (N, T + 1, ...), one jitted double ``vmap``; built once per env."""
+    one = partial(hud_glyphs, static=env.static)
+    return jax.jit(jax.vmap(jax.vmap(one, in_axes=(0, None)), in_axes=(0, None)))
+
+
+def hud_labels(record: EpisodeRecord, env: UrbanPedestrians, params: EnvParams) -> np.ndarray:
+    """The HUD of every recorded state (SPEC §5 TTC of the state itself), as
+    :func:`~drqn_jax.env.viewer.hud_glyphs`: (N, T + 1, 2, L) int32, one jitted call;
+    :func:`~drqn_jax.env.viewer.hud_text` turns one (2, L) entry into the ego's label."""
+    return np.asarray(_hud_program(env)(record.state, params))
+
+
 def _log_episode(
     rec: rr.RecordingStream,
     record: EpisodeRecord,
     i: int,
     env: UrbanPedestrians,
     params: EnvParams,
+    hud: np.ndarray,
 ) -> None:
-    """Log episode ``i`` of ``record`` under ``episode/<i>`` (layout: module docstring)."""
+    """Log episode ``i`` of ``record`` under ``episode/<i>`` (layout: module docstring);
+    ``hud``: its states' HUD glyphs, (T + 1, 2, L) (:func:`hud_labels`)."""
     root = f"episode/{i}"
     n = int(record.length[i])
     states = np.arange(n + 1)  # state steps 0…L
@@ -476,7 +515,7 @@ def _log_episode(
             centers=to_view(record.ego_centre[i, : n + 1]),
             half_sizes=np.broadcast_to(record.ego_half[i], (n + 1, 2)),
             colors=ego_colours,
-            labels=["ego"] * (n + 1),
+            labels=[hud_text(glyphs) for glyphs in hud[: n + 1]],
             draw_order=np.full(n + 1, 3.0, np.float32),
         ),
     )
@@ -531,7 +570,7 @@ def _log_episode(
         for a, name in enumerate(ACTIONS):
             rec.log(
                 f"{root}/q/{name}",
-                rr.SeriesLines(names=name, colors=_ACTION_COLOURS[a]),
+                rr.SeriesLines(names=name, colors=ACTION_COLOURS[a]),
                 static=True,
             )
             _scalars(rec, f"{root}/q/{name}", decisions, record.q_values[i, :n, a])
@@ -592,7 +631,7 @@ def episode_blueprint(
             origin="/",
             contents=["+ /map/**", f"+ {root}/world/**"],
             visual_bounds=bounds,
-            background=(25, 60, 25),
+            background=MAP_COLOURS[OFF_ROAD],
         )
         grids = rrb.Horizontal(
             *[rrb.Spatial2DView(name=name, origin=f"{root}/grid/{name}") for name in GRID_CHANNELS]
@@ -664,8 +703,9 @@ def write_episodes(
     rec = _open(path, application_id, blueprint)
     try:
         _log_map(rec, env, env_params)
+        hud = hud_labels(record, env, env_params)
         for i in range(record.num_episodes):
-            _log_episode(rec, record, i, env, env_params)
+            _log_episode(rec, record, i, env, env_params, hud[i])
     finally:
         _close(rec)
 

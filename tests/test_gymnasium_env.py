@@ -24,6 +24,7 @@ from gymnasium.vector import AutoresetMode
 
 import drqn_jax
 from drqn_jax import gymnasium_env as ge
+from drqn_jax.env import viewer
 from drqn_jax.env.grid import GRID_HIGH, GRID_LOW
 
 ID = "drqn_jax/UrbanPedestrians-v0"
@@ -224,10 +225,10 @@ def test_render_rgb_array_follows_the_ego():
     ego_row = round((ge.RENDER_HALF_WIDTH_M + 1.75) * ge.RENDER_PIXELS_PER_M)
     ego_col = round(ge.RENDER_BEHIND_M * ge.RENDER_PIXELS_PER_M)
     for frame in (first, second):
-        assert tuple(frame[ego_row, ego_col]) in (ge._EGO, ge._EGO_COLLIDED)
+        assert tuple(frame[ego_row, ego_col]) in (viewer.EGO_COLOUR, viewer.EGO_COLLISION_COLOUR)
         colours = {tuple(c) for c in frame.reshape(-1, 3)}
-        assert {ge._MAP_COLOURS[c] for c in range(4)} <= colours  # map classes drawn
-        assert colours & set(ge._BEHAVIOUR_COLOURS)  # and pedestrians
+        assert {viewer.MAP_COLOURS[c] for c in range(4)} <= colours  # map classes drawn
+        assert colours & set(viewer.BEHAVIOUR_COLOURS.values())  # and pedestrians
 
 
 def test_compiled_once_per_static_env():

@@ -20,6 +20,7 @@ from rerun.chunk import RrdReader
 import drqn_jax
 from drqn_jax import cli, recording
 from drqn_jax.config import load_config
+from drqn_jax.env import viewer
 from drqn_jax.env.road_map import semantic_class
 from drqn_jax.env.state import ACTIONS, BEHAVIOURS
 from drqn_jax.evaluation import episode_keys, run_episodes
@@ -111,6 +112,7 @@ def reference_episodes(agent, key, env, params, network=None, network_params=Non
         ep = defaultdict(list)
         ep["s"].append(state.ego.s)
         ep["peds"].append(state.pedestrians)
+        ep["state"].append(state)
         ep["grid"].append(obs.grid)
         for step_key in jax.random.split(key_run, env.static.max_steps):
             key_act, key_env = jax.random.split(step_key)
@@ -125,11 +127,13 @@ def reference_episodes(agent, key, env, params, network=None, network_params=Non
             ep["struck"].append(info["struck_while_stopped"])
             ep["s"].append(state.ego.s)
             ep["peds"].append(state.pedestrians)
+            ep["state"].append(state)
             ep["grid"].append(obs.grid)
             if bool(terminated | truncated):
                 break
-        out = {k: np.asarray(v) for k, v in ep.items() if k != "peds"}
+        out = {k: np.asarray(v) for k, v in ep.items() if k not in ("peds", "state")}
         out["peds"] = jax.tree.map(lambda *xs: np.stack(xs), *ep["peds"])
+        out["state"] = ep["state"]
         episodes.append(out)
     return episodes
 
@@ -202,6 +206,22 @@ def test_ego_positions_equal_the_simulated_ones(recorded, env_params):
         np.testing.assert_array_equal(centres[:, 1], np.float32(-0.5 * params.lane_width))
         half = np.array([row[0] for row in ego["Boxes2D:half_sizes"]])
         np.testing.assert_allclose(half, np.broadcast_to([2.25, 0.9], half.shape), rtol=1e-6)
+
+
+def test_the_ego_is_labelled_with_the_hud(recorded, env_params):
+    """The ego's label at step t is the HUD of state t, the text the rendered frames
+    show (one formatter: viewer.hud_glyphs, here on each reference state alone):
+    step, speed, the action that led to state t ("-" at 0), TTC."""
+    rrd, reference = recorded
+    env, params = env_params
+    hud = jax.jit(partial(viewer.hud_glyphs, static=env.static))
+    for i, ref in enumerate(reference):
+        labels = [row[0] for row in rrd[f"/episode/{i}/world/ego"]["Boxes2D:labels"]]
+        assert len(labels) == len(ref["state"]) == len(ref["action"]) + 1
+        for t, (label, state) in enumerate(zip(labels, ref["state"], strict=True)):
+            assert label == viewer.hud_text(hud(state, params))
+            action = "-" if t == 0 else ACTIONS[int(ref["action"][t - 1])]
+            assert label.startswith(f"step {t}  ") and f" km/h  {action}  TTC " in label
 
 
 def test_logged_steps_follow_the_episode_length(recorded):

@@ -7,6 +7,7 @@
 * :mod:`~drqn_jax.env.collision` — collision and time to collision (§5)
 * :mod:`~drqn_jax.env.reward` — the reward (§5)
 * :mod:`~drqn_jax.env.urban` — the env that wires them (gymnax contract)
+* :mod:`~drqn_jax.env.viewer` — how it is drawn: palette, raster, HUD (§1–5)
 """
 
 from drqn_jax.env.params import KMH, EnvParams, StaticEnvParams

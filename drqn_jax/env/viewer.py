@@ -1,0 +1,443 @@
+"""How the env is drawn: one palette, one raster renderer, one HUD text (SPEC §1–5).
+
+As Jumanji's ``viewer.py`` does for its environments, this module owns every
+decision about how the simulator looks, for both picture backends:
+
+* the Gymnasium envs' ``render_mode="rgb_array"`` (:mod:`drqn_jax.gymnasium_env`)
+  show :func:`render_frame`, a pure-JAX raster (jit- and vmap-able);
+* the rerun recordings (:mod:`drqn_jax.recording`) draw the map, the ego and the
+  pedestrians with the same colours and label the ego with the same HUD text
+  (:func:`hud_glyphs` → :func:`hud_text`).
+
+Palette (RGB; legend of both backends):
+
+* map classes (SPEC §1, :data:`MAP_COLOURS`): off-road dark green-grey, walkway
+  light grey, crossing (zebra-striped with road grey in the raster) off-white,
+  road dark grey; dashed centre line :data:`LANE_MARK_COLOUR`, goal line
+  :data:`GOAL_COLOUR` (yellow);
+* the ego (:data:`EGO_COLOUR`, blue; :data:`EGO_COLLISION_COLOUR`, magenta, in a
+  state where it collides, SPEC §5);
+* pedestrians by behaviour (SPEC §3, :data:`BEHAVIOUR_COLOURS`): crossing green,
+  jaywalking red, sidewalk orange; faded to alpha :data:`OCCLUDED_ALPHA` while
+  occluded (``state.pedestrians.visible`` false: left out of the grid, SPEC §4);
+* actions (:data:`ACTION_COLOURS`): accelerate green, slow_down orange, brake
+  red, steer blue (the recordings' Q-value curves; the HUD's action name).
+
+The HUD (heads-up display) states, for the drawn state itself: the step
+(``state.time``), the ego speed in km/h with one decimal, the last action's
+name (``-`` before the first) and the time to collision of that state (SPEC §5,
+:func:`~drqn_jax.env.collision.time_to_collision`, one decimal, ``-`` when
+infinite), e.g. ``step 12  36.0 km/h`` / ``accelerate  TTC 1.5 s``. It is
+formatted once, in JAX, as glyph indices into :data:`GLYPHS` (integer
+arithmetic, branch-free); the raster draws them with a 5 × 7 bitmap font
+(:data:`FONT`) scaled ×2, and :func:`hud_text` reads them back as the string
+the recordings show.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from drqn_jax.env.collision import classify_hits, time_to_collision
+from drqn_jax.env.params import EnvParams, StaticEnvParams
+from drqn_jax.env.road_map import (
+    CROSSING_AREA,
+    OFF_ROAD,
+    ROAD,
+    WALKWAY,
+    lane_centre_y,
+    semantic_class,
+)
+from drqn_jax.env.state import ACTIONS, CROSSING, JAYWALKING, NUM_ACTIONS, SIDEWALK, EnvState
+
+__all__ = [
+    "ACTION_COLOURS",
+    "BEHAVIOUR_COLOURS",
+    "EGO_COLLISION_COLOUR",
+    "EGO_COLOUR",
+    "FONT",
+    "GLYPHS",
+    "GOAL_COLOUR",
+    "HUD_BAND_ALPHA",
+    "HUD_BAND_COLOUR",
+    "HUD_LINES",
+    "HUD_LINE_LENGTH",
+    "HUD_SCALE",
+    "HUD_TEXT_COLOUR",
+    "LANE_MARK_COLOUR",
+    "MAP_COLOURS",
+    "MIN_PED_RADIUS_PX",
+    "OCCLUDED_ALPHA",
+    "PED_OUTLINE_COLOUR",
+    "RENDER_AHEAD_M",
+    "RENDER_BEHIND_M",
+    "RENDER_HALF_WIDTH_M",
+    "RENDER_PIXELS_PER_M",
+    "hud_glyphs",
+    "hud_text",
+    "render_frame",
+]
+
+RGB = tuple[int, int, int]
+
+# --- the palette ----------------------------------------------------------------
+#: RGB of each map class (SPEC §1), indexed by semantic class.
+MAP_COLOURS: dict[int, RGB] = {
+    OFF_ROAD: (58, 66, 56),
+    WALKWAY: (168, 168, 158),
+    CROSSING_AREA: (232, 232, 222),  # the raster's light zebra stripes; the dark ones are road
+    ROAD: (78, 78, 84),
+}
+LANE_MARK_COLOUR: RGB = (220, 220, 200)
+GOAL_COLOUR: RGB = (250, 200, 40)
+EGO_COLOUR: RGB = (40, 110, 235)
+EGO_COLLISION_COLOUR: RGB = (230, 40, 210)  # magenta: a red jaywalker on it still shows
+#: RGB of each pedestrian behaviour (SPEC §3), indexed by behaviour code.
+BEHAVIOUR_COLOURS: dict[int, RGB] = {
+    CROSSING: (40, 190, 80),
+    JAYWALKING: (235, 60, 50),
+    SIDEWALK: (250, 165, 30),
+}
+#: RGB of each action (paper §IV-B), indexed by action code.
+ACTION_COLOURS: tuple[RGB, ...] = ((40, 190, 80), (250, 165, 30), (235, 60, 50), (80, 150, 255))
+OCCLUDED_ALPHA = 70  # alpha (of 255) of a pedestrian the grid leaves out this step
+PED_OUTLINE_COLOUR: RGB = (15, 15, 20)
+HUD_TEXT_COLOUR: RGB = (240, 240, 240)
+HUD_BAND_COLOUR: RGB = (10, 10, 14)
+HUD_BAND_ALPHA = 0.7  # the world stays faintly visible behind the HUD
+
+# --- the raster's view ----------------------------------------------------------
+# Metres behind / ahead of the ego centre, half width across the main road's
+# centre line, resolution: 240 × 480 pixels.
+RENDER_BEHIND_M = 10.0
+RENDER_AHEAD_M = 50.0
+RENDER_HALF_WIDTH_M = 15.0
+RENDER_PIXELS_PER_M = 8
+#: Smallest drawn pedestrian radius (pixels; a 0.3 m disc is 2.4 px at 8 px/m),
+#: plus a 1-pixel outline in PED_OUTLINE_COLOUR.
+MIN_PED_RADIUS_PX = 5
+_PED_OUTLINE_PX = 1
+
+# --- the HUD's font ---------------------------------------------------------------
+#: The characters the HUD can show; a glyph index is a position in this string.
+GLYPHS = " 0123456789.-/_TCabcdehklmnoprstw"
+# 5 × 7 bitmaps, one per character of GLYPHS (rows top to bottom, "#" = ink).
+_BITMAPS = (
+    "..... ..... ..... ..... ..... ..... .....",  # space
+    ".###. #...# #..## #.#.# ##..# #...# .###.",  # 0
+    "..#.. .##.. ..#.. ..#.. ..#.. ..#.. .###.",  # 1
+    ".###. #...# ....# ...#. ..#.. .#... #####",  # 2
+    "##### ...#. ..#.. ...#. ....# #...# .###.",  # 3
+    "...#. ..##. .#.#. #..#. ##### ...#. ...#.",  # 4
+    "##### #.... ####. ....# ....# #...# .###.",  # 5
+    "..##. .#... #.... ####. #...# #...# .###.",  # 6
+    "##### ....# ...#. ..#.. .#... .#... .#...",  # 7
+    ".###. #...# #...# .###. #...# #...# .###.",  # 8
+    ".###. #...# #...# .#### ....# ...#. .##..",  # 9
+    "..... ..... ..... ..... ..... .##.. .##..",  # .
+    "..... ..... ..... .###. ..... ..... .....",  # -
+    "..... ....# ...#. ..#.. .#... #.... .....",  # /
+    "..... ..... ..... ..... ..... ..... #####",  # _
+    "##### ..#.. ..#.. ..#.. ..#.. ..#.. ..#..",  # T
+    ".###. #...# #.... #.... #.... #...# .###.",  # C
+    "..... ..... .###. ....# .#### #...# .####",  # a
+    "#.... #.... #.##. ##..# #...# #...# ####.",  # b
+    "..... ..... .###. #.... #.... #...# .###.",  # c
+    "....# ....# .##.# #..## #...# #...# .####",  # d
+    "..... ..... .###. #...# ##### #.... .###.",  # e
+    "#.... #.... #.##. ##..# #...# #...# #...#",  # h
+    "#.... #.... #..#. #.#.. ##... #.#.. #..#.",  # k
+    ".##.. ..#.. ..#.. ..#.. ..#.. ..#.. .###.",  # l
+    "..... ..... ##.#. #.#.# #.#.# #...# #...#",  # m
+    "..... ..... #.##. ##..# #...# #...# #...#",  # n
+    "..... ..... .###. #...# #...# #...# .###.",  # o
+    "..... ..... ####. #...# ####. #.... #....",  # p
+    "..... ..... #.##. ##..# #.... #.... #....",  # r
+    "..... ..... .###. #.... .###. ....# ####.",  # s
+    ".#... .#... ###.. .#... .#... .#..# ..##.",  # t
+    "..... ..... #...# #...# #.#.# #.#.# .#.#.",  # w
+)
+#: (len(GLYPHS), 7, 5) bool bitmaps of GLYPHS.
+FONT = np.array([[[c == "#" for c in row] for row in b.split()] for b in _BITMAPS], bool)
+FONT.setflags(write=False)
+HUD_SCALE = 2  # pixels per font pixel
+HUD_LINES = 2
+_GLYPH_ROWS, _GLYPH_COLS = FONT.shape[1:]
+_CELL_COLS = _GLYPH_COLS + 1  # one blank column between characters
+_HUD_MARGIN_PX = 4
+_GAP = -1  # an absent character: dropped when a line is compacted
+_SPACE, _DIGIT0, _DOT, _DASH = (GLYPHS.index(c) for c in " 0.-")
+
+assert len(FONT) == len(GLYPHS) and FONT.shape[1:] == (7, 5)
+assert set("".join(ACTIONS)) <= set(GLYPHS)
+
+
+def _codes(text: str) -> np.ndarray:
+    """(len(text),) int32 glyph indices of a static string."""
+    return np.array([GLYPHS.index(c) for c in text], np.int32)
+
+
+_ACTION_WIDTH = max(len(a) for a in ACTIONS)
+# Row a + 1: action a's name; row 0: "-" (no action yet, last_action = -1); gap-padded.
+_ACTION_CODES = np.array(
+    [
+        np.pad(_codes(name), (0, _ACTION_WIDTH - len(name)), constant_values=_GAP)
+        for name in ("-", *ACTIONS)
+    ],
+    np.int32,
+)
+_STEP_DIGITS, _SPEED_DIGITS, _TTC_DIGITS = 5, 3, 3  # integer digits (larger values clip)
+_LINE_PIECES = (
+    ("step ", _STEP_DIGITS, "  ", _SPEED_DIGITS + 2, " km/h"),
+    (_ACTION_WIDTH, "  TTC ", _TTC_DIGITS + 2, " s"),
+)
+#: Glyphs per HUD line (static): the longest line with every field at its widest.
+HUD_LINE_LENGTH = max(
+    sum(len(p) if isinstance(p, str) else p for p in line) for line in _LINE_PIECES
+)
+
+
+# --- formatting: traced values -> glyph indices -------------------------------------
+def _digits(n: jax.Array, width: int) -> jax.Array:
+    """(width,) int32 glyphs of the decimal digits of ``n`` (() int, clipped to
+    [0, 10**width − 1]); leading zeros are gaps (the units digit always shows)."""
+    n = jnp.clip(jnp.asarray(n, jnp.int32), 0, 10**width - 1)
+    powers = jnp.asarray(10 ** np.arange(width - 1, -1, -1), jnp.int32)  # (width,)
+    leading = (n < powers) & (powers > 1)
+    return jnp.where(leading, _GAP, _DIGIT0 + (n // powers) % 10).astype(jnp.int32)
+
+
+def _one_decimal(x: jax.Array, width: int) -> jax.Array:
+    """(width + 2,) int32 glyphs of ``x`` (() float >= 0, rounded to tenths):
+    ``width`` integer digits (leading gaps), ``.``, the tenths digit."""
+    x = jnp.where(jnp.isfinite(x), x, 0.0)
+    tenths = jnp.clip(jnp.round(x * 10.0), 0, 10 ** (width + 1) - 1).astype(jnp.int32)
+    point = jnp.full((1,), _DOT, jnp.int32)
+    return jnp.concatenate([_digits(tenths // 10, width), point, _DIGIT0 + tenths[None] % 10])
+
+
+def _compact(codes: jax.Array, colours: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Drop the gaps of a line ((L,) int32 glyphs, colours), left-aligned, space-padded."""
+    keep = codes != _GAP
+    at = jnp.where(keep, jnp.cumsum(keep) - 1, codes.shape[0])  # gaps go out of range
+    out = jnp.full_like(codes, _SPACE).at[at].set(codes, mode="drop")
+    return out, jnp.zeros_like(colours).at[at].set(colours, mode="drop")
+
+
+def _line(pieces: list[tuple[jax.Array | np.ndarray, jax.Array | int]]) -> tuple:
+    """One HUD line from (glyphs, colour index) pieces: concatenated, padded to
+    HUD_LINE_LENGTH with gaps and compacted."""
+    codes = jnp.concatenate([jnp.asarray(c, jnp.int32) for c, _ in pieces])
+    colours = jnp.concatenate([jnp.full(len(c), k, jnp.int32) for c, k in pieces])
+    pad = HUD_LINE_LENGTH - codes.shape[0]
+    codes = jnp.concatenate([codes, jnp.full(pad, _GAP, jnp.int32)])
+    return _compact(codes, jnp.concatenate([colours, jnp.zeros(pad, jnp.int32)]))
+
+
+def _hud_layout(
+    state: EnvState, params: EnvParams, static: StaticEnvParams
+) -> tuple[jax.Array, jax.Array]:
+    """The HUD's glyphs and colour indices, (HUD_LINES, HUD_LINE_LENGTH) int32 each.
+
+    Colour index 0 is HUD_TEXT_COLOUR, a + 1 is ACTION_COLOURS[a] (the action name).
+    """
+    ttc = time_to_collision(state.ego, state.pedestrians, params, static)  # SPEC §5
+    finite = jnp.isfinite(ttc)
+    action = jnp.clip(state.last_action + 1, 0, NUM_ACTIONS)  # 0: none yet
+    no_ttc = jnp.asarray(np.pad(_codes("-"), (0, _TTC_DIGITS + 1), constant_values=_GAP))
+    unit = _codes(" s")
+    first = _line(
+        [
+            (_codes("step "), 0),
+            (_digits(state.time, _STEP_DIGITS), 0),
+            (_codes("  "), 0),
+            (_one_decimal(state.ego.v * 3.6, _SPEED_DIGITS), 0),
+            (_codes(" km/h"), 0),
+        ]
+    )
+    second = _line(
+        [
+            (jnp.asarray(_ACTION_CODES)[action], action),
+            (_codes("  TTC "), 0),
+            (jnp.where(finite, _one_decimal(ttc, _TTC_DIGITS), no_ttc), 0),
+            (jnp.where(finite, unit, _GAP), 0),
+        ]
+    )
+    return jnp.stack([first[0], second[0]]), jnp.stack([first[1], second[1]])
+
+
+def hud_glyphs(state: EnvState, params: EnvParams, static: StaticEnvParams) -> jax.Array:
+    """The HUD text of ``state`` as glyph indices into :data:`GLYPHS` (SPEC §5 TTC).
+
+    Line 0: ``step <state.time>  <speed> km/h`` (speed ``state.ego.v * 3.6`` with
+    one decimal); line 1: ``<last action's name>  TTC <ttc> s``, the name ``-``
+    before the first action, ``TTC -`` when the state's
+    :func:`~drqn_jax.env.collision.time_to_collision` is infinite. Each line is
+    left-aligned and padded with spaces. Pure JAX, branch-free (jit/vmap).
+
+    Returns:
+        (HUD_LINES, HUD_LINE_LENGTH) = (2, 23) int32.
+    """
+    return _hud_layout(state, params, static)[0]
+
+
+def hud_text(glyphs: np.ndarray | jax.Array) -> str:
+    """The string of one :func:`hud_glyphs` result ((2, L) ints): each line without
+    its trailing spaces, the lines joined by two spaces, e.g.
+    ``"step 12  36.0 km/h  accelerate  TTC 1.5 s"``."""
+    lines = np.asarray(glyphs).reshape(-1, np.shape(glyphs)[-1])
+    return "  ".join("".join(GLYPHS[i] for i in line).rstrip() for line in lines)
+
+
+# --- the raster -------------------------------------------------------------------
+def _uint8(colour: RGB | list) -> jax.Array:
+    return jnp.asarray(colour, jnp.uint8)
+
+
+def _blend(under: jax.Array, colour: jax.Array, alpha: float) -> jax.Array:
+    """``alpha`` of ``colour`` over ``under`` (uint8 (..., 3), broadcastable), uint8."""
+    mixed = under.astype(jnp.float32) * (1.0 - alpha) + colour.astype(jnp.float32) * alpha
+    return jnp.round(mixed).astype(jnp.uint8)
+
+
+def _draw_map(xy: jax.Array, params: EnvParams, static: StaticEnvParams, pixel: float) -> jax.Array:
+    """(H, W, 3) uint8 map (SPEC §1) at pixel centres ``xy`` (H, W, 2): each class's
+    colour, zebra stripes on crossings, the dashed centre line, the goal line."""
+    cls = semantic_class(xy, params, static)
+    palette = _uint8([MAP_COLOURS[c] for c in range(len(MAP_COLOURS))])
+    image = palette[cls]
+    # Zebra stripes, 0.5 m, parallel to the traffic they cross.
+    along = jnp.where(jnp.abs(xy[..., 1]) < params.lane_width, xy[..., 1], xy[..., 0])
+    dark_stripe = (cls == CROSSING_AREA) & (jnp.floor(along * 2.0) % 2 == 1)
+    image = jnp.where(dark_stripe[..., None], palette[ROAD], image)
+    # Dashed centre line, not across intersections (where the kerb side is no walkway).
+    x = xy[0, :, 0]
+    kerb = jnp.stack([x, jnp.full_like(x, params.lane_width + 0.5 * params.sidewalk_width)], -1)
+    between_streets = semantic_class(kerb, params, static) == WALKWAY  # (W,)
+    centre_line = (
+        (cls == ROAD)
+        & between_streets[None, :]
+        & (jnp.abs(xy[..., 1]) < 0.1 + 0.5 * pixel)
+        & (jnp.floor(xy[..., 0] / 3.0) % 2 == 0)
+    )
+    image = jnp.where(centre_line[..., None], _uint8(LANE_MARK_COLOUR), image)
+    goal = (jnp.abs(xy[..., 0] - params.goal_x) < 0.25) & (jnp.abs(xy[..., 1]) < params.lane_width)
+    return jnp.where(goal[..., None], _uint8(GOAL_COLOUR), image)
+
+
+def _draw_ego(image: jax.Array, xy: jax.Array, state: EnvState, params: EnvParams) -> jax.Array:
+    """The ego's box (SPEC §2) over ``image``: EGO_COLOUR, or EGO_COLLISION_COLOUR
+    where the state is a collision (SPEC §5, :func:`classify_hits`)."""
+    inside = (jnp.abs(xy[..., 0] - state.ego.s) <= 0.5 * params.ego_length) & (
+        jnp.abs(xy[..., 1] - lane_centre_y(params)) <= 0.5 * params.ego_width
+    )
+    collided, _ = classify_hits(state.ego, state.pedestrians, params)
+    colour = jnp.where(collided, _uint8(EGO_COLLISION_COLOUR), _uint8(EGO_COLOUR))
+    return jnp.where(inside[..., None], colour, image)
+
+
+def _draw_pedestrians(
+    image: jax.Array, xy: jax.Array, state: EnvState, params: EnvParams, pixel: float
+) -> jax.Array:
+    """The P pedestrians (SPEC §3) over ``image`` (H, W, 3): discs of radius
+    ``max(ped_radius, MIN_PED_RADIUS_PX pixels)`` in their behaviour's colour
+    (faded to OCCLUDED_ALPHA where not ``visible``) with a 1-pixel dark outline;
+    where discs overlap, the lowest index is on top."""
+    peds = state.pedestrians
+    radius = jnp.maximum(params.ped_radius, MIN_PED_RADIUS_PX * pixel)
+    outer = radius + _PED_OUTLINE_PX * pixel
+    d2 = jnp.sum((xy[:, :, None, :] - peds.position[None, None, :, :]) ** 2, axis=-1)  # (H,W,P)
+    covered = d2 <= outer * outer
+    first = jnp.argmax(covered, axis=-1)  # (H, W)
+    d2_first = jnp.take_along_axis(d2, first[..., None], axis=-1)[..., 0]
+    behaviour = jnp.clip(peds.behaviour[first], 0, len(BEHAVIOUR_COLOURS) - 1)
+    colour = _uint8([BEHAVIOUR_COLOURS[b] for b in range(len(BEHAVIOUR_COLOURS))])[behaviour]
+    fill = jnp.where(
+        peds.visible[first][..., None], colour, _blend(image, colour, OCCLUDED_ALPHA / 255)
+    )
+    drawn = jnp.where((d2_first <= radius * radius)[..., None], fill, _uint8(PED_OUTLINE_COLOUR))
+    return jnp.where(jnp.any(covered, axis=-1)[..., None], drawn, image)
+
+
+def _fit(a: jax.Array, height: int, width: int) -> jax.Array:
+    """``a`` (h, w, ...) at the top-left of a zero (height, width, ...) array, cropped."""
+    a = a[:height, :width]
+    rest = [(0, 0)] * (a.ndim - 2)
+    return jnp.pad(a, [(0, height - a.shape[0]), (0, width - a.shape[1]), *rest])
+
+
+def _draw_hud(image: jax.Array, glyphs: jax.Array, colours: jax.Array) -> jax.Array:
+    """The HUD lines (glyphs and colour indices, (lines, L) int32, :func:`_hud_layout`)
+    at the top left of ``image`` (H, W, 3), in a translucent dark band as wide as the
+    longest line; the font is FONT scaled by HUD_SCALE, cropped at the image's edge."""
+    height, width, _ = image.shape
+    lines, length = glyphs.shape
+    s, m = HUD_SCALE, _HUD_MARGIN_PX
+    cols = length * _CELL_COLS
+    ink = jnp.pad(jnp.asarray(FONT)[glyphs], ((0, 0), (0, 0), (0, 0), (0, 1)))  # (n,L,7,6)
+    ink = ink.transpose(0, 2, 1, 3).reshape(lines, _GLYPH_ROWS, cols)
+    palette = _uint8([HUD_TEXT_COLOUR, *ACTION_COLOURS])
+    rgb = jnp.repeat(palette[colours], _CELL_COLS, axis=1)  # (n, cols, 3)
+    rgb = jnp.broadcast_to(rgb[:, None], (lines, _GLYPH_ROWS, cols, 3))
+    # Scale, then stack the lines below a margin each, and indent by the margin.
+    ink = jnp.repeat(jnp.repeat(ink, s, axis=1), s, axis=2)
+    rgb = jnp.repeat(jnp.repeat(rgb, s, axis=1), s, axis=2)
+    pad = ((0, 0), (m, 0), (m, 0))
+    ink = jnp.pad(ink, pad).reshape(-1, m + cols * s)
+    rgb = jnp.pad(rgb, (*pad, (0, 0))).reshape(-1, m + cols * s, 3)
+    band_rows = ink.shape[0] + m
+    used = jnp.max(jnp.where(glyphs != _SPACE, jnp.arange(length) + 1, 0))  # widest line
+    band = (jnp.arange(height)[:, None] < band_rows) & (
+        jnp.arange(width)[None, :] < 2 * m + used * _CELL_COLS * s - s
+    )
+    image = jnp.where(
+        band[..., None], _blend(image, _uint8(HUD_BAND_COLOUR), HUD_BAND_ALPHA), image
+    )
+    return jnp.where(_fit(ink, height, width)[..., None], _fit(rgb, height, width), image)
+
+
+def render_frame(
+    state: EnvState,
+    params: EnvParams,
+    static: StaticEnvParams,
+    *,
+    behind_m: float = RENDER_BEHIND_M,
+    ahead_m: float = RENDER_AHEAD_M,
+    half_width_m: float = RENDER_HALF_WIDTH_M,
+    pixels_per_m: int = RENDER_PIXELS_PER_M,
+    hud: bool = True,
+) -> jax.Array:
+    """Bird's-eye view of the scene around the ego (SPEC §1–5), pure JAX (jit, vmap).
+
+    x (the ego's road) runs left to right from ``s - behind_m`` to
+    ``s + ahead_m``, y upwards from ``-half_width_m`` to ``half_width_m``
+    (the ego drives on the right of the road). Each pixel shows the map class at
+    its centre (SPEC §1: off-road, walkway, zebra-striped crossings, road, the
+    dashed centre line, the goal line), then the ego's box (EGO_COLOUR;
+    EGO_COLLISION_COLOUR in a collision, SPEC §5), then the pedestrians (SPEC §3)
+    as outlined discs of at least MIN_PED_RADIUS_PX pixels coloured by behaviour
+    (faded while occluded, SPEC §4); with ``hud``, the two lines of
+    :func:`hud_glyphs` in a dark band at the top left. The keyword arguments are
+    static (they set the shape).
+
+    Args:
+        state: one env's state (unbatched; ``vmap`` for a batch).
+        params, static: the env's parameters.
+    Returns:
+        (H, W, 3) uint8 with ``H = 2 * half_width_m * pixels_per_m`` and
+        ``W = (behind_m + ahead_m) * pixels_per_m`` (240 × 480 by default).
+    """
+    height = round(2 * half_width_m * pixels_per_m)
+    width = round((behind_m + ahead_m) * pixels_per_m)
+    pixel = 1.0 / pixels_per_m
+    x = state.ego.s - behind_m + (jnp.arange(width, dtype=jnp.float32) + 0.5) * pixel  # (W,)
+    y = half_width_m - (jnp.arange(height, dtype=jnp.float32) + 0.5) * pixel  # (H,)
+    xy = jnp.stack(jnp.broadcast_arrays(x[None, :], y[:, None]), axis=-1)  # (H, W, 2)
+    image = _draw_map(xy, params, static, pixel)
+    image = _draw_ego(image, xy, state, params)
+    image = _draw_pedestrians(image, xy, state, params, pixel)
+    if hud:
+        image = _draw_hud(image, *_hud_layout(state, params, static))
+    return image
