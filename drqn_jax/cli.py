@@ -476,7 +476,7 @@ def _train_and_evaluate(
         agents.append(builtin_agent("rule-based", config))
     if not quiet:
         _say_evaluating(config, agents)
-    results = evaluate_agents(config, agents)
+    results = evaluate_agents(config, agents, quiet=quiet)
     wall = time.perf_counter() - start
     world = config["env"]["id"]
     table = paper_comparison(results, world) if reproduce else metrics_table(results)
@@ -557,7 +557,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     seed, world = config["run"]["seed"], config["env"]["id"]
     if not args.quiet:
         _say_evaluating(config, [agent])
-    (result,) = evaluate_agents(config, [agent])
+    (result,) = evaluate_agents(config, [agent], quiet=args.quiet)
     wall = time.perf_counter() - start
     # with --json - stdout carries only the JSON (pipe it to jq); the table goes to stderr
     table_out = sys.stderr if args.json == "-" else sys.stdout

@@ -40,6 +40,9 @@ __all__ = [
 
 Z_95 = 1.959963984540054  # two-sided 95 % normal quantile
 
+#: Episodes per host call when :func:`evaluate` reports progress.
+PROGRESS_EPISODES = 200
+
 #: m/s: the authors' average speed counts the steps faster than 0.5 km/h (``tester.py``).
 AUTHORS_MOVING_SPEED = 0.5 * KMH
 
@@ -319,22 +322,52 @@ def evaluate(
     params: EnvParams | None = None,
     *,
     batch_size: int | None = None,
+    on_episodes: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
     """Evaluate ``agent`` on ``num_episodes`` episodes (SPEC §8).
 
     Episodes run in parallel under one ``jit``; episode *i* uses
-    ``fold_in(key, i)``. Returns :func:`summarize`'s dict plus ``agent``
-    and ``episodes`` (the per-episode :class:`EpisodeMetrics` as NumPy arrays).
+    ``fold_in(key, i)``. With ``on_episodes`` (a progress bar), they run in host
+    calls of :data:`PROGRESS_EPISODES` (one compiled program; the same results, as
+    no episode depends on those beside it) and ``on_episodes(done)`` follows each.
+    Returns :func:`summarize`'s dict plus ``agent`` and ``episodes`` (the
+    per-episode :class:`EpisodeMetrics` as NumPy arrays).
     """
     if not isinstance(num_episodes, int) or num_episodes < 1:
         raise ValueError(f"evaluate: num_episodes = {num_episodes!r}, must be an integer >= 1")
     if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
         raise ValueError(f"evaluate: batch_size = {batch_size!r}, must be an integer >= 1")
     params = env.default_params if params is None else env.check_params(params)
-    episodes = run_episodes(agent, episode_keys(key, num_episodes), env, params, batch_size)
-    episodes = jax.tree.map(np.asarray, episodes)
+    keys = episode_keys(key, num_episodes)
+    if on_episodes is None:
+        episodes = jax.tree.map(np.asarray, run_episodes(agent, keys, env, params, batch_size))
+    else:
+        episodes = _in_host_calls(agent, keys, env, params, batch_size, on_episodes)
     result = summarize(episodes, float(np.asarray(params.ttc_threshold)))
     return {"agent": agent.name, **result, "episodes": episodes}
+
+
+def _in_host_calls(
+    agent: Agent,
+    keys: jax.Array,
+    env: UrbanPedestrians,
+    params: EnvParams,
+    batch_size: int | None,
+    on_episodes: Callable[[int], None],
+) -> EpisodeMetrics:
+    """:func:`run_episodes` of ``keys`` (N,) in calls of :data:`PROGRESS_EPISODES` keys
+    (the last padded with copies of its first key), NumPy leaves (N, ...)."""
+    n, size = keys.shape[0], min(PROGRESS_EPISODES, keys.shape[0])
+    parts = []
+    for start in range(0, n, size):
+        chunk = keys[start : start + size]
+        real = chunk.shape[0]
+        if real < size:
+            chunk = jnp.concatenate([chunk, jnp.broadcast_to(chunk[:1], (size - real,))])
+        out = run_episodes(agent, chunk, env, params, batch_size)
+        parts.append(jax.tree.map(lambda x, real=real: np.asarray(x)[:real], out))
+        on_episodes(start + real)
+    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
 
 
 def metrics_table(results: list[dict[str, Any]]) -> str:

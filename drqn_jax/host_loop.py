@@ -105,7 +105,9 @@ def run_chunks(
     return "finished", state, chunks
 
 
-def progress_bar(total: int, initial: int, quiet: bool, unit: str = "ep") -> Any:
+def progress_bar(
+    total: int, initial: int, quiet: bool, unit: str = "ep", desc: str = "training"
+) -> Any:
     """A tqdm bar on stderr that appears only on runs longer than 2 s."""
     from tqdm.auto import tqdm
 
@@ -113,7 +115,7 @@ def progress_bar(total: int, initial: int, quiet: bool, unit: str = "ep") -> Any
         total=total,
         initial=initial,
         unit=unit,
-        desc="training",
+        desc=desc,
         disable=quiet,
         delay=2.0,
         file=sys.stderr,

@@ -366,23 +366,28 @@ def builtin_agent(name: str, config: Config) -> Agent:
     raise ValueError(f"unknown agent {name!r}: rule-based, random or accelerate")
 
 
-def evaluate_agents(config: Config, agents: list[Agent]) -> list[dict[str, Any]]:
+def evaluate_agents(
+    config: Config, agents: list[Agent], *, quiet: bool = True
+) -> list[dict[str, Any]]:
     """SPEC §8 metrics of each agent on ``evaluate.episodes`` episodes of the
     evaluation key (the same episodes for every agent), and its ``teacher``: how
     ``config``'s training taught a network agent (:func:`teacher_label`), or
-    :data:`NOT_LEARNED` for a built-in one."""
+    :data:`NOT_LEARNED` for a built-in one. Unless ``quiet``, a progress bar per agent."""
     env, env_params = config.make_env()
     _, eval_key = config.keys()
     batch = config["evaluate"]["batch_size"] or None
     episodes = config["evaluate"]["episodes"]
     learned = teacher_label(config.hyperparams())
-    return [
-        {
-            **evaluate(a, eval_key, episodes, env, env_params, batch_size=batch),
-            "teacher": learned if a.name in LEARNED_AGENTS else NOT_LEARNED,
-        }
-        for a in agents
-    ]
+    results = []
+    for a in agents:
+        with progress_bar(episodes, 0, quiet, "episode", f"evaluating {a.name}") as bar:
+            show = None if quiet else (lambda done, bar=bar: bar.update(done - bar.n))
+            result = evaluate(
+                a, eval_key, episodes, env, env_params, batch_size=batch, on_episodes=show
+            )
+        teacher = learned if a.name in LEARNED_AGENTS else NOT_LEARNED
+        results.append({**result, "teacher": teacher})
+    return results
 
 
 def json_ready(result: dict[str, Any]) -> dict[str, Any]:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import drqn_jax
+from drqn_jax import evaluation
 from drqn_jax.agents import RuleBasedParams
 from drqn_jax.env.state import ACCELERATE, BRAKE
 from drqn_jax.evaluation import EpisodeMetrics, episode_keys, run_episodes, wilson_interval
@@ -117,6 +118,20 @@ def test_episode_i_does_not_depend_on_num_episodes(env_params):
     assert_tree_equal(take(big, slice(0, 3)), small)
     chunked = run_episodes(agent, episode_keys(key, NUM), env, params, batch_size=16)
     assert_tree_equal(big, chunked)
+
+
+def test_progress_reporting_evaluates_the_same_episodes(env_params, results, monkeypatch):
+    """With a progress callback the episodes run in host calls of PROGRESS_EPISODES
+    (the last one padded): the same results, and a report after each call."""
+    env, params = env_params
+    monkeypatch.setattr(evaluation, "PROGRESS_EPISODES", 20)
+    done = []
+    shown = drqn_jax.evaluate(
+        drqn_jax.rule_based_agent(), jax.random.key(123), NUM, env, params, on_episodes=done.append
+    )
+    assert done == [20, 40, NUM]
+    assert_tree_equal(shown["episodes"], results["rule"]["episodes"])
+    assert shown["collision_free_rate"] == results["rule"]["collision_free_rate"]
 
 
 def test_evaluate_is_deterministic_and_key_dependent(env_params, results):
