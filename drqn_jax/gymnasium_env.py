@@ -206,32 +206,16 @@ def _contains(space: spaces.Space, x: Any) -> bool:
 
 # --- rendering --------------------------------------------------------------
 def render_frame(
-    env: UrbanPedestrians,
-    state: EnvState,
-    params: EnvParams,
-    *,
-    behind_m: float = RENDER_BEHIND_M,
-    ahead_m: float = RENDER_AHEAD_M,
-    half_width_m: float = RENDER_HALF_WIDTH_M,
-    pixels_per_m: int = RENDER_PIXELS_PER_M,
-    hud: bool = True,
+    env: UrbanPedestrians, state: EnvState, params: EnvParams, **view: Any
 ) -> jax.Array:
     """:func:`drqn_jax.env.viewer.render_frame` of ``env``'s state (SPEC §1–5), pure JAX:
-    the bird's-eye view with (``hud``) the step, speed, last action and TTC.
+    the bird's-eye view with the step, speed, last action and TTC; ``view`` takes
+    viewer's keyword arguments (``behind_m``, ``pixels_per_m``, ``hud``, …).
 
     Returns:
         (H, W, 3) uint8, 240 × 480 by default.
     """
-    return viewer.render_frame(
-        state,
-        params,
-        env.static,
-        behind_m=behind_m,
-        ahead_m=ahead_m,
-        half_width_m=half_width_m,
-        pixels_per_m=pixels_per_m,
-        hud=hud,
-    )
+    return viewer.render_frame(state, params, env.static, **view)
 
 
 # --- compiled functions, one set per static env ------------------------------
