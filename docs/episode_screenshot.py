@@ -7,8 +7,8 @@ Needs a running headless viewer with a renderer (on a machine without a GPU:
     python docs/episode_screenshot.py   # then stop the viewer
 
 Episode 0 of the evaluation key (``drqn-jax replay --agent rule-based
---episodes 1``), with the world view zoomed on the ego at step 250, where the
-rule-based agent brakes for a jaywalker.
+--episodes 1``), with the world view zoomed on the ego 7 steps (0.7 s) before the
+episode ends (``--step`` chooses another).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from drqn_jax.config import load_config
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--step", type=int, default=250, help="time cursor (step)")
+    parser.add_argument("--step", type=int, help="time cursor (default: 7 before the end)")
     parser.add_argument("--rrd", default="/tmp/drqn_jax_episode.rrd", help="recording to write")
     parser.add_argument("--out", default="docs/episode.png", help="screenshot to write")
     args = parser.parse_args()
@@ -36,6 +36,8 @@ def main() -> None:
     _, eval_key = config.keys()
     agent = drqn_jax.rule_based_agent(config.rule_based_params())
     record = recording.collect_episodes(agent, eval_key, 1, env, params)
+    if args.step is None:
+        args.step = max(0, int(record.length[0]) - 7)
     s = float(record.state.ego.s[0, args.step])
     blueprint = recording.episode_blueprint(1, False, env, params, x_range=(s - 15.0, s + 45.0))
     recording.write_episodes(args.rrd, record, env, params, blueprint=blueprint)
