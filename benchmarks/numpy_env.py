@@ -4,7 +4,7 @@ This is the simulator of ``drqn_jax.env`` (SPEC §1–5) written as a user would
 write it without JAX: NumPy arrays over the P pedestrians, ordinary Python
 control flow, one environment per call. It serves two purposes:
 
-* an **oracle**: ``tests/test_numpy_oracle.py`` drives it and the JAX env with
+* an **oracle**: ``tests/env/test_numpy_oracle.py`` drives it and the JAX env with
   the same actions and the same random numbers and requires equal
   trajectories;
 * a **baseline**: :func:`numpy_steps_per_s` is the "NumPy loop" the JAX

@@ -44,3 +44,21 @@ def pytest_unconfigure(config: pytest.Config) -> None:
 def env_params():
     """``drqn_jax.make("UrbanPedestrians-v0")``: one env and its default params."""
     return drqn_jax.make("UrbanPedestrians-v0")
+
+
+@pytest.fixture(scope="session")
+def env(env_params):
+    """The paper's world (``env_params``' env); a module may define its own ``env``."""
+    return env_params[0]
+
+
+@pytest.fixture(scope="session")
+def params(env_params):
+    """The paper's world's default ``EnvParams``."""
+    return env_params[1]
+
+
+@pytest.fixture(scope="session")
+def static(env):
+    """The paper's world's ``StaticEnvParams``."""
+    return env.static

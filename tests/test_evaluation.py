@@ -1,4 +1,5 @@
-"""Agents behind one interface, and the §8 evaluation metrics."""
+"""Evaluation (drqn_jax/evaluation.py; SPEC §8): agents behind one interface run
+through ``evaluate``, and the §8 metrics and intervals."""
 
 from __future__ import annotations
 
@@ -160,14 +161,6 @@ def test_invalid_arguments(env_params):
     with pytest.raises(ValueError, match="action"):
         drqn_jax.constant_agent(7)
     assert drqn_jax.constant_agent("brake").name == "always-brake"
-
-
-def test_agent_is_a_pytree_with_static_functions():
-    agent = drqn_jax.rule_based_agent()
-    leaves, treedef = jax.tree.flatten(agent)
-    assert len(leaves) == 5  # the four thresholds and the anticipation horizon
-    rebuilt = jax.tree.unflatten(treedef, leaves)
-    assert rebuilt.act_fn is agent.act_fn and rebuilt.name == "rule-based"
 
 
 def test_summarize_handles_no_finite_ttc():

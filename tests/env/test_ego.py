@@ -1,4 +1,4 @@
-"""The ego vehicle: setpoint, PID, plant (SPEC §2).
+"""The ego vehicle (drqn_jax/env/ego.py): setpoint, PID, plant (SPEC §2).
 
 Closed-loop checks run one jitted ``lax.scan`` of ``ego_step`` over a fixed
 number of steps (one compile for the whole module, plus its vmapped twin);

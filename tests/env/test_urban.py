@@ -1,4 +1,10 @@
-"""The gymnax 1.0 contract: make/reset/step, auto-reset, terminal flags, determinism."""
+"""The env (drqn_jax/env/urban.py) keeps the gymnax 1.0 contract: make/reset/step,
+auto-reset, terminal flags, determinism, jit ≡ eager, vmap ≡ loop, batch independence.
+
+``drqn_jax.testing.check_env_contract`` (the checker users run on their own envs)
+runs on every registered world; the tests after it check what it cannot know:
+the info keys, invalid actions, long rollouts, large batches, hand-built endings.
+"""
 
 from __future__ import annotations
 
@@ -8,8 +14,10 @@ import numpy as np
 import pytest
 
 import drqn_jax
-from drqn_jax.env.params import EnvParams, StaticEnvParams
+from drqn_jax.env.params import EnvParams
 from drqn_jax.env.state import ACCELERATE, BRAKE, NO_ACTION, NUM_WAYPOINTS, STEER
+from drqn_jax.registry import registered_envs
+from drqn_jax.testing import check_env_contract
 from tests.helpers import (
     assert_tree_equal,
     batched_rollout_summary,
@@ -30,6 +38,29 @@ def jit_step(env_params):
 def jit_step_env(env_params):
     env, _ = env_params
     return jax.jit(env.step_env)
+
+
+#: Episodes of the checker's worlds: 16 steps, so each of its envs ends at least two
+#: within its 40 steps and the auto-reset is checked (the worlds' own 1000 below).
+CONTRACT_MAX_STEPS, CONTRACT_STEPS, CONTRACT_ENVS = 16, 40, 4
+
+
+@pytest.mark.parametrize("env_id", registered_envs())
+def test_every_registered_world_keeps_the_contract(env_id):
+    """The shared checker on each world: types and shapes, observations in the
+    space, finite rewards, auto-reset, same key ≡ same rollout, jit ≡ no jit (one
+    step); worlds of one static shape share its compiled rollout."""
+    env, params = drqn_jax.make(env_id, max_steps=CONTRACT_MAX_STEPS)
+    report = check_env_contract(
+        env,
+        params,
+        key=jax.random.key(17),
+        num_envs=CONTRACT_ENVS,
+        num_steps=CONTRACT_STEPS,
+        eager_steps=1,
+    )
+    assert report.resets >= 2 * CONTRACT_ENVS, report
+    assert -10.0 <= report.reward_min <= report.reward_max <= 1.0, report
 
 
 def test_make_returns_env_and_params(env_params):
@@ -87,93 +118,6 @@ def test_actions_outside_the_space_are_clipped_and_flagged(env_params):
         assert float(nxt.ego.v_setpoint) == float(ref.ego.v_setpoint)
     with pytest.raises(TypeError, match=r"action: dtype float32 is not an integer"):
         env.step_env(jax.random.key(1), state, jnp.float32(1.5), params)
-
-
-def test_registered_ids_and_overrides():
-    assert set(drqn_jax.registered_envs()) >= {
-        "UrbanPedestrians-v0",
-        "UrbanPedestriansRealistic-v0",
-        "UrbanPedestriansHeedless-v0",
-        "UrbanPedestriansMixed-v0",
-        "UrbanPedestriansYielding-v0",
-        "UrbanPedestriansOccluded-v0",
-        "UrbanPedestriansUnseenMap-v0",
-    }
-    unseen, unseen_params = drqn_jax.make("UrbanPedestriansUnseenMap-v0")
-    assert unseen.static.num_pedestrians == 15 and unseen.static.num_intersections == 4
-    assert float(unseen_params.intersection_spacing) == 40.0
-    assert float(drqn_jax.make("UrbanPedestriansOccluded-v0")[1].occlusion_prob) == 0.5
-    _, realistic = drqn_jax.make("UrbanPedestriansRealistic-v0")
-    assert float(realistic.ped_speed_min) == 0.5 and float(realistic.ped_speed_max) == 1.5
-    _, mixed = drqn_jax.make("UrbanPedestriansMixed-v0")
-    paper = drqn_jax.make()[1]
-    assert (
-        float(mixed.ped_speed_min) == float(paper.ped_speed_min)
-        and float(mixed.ped_speed_max) == 1.5
-    )
-    _, heedless = drqn_jax.make("UrbanPedestriansHeedless-v0")
-    assert int(heedless.ped_behaviour_to_car) == int(paper.ped_behaviour_to_car) == 0  # ignore
-    assert int(heedless.collision_model) == 0 and int(paper.collision_model) == 1  # contact
-    env, params = drqn_jax.make(num_pedestrians=4, v_ref=5.0, semantic_channel="map")
-    assert env.static.num_pedestrians == 4 and float(params.v_ref) == 5.0
-    obs, state = env.reset(jax.random.key(0), params)
-    assert state.pedestrians.position.shape == (4, 2)
-    assert float(obs.grid[..., 3].max()) == 1.0  # the dense map shows road cells
-    with pytest.raises(ValueError, match="unknown env id"):
-        drqn_jax.make("CartPole-v1")
-    with pytest.raises(ValueError, match="'pedestrian_count'"):
-        drqn_jax.make(pedestrian_count=3)
-
-
-@pytest.mark.parametrize(
-    ("kwargs", "field"),
-    [
-        ({"ped_speed_min": -0.1}, "ped_speed_min"),
-        ({"v_ref": -1.0}, "v_ref"),
-        ({"v_ref": float("nan")}, "v_ref"),
-        ({"prob_crossing": 0.5}, "prob_crossing"),
-        ({"prob_sidewalk": 1.5}, "prob_sidewalk"),
-        ({"ped_speed_min": 2.0, "ped_speed_max": 1.0}, "ped_speed_min"),
-        ({"setpoint_mode": "magic"}, "setpoint_mode"),
-        ({"semantic_channel": 7}, "semantic_channel"),
-        ({"dt": 0.0}, "dt"),
-        ({"gap_acceptance": 0.5}, "gap_acceptance"),
-        ({"ped_behaviour_to_car": "wave"}, "ped_behaviour_to_car"),
-        ({"collision_model": 2}, "collision_model"),
-        ({"ped_wait_max_s": -1.0}, "ped_wait_max_s"),
-        ({"intersection_spacing": 5.0}, r"intersection_spacing = 5: must be >= .* \(13\)"),
-        ({"ttc_threshold": 4.0}, "ttc_threshold"),
-    ],
-)
-def test_invalid_params_name_the_field(kwargs, field):
-    with pytest.raises(ValueError, match=field):
-        drqn_jax.make(**kwargs)
-
-
-@pytest.mark.parametrize(
-    ("kwargs", "field"),
-    [
-        ({"num_pedestrians": 0}, "num_pedestrians"),
-        ({"num_intersections": -1}, "num_intersections"),
-        ({"grid_rows": 2.5}, "grid_rows"),
-        ({"max_steps": 0}, "max_steps"),
-        ({"ttc_step": 0.0}, "ttc_step"),
-    ],
-)
-def test_invalid_static_params_name_the_field(kwargs, field):
-    with pytest.raises(ValueError, match=field):
-        StaticEnvParams(**kwargs)
-
-
-def test_params_are_float32_pytrees_and_sweepable():
-    params = EnvParams()
-    leaves = jax.tree.leaves(params)
-    assert all(np.asarray(x).dtype in (np.float32, np.int32) for x in leaves)
-    # tree operations build params from tracers/ints without re-validating
-    axes = jax.tree.map(lambda _: None, params)
-    assert isinstance(axes, EnvParams)
-    batched = jax.tree.map(lambda x: jnp.stack([x, x]), params)
-    assert batched.v_ref.shape == (2,)
 
 
 def test_vmap_over_params(env_params):

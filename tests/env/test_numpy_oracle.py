@@ -38,7 +38,7 @@ import pytest
 import drqn_jax
 from drqn_jax.env.state import ACCELERATE
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 import numpy_env as npe
 
 RTOL = ATOL = 1e-5

@@ -1,12 +1,18 @@
-"""Spawning and paths of pedestrians (SPEC §3)."""
+"""Pedestrians (drqn_jax/env/pedestrians.py; SPEC §3): spawning, paths, walking,
+replacement and occlusion, and how they meet the car in hand-built scenes
+(``tests/scenes.py``): yielding ones stop short of it and walk on after their
+wait, heedless ones strike the stopped car."""
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from drqn_jax.env.collision import box_disc_overlap, ego_box
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.pedestrians import (
     RESPAWN_GATHER_SHARE,
@@ -16,7 +22,14 @@ from drqn_jax.env.pedestrians import (
     spawn_pedestrians,
 )
 from drqn_jax.env.road_map import CROSSING_AREA, ROAD, WALKWAY, semantic_class
-from drqn_jax.env.state import CROSSING, JAYWALKING, NUM_WAYPOINTS, SIDEWALK
+from drqn_jax.env.state import BRAKE, CROSSING, JAYWALKING, NUM_WAYPOINTS, SIDEWALK
+from tests import scenes
+from tests.scenes import LANE_Y, box_distance, make_ego, make_peds, make_state
+
+
+@pytest.fixture(scope="module")
+def run_scene(env):
+    return functools.partial(scenes.run_scene, env)
 
 
 @pytest.fixture(scope="module")
@@ -256,3 +269,108 @@ def test_batched_respawn_equals_drawing_in_every_env(env_params, num_needing):
         env_e = jax.tree.map(lambda x, e=e: x[e], (keys, old, replace, lo, hi))
         single = _respawn_one(*env_e, params, env.static)
         assert_equal(single, jax.tree.map(lambda x, e=e: x[e], expected))
+
+
+# --- pedestrians and the car (hand-built scenes) -----------------------------------
+
+
+def test_pedestrians_stop_before_stopped_car(env, params, static, run_scene):
+    """``ped_behaviour_to_car = "yield"`` (with a wait longer than the scene)."""
+    params = params.replace(ped_behaviour_to_car="yield", ped_wait_max_s=100.0)
+    s = 20.0
+    walkers = [
+        # (start, target, speed m/s)
+        ((20.0, -4.75), (20.0, 3.0), 1.4),  # from the right sidewalk straight across
+        ((20.5, 1.5), (20.5, -6.0), 1.4),  # from the left lane down across the car
+        ((27.0, LANE_Y), (5.0, LANE_Y), 1.4),  # head-on along the lane centre
+        ((24.0, 1.0), (16.0, -5.0), 1.0),  # diagonally through the car
+        ((14.0, LANE_Y), (30.0, LANE_Y), 1.2),  # from behind into the rear
+        ((15.0, -5.0), (25.0, 2.0), 1.5),  # towards the rear right corner
+        ((22.0, -4.0), (22.0, 2.0), 0.3),  # at the paper's walking speed
+    ]
+    starts = [w[0] for w in walkers]
+    state = make_state(
+        make_ego(params, static, s=s, v=0.0),
+        make_peds(
+            static,
+            starts,
+            targets=[w[1] for w in walkers],
+            speeds=[w[2] for w in walkers],
+            park_x=s + 10.0,
+        ),
+    )
+    _, out = run_scene(state, params, action=BRAKE)
+
+    assert np.all(out["v"] == 0.0) and np.all(out["s"] == np.float32(s))
+    assert not np.any(out["collision"])
+    assert not np.any(out["terminated"])
+    n = len(walkers)
+    pos = out["ped_position"][:, :n]  # (T, n, 2)
+    # Never inside the box inflated by the clearance (discs only touch it at most).
+    dist = box_distance(pos[..., 0], pos[..., 1], s, params, inflate=params.ped_clearance)
+    assert np.all(dist >= params.ped_radius - 1e-5), dist.min()
+    # The package's own overlap test agrees at every step.
+    centre, half = ego_box(jnp.float32(s), params, inflate=params.ped_clearance)
+    overlap = box_disc_overlap(centre, half, jnp.asarray(pos), params.ped_radius)
+    assert not np.any(np.asarray(overlap))
+    # Each walker really walked up to the car: it stands within one step of the
+    # inflated footprint, is not done, and never moved again.
+    end = pos[-1]
+    end_dist = box_distance(end[:, 0], end[:, 1], s, params, inflate=params.ped_clearance)
+    step = np.array([w[2] for w in walkers]) * params.dt
+    assert np.all(end_dist - params.ped_radius < step + 1e-5), (end_dist, step)
+    moved = np.linalg.norm(end - np.asarray(starts, np.float32), axis=-1)
+    assert np.all(moved > 0.5)
+    assert np.all(out["waypoint_index"][-1, :n] == 0)
+    np.testing.assert_array_equal(pos[-20:], np.broadcast_to(end, (20, n, 2)))
+
+
+def _walker_across_stopped_car(params, static):
+    """The car stands at s = 20 (box x in [17.75, 22.25], y in [-2.65, -0.85]); a
+    walker at the paper's speed, 0.3 m/s (0.03 m a step), starts at (22, -4) and
+    crosses towards the left sidewalk: its disc (radius 0.3 m) meets the box once
+    it has walked 1.05 m, at step 35; its centre enters the ego's lane (y = -3.5)
+    after 0.5 m, at step 17."""
+    s = 20.0
+    return make_state(
+        make_ego(params, static, s=s, v=0.0),
+        make_peds(static, [(22.0, -4.0)], targets=[(22.0, 2.0)], speeds=[0.3], park_x=s + 10.0),
+    )
+
+
+@pytest.mark.parametrize(("model", "steps"), [("contact", (34, 35, 36)), ("authors", (17, 18))])
+def test_ignoring_pedestrian_strikes_stopped_car(params, static, run_scene, model, steps):
+    """``ped_behaviour_to_car = "ignore"`` (the paper's world): the walker walks on
+    into the stopped car. It is *struck while stopped* (SPEC §5): not the ego's
+    collision, no penalty, and the episode goes on."""
+    params = params.replace(ped_behaviour_to_car="ignore", collision_model=model)
+    _, out = run_scene(_walker_across_stopped_car(params, static), params, action=BRAKE)
+
+    assert np.all(out["v"] == 0.0)  # the car never moved: the walker did
+    assert not np.any(out["collision"]) and not np.any(out["terminated"])
+    first = int(np.argmax(out["struck_while_stopped"]))
+    assert out["struck_while_stopped"][first] and first + 1 in steps, first
+    assert np.all(out["reward"] == np.float32(params.reward_stopped))  # never r_c
+    if model == "contact":
+        walked = 4.0 + out["ped_position"][first, 0, 1]
+        assert 1.05 - 1e-4 <= walked < 1.05 + 0.03 + 1e-4, walked
+    # it walks on through the car and out of the lane: the strike ends
+    assert out["ped_position"][-1, 0, 1] > 0.0 and not out["struck_while_stopped"][-1]
+
+
+def test_yielding_pedestrian_walks_on_after_its_wait(params, static, run_scene):
+    """``"yield"`` waits at most ``ped_wait_max_s`` (5 s: CARLA's), then walks on:
+    never a standoff (SPEC §3). It stops one step short of the inflated box, stands
+    50 steps, then walks into the stopped car: struck while stopped."""
+    params = params.replace(ped_behaviour_to_car="yield", collision_model="contact")
+    _, out = run_scene(_walker_across_stopped_car(params, static), params, action=BRAKE)
+
+    y = out["ped_position"][:, 0, 1]
+    standing = np.flatnonzero(np.diff(y) == 0.0) + 1
+    assert standing.size > 0
+    waited = standing[-1] - standing[0] + 1
+    assert waited == round(float(params.ped_wait_max_s) / float(params.dt)), waited
+    assert np.all(np.diff(standing) == 1)  # one wait, then on
+    assert y[-1] > y[standing[-1]]
+    assert np.any(out["struck_while_stopped"]) and not np.any(out["collision"])
+    assert not np.any(out["terminated"])

@@ -1,0 +1,359 @@
+"""Check that an environment keeps the gymnax 1.0 contract (ours, or a user's).
+
+Like Jumanji's ``check_env_does_not_smoke``: :func:`check_env_contract` runs a
+short random rollout of a few envs, ``jit``-compiled and ``vmap``-ped, and
+raises :class:`EnvContractError` (an ``AssertionError``) naming the first
+broken rule:
+
+* ``reset(key, params) -> (obs, state)`` and ``step(key, state, action,
+  params) -> (obs, state, reward, terminated, truncated, info)``: a step's
+  ``obs`` and ``state`` have the structure, shapes and dtypes of the reset's;
+  ``reward`` is a floating () array, ``terminated`` and ``truncated`` bool ()
+  arrays, ``info`` a dict;
+* every observation (after reset and after every step) is inside
+  ``env.observation_space(params)`` (its ``contains``), and is finite where
+  it is a float; every reward is finite;
+* same-step auto-reset: where a step ends the episode (``terminated |
+  truncated``), the returned ``(obs, state)`` are exactly ``env.reset(
+  reset_key(step_key), params)``'s; while it goes on, ``info
+  ["final_observation"]`` (if the env reports one) is the returned ``obs``;
+* the same keys give bit-identical rollouts;
+* ``jit`` ≡ no ``jit``: the first ``eager_steps`` steps run op by op (``vmap``
+  alone, a Python loop) equal the compiled rollout (bitwise unless ``rtol`` /
+  ``atol`` allow more).
+
+Actions are drawn from ``env.action_space(params).sample``. The auto-reset
+check only bites where an episode ends within ``num_steps``: the returned
+:class:`ContractReport` counts them (for ``drqn_jax`` envs, make one with a
+small ``max_steps``, e.g. ``drqn_jax.make(env_id, max_steps=16)``).
+
+    >>> import drqn_jax
+    >>> from drqn_jax.testing import check_env_contract
+    >>> env, params = drqn_jax.make("UrbanPedestrians-v0", max_steps=16)
+    >>> report = check_env_contract(env, params)
+    >>> report.resets > 0
+    True
+
+The compiled rollout is cached on ``(env, reset_key)`` and the shapes, with
+``params`` an argument: envs that differ only in their parameters share it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["ContractReport", "EnvContractError", "check_env_contract", "same_key"]
+
+
+class EnvContractError(AssertionError):
+    """An environment broke the contract :func:`check_env_contract` checks."""
+
+
+class ContractReport(NamedTuple):
+    """What :func:`check_env_contract` ran and saw (all counts over the whole rollout).
+
+    Attributes:
+        num_envs, num_steps: the rollout's size.
+        terminations, truncations: steps with ``terminated``, ``truncated``.
+        resets: steps that ended an episode, where the auto-reset was checked.
+        reward_min, reward_max: the rewards' range.
+    """
+
+    num_envs: int
+    num_steps: int
+    terminations: int
+    truncations: int
+    resets: int
+    reward_min: float
+    reward_max: float
+
+
+def same_key(key: jax.Array) -> jax.Array:
+    """The key a ``drqn_jax`` env's auto-reset uses: the step's own key."""
+    return key
+
+
+def _fail(message: str) -> None:
+    raise EnvContractError(message)
+
+
+def _is_key(x: Any) -> bool:
+    return hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+def _plain(tree: Any) -> Any:
+    """Typed PRNG keys as their uint32 data, so every leaf compares as numbers."""
+    return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
+
+
+def _tree_equal_traced(a: Any, b: Any) -> jax.Array:
+    """() bool: every leaf of ``a`` equals ``b``'s, NaN equal to NaN (inside ``jit``)."""
+
+    def leaf(x, y):
+        x, y = jnp.asarray(x), jnp.asarray(y)
+        same = x == y
+        if jnp.issubdtype(x.dtype, jnp.inexact):
+            same = same | (jnp.isnan(x) & jnp.isnan(y))
+        return jnp.all(same)
+
+    leaves = jax.tree.leaves(jax.tree.map(leaf, _plain(a), _plain(b)))
+    return jnp.all(jnp.stack(leaves)) if leaves else jnp.asarray(True)
+
+
+def _all_finite(tree: Any) -> jax.Array:
+    """() bool: every floating leaf of ``tree`` is finite."""
+    checks = [
+        jnp.all(jnp.isfinite(x))
+        for x in jax.tree.leaves(_plain(tree))
+        if jnp.issubdtype(jnp.asarray(x).dtype, jnp.inexact)
+    ]
+    return jnp.all(jnp.stack(checks)) if checks else jnp.asarray(True)
+
+
+def _describe(tree: Any) -> list[tuple[str, tuple[int, ...], str]]:
+    return [
+        (jax.tree_util.keystr(path), tuple(x.shape), str(x.dtype))
+        for path, x in jax.tree_util.tree_leaves_with_path(tree)
+    ]
+
+
+def _check_same_types(what: str, got: Any, want: Any) -> None:
+    if jax.tree.structure(got) != jax.tree.structure(want):
+        _fail(
+            f"{what}: the step's tree structure {jax.tree.structure(got)} is not the "
+            f"reset's {jax.tree.structure(want)}"
+        )
+    for (path, g_shape, g_dtype), (_, w_shape, w_dtype) in zip(
+        _describe(got), _describe(want), strict=True
+    ):
+        if (g_shape, g_dtype) != (w_shape, w_dtype):
+            _fail(
+                f"{what}{path}: the step returns {g_dtype}{list(g_shape)}, the reset "
+                f"{w_dtype}{list(w_shape)}"
+            )
+
+
+def _check_signatures(env: Any, params: Any, key: jax.Array) -> None:
+    """Return types and shapes of one env's reset and step, abstractly (nothing runs)."""
+    reset_out = jax.eval_shape(env.reset, key, params)
+    if not (isinstance(reset_out, tuple) and len(reset_out) == 2):
+        _fail(f"reset must return (obs, state); got {type(reset_out).__name__} {reset_out}")
+    obs, state = reset_out
+    action = jax.eval_shape(env.action_space(params).sample, key)
+    step_out = jax.eval_shape(env.step, key, state, action, params)
+    if not (isinstance(step_out, tuple) and len(step_out) == 6):
+        length = len(step_out) if isinstance(step_out, tuple) else type(step_out).__name__
+        _fail(
+            "step must return (obs, state, reward, terminated, truncated, info) "
+            f"(gymnax 1.0); got {length}"
+        )
+    obs2, state2, reward, terminated, truncated, info = step_out
+    _check_same_types("obs", obs2, obs)
+    _check_same_types("state", state2, state)
+    if reward.shape != () or not jnp.issubdtype(reward.dtype, jnp.floating):
+        _fail(f"reward must be a floating () array; got {reward.dtype}{list(reward.shape)}")
+    for name, flag in (("terminated", terminated), ("truncated", truncated)):
+        if flag.shape != () or flag.dtype != jnp.bool_:
+            _fail(f"{name} must be a bool () array; got {flag.dtype}{list(flag.shape)}")
+    if not isinstance(info, dict):
+        _fail(f"info must be a dict; got {type(info).__name__}")
+
+
+_STEP_FIELDS = ("obs", "state", "reward", "terminated", "truncated")
+
+
+def _rollout(
+    env: Any,
+    reset_key: Callable[[jax.Array], jax.Array],
+    params: Any,
+    reset_keys: jax.Array,
+    action_keys: jax.Array,
+    step_keys: jax.Array,
+) -> dict[str, dict[str, Any]]:
+    """Reset ``len(reset_keys)`` envs and step them ``len(step_keys)`` times (vmapped).
+
+    Returns ``{"reset": {obs, state, in_space}, "steps": {obs, state, reward,
+    terminated, truncated, in_space, finite, reset_ok, final_ok}}``, the steps'
+    leaves (T, N, …).
+    """
+    space = env.observation_space(params)
+    obs0, state0 = jax.vmap(env.reset, (0, None))(reset_keys, params)
+    first = {"obs": obs0, "state": state0, "in_space": jax.vmap(space.contains)(obs0)}
+
+    def one_step(key, state, action_key):
+        action = env.action_space(params).sample(action_key)
+        obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+        done = terminated | truncated
+        reset_ok = _tree_equal_traced((obs, state), env.reset(reset_key(key), params))
+        final_ok = (
+            _tree_equal_traced(info["final_observation"], obs)
+            if "final_observation" in info
+            else jnp.asarray(True)
+        )
+        out = dict(zip(_STEP_FIELDS, (obs, state, reward, terminated, truncated), strict=True))
+        out.update(
+            in_space=space.contains(obs),
+            finite=_all_finite(obs),
+            reset_ok=~done | reset_ok,
+            final_ok=done | final_ok,
+        )
+        return state, out
+
+    def body(state, keys):
+        k_step, k_action = keys
+        return jax.vmap(one_step)(k_step, state, k_action)
+
+    _, steps = jax.lax.scan(body, state0, (step_keys, action_keys))
+    return {"reset": first, "steps": steps}
+
+
+_jit_rollout = jax.jit(_rollout, static_argnums=(0, 1))
+
+
+def _eager_rollout(env, params, reset_keys, action_keys, step_keys, num_steps):
+    """The first ``num_steps`` steps of :func:`_rollout`, op by op (no ``jit``)."""
+    obs, state = jax.vmap(env.reset, (0, None))(reset_keys, params)
+    first = {"obs": obs, "state": state}
+    sample = jax.vmap(env.action_space(params).sample)
+    step = jax.vmap(env.step, (0, 0, 0, None))
+    steps = []
+    for t in range(num_steps):
+        out = step(step_keys[t], state, sample(action_keys[t]), params)
+        steps.append(dict(zip(_STEP_FIELDS, out[:5], strict=True)))
+        state = out[1]
+    return first, steps
+
+
+def _host(tree: Any) -> list[tuple[str, np.ndarray]]:
+    return [
+        (jax.tree_util.keystr(path), np.asarray(x))
+        for path, x in jax.tree_util.tree_leaves_with_path(_plain(tree))
+    ]
+
+
+def _first_difference(a: Any, b: Any, rtol: float = 0.0, atol: float = 0.0) -> str | None:
+    """Where two pytrees first differ (None: equal; bitwise unless a tolerance is given)."""
+    if jax.tree.structure(a) != jax.tree.structure(b):
+        return f"tree structure {jax.tree.structure(a)} vs {jax.tree.structure(b)}"
+    for (path, x), (_, y) in zip(_host(a), _host(b), strict=True):
+        if x.shape != y.shape or x.dtype != y.dtype:
+            return f"{path}: {x.dtype}{list(x.shape)} vs {y.dtype}{list(y.shape)}"
+        if np.issubdtype(x.dtype, np.inexact) and (rtol or atol):
+            same = np.allclose(x, y, rtol=rtol, atol=atol, equal_nan=True)
+        else:
+            same = np.array_equal(x, y, equal_nan=np.issubdtype(x.dtype, np.inexact))
+        if not same:
+            return f"{path}: values differ"
+    return None
+
+
+def check_env_contract(
+    env: Any,
+    params: Any = None,
+    *,
+    key: jax.Array | None = None,
+    num_envs: int = 4,
+    num_steps: int = 32,
+    eager_steps: int = 2,
+    reset_key: Callable[[jax.Array], jax.Array] = same_key,
+    rtol: float = 0.0,
+    atol: float = 0.0,
+) -> ContractReport:
+    """Check ``env`` against the gymnax 1.0 contract (module docstring) on a random rollout.
+
+    Args:
+        env: an environment with ``reset``, ``step``, ``action_space(params)`` and
+            ``observation_space(params)`` (spaces with ``sample`` and ``contains``).
+            It is a static ``jit`` argument, so it must be hashable.
+        params: its parameters (default ``env.default_params``).
+        key: the rollout's key (default ``jax.random.key(0)``).
+        num_envs, num_steps: the vmapped batch and the scan's length.
+        eager_steps: how many of the steps also run without ``jit`` (op by op, slow).
+        reset_key: ``step_key -> key`` the auto-reset of ``step`` draws the new
+            episode from: the step's key for ``drqn_jax`` envs (:func:`same_key`);
+            ``lambda k: jax.random.split(k)[1]`` for gymnax's ``Environment``.
+        rtol, atol: tolerance of jit ≡ no-jit for float leaves (default: bitwise).
+    Returns:
+        a :class:`ContractReport`.
+    Raises:
+        EnvContractError: the first rule broken, with what was seen.
+    """
+    if num_envs < 1 or num_steps < 1 or not 0 <= eager_steps <= num_steps:
+        raise ValueError(
+            f"need num_envs >= 1, num_steps >= 1 and 0 <= eager_steps <= num_steps; got "
+            f"{num_envs}, {num_steps}, {eager_steps}"
+        )
+    params = env.default_params if params is None else params
+    key = jax.random.key(0) if key is None else key
+    k_reset, k_action, k_step = jax.random.split(key, 3)
+    reset_keys = jax.random.split(k_reset, num_envs)
+    action_keys = jax.random.split(k_action, (num_steps, num_envs))
+    step_keys = jax.random.split(k_step, (num_steps, num_envs))
+
+    _check_signatures(env, params, reset_keys[0])
+
+    args = (params, reset_keys, action_keys, step_keys)
+    rollout = jax.device_get(_jit_rollout(env, reset_key, *args))
+    first, steps = rollout["reset"], rollout["steps"]
+    reward, terminated, truncated = steps["reward"], steps["terminated"], steps["truncated"]
+
+    batch = (num_steps, num_envs)
+    for name, x in (("reward", reward), ("terminated", terminated), ("truncated", truncated)):
+        if x.shape != batch:
+            _fail(f"{name} of {num_envs} envs over {num_steps} steps: shape {x.shape}")
+    if not np.all(first["in_space"]):
+        outside = np.flatnonzero(~first["in_space"])
+        _fail(f"reset: the observation of env(s) {outside} is outside the space")
+
+    def where(mask: np.ndarray) -> str:
+        t, n = np.argwhere(mask)[0]
+        return f"at step {t} of env {n} ({int(mask.sum())} of {mask.size} steps)"
+
+    if not np.all(steps["in_space"]):
+        _fail(f"step: observation outside observation_space(params) {where(~steps['in_space'])}")
+    if not np.all(steps["finite"]):
+        _fail(f"step: observation not finite {where(~steps['finite'])}")
+    if not np.all(np.isfinite(reward)):
+        _fail(f"step: reward not finite {where(~np.isfinite(reward))}")
+    if not np.all(steps["reset_ok"]):
+        _fail(
+            "step: the episode ended but the returned (obs, state) are not "
+            f"reset(reset_key(key), params)'s {where(~steps['reset_ok'])}"
+        )
+    if not np.all(steps["final_ok"]):
+        _fail(
+            "step: the episode goes on but info['final_observation'] is not the "
+            f"returned observation {where(~steps['final_ok'])}"
+        )
+
+    diff = _first_difference(rollout, jax.device_get(_jit_rollout(env, reset_key, *args)))
+    if diff is not None:
+        _fail(f"the same keys gave a different rollout: {diff}")
+
+    if eager_steps:
+        eager_first, eager = _eager_rollout(env, *args, eager_steps)
+        compiled_first = {"obs": first["obs"], "state": first["state"]}
+        diff = _first_difference(eager_first, compiled_first, rtol, atol)
+        if diff is not None:
+            _fail(f"jit differs from no jit after reset: {diff}")
+        for t, out in enumerate(eager):
+            compiled = {name: jax.tree.map(lambda x, t=t: x[t], steps[name]) for name in out}
+            diff = _first_difference(out, compiled, rtol, atol)
+            if diff is not None:
+                _fail(f"jit differs from no jit at step {t}: {diff}")
+
+    done = terminated | truncated
+    return ContractReport(
+        num_envs=num_envs,
+        num_steps=num_steps,
+        terminations=int(terminated.sum()),
+        truncations=int(truncated.sum()),
+        resets=int(done.sum()),
+        reward_min=float(reward.min()),
+        reward_max=float(reward.max()),
+    )

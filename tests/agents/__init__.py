@@ -1,0 +1,1 @@
+"""Tests of drqn_jax/agents/: test_<module>.py per module."""

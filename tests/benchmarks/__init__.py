@@ -1,0 +1,1 @@
+"""Tests of benchmarks/: test_<benchmark>.py per benchmark, at --quick sizes."""

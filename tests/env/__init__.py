@@ -1,0 +1,1 @@
+"""Tests of drqn_jax/env/: test_<module>.py per module, and cross-cutting env checks."""
