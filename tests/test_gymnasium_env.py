@@ -9,6 +9,7 @@ third-party client written only against the Gymnasium API.
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import warnings
@@ -469,24 +470,41 @@ def test_third_party_linear_q_learning_client():
     assert np.all(np.isfinite(weights)) and np.any(weights != 0.0)
 
 
+_SB3_CLIENT = """
+import json, warnings
+import gymnasium, drqn_jax
+from stable_baselines3 import DQN, PPO
+from stable_baselines3.common.env_checker import check_env
+
+env = gymnasium.make("drqn_jax/UrbanPedestrians-v0", max_steps=100)
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    check_env(env.unwrapped)
+dqn = DQN("MultiInputPolicy", env, learning_starts=100, buffer_size=1000, seed=0)
+dqn.learn(300)
+ppo = PPO("MultiInputPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0)
+ppo.learn(128)
+print(json.dumps({
+    "warnings": [str(w.message) for w in caught],
+    "dqn_steps": dqn.num_timesteps, "dqn_updates": dqn._n_updates,
+    "ppo_steps": ppo.num_timesteps,
+}))
+"""
+
+
 def test_stable_baselines3_trains_on_the_registered_id_without_wrappers():
     """SB3's DQN and PPO with ``MultiInputPolicy`` take the env as ``gymnasium.make``
-    returns it (issue 42: ``Discrete(5, start=-1)`` crashed SB3's one-hot encoding)."""
-    from stable_baselines3 import DQN, PPO
-    from stable_baselines3.common.env_checker import check_env
-
-    env = gymnasium.make(ID, max_steps=100)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        check_env(env.unwrapped)
+    returns it (issue 42: ``Discrete(5, start=-1)`` crashed SB3's one-hot encoding).
+    In a child process: torch and this worker's JAX programs stay apart."""
+    out = subprocess.run(
+        [sys.executable, "-c", _SB3_CLIENT], capture_output=True, text=True, timeout=600
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    result = json.loads(out.stdout.strip().splitlines()[-1])
     # SB3 still calls the float grid "an image"; nothing may concern last_action.
-    assert not [w for w in caught if "last_action" in str(w.message)]
-    dqn = DQN("MultiInputPolicy", env, learning_starts=100, buffer_size=1000, seed=0)
-    dqn.learn(300)
-    assert dqn.num_timesteps == 300 and dqn._n_updates > 0
-    ppo = PPO("MultiInputPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0)
-    ppo.learn(128)
-    assert ppo.num_timesteps == 128
+    assert not [w for w in result["warnings"] if "last_action" in w], result["warnings"]
+    assert result["dqn_steps"] == 300 and result["dqn_updates"] > 0
+    assert result["ppo_steps"] == 128
 
 
 @pytest.mark.parametrize("restarting", [(), (1, 4, 10), tuple(range(12))])
