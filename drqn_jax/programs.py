@@ -20,9 +20,10 @@ from typing import Any, TypeVar
 
 __all__ = ["MAX_PROGRAMS", "cached", "cached_program", "clear_programs", "program_counts"]
 
-#: Entries kept before the least recently used is dropped (each may hold compiled
-#: executables of several MB; a test session or a sweep builds a few dozen).
-MAX_PROGRAMS = 128
+#: Entries kept before the least recently used is dropped. Each may hold compiled
+#: executables of several MB, and each live XLA:CPU executable maps memory (Linux
+#: stops a process at ``vm.max_map_count`` maps); a sweep builds a few per shape.
+MAX_PROGRAMS = 64
 
 F = TypeVar("F", bound=Callable[..., Any])
 
