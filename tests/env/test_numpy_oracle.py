@@ -27,8 +27,6 @@ Tolerances:
 from __future__ import annotations
 
 import dataclasses
-import sys
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
@@ -36,10 +34,8 @@ import numpy as np
 import pytest
 
 import drqn_jax
+from benchmarks import numpy_env as npe
 from drqn_jax.env.state import ACCELERATE
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-import numpy_env as npe
 
 RTOL = ATOL = 1e-5
 # Values that are discrete (flags, codes, counters, TTC sample times): compared exactly.
