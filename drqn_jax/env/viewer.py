@@ -189,14 +189,28 @@ _ACTION_CODES = np.array(
     np.int32,
 )
 _STEP_DIGITS, _SPEED_DIGITS, _TTC_DIGITS = 5, 3, 3  # integer digits (larger values clip)
-_LINE_PIECES = (
-    ("step ", _STEP_DIGITS, "  ", _SPEED_DIGITS + 2, " km/h"),
-    (_ACTION_WIDTH, "  TTC ", _TTC_DIGITS + 2, " s"),
+#: Glyphs per field of the HUD: the step, the speed and the TTC with their decimal
+#: point and tenths digit, the TTC with its unit " s".
+_FIELD_WIDTH = {
+    "step": _STEP_DIGITS,
+    "speed": _SPEED_DIGITS + 2,
+    "action": _ACTION_WIDTH,
+    "ttc": _TTC_DIGITS + 4,
+}
+#: The HUD, once: per line, literal text and field names (in braces).
+_HUD_LAYOUT = (
+    ("step ", "{step}", "  ", "{speed}", " km/h"),
+    ("{action}", "  TTC ", "{ttc}"),
 )
+assert len(_HUD_LAYOUT) == HUD_LINES
+
+
+def _piece_width(piece: str) -> int:
+    return _FIELD_WIDTH[piece[1:-1]] if piece.startswith("{") else len(piece)
+
+
 #: Glyphs per HUD line (static): the longest line with every field at its widest.
-HUD_LINE_LENGTH = max(
-    sum(len(p) if isinstance(p, str) else p for p in line) for line in _LINE_PIECES
-)
+HUD_LINE_LENGTH = max(sum(map(_piece_width, line)) for line in _HUD_LAYOUT)
 
 
 # --- formatting: traced values -> glyph indices -------------------------------------
@@ -236,36 +250,36 @@ def _line(pieces: list[tuple[jax.Array | np.ndarray, jax.Array | int]]) -> tuple
     return _compact(codes, jnp.concatenate([colours, jnp.zeros(pad, jnp.int32)]))
 
 
+def _hud_fields(
+    state: EnvState, params: EnvParams, static: StaticEnvParams
+) -> dict[str, tuple[jax.Array, jax.Array | int]]:
+    """Each field of :data:`_HUD_LAYOUT`: (its _FIELD_WIDTH glyphs, its colour index)."""
+    ttc = time_to_collision(state.ego, state.pedestrians, params, static)  # SPEC §5
+    no_ttc = np.pad(_codes("-"), (0, _FIELD_WIDTH["ttc"] - 1), constant_values=_GAP)
+    with_unit = jnp.concatenate([_one_decimal(ttc, _TTC_DIGITS), _codes(" s")])
+    action = jnp.clip(state.last_action + 1, 0, NUM_ACTIONS)  # 0: none yet
+    return {
+        "step": (_digits(state.time, _STEP_DIGITS), 0),
+        "speed": (_one_decimal(state.ego.v * 3.6, _SPEED_DIGITS), 0),
+        "action": (jnp.asarray(_ACTION_CODES)[action], action),
+        "ttc": (jnp.where(jnp.isfinite(ttc), with_unit, no_ttc), 0),
+    }
+
+
 def _hud_layout(
     state: EnvState, params: EnvParams, static: StaticEnvParams
 ) -> tuple[jax.Array, jax.Array]:
-    """The HUD's glyphs and colour indices, (HUD_LINES, HUD_LINE_LENGTH) int32 each.
+    """The HUD's glyphs and colour indices, (HUD_LINES, HUD_LINE_LENGTH) int32 each:
+    :data:`_HUD_LAYOUT` filled with :func:`_hud_fields`.
 
     Colour index 0 is HUD_TEXT_COLOUR, a + 1 is ACTION_COLOURS[a] (the action name).
     """
-    ttc = time_to_collision(state.ego, state.pedestrians, params, static)  # SPEC §5
-    finite = jnp.isfinite(ttc)
-    action = jnp.clip(state.last_action + 1, 0, NUM_ACTIONS)  # 0: none yet
-    no_ttc = jnp.asarray(np.pad(_codes("-"), (0, _TTC_DIGITS + 1), constant_values=_GAP))
-    unit = _codes(" s")
-    first = _line(
-        [
-            (_codes("step "), 0),
-            (_digits(state.time, _STEP_DIGITS), 0),
-            (_codes("  "), 0),
-            (_one_decimal(state.ego.v * 3.6, _SPEED_DIGITS), 0),
-            (_codes(" km/h"), 0),
-        ]
-    )
-    second = _line(
-        [
-            (jnp.asarray(_ACTION_CODES)[action], action),
-            (_codes("  TTC "), 0),
-            (jnp.where(finite, _one_decimal(ttc, _TTC_DIGITS), no_ttc), 0),
-            (jnp.where(finite, unit, _GAP), 0),
-        ]
-    )
-    return jnp.stack([first[0], second[0]]), jnp.stack([first[1], second[1]])
+    fields = _hud_fields(state, params, static)
+    lines = [
+        _line([fields[p[1:-1]] if p.startswith("{") else (_codes(p), 0) for p in line])
+        for line in _HUD_LAYOUT
+    ]
+    return jnp.stack([g for g, _ in lines]), jnp.stack([c for _, c in lines])
 
 
 def hud_glyphs(state: EnvState, params: EnvParams, static: StaticEnvParams) -> jax.Array:
