@@ -789,7 +789,12 @@ def cmd_study(args: argparse.Namespace) -> int:
         from drqn_jax.machine import machine_info
         from drqn_jax.report import load_results, write_results
 
-        about = {"command": args.command_line, "wall_time_s": wall, "machine": machine_info()}
+        about = {
+            "command": args.command_line,
+            "wall_time_s": wall,
+            "continued": outcome.continued,
+            "machine": machine_info(),
+        }
         section = args.section or out.name
         earlier = load_results(args.results)["sections"].get(section)
         if args.report_only and earlier:  # the runs' provenance stays the command that made them

@@ -115,9 +115,12 @@ def render_section(record: Mapping[str, Any], section: str) -> str:
     lines = [study_table(rows), ""]
     lines += [f"* {c}" for c in about.get("comparisons", [])]
     machine = about.get("machine", {})
+    wall = f"wall time {about['wall_time_s'] / 60:.0f} min"
+    if about.get("continued"):
+        wall += " for its last invocation, which went on from runs that earlier ones had begun"
     lines += [
         "",
-        f"Command (wall time {about['wall_time_s'] / 60:.0f} min on {machine.get('usable_cores')} "
+        f"Command ({wall} on {machine.get('usable_cores')} "
         f"cores of {machine.get('cpu_model')}, JAX {machine.get('jax_version')}, "
         f"commit {machine.get('git_commit')}):",
         "",

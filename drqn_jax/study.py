@@ -435,13 +435,16 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
 class StudyOutcome:
     """``finished`` (``rows``: the table; ``runs``: config → its runs' results;
     ``comparisons``: each trained row against its world's rule-based agent) or
-    ``interrupted`` (checkpoints saved; the same command continues)."""
+    ``interrupted`` (checkpoints saved; the same command continues). ``continued``:
+    some runs were trained, wholly or in part, by an earlier invocation (or not at
+    all here: a report only), so this one's wall time does not cover them."""
 
     status: str
     rows: list[dict[str, Any]] = dataclasses.field(default_factory=list)
     runs: dict[str, list[dict[str, Any]]] = dataclasses.field(default_factory=dict)
     table: str = ""
     comparisons: list[str] = dataclasses.field(default_factory=list)
+    continued: bool = False
 
 
 def rule_based_results(
@@ -607,6 +610,7 @@ def run_study(
 
     out = Path(out)
     runs: dict[str, list[dict[str, Any]]] = {}
+    continued = not train
     for arm in arms:
         directory = out / arm.name
         if not train:
@@ -617,6 +621,7 @@ def run_study(
         if outcome.status == "interrupted":
             return StudyOutcome("interrupted")
         runs[arm.name] = outcome.results
+        continued = continued or outcome.continued > 0
     done = [arm for arm in arms if runs[arm.name]]
     cross_configs = {a.name: {e: a.cross_config(e) for e in a.cross_envs} for a in done}
     cross = {
@@ -660,4 +665,4 @@ def run_study(
         record_study_curves(out / "curves.rrd", curves)
         if png:
             plot_curves(curves, out / "curves.png", smooth)
-    return StudyOutcome("finished", rows, runs, table, comparisons)
+    return StudyOutcome("finished", rows, runs, table, comparisons, continued)

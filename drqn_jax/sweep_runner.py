@@ -578,11 +578,13 @@ def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
 @dataclasses.dataclass
 class SweepOutcome:
     """``finished`` (``results``: every run, in point order, on process 0; this
-    process's runs elsewhere) or ``interrupted``."""
+    process's runs elsewhere) or ``interrupted``. ``continued``: this process's calls
+    that an earlier invocation had begun (a checkpoint) or finished (their results)."""
 
     status: str
     results: list[dict[str, Any]]
     calls: list[Call]
+    continued: int = 0
 
 
 def _plan_record(sweep: Sweep, dist: Distributed) -> dict[str, Any]:
@@ -670,10 +672,11 @@ def run_sweep(
     desc = f"sweep (process {dist.process})" if dist.processes > 1 else "sweep"
     with stop.installed(), progress_bar(total, 0, quiet or not dist.leader) as bar:
         bar.set_description(desc)
-        done_before = 0
+        done_before = continued = 0
         for call in calls:
             directory = out / "calls" / call.name
             saved = directory / "runs.json"
+            continued += resume and (saved.is_file() or (directory / CHECKPOINT_NPZ).is_file())
             if resume and saved.is_file():
                 results += json.loads(saved.read_text())
                 done_before += call.episodes
@@ -692,7 +695,7 @@ def run_sweep(
                 on_chunk=None if bar.disable else progress,  # no host copy unless shown
             )
             if outcome.status == "interrupted":
-                return SweepOutcome("interrupted", results, list(calls))
+                return SweepOutcome("interrupted", results, list(calls), continued)
             params = real_agent_params(call, outcome)
             call_result = call_results(call, outcome, eval_key, params)
             directory.mkdir(parents=True, exist_ok=True)
@@ -706,7 +709,8 @@ def run_sweep(
             done_before += call.episodes
     if dist.processes > 1:
         results = _gather(results, dist)
-    return SweepOutcome("finished", sorted(results, key=lambda r: r["index"]), list(calls))
+    results = sorted(results, key=lambda r: r["index"])
+    return SweepOutcome("finished", results, list(calls), continued)
 
 
 def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, Any]]:

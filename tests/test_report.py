@@ -67,7 +67,11 @@ def test_blocks_regenerate_from_the_file_and_drift_is_caught(tmp_path):
     text = update_document(doc.read_text(), record)
     assert text.startswith("intro\n<!-- results:t -->\n| source |") and text.endswith("end\n")
     assert "| ours | drqn | none (reward alone) | 1 × 1000 | 50.0 (47.0–53.0) |" in text
-    assert "drqn-jax study --configs x" in text and "wall time 10 min" in text
+    assert "drqn-jax study --configs x" in text and "wall time 10 min on" in text
+    went_on = {**record, "sections": {"t": {**record["sections"]["t"], "continued": True}}}
+    assert "wall time 10 min for its last invocation, which went on from runs that earlier" in (
+        update_document(text, went_on)
+    )
     doc.write_text(text)
     assert stale_documents([doc], record) == []
     doc.write_text(text.replace("50.0 (47.0", "51.0 (47.0"))  # a retyped number

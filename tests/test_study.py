@@ -134,6 +134,20 @@ def test_a_report_only_run_keeps_the_provenance_of_the_runs(study):
     assert "--report-only" in after["report_command"]
 
 
+def test_a_study_that_goes_on_from_earlier_runs_says_so_beside_its_wall_time(study):
+    """The wall time of a study continued from checkpoints or finished runs covers
+    only its last invocation: the stored section says so (``continued``)."""
+    assert (
+        json.loads((study.parent / "results.json").read_text())["sections"]["table"]["continued"]
+        is False
+    )
+    path = study.parent / "again.json"
+    argv = ["study", *STUDY, "--out", str(study), "--no-png", "--results", str(path)]
+    assert cli.main([*argv, "--section", "again"]) == 0  # every run already finished
+    about = json.loads(path.read_text())["sections"]["again"]
+    assert about["continued"] is True
+
+
 def test_curves_are_running_means_against_env_steps_over_the_episodes_all_seeds_recorded(
     tmp_path,
 ):
