@@ -115,14 +115,16 @@ def render_section(record: Mapping[str, Any], section: str) -> str:
     lines = [study_table(rows), ""]
     lines += [f"* {c}" for c in about.get("comparisons", [])]
     machine = about.get("machine", {})
-    wall = f"wall time {about['wall_time_s'] / 60:.0f} min"
-    if about.get("continued"):
-        wall += " for its last invocation, which went on from runs that earlier ones had begun"
+    went_on = (
+        "; earlier invocations trained its runs, the wall time is the last one's"
+        if about.get("continued")
+        else ""
+    )
     lines += [
         "",
-        f"Command ({wall} on {machine.get('usable_cores')} "
+        f"Command (wall time {about['wall_time_s'] / 60:.0f} min on {machine.get('usable_cores')} "
         f"cores of {machine.get('cpu_model')}, JAX {machine.get('jax_version')}, "
-        f"commit {machine.get('git_commit')}):",
+        f"commit {machine.get('git_commit')}{went_on}):",
         "",
         "```bash",
         about["command"],

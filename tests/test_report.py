@@ -69,7 +69,7 @@ def test_blocks_regenerate_from_the_file_and_drift_is_caught(tmp_path):
     assert "| ours | drqn | none (reward alone) | 1 × 1000 | 50.0 (47.0–53.0) |" in text
     assert "drqn-jax study --configs x" in text and "wall time 10 min on" in text
     went_on = {**record, "sections": {"t": {**record["sections"]["t"], "continued": True}}}
-    assert "wall time 10 min for its last invocation, which went on from runs that earlier" in (
+    assert "earlier invocations trained its runs, the wall time is the last one's):" in (
         update_document(text, went_on)
     )
     doc.write_text(text)
