@@ -205,8 +205,14 @@ _HUD_LAYOUT = (
 assert len(_HUD_LAYOUT) == HUD_LINES
 
 
+def _field(piece: str) -> str | None:
+    """The field a :data:`_HUD_LAYOUT` piece names (``{name}``); None for literal text."""
+    return piece[1:-1] if piece.startswith("{") else None
+
+
 def _piece_width(piece: str) -> int:
-    return _FIELD_WIDTH[piece[1:-1]] if piece.startswith("{") else len(piece)
+    name = _field(piece)
+    return len(piece) if name is None else _FIELD_WIDTH[name]
 
 
 #: Glyphs per HUD line (static): the longest line with every field at its widest.
@@ -276,7 +282,7 @@ def _hud_layout(
     """
     fields = _hud_fields(state, params, static)
     lines = [
-        _line([fields[p[1:-1]] if p.startswith("{") else (_codes(p), 0) for p in line])
+        _line([(_codes(p), 0) if _field(p) is None else fields[_field(p)] for p in line])
         for line in _HUD_LAYOUT
     ]
     return jnp.stack([g for g, _ in lines]), jnp.stack([c for _, c in lines])
