@@ -1,6 +1,6 @@
 """Run configurations: TOML files in ``configs/``, ``--set`` overrides, validation.
 
-A configuration has six sections; every field has a default, so a file
+A configuration has seven sections; every field has a default, so a file
 names only what it changes:
 
 * ``[run]``: ``seed`` (training key ``split(key(seed))[0]``, evaluation key
@@ -14,6 +14,8 @@ names only what it changes:
 * ``[train]``: the ``TrainConfig`` sizes (envs, episodes, replay, batch,
   window, update ratio, chunk) and every ``Hyperparams`` field (Table II);
 * ``[rule_based]``: the baseline's ``RuleBasedParams`` (SPEC §6);
+* ``[planner]``: the privileged planner's ``PlannerParams`` (SPEC §9), its cap at
+  most the speed limit ``env.v_ref``;
 * ``[evaluate]``: ``episodes`` per agent (SPEC §8) and ``batch_size``.
 
 :func:`load_config` reads a file (or a name in ``configs/``), applies
@@ -39,6 +41,7 @@ from typing import Any
 
 import jax
 
+from drqn_jax.agents.planner import PlannerParams
 from drqn_jax.agents.rule_based import RuleBasedParams
 from drqn_jax.env.params import KMH, EnvParams, StaticEnvParams
 from drqn_jax.env.urban import UrbanPedestrians
@@ -203,6 +206,7 @@ def _schema() -> dict[str, dict[str, _Field]]:
         "network": network,
         "train": {**{n: train_sizes[n] for n in TRAIN_SIZES}, **_fields_of(Hyperparams)},
         "rule_based": _fields_of(RuleBasedParams),
+        "planner": _fields_of(PlannerParams),
         "evaluate": {
             "episodes": _Field(1000, "int", doc="episodes per agent"),
             "batch_size": _Field(0, "int", doc="episodes per jitted batch; 0 = all at once"),
@@ -220,6 +224,7 @@ _OWNER = {
     "TrainConfig": "train",
     "Hyperparams": "train",
     "RuleBasedParams": "rule_based",
+    "PlannerParams": "planner",
 }
 
 
@@ -484,6 +489,9 @@ class Config:
     def rule_based_params(self) -> RuleBasedParams:
         return RuleBasedParams(**self["rule_based"])
 
+    def planner_params(self) -> PlannerParams:
+        return PlannerParams(**self["planner"])
+
     def keys(self) -> tuple[jax.Array, jax.Array]:
         """(training key, evaluation key): the two halves of ``split(key(seed))``."""
         train_key, eval_key = jax.random.split(jax.random.key(self["run"]["seed"]))
@@ -508,8 +516,14 @@ class Config:
             env, _ = self.make_env()
             self.train_config()
             self.rule_based_params()
+            self.planner_params()
         except ValueError as err:
             raise ConfigError(_in_config_words(str(err))) from None
+        cap, limit = self["planner"]["v_cap"], self["env"]["v_ref"]
+        if cap > limit:
+            raise ConfigError(
+                f"planner.v_cap = {cap}: must be <= env.v_ref = {limit} (m/s; the speed limit)"
+            )
         if train["algorithm"] == "ppo":  # no replay: its sizes are unused
             return
         max_steps = env.static.max_steps

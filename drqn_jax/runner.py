@@ -354,16 +354,19 @@ def load_trained_network(
 
 
 def builtin_agent(name: str, config: Config) -> Agent:
-    """``rule-based``, ``random`` or ``accelerate`` (the constant agent)."""
-    from drqn_jax.agents import constant_agent, random_agent
+    """``rule-based``, ``planner`` (privileged: it sees the true state and plays the
+    simulator, SPEC §9), ``random`` or ``accelerate`` (the constant agent)."""
+    from drqn_jax.agents import constant_agent, planner_agent, random_agent
 
     if name == "rule-based":
         return rule_based_agent(config.rule_based_params())
+    if name == "planner":
+        return planner_agent(config.planner_params())
     if name == "random":
         return random_agent()
     if name == "accelerate":
         return constant_agent("accelerate")
-    raise ValueError(f"unknown agent {name!r}: rule-based, random or accelerate")
+    raise ValueError(f"unknown agent {name!r}: rule-based, planner, random or accelerate")
 
 
 def evaluate_agents(

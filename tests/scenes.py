@@ -153,3 +153,28 @@ def first_index(mask) -> int:
     hits = np.flatnonzero(np.asarray(mask))
     assert hits.size > 0, "condition never reached"
     return int(hits[0])
+
+
+@partial(jax.jit, static_argnums=0)
+def _scan_agent(env, state, key, agent, params):
+    """``SCAN_STEPS`` steps of ``env.step_env`` from ``state``, ``agent`` acting."""
+
+    def body(loop, k):
+        st, carry = loop
+        key_act, key_env = jax.random.split(k)
+        action, carry = agent.act(key_act, env.observation(st, params), carry, st, env, params)
+        _, nxt, _, _, _, info = env.step_env(key_env, st, action, params)
+        out = {"action": action, "v": nxt.ego.v, "s": nxt.ego.s, "collision": info["collision"]}
+        return (nxt, carry), out
+
+    init = (state, agent.init_carry(key))
+    (final, _), out = jax.lax.scan(body, init, jax.random.split(key, SCAN_STEPS))
+    return final, out
+
+
+def run_agent_scene(env, state, params, agent, *, seed=0):
+    """``SCAN_STEPS`` steps of ``env.step_env`` from ``state`` with ``agent`` (any
+    :class:`~drqn_jax.agents.Agent`) acting: the final state and the per-step record
+    (NumPy leaves: action, v, s, collision)."""
+    final, out = _scan_agent(env, state, jax.random.key(seed), agent, params)
+    return final, jax.tree.map(np.asarray, out)
