@@ -35,6 +35,7 @@ __all__ = [
     "rollout_episode",
     "run_episodes",
     "summarize",
+    "summarize_outcomes",
     "wilson_interval",
 ]
 
@@ -263,30 +264,17 @@ def _nearest_quantile(values: np.ndarray, q: float) -> float:
     return float(np.quantile(values, q, method="nearest")) if values.size else math.nan
 
 
-def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str, Any]:
-    """The §8 metrics from per-episode results (host-side, float64).
-
-    Returns a dict of Python numbers: ``num_episodes``; ``collision_free_rate``
-    and its 95 % Wilson interval ``collision_free_ci`` (low, high);
-    ``goal_rate``; ``struck_while_stopped_rate`` (episodes where a pedestrian met
-    the collision test while the ego stood); ``avg_speed_kmh`` (mean over
-    episodes of distance/time); ``avg_speed_authors_kmh`` (the authors' average
-    speed, SPEC §8: the mean speed over every step faster than 0.5 km/h of all
-    the episodes pooled, as carla-gym ``tester.py`` accumulates it);
-    ``avg_distance_m`` (all) and ``avg_distance_collision_free_m``;
-    ``collisions_per_km``; ``avg_return``; ``avg_length``; min-TTC statistics:
-    ``min_ttc_p05_s``, ``min_ttc_median_s`` (inf when most episodes never have a
-    finite TTC), ``min_ttc_mean_finite_s``, ``near_collision_episode_rate``
-    (min TTC <= threshold) and ``near_collision_step_share``.
-    """
+def summarize_outcomes(episodes: EpisodeMetrics) -> dict[str, Any]:
+    """The §8 metrics that need no time to collision (host-side, float64): what
+    :func:`summarize` returns but its ``min_ttc_*`` and ``near_collision_*`` keys, so a
+    sweep that drops the TTC from its program (:mod:`drqn_jax.frontier`) reads the
+    same numbers as an evaluation."""
     ep = jax.tree.map(np.asarray, episodes)
     n = int(ep.collision.shape[0])
     collided = ep.collision.astype(bool)
     free = ~collided
     distance = ep.distance.astype(np.float64)
     total_km = distance.sum() / 1000.0
-    min_ttc = ep.min_ttc.astype(np.float64)
-    finite = min_ttc[np.isfinite(min_ttc)]
     low, high = wilson_interval(int(free.sum()), n)
     length = ep.length.astype(np.float64)
     moving = ep.moving_steps.astype(np.float64)
@@ -306,6 +294,33 @@ def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str,
         "collisions_per_km": float(collided.sum() / total_km) if total_km > 0 else math.nan,
         "avg_return": float(ep.episode_return.astype(np.float64).mean()) if n else math.nan,
         "avg_length": float(length.mean()) if n else math.nan,
+    }
+
+
+def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str, Any]:
+    """The §8 metrics from per-episode results (host-side, float64).
+
+    Returns a dict of Python numbers: ``num_episodes``; ``collision_free_rate``
+    and its 95 % Wilson interval ``collision_free_ci`` (low, high);
+    ``goal_rate``; ``struck_while_stopped_rate`` (episodes where a pedestrian met
+    the collision test while the ego stood); ``avg_speed_kmh`` (mean over
+    episodes of distance/time); ``avg_speed_authors_kmh`` (the authors' average
+    speed, SPEC §8: the mean speed over every step faster than 0.5 km/h of all
+    the episodes pooled, as carla-gym ``tester.py`` accumulates it);
+    ``avg_distance_m`` (all) and ``avg_distance_collision_free_m``;
+    ``collisions_per_km``; ``avg_return``; ``avg_length`` (those are
+    :func:`summarize_outcomes`); min-TTC statistics:
+    ``min_ttc_p05_s``, ``min_ttc_median_s`` (inf when most episodes never have a
+    finite TTC), ``min_ttc_mean_finite_s``, ``near_collision_episode_rate``
+    (min TTC <= threshold) and ``near_collision_step_share``.
+    """
+    ep = jax.tree.map(np.asarray, episodes)
+    n = int(ep.collision.shape[0])
+    min_ttc = ep.min_ttc.astype(np.float64)
+    finite = min_ttc[np.isfinite(min_ttc)]
+    length = ep.length.astype(np.float64)
+    return {
+        **summarize_outcomes(ep),
         "min_ttc_p05_s": _nearest_quantile(min_ttc, 0.05),
         "min_ttc_median_s": _nearest_quantile(min_ttc, 0.5),
         "min_ttc_mean_finite_s": float(finite.mean()) if finite.size else math.nan,
