@@ -1,5 +1,5 @@
 """The ``drqn-jax`` command line: ``train``, ``evaluate``, ``reproduce``, ``replay``,
-``sweep``, ``study``, ``bench``.
+``sweep``, ``study``, ``frontier``, ``report``, ``bench``.
 
 ``replay`` records greedy episodes of a trained run or a built-in agent as a
 rerun ``.rrd`` file (:mod:`drqn_jax.recording`); ``train --rrd`` and
@@ -30,6 +30,7 @@ from drqn_jax.agents import drqn_agent
 from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, config_names, load_config
 from drqn_jax.evaluation import metrics_table
+from drqn_jax.frontier import PLANNER_CAPS_KMH
 from drqn_jax.hyperparams import agent_name
 from drqn_jax.report import check_section
 from drqn_jax.runner import (
@@ -104,7 +105,9 @@ def _agent_options(parser: argparse.ArgumentParser, verb: str) -> None:
         "--agent",
         choices=_AGENTS,
         default=None,
-        help=f"agent to {verb}; drqn: the run's trained agent, whatever its learner "
+        help=f"agent to {verb}; drqn: the run's trained agent, whatever its learner; planner: "
+        "the privileged planner, which sees the true state and plays the simulator forward "
+        "(a ceiling, not a learner; [planner] of the config) "
         "(default: drqn with RUN_DIR, rule-based without)",
     )
 
@@ -123,7 +126,7 @@ def _rrd_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
-_AGENTS = ("drqn", "rule-based", "random", "accelerate")
+_AGENTS = ("drqn", "rule-based", "planner", "random", "accelerate")
 
 
 def _command(sub: Any, name: str, help_text: str, doc: str) -> argparse.ArgumentParser:
@@ -295,6 +298,45 @@ def _study_parser(sub: Any) -> None:
     study.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
+def _frontier_parser(sub: Any) -> None:
+    frontier = _command(
+        sub,
+        "frontier",
+        "the rule-based family's safety/speed frontier and the privileged planner's ceiling "
+        "(SPEC §9) on a config's evaluation episodes",
+        _FRONTIER_DOC,
+    )
+    _config_options(frontier, "default")
+    frontier.add_argument(
+        "--episodes", type=int, default=None, help="episodes (default: evaluate.episodes)"
+    )
+    frontier.add_argument("--seed", type=int, default=None, help="run.seed for the evaluation key")
+    frontier.add_argument(
+        "--wide",
+        action="store_true",
+        help="sweep the wide grid (drqn_jax.frontier.WIDE_GRID, the evidence behind the "
+        "default settings; about 25 min on 2 cores at 1000 episodes)",
+    )
+    frontier.add_argument(
+        "--caps",
+        default=",".join(f"{c:g}" for c in PLANNER_CAPS_KMH),
+        metavar="KMH,...",
+        help="the planner's speed caps (km/h, at most the speed limit)",
+    )
+    frontier.add_argument("--no-planner", action="store_true", help="the rule-based sweep only")
+    frontier.add_argument(
+        "--out", default=None, help="where to write frontier.json and frontier.png"
+    )
+    frontier.add_argument(
+        "--results",
+        metavar="PATH",
+        help="also store both frontiers as section --section of this results file",
+    )
+    frontier.add_argument("--section", default="frontier", help="the section of --results")
+    frontier.add_argument("--no-png", action="store_true", help="skip frontier.png")
+    frontier.add_argument("--quiet", action="store_true", help="no status messages")
+
+
 def _report_parser(sub: Any) -> None:
     report = _command(
         sub,
@@ -352,6 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
         _replay_parser,
         _sweep_parser,
         _study_parser,
+        _frontier_parser,
         _report_parser,
         _bench_parser,
     ):
@@ -395,6 +438,14 @@ and OUT/curves.rrd. Each run's trained agent is OUT/<config>/agents/run-NNNN; --
 evaluates them among other pedestrians too (one more row per env). Ctrl-C saves checkpoints
 (status 130); running the same command again continues the study, and with a larger
 --seeds adds the new seeds to it; --eval-envs on a finished study only evaluates."""
+_FRONTIER_DOC = """Sweep the rule-based agent over its parameters (v_max from 1 km/h to the
+speed limit, lookahead, horizon, corridor margin) on the config's evaluation episodes, as
+one compiled program, and keep its Pareto-efficient points (collision-free rate against
+average speed): the frontier every agent's margin is measured against. Then play the
+privileged planner (it sees the true state and plays the simulator forward: a ceiling,
+never a learner's competitor) at each speed cap. Prints both, with the wall time of each;
+writes OUT/frontier.json (every swept point) and OUT/frontier.png, and with --results the
+points as a section of the results file."""
 _BENCH_DOC = """Run the benchmark suite of benchmarks/ (a clone of the repository is
 needed): each benchmark prints a Markdown table with the machine it ran on, and
 --out DIR writes DIR/NAME.json and DIR/NAME.md. 'all' runs every benchmark with
@@ -477,9 +528,15 @@ def _train_and_evaluate(
     if not quiet:
         _say_evaluating(config, agents)
     results = evaluate_agents(config, agents, quiet=quiet)
+    if reproduce:
+        from drqn_jax.study import config_frontier
+
+        if not quiet:
+            print("sweeping the rule-based frontier on the same episodes...", file=sys.stderr)
+        table = paper_comparison(results, config_frontier(config, planner=False))
+    else:
+        table = metrics_table(results)
     wall = time.perf_counter() - start
-    world = config["env"]["id"]
-    table = paper_comparison(results, world) if reproduce else metrics_table(results)
     write_evaluation(run_dir, results, {**_run_summary(result), "total_wall_time_s": wall}, table)
     print(table)
     print(
@@ -576,17 +633,21 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def paper_comparison(results: list[dict[str, Any]], world: str) -> str:
+def paper_comparison(results: list[dict[str, Any]], frontier: dict[str, Any]) -> str:
     """The paper's Table III rows (with the interval its 10 episodes allow) beside ours
-    (one trained DRQN, then the rule-based agent), and the verdict on the paper's claim."""
-    from drqn_jax.report import claim_verdict
-    from drqn_jax.study import baseline_row, paper_rows, study_table
+    (one trained DRQN, then the rule-based agent), each with its margin to the rule-based
+    frontier of ``frontier`` (:func:`~drqn_jax.frontier.world_frontier`), and the verdict
+    on the paper's claim."""
+    from drqn_jax.frontier import with_margin
+    from drqn_jax.report import claim_verdict, study_table
+    from drqn_jax.study import baseline_row, paper_rows
 
-    ours = [baseline_row("drqn_jax", r, world=world) for r in results]
+    world = frontier["world"]
+    ours = [with_margin(baseline_row("drqn_jax", r, world=world), frontier) for r in results]
     return "\n\n".join(
         [
             study_table(paper_rows() + ours),
-            claim_verdict(*ours)
+            claim_verdict(ours[0])
             + " One training seed: its interval holds the episodes' variation, not the"
             " training's (docs/results.md has five seeds).",
         ]
@@ -759,10 +820,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     arms = plan_study(configs, args.seeds, args.episodes, args.overrides, eval_envs)
     out = Path(args.out or Path("runs") / f"study-{'-'.join(a.name for a in arms)}")
     if args.results:
-        try:
-            check_section(args.section or out.name)
-        except ValueError as err:
-            raise ConfigError(str(err)) from None
+        _check_section(args.section or out.name)
     for arm in arms:
         print(f"{arm.name}: {arm.sweep.describe()}", file=sys.stderr)
     if not args.no_png:
@@ -799,8 +857,14 @@ def cmd_study(args: argparse.Namespace) -> int:
         earlier = load_results(args.results)["sections"].get(section)
         if args.report_only and earlier:  # the runs' provenance stays the command that made them
             about = {**earlier, "report_command": args.command_line}
+        about["frontiers"] = outcome.frontiers
         write_results(args.results, section, outcome.rows, outcome.comparisons, about)
         print(f"rows stored as section {section!r} of {args.results}", file=sys.stderr)
+        if not args.no_png and (out / "safety_speed.png").is_file():
+            figure = Path(args.results).parent / "figures" / f"{section}-safety-speed.png"
+            figure.parent.mkdir(parents=True, exist_ok=True)
+            figure.write_bytes((out / "safety_speed.png").read_bytes())
+            print(f"safety/speed figure: {figure}", file=sys.stderr)
     print(outcome.table)
     print(f"\nwall time {wall:.1f} s; study in {out}")
     return EXIT_OK
@@ -830,6 +894,95 @@ def cmd_report(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_frontier(args: argparse.Namespace) -> int:
+    from drqn_jax.frontier import WIDE_GRID, grid_settings
+    from drqn_jax.study import config_frontier, frontier_rows, paper_rows
+
+    overrides = list(args.overrides)
+    if args.episodes is not None:
+        overrides.append(f"evaluate.episodes={args.episodes}")
+    if args.seed is not None:
+        overrides.append(f"run.seed={args.seed}")
+    config = load_config(args.config, overrides)
+    try:
+        caps = [float(c) for c in args.caps.split(",") if c.strip()]
+    except ValueError:
+        raise ConfigError(f"--caps {args.caps!r}: must be numbers (km/h), e.g. 5,10,15") from None
+    if not args.no_png:
+        from drqn_jax.figures import require_matplotlib
+
+        require_matplotlib()
+    if args.results:
+        _check_section(args.section)
+    settings = grid_settings(WIDE_GRID) if args.wide else None
+    if not args.quiet:
+        count = len(settings) if settings else "the default"
+        print(
+            f"sweeping {count} rule-based settings"
+            + ("" if args.no_planner else f" and the planner at {len(caps)} caps")
+            + f" on {config['evaluate']['episodes']} episodes of {config['env']['id']} "
+            f"(evaluation key of seed {config['run']['seed']})...",
+            file=sys.stderr,
+            flush=True,
+        )
+    start = time.perf_counter()
+    try:
+        record = config_frontier(
+            config, planner=not args.no_planner, settings=settings, caps_kmh=caps, keep_all=True
+        )
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+    wall = time.perf_counter() - start
+    rows = paper_rows() + frontier_rows(record)
+    out = Path(args.out or _default_run_dir("frontier", args.config))
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "frontier.json", json.dumps(record, indent=1) + "\n")
+    if not args.no_png:
+        from drqn_jax.figures import plot_safety_speed
+
+        plot_safety_speed(rows, record, out / "frontier.png")
+    times = _frontier_times(record)
+    if args.results:
+        from drqn_jax.machine import machine_info
+        from drqn_jax.report import write_results
+
+        about = {
+            "command": args.command_line,
+            "wall_time_s": wall,
+            **times,
+            "swept": record["rule_based"]["swept"],
+            "machine": machine_info(),
+            "frontiers": {"frontier": {k: v for k, v in record.items() if k != "swept_points"}},
+        }
+        write_results(args.results, args.section, rows, [], about)
+    from drqn_jax.report import study_table
+
+    print(study_table(rows))
+    print(
+        f"\n{record['rule_based']['swept']} rule-based settings and {len(caps)} planner caps "
+        f"on {record['episodes']} episodes of {record['world']}: "
+        + ", ".join(f"{k.removesuffix('_wall_time_s')} {v:.1f} s" for k, v in times.items())
+        + f"; {wall:.1f} s in all\nwritten to {out}"
+    )
+    return EXIT_OK
+
+
+def _frontier_times(record: dict[str, Any]) -> dict[str, float]:
+    """Each sweep's wall time (compile included), by name: ``rule_based_wall_time_s``…"""
+    return {
+        f"{k}_wall_time_s": record[k]["wall_time_s"]
+        for k in ("rule_based", "planner")
+        if k in record
+    }
+
+
+def _check_section(section: str) -> None:
+    try:
+        check_section(section)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+
+
 COMMANDS = {
     "train": cmd_train,
     "evaluate": cmd_evaluate,
@@ -837,6 +990,7 @@ COMMANDS = {
     "replay": cmd_replay,
     "sweep": cmd_sweep,
     "study": cmd_study,
+    "frontier": cmd_frontier,
     "report": cmd_report,
     "bench": cmd_bench,
 }

@@ -12,13 +12,17 @@ Each config is a sweep over ``run.seed`` (:mod:`drqn_jax.sweep`) in
 ``OUT/<config>/``: one program per config, run by :func:`~drqn_jax.sweep_runner.run_sweep`
 with its checkpoints, so an interrupted study continues where it stopped
 when the same command runs again. The rule-based agent is evaluated once per
-distinct ``[env]`` section on the same episodes. Then:
+distinct ``[env]`` section on the same episodes, and so is its family's
+frontier (SPEC §9, :mod:`drqn_jax.frontier`; the privileged planner's too, in
+the first config's world). Then:
 
 * ``OUT/study.md``: the paper's rows beside ours — collision-free % with a 95 %
   interval (across seeds: Student t; a single policy: Wilson over its
-  episodes), average speed, distance (all and collision-free), goal %,
-  collisions per km;
-* ``OUT/study.json``: the rows and every run's evaluation;
+  episodes), the margin to the rule-based frontier at the agent's own speed,
+  average speed, distance (all and collision-free), goal %, collisions per km;
+* ``OUT/study.json``: the rows, every run's evaluation and the frontiers;
+* ``OUT/safety_speed.png``: collision-free rate against average speed, the
+  frontiers and every agent (:func:`~drqn_jax.figures.plot_safety_speed`);
 * with ``--eval-envs``: every config's trained agents
   (``OUT/<config>/agents/run-NNNN``) evaluated among other envs' pedestrians
   too, on the same episodes, one row per env (``<config> on <env id>``) beside
@@ -35,6 +39,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -44,10 +49,20 @@ import numpy as np
 from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import wilson_interval
+from drqn_jax.figures import plot_safety_speed, require_matplotlib
+from drqn_jax.frontier import frontier_rate, frontier_vertices, with_margin, world_frontier
 from drqn_jax.hyperparams import NOT_LEARNED, REWARD_ALONE, agent_name, has_teacher, teachers_of
 from drqn_jax.recording import running_mean
 from drqn_jax.registry import registered_envs
-from drqn_jax.report import claim_verdict, strict_json
+from drqn_jax.report import (
+    PAPER_EPISODES,
+    PAPER_TABLE_III,
+    PAPER_WORLD,
+    claim_verdict,
+    frontier_comparison,
+    strict_json,
+    study_table,
+)
 from drqn_jax.stats import t_interval
 from drqn_jax.sweep import Sweep, build_sweep
 
@@ -57,29 +72,21 @@ __all__ = [
     "Curve",
     "StudyOutcome",
     "baseline_row",
-    "compare",
     "compare_paired",
+    "config_frontier",
     "cross_results",
     "finished_results",
+    "frontier_results",
+    "frontier_rows",
     "load_curves",
     "paper_rows",
     "plan_study",
     "plot_curves",
-    "require_matplotlib",
     "rule_based_results",
     "run_study",
     "study_row",
-    "study_table",
 ]
 
-#: The paper's Table III: agent, collision-free episodes of 10, avg speed (km/h), distance (m).
-PAPER_TABLE_III = (
-    ("rule-based", 4, 7.79, 82.6),
-    ("DRQN", 7, 6.09, 123.1),
-)
-PAPER_EPISODES = 10
-#: The world column of the paper's rows.
-PAPER_WORLD = "CARLA (paper)"
 
 #: The curves of the paper's "Training performance" figure: metrics.csv column, label.
 CURVES = (
@@ -190,7 +197,9 @@ def study_row(
     The collision-free interval is the 95 % Student-t interval of the mean
     across seeds (it holds the training's variation as well as the episodes'),
     cut to [0, 1]; with one run, the Wilson interval over its episodes. Collisions per km are
-    pooled: all collisions over all distance.
+    pooled: all collisions over all distance. ``per_seed`` keeps each run's seed,
+    collision-free rate and average speed (the frontier margin reads each seed at its
+    own speed, :func:`drqn_jax.frontier.frontier_margin`).
     """
     if not runs:
         raise ValueError(f"study_row {label!r}: no runs")
@@ -230,12 +239,42 @@ def study_row(
         ),
         "goal_rate": _mean(runs, "goal_rate"),
         "collisions_per_km": collisions / km if km > 0 else math.nan,
+        "per_seed": [
+            {
+                "seed": r.get("values", {}).get("run.seed"),
+                "collision_free_rate": r["collision_free_rate"],
+                "avg_speed_kmh": r["avg_speed_kmh"],
+            }
+            for r in runs
+        ],
     }
 
 
 def baseline_row(label: str, result: Mapping[str, Any], *, world: str) -> dict[str, Any]:
     """A row for a single policy evaluated once (the rule-based agent): Wilson interval."""
     return study_row(label, result["agent"], [result], world=world)
+
+
+def _setting_text(params: Mapping[str, float]) -> str:
+    names = {"v_max_kmh": "v_max", "v_cap_kmh": "cap", "corridor_margin": "margin"}
+    units = {"v_max_kmh": " km/h", "v_cap_kmh": " km/h", "lookahead": " m", "horizon": " s"}
+    return ", ".join(f"{names.get(k, k)} {v:g}{units.get(k, '')}" for k, v in params.items())
+
+
+def frontier_rows(record: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """A :func:`~drqn_jax.frontier.world_frontier` record as table rows, each with its
+    ``params`` and its margin: the rule-based frontier's points (margin 0 by
+    definition) and the privileged planner's, labelled as privileged."""
+    world = record["world"]
+    kinds = [("rule_based", "rule-based frontier", "rule-based")]
+    kinds += [("planner", "privileged planner (true state + simulator)", "planner")]
+    rows = []
+    for kind, label, agent in kinds:
+        for point in record.get(kind, {}).get("points", []):
+            result = {**point, "agent": agent, "teacher": NOT_LEARNED}
+            row = baseline_row(f"{label}: {_setting_text(point['params'])}", result, world=world)
+            rows.append({**with_margin(row, record), "params": point["params"]})
+    return rows
 
 
 def paper_rows() -> list[dict[str, Any]]:
@@ -266,50 +305,6 @@ def paper_rows() -> list[dict[str, Any]]:
             }
         )
     return rows
-
-
-def _cell(value: float, spec: str, scale: float = 1.0) -> str:
-    return "–" if value is None or not math.isfinite(value) else format(scale * value, spec)
-
-
-def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
-    """Markdown: one row per agent; ``± std`` is across seeds."""
-    header = (
-        "| source | agent | teacher | seeds × episodes | collision-free % (95 % interval) "
-        "| struck while stopped % | avg speed (km/h) | authors' speed (km/h) | distance (m) "
-        "| distance, collision-free (m) | goal % | collisions / km |"
-    )
-    lines = [
-        header,
-        "| --- | --- | --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
-    ]
-    for r in rows:
-        low, high = r["collision_free_ci"]
-        speed = _cell(r["avg_speed_kmh"], ".2f")
-        if math.isfinite(r["avg_speed_kmh_std"]):
-            speed += f" ± {r['avg_speed_kmh_std']:.2f}"
-        seeds = f"{r['seeds']} × {r['episodes']}"
-        if r["diverged"]:
-            seeds += f" ({r['diverged']} diverged)"
-        lines.append(
-            f"| {r['label']} | {r['agent']} | {r.get('learned', '–')} | {seeds} "
-            f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
-            f"| {_cell(r.get('struck_while_stopped_rate'), '.1f', 100.0)} "
-            f"| {speed} | {_cell(r.get('avg_speed_authors_kmh'), '.2f')} "
-            f"| {_cell(r['avg_distance_m'], '.1f')} "
-            f"| {_cell(r['avg_distance_collision_free_m'], '.1f')} "
-            f"| {_cell(r['goal_rate'], '.1f', 100.0)} | {_cell(r['collisions_per_km'], '.2f')} |"
-        )
-    lines += [
-        "",
-        "Collision-free interval: 95 % Student t of the mean across seeds for a trained "
-        "config (training and episodes vary; cut to 0–100 %); Wilson over the episodes "
-        "for one policy (the rule-based agent, the paper's 10-episode rows). ± is the "
-        "standard deviation across seeds. The authors' speed is the mean over the steps "
-        "faster than 0.5 km/h (carla-gym tester.py); a pedestrian striking the standing car "
-        "is not a collision (struck while stopped).",
-    ]
-    return "\n".join(lines)
 
 
 # ----------------------------------------------------------------------------- curves
@@ -385,21 +380,6 @@ def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Cu
     return curves
 
 
-def require_matplotlib() -> Any:
-    """``matplotlib.pyplot`` on the Agg backend; a ConfigError naming the extra if missing."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise ConfigError(
-            "the curves' PNG needs matplotlib: pip install 'drqn-jax[plots]' "
-            "(or run the study with --no-png; the .rrd recording needs no extra)"
-        ) from None
-    return plt
-
-
 def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smooth: int) -> None:
     """The paper's "Training performance" figure for every config: a PNG at ``path``.
 
@@ -434,10 +414,12 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
 @dataclasses.dataclass
 class StudyOutcome:
     """``finished`` (``rows``: the table; ``runs``: config → its runs' results;
-    ``comparisons``: each trained row against its world's rule-based agent) or
-    ``interrupted`` (checkpoints saved; the same command continues). ``continued``:
-    some runs were trained, wholly or in part, by an earlier invocation (or not at
-    all here: a report only), so this one's wall time does not cover them."""
+    ``comparisons``: each trained row against its world's rule-based frontier;
+    ``frontiers``: each world's :func:`~drqn_jax.frontier.world_frontier` record, by
+    :func:`env_key`) or ``interrupted`` (checkpoints saved; the same command
+    continues). ``continued``: some runs were trained, wholly or in part, by an
+    earlier invocation (or not at all here: a report only), so this one's wall time
+    does not cover them."""
 
     status: str
     rows: list[dict[str, Any]] = dataclasses.field(default_factory=list)
@@ -445,6 +427,7 @@ class StudyOutcome:
     table: str = ""
     comparisons: list[str] = dataclasses.field(default_factory=list)
     continued: bool = False
+    frontiers: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
 
 def rule_based_results(
@@ -517,47 +500,36 @@ def cross_results(
     ]
 
 
-def _verdict(low: float, high: float, b_low: float, b_high: float) -> str:
-    return "above" if low > b_high else "below" if high < b_low else "not distinguishable"
-
-
-def compare(row: Mapping[str, Any], baseline: Mapping[str, Any]) -> str:
-    """Whether ``row``'s collision-free interval lies above, below or overlaps ``baseline``'s,
-    and its average speed against the baseline's, as a sentence for the report."""
-    (low, high), (b_low, b_high) = row["collision_free_ci"], baseline["collision_free_ci"]
-    gap = row["avg_speed_kmh"] - baseline["avg_speed_kmh"]
-    return (
-        f"{row['label']} ({row['agent']}) against {baseline['label']} ({baseline['agent']}): "
-        f"collision-free interval {_verdict(low, high, b_low, b_high)} ({100 * low:.1f}–"
-        f"{100 * high:.1f} % against {100 * b_low:.1f}–{100 * b_high:.1f} %), average speed "
-        f"{abs(gap):.2f} km/h {'below' if gap < 0 else 'above'} it"
-    )
-
-
 def _by_seed(runs: Sequence[Mapping[str, Any]]) -> dict[Any, Mapping[str, Any]]:
     return {r["values"].get("run.seed"): r for r in runs}
 
 
 def compare_paired(
-    name: str, runs: Sequence[Mapping[str, Any]], other: str, others: Sequence[Mapping[str, Any]]
+    name: str,
+    runs: Sequence[Mapping[str, Any]],
+    other: str,
+    others: Sequence[Mapping[str, Any]],
+    vertices: Sequence[Sequence[float]],
 ) -> str | None:
-    """``name``'s collision-free rate against ``other``'s, paired over the seeds both
-    trained (seed i against seed i, on the same evaluation episodes): the mean
-    difference in percentage points with its 95 % Student-t interval; None with
-    fewer than 2 common seeds."""
+    """``name``'s margin to the rule-based frontier (``vertices``, SPEC §9) against
+    ``other``'s, paired over the seeds both trained (seed i against seed i, on the same
+    evaluation episodes, each at its own speed): the mean difference in percentage
+    points with its 95 % Student-t interval; None with fewer than 2 common seeds."""
     mine, theirs = _by_seed(runs), _by_seed(others)
     common = sorted(set(mine) & set(theirs))
     if len(common) < 2:
         return None
-    diff = np.array(
-        [mine[k]["collision_free_rate"] - theirs[k]["collision_free_rate"] for k in common]
-    )
+
+    def margin(run: Mapping[str, Any]) -> float:
+        return run["collision_free_rate"] - float(frontier_rate(vertices, run["avg_speed_kmh"]))
+
+    diff = np.array([margin(mine[k]) - margin(theirs[k]) for k in common])
     low, high = t_interval(diff)
-    low, high = max(low, -1.0), min(high, 1.0)  # a difference of two rates
+    side = "above" if low > 0 else "below" if high < 0 else "not distinguishable"
     return (
-        f"{name} − {other}, collision-free, paired over {len(common)} seeds: "
-        f"{100 * diff.mean():+.1f} points ({100 * low:+.1f} to {100 * high:+.1f}): "
-        f"{name} {_verdict(low, high, 0.0, 0.0)}"
+        f"{name} − {other}, margin to the rule-based frontier, paired over {len(common)} "
+        f"seeds: {100 * diff.mean():+.1f} points ({100 * low:+.1f} to {100 * high:+.1f}): "
+        f"{name} {side}"
     )
 
 
@@ -569,23 +541,71 @@ def finished_results(directory: Path) -> list[dict[str, Any]]:
     return [results[i] for i in sorted(results)]
 
 
+def frontier_results(
+    configs: Sequence[Config], out: Path, planner_keys: set[str], *, quiet: bool = True
+) -> dict[str, dict[str, Any]]:
+    """The rule-based frontier of each distinct environment of ``configs`` on the study's
+    episodes, and the planner's where its :func:`env_key` is in ``planner_keys``:
+    ``{env_key: world_frontier record}``, cached in ``OUT/baselines/``."""
+    found: dict[str, dict[str, Any]] = {}
+    for config in configs:
+        key = env_key(config)
+        if key in found:
+            continue
+        if not quiet:
+            print(f"the frontiers of {config['env']['id']}...", file=sys.stderr, flush=True)
+        planner = key in planner_keys
+        name = f"frontier-{key}{'-planner' if planner else ''}.json"
+        found[key] = _cached(
+            out / "baselines" / name,
+            lambda config=config, planner=planner: config_frontier(config, planner=planner),
+        )
+    return found
+
+
+def config_frontier(config: Config, *, planner: bool = True, **options: Any) -> dict[str, Any]:
+    """:func:`~drqn_jax.frontier.world_frontier` on ``config``'s world and evaluation
+    episodes (``evaluate.episodes`` of ``run.seed``'s evaluation key, as every agent of a
+    study plays), with its ``[planner]`` settings; ``options`` go on to it."""
+    env, params = config.make_env()
+    _, key = config.keys()
+    return world_frontier(
+        env,
+        params,
+        key,
+        config["evaluate"]["episodes"],
+        world=config["env"]["id"],
+        seed=config["run"]["seed"],
+        planner=config.planner_params() if planner else None,
+        batch_size=config["evaluate"]["batch_size"] or None,
+        **options,
+    )
+
+
 def _comparisons(
     trained: Sequence[tuple[dict[str, Any], Config]],
-    baselines: Mapping[str, dict[str, Any]],
     names: Sequence[str],
     runs: Mapping[str, Sequence[Mapping[str, Any]]],
+    frontiers: Mapping[str, Mapping[str, Any]],
 ) -> list[str]:
     """The sentences under a study's table: the verdict on the paper's claim (a
     teacher-free headline DRQN, the first arm), each trained row against its world's
-    rule-based agent, and the first arm against each other arm, seed by seed."""
-    comparisons = [compare(row, baselines[env_key(config)]) for row, config in trained]
+    rule-based frontier, and the first arm against each other arm of its world, seed
+    by seed."""
+    comparisons = [frontier_comparison(row) for row, _ in trained]
     if not names:
         return comparisons
     headline, config = trained[0]
     if headline["agent"] == "drqn" and not headline["teacher"]:
-        comparisons.insert(0, claim_verdict(headline, baselines[env_key(config)]))
+        comparisons.insert(0, claim_verdict(headline))
     first = names[0]
-    paired = [compare_paired(first, runs[first], name, runs[name]) for name in names[1:]]
+    vertices = frontier_vertices(frontiers[env_key(config)]["rule_based"]["points"])
+    own = {row["label"].removeprefix("drqn_jax: "): env_key(c) for row, c in trained}
+    paired = [
+        compare_paired(first, runs[first], name, runs[name], vertices)
+        for name in names[1:]
+        if own[name] == env_key(config)
+    ]
     return comparisons + [c for c in paired if c is not None]
 
 
@@ -632,23 +652,28 @@ def run_study(
         for arm in done
     }
     configs = [a.config for a in arms] + [c for cs in cross_configs.values() for c in cs.values()]
+    frontiers = frontier_results(
+        configs, out, {env_key(done[0].config)} if done else set(), quiet=quiet
+    )
     baselines = {
-        key: baseline_row(f"drqn_jax: {env}", r, world=env)
+        key: with_margin(baseline_row(f"drqn_jax: {env}", r, world=env), frontiers[key])
         for key, (env, r) in rule_based_results(configs, out).items()
     }
     trained: list[tuple[dict[str, Any], Config]] = []  # each row and the config it was evaluated on
     for arm in done:
         agent = agent_name(arm.config.train_config())
-        own = arm.config["env"]["id"]
-        row = study_row(f"drqn_jax: {arm.name}", agent, runs[arm.name], world=own)
-        trained.append((row, arm.config))
-        for env, results in cross[arm.name].items():
-            row = study_row(f"drqn_jax: {arm.name} on {env}", agent, results, world=env)
-            trained.append((row, cross_configs[arm.name][env]))
+        evaluated = [(arm.name, arm.config, runs[arm.name])]
+        evaluated += [
+            (f"{arm.name} on {env}", cross_configs[arm.name][env], results)
+            for env, results in cross[arm.name].items()
+        ]
+        for name, config, results in evaluated:
+            row = study_row(f"drqn_jax: {name}", agent, results, world=config["env"]["id"])
+            trained.append((with_margin(row, frontiers[env_key(config)]), config))
     # configs that differ only in what the rule-based agent ignores (the reward) share its row
     shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines.values()}
     rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]
-    comparisons = _comparisons(trained, baselines, [a.name for a in done], runs)
+    comparisons = _comparisons(trained, [a.name for a in done], runs, frontiers)
     curves = {
         arm.name: load_curves(
             [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth
@@ -658,11 +683,19 @@ def run_study(
     table = "\n\n".join([study_table(rows), "\n".join(f"* {c}" for c in comparisons)])
     atomic_write_text(out / "study.md", table + "\n")
     record = strict_json(
-        {"rows": rows, "comparisons": comparisons, "runs": runs, "cross": cross, "smooth": smooth}
+        {
+            "rows": rows,
+            "comparisons": comparisons,
+            "runs": runs,
+            "cross": cross,
+            "smooth": smooth,
+            "frontiers": frontiers,
+        }
     )
     atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
     if curves:
         record_study_curves(out / "curves.rrd", curves)
         if png:
             plot_curves(curves, out / "curves.png", smooth)
-    return StudyOutcome("finished", rows, runs, table, comparisons, continued)
+            plot_safety_speed(rows, frontiers[env_key(done[0].config)], out / "safety_speed.png")
+    return StudyOutcome("finished", rows, runs, table, comparisons, continued, frontiers)

@@ -9,11 +9,14 @@ from pathlib import Path
 import pytest
 
 from drqn_jax import cli
+from drqn_jax.frontier import with_margin
 from drqn_jax.report import (
     claim_verdict,
+    frontier_comparison,
     load_results,
     render_section,
     stale_documents,
+    study_table,
     update_document,
     write_results,
 )
@@ -93,15 +96,45 @@ def test_the_report_command_fills_and_checks(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
 
 
-def test_the_verdict_follows_the_intervals():
-    rule = baseline_row("rb", _run(0.2, speed=9.0), world="W")
-    above = claim_verdict(baseline_row("d", _run(0.8, speed=8.5), world="W"), rule)
-    assert "is supported:" in above and "0.50 km/h below" in above
-    standing = claim_verdict(baseline_row("d", _run(0.99, speed=0.5), world="W"), rule)
-    assert "not shown:" in standing and "more than 1 km/h slower" in standing
-    overlap = claim_verdict(baseline_row("d", _run(0.22), world="W"), rule)
+#: A hand-made (concave) frontier: 100 % standing, 90 % at 2 km/h, 50 % at 6, 0 % at 10.
+FRONTIER = {
+    "world": "W",
+    "rule_based": {
+        "points": [
+            {"avg_speed_kmh": v, "collision_free_rate": r}
+            for v, r in [(0.0, 1.0), (2.0, 0.9), (6.0, 0.5), (10.0, 0.0)]
+        ]
+    },
+}
+
+
+def _judged(free: float, speed: float) -> dict:
+    return with_margin(baseline_row("d", _run(free, speed=speed), world="W"), FRONTIER)
+
+
+def test_the_verdict_follows_the_margin_and_the_speed():
+    """Supported only above the frontier at its own speed *and* at least as fast as
+    the paper's DRQN (6.09 km/h); above it but slower is not shown; below is reversed."""
+    above = claim_verdict(_judged(0.8, 8.0))  # the frontier at 8 km/h: 25 %
+    assert "is supported:" in above and "+55.0 (+52.0 to +58.0) points at 8.00 km/h" in above
+    slow = claim_verdict(_judged(0.99, 1.0))  # the frontier: 95 %
+    assert "not shown:" in slow and "slower than the paper's DRQN (6.09 km/h)" in slow
+    overlap = claim_verdict(_judged(0.51, 6.0))
     assert "not shown:" in overlap and "not distinguishable" in overlap
-    assert "reversed:" in claim_verdict(rule, baseline_row("d", _run(0.8), world="W"))
+    assert "reversed:" in claim_verdict(_judged(0.2, 6.5))
+    assert "below the rule-based frontier at its own speed" in frontier_comparison(
+        _judged(0.2, 6.5)
+    )
+
+
+def test_the_table_shows_the_margin_beside_struck_while_stopped():
+    table = study_table([*paper_rows(), _judged(0.6, 6.0)])
+    header = table.splitlines()[0]
+    assert "| margin to the rule-based frontier, points (95 %) | struck while stopped % |" in (
+        header
+    )
+    assert "| 60.0 (57.0–63.0) | +10.0 (+7.0 to +13.0) |" in table
+    assert "| 70.0 (39.7–89.2) | – |" in table  # the paper's rows: another world
 
 
 def test_the_documents_quote_the_results_file():

@@ -10,6 +10,7 @@ import pytest
 
 from drqn_jax import cli
 from drqn_jax.config import ConfigError
+from drqn_jax.report import study_table
 from drqn_jax.stats import t_interval
 from drqn_jax.study import (
     CURVES,
@@ -19,7 +20,6 @@ from drqn_jax.study import (
     paper_rows,
     plan_study,
     study_row,
-    study_table,
 )
 from drqn_jax.sweep_runner import metrics_path
 from tests.helpers import SMOKE_SWEEP_SET
@@ -74,29 +74,18 @@ def test_a_single_policy_keeps_its_wilson_interval():
     assert row["collision_free_ci"] == pytest.approx((0.9, 1.0))
     assert row["interval"] == "Wilson over episodes" and math.isnan(row["avg_speed_kmh_std"])
     table = study_table([*paper_rows(), row])
-    paper = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | 40.0 (16.8–68.7) | – |"
+    paper = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | 40.0 (16.8–68.7) | – | – |"
     assert paper + " 7.79 | – |" in table
-    ours = "| drqn_jax: env | drqn | imitation | 1 × 100 | 95.0 (90.0–100.0) | 5.0 | 9.50 |"
+    ours = "| drqn_jax: env | drqn | imitation | 1 × 100 | 95.0 (90.0–100.0) | – | 5.0 | 9.50 |"
     assert ours + " 11.40 |" in table
     # a run evaluated before the struck-while-stopped rate and the authors' speed existed
     old = {k: v for k, v in _run(0.95).items() if k not in ("struck_while_stopped_rate",)}
-    assert "| 95.0 (90.0–100.0) | – | 9.50 | 11.40 |" in study_table(
+    assert "| 95.0 (90.0–100.0) | – | – | 9.50 | 11.40 |" in study_table(
         [baseline_row("old", old, world="W")]
     )
-
-
-def test_compare_says_where_the_interval_lies():
-    from drqn_jax.study import compare
-
-    rule_based, drqn = paper_rows()
-    assert "interval not distinguishable (39.7–89.2 % against 16.8–68.7 %)" in compare(
-        drqn, rule_based
-    )
-    safe = baseline_row(
-        "drqn_jax: env", {**_run(1.0), "collision_free_ci": [0.996, 1.0]}, world="W"
-    )
-    assert "interval below" in compare(rule_based, safe)
-    assert "interval above" in compare(safe, rule_based)
+    assert row["per_seed"] == [
+        {"seed": None, "collision_free_rate": 0.95, "avg_speed_kmh": pytest.approx(9.5)}
+    ]
 
 
 def _write_metrics(path, returns, lengths):
@@ -106,20 +95,34 @@ def _write_metrics(path, returns, lengths):
     path.write_text("\n".join(lines) + "\n")
 
 
-def test_paired_comparison_is_over_the_seeds_both_arms_trained():
-    def runs(rates):
-        return [{"values": {"run.seed": k}, "collision_free_rate": r} for k, r in rates.items()]
+def test_paired_comparison_is_of_margins_over_the_seeds_both_arms_trained():
+    """Seed i against seed i, each seed's margin at its own speed: a slower arm gets no
+    credit for being slower."""
+    flat = [(0.0, 0.5), (10.0, 0.5)]  # a frontier of 50 % at every speed
+
+    def runs(rates, speed=5.0):
+        return [
+            {"values": {"run.seed": k}, "collision_free_rate": r, "avg_speed_kmh": speed}
+            for k, r in rates.items()
+        ]
 
     a = runs({0: 0.9, 1: 0.8, 2: 0.85, 3: 0.5})
     b = runs({0: 0.5, 1: 0.45, 2: 0.5})  # seed 3 untrained: left out of the pairs
-    line = compare_paired("drqn", a, "dqn", b)
-    assert line.startswith("drqn − dqn, collision-free, paired over 3 seeds: +36.7 points")
+    line = compare_paired("drqn", a, "dqn", b, flat)
+    assert line.startswith(
+        "drqn − dqn, margin to the rule-based frontier, paired over 3 seeds: +36.7 points"
+    )
     assert line.endswith("drqn above")
     close = runs({0: 0.5, 1: 0.6, 2: 0.4})
-    assert compare_paired("drqn", close, "dqn", runs({0: 0.55, 1: 0.5, 2: 0.42})).endswith(
+    assert compare_paired("drqn", close, "dqn", runs({0: 0.55, 1: 0.5, 2: 0.42}), flat).endswith(
         "drqn not distinguishable"
     )
-    assert compare_paired("drqn", a[:1], "dqn", b) is None
+    assert compare_paired("drqn", a[:1], "dqn", b, flat) is None
+    # on a falling frontier (100 % standing, 0 % at 10 km/h) the same rates at a lower
+    # speed are a smaller margin: 0.9 - 0.9 at 1 km/h against 0.5 - 0.5 at 5 km/h
+    falling = [(0.0, 1.0), (10.0, 0.0)]
+    slow = runs({0: 0.9, 1: 0.9}, speed=1.0)
+    assert "+0.0 points" in compare_paired("a", slow, "b", runs({0: 0.5, 1: 0.5}), falling)
 
 
 def test_a_report_only_run_keeps_the_provenance_of_the_runs(study):
@@ -231,11 +234,37 @@ def test_the_study_writes_the_table_and_the_curves(study):
     assert baseline["num_episodes"] == EPISODES == record["rows"][3]["episodes"]
     table = (study / "study.md").read_text()
     assert f"| drqn_jax: smoke | drqn | none (reward alone) | 2 × {EPISODES} |" in table
-    assert "* drqn_jax: smoke (drqn) against drqn_jax: UrbanPedestrians-v0 (rule-based)" in table
+    assert "* drqn_jax: smoke (drqn) at " in table
     assert record["comparisons"] == [line[2:] for line in table.splitlines() if line[:2] == "* "]
-    assert record["comparisons"][0].startswith("The paper's claim (DRQN safer than")  # headline
+    assert record["comparisons"][0].startswith("The paper's claim (a DRQN safer than")  # headline
     assert (study / "curves.rrd").stat().st_size > 0
-    assert (study / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for png in ("curves.png", "safety_speed.png"):
+        assert (study / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (study.parent / "figures" / "table-safety-speed.png").is_file()  # beside --results
+
+
+def test_every_row_of_our_world_has_its_margin_to_the_frontier(study):
+    """SPEC §9: each trained row's margin is the mean over seeds of each seed's rate minus
+    the rule-based frontier at that seed's speed (the frontier the study swept on the same
+    episodes, with the planner's beside it); the paper's rows (CARLA) have none."""
+    from drqn_jax.frontier import frontier_rate, frontier_vertices
+
+    record = json.loads((study / "study.json").read_text())
+    (frontier,) = record["frontiers"].values()
+    assert frontier["episodes"] == EPISODES and frontier["world"] == "UrbanPedestrians-v0"
+    assert len(frontier["planner"]["points"]) >= 3
+    vertices = frontier_vertices(frontier["rule_based"]["points"])
+    paper_a, paper_b, drqn, rule = record["rows"]
+    assert paper_a.get("frontier_margin") is None and paper_b.get("frontier_margin") is None
+    runs = record["runs"]["smoke"]
+    margins = [r["collision_free_rate"] - frontier_rate(vertices, r["avg_speed_kmh"]) for r in runs]
+    assert drqn["frontier_margin"] == pytest.approx(np.mean(margins))
+    assert drqn["frontier_margin_ci"] == pytest.approx(t_interval(np.array(margins)), nan_ok=True)
+    at = frontier_rate(vertices, rule["avg_speed_kmh"])
+    assert rule["frontier_margin"] == pytest.approx(rule["collision_free_rate"] - at)
+    assert rule["frontier_margin"] <= 1e-12  # the default setting is one of those swept
+    stored = json.loads((study.parent / "results.json").read_text())["sections"]["table"]
+    assert stored["frontiers"] == record["frontiers"]
 
 
 def test_a_ppo_arm_is_named_by_its_learner(tmp_path):
@@ -331,9 +360,9 @@ def test_eval_envs_evaluate_the_trained_agents_among_other_pedestrians(
         ("drqn_jax: UrbanPedestrians-v0", "rule-based"),
         (f"drqn_jax: {realistic}", "rule-based"),
     ]
-    assert record["comparisons"][2].startswith(
-        f"drqn_jax: smoke on {realistic} (drqn) against drqn_jax: {realistic} (rule-based)"
-    )
+    assert record["comparisons"][2].startswith(f"drqn_jax: smoke on {realistic} (drqn) at ")
+    assert len(record["frontiers"]) == 2  # each world's own frontier
+    assert all(r["frontier_margin"] is not None for r in record["rows"][2:])
     cross = record["cross"]["smoke"][realistic]
     assert [r["index"] for r in cross] == [0, 1]
     evaluation = tmp_path / "run1.json"
