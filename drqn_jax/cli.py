@@ -29,6 +29,7 @@ from drqn_jax import __version__
 from drqn_jax.agents import drqn_agent
 from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, config_names, load_config
+from drqn_jax.env.params import KMH
 from drqn_jax.evaluation import metrics_table
 from drqn_jax.frontier import PLANNER_CAPS_KMH
 from drqn_jax.hyperparams import agent_name
@@ -324,6 +325,14 @@ def _frontier_parser(sub: Any) -> None:
         help="the planner's speed caps (km/h, at most the speed limit)",
     )
     frontier.add_argument("--no-planner", action="store_true", help="the rule-based sweep only")
+    frontier.add_argument(
+        "--check",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also evaluate N random rule-based settings (a reviewer's) and say how many lie "
+        "above the frontier (stored as the section's comparison)",
+    )
     frontier.add_argument(
         "--out", default=None, help="where to write frontier.json and frontier.png"
     )
@@ -896,29 +905,13 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def cmd_frontier(args: argparse.Namespace) -> int:
     from drqn_jax.frontier import WIDE_GRID, grid_settings
-    from drqn_jax.study import config_frontier, frontier_rows, paper_rows
+    from drqn_jax.study import config_frontier
 
-    overrides = list(args.overrides)
-    if args.episodes is not None:
-        overrides.append(f"evaluate.episodes={args.episodes}")
-    if args.seed is not None:
-        overrides.append(f"run.seed={args.seed}")
-    config = load_config(args.config, overrides)
-    try:
-        caps = [float(c) for c in args.caps.split(",") if c.strip()]
-    except ValueError:
-        raise ConfigError(f"--caps {args.caps!r}: must be numbers (km/h), e.g. 5,10,15") from None
-    if not args.no_png:
-        from drqn_jax.figures import require_matplotlib
-
-        require_matplotlib()
-    if args.results:
-        _check_section(args.section)
+    config, caps = _frontier_config(args)
     settings = grid_settings(WIDE_GRID) if args.wide else None
     if not args.quiet:
-        count = len(settings) if settings else "the default"
         print(
-            f"sweeping {count} rule-based settings"
+            f"sweeping {len(settings) if settings else 'the default'} rule-based settings"
             + ("" if args.no_planner else f" and the planner at {len(caps)} caps")
             + f" on {config['evaluate']['episodes']} episodes of {config['env']['id']} "
             f"(evaluation key of seed {config['run']['seed']})...",
@@ -932,7 +925,48 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         )
     except ValueError as err:
         raise ConfigError(str(err)) from None
+    checks = [_reviewer_check(config, record, args.check)] if args.check else []
     wall = time.perf_counter() - start
+    _frontier_outputs(args, config, record, checks, wall)
+    return EXIT_OK
+
+
+def _frontier_config(args: argparse.Namespace) -> tuple[Config, list[float]]:
+    """``frontier``'s config (with --episodes and --seed) and --caps, checked before
+    anything compiles."""
+    overrides = list(args.overrides)
+    if args.episodes is not None:
+        overrides.append(f"evaluate.episodes={args.episodes}")
+    if args.seed is not None:
+        overrides.append(f"run.seed={args.seed}")
+    config = load_config(args.config, overrides)
+    try:
+        caps = [float(c) for c in args.caps.split(",") if c.strip()]
+    except ValueError:
+        raise ConfigError(f"--caps {args.caps!r}: must be numbers (km/h), e.g. 5,10,15") from None
+    if args.check < 0:
+        raise ConfigError(f"--check {args.check}: must be an integer >= 0")
+    if not args.no_png:
+        from drqn_jax.figures import require_matplotlib
+
+        require_matplotlib()
+    if args.results:
+        _check_section(args.section)
+    return config, caps
+
+
+def _frontier_outputs(
+    args: argparse.Namespace,
+    config: Config,
+    record: dict[str, Any],
+    checks: list[str],
+    wall: float,
+) -> None:
+    """OUT/frontier.json (every swept point) and frontier.png; the section of --results
+    (the frontiers' rows, the check, the wall times); the table on stdout."""
+    from drqn_jax.report import study_table
+    from drqn_jax.study import env_key, frontier_rows, paper_rows
+
     rows = paper_rows() + frontier_rows(record)
     out = Path(args.out or _default_run_dir("frontier", args.config))
     out.mkdir(parents=True, exist_ok=True)
@@ -941,39 +975,44 @@ def cmd_frontier(args: argparse.Namespace) -> int:
         from drqn_jax.figures import plot_safety_speed
 
         plot_safety_speed(rows, record, out / "frontier.png")
-    times = _frontier_times(record)
+    times = {
+        f"{kind}_wall_time_s": record[kind]["wall_time_s"]
+        for kind in ("rule_based", "planner")
+        if kind in record
+    }
     if args.results:
         from drqn_jax.machine import machine_info
         from drqn_jax.report import write_results
 
-        about = {
-            "command": args.command_line,
-            "wall_time_s": wall,
-            **times,
-            "swept": record["rule_based"]["swept"],
+        rule = {k: v for k, v in record["rule_based"].items() if k != "swept_points"}
+        about = {"command": args.command_line, "wall_time_s": wall, **times}
+        about |= {
             "machine": machine_info(),
-            "frontiers": {"frontier": {k: v for k, v in record.items() if k != "swept_points"}},
+            "frontiers": {env_key(config): {**record, "rule_based": rule}},
         }
-        write_results(args.results, args.section, rows, [], about)
-    from drqn_jax.report import study_table
-
-    print(study_table(rows))
+        write_results(args.results, args.section, rows, checks, about)
+    print(study_table(rows) + "".join(f"\n* {line}" for line in checks))
     print(
-        f"\n{record['rule_based']['swept']} rule-based settings and {len(caps)} planner caps "
-        f"on {record['episodes']} episodes of {record['world']}: "
+        f"\n{record['rule_based']['swept']} rule-based settings"
+        + (f" and {len(record['planner']['points'])} planner caps" if "planner" in record else "")
+        + f" on {record['episodes']} episodes of {record['world']}: "
         + ", ".join(f"{k.removesuffix('_wall_time_s')} {v:.1f} s" for k, v in times.items())
         + f"; {wall:.1f} s in all\nwritten to {out}"
     )
-    return EXIT_OK
 
 
-def _frontier_times(record: dict[str, Any]) -> dict[str, float]:
-    """Each sweep's wall time (compile included), by name: ``rule_based_wall_time_s``…"""
-    return {
-        f"{k}_wall_time_s": record[k]["wall_time_s"]
-        for k in ("rule_based", "planner")
-        if k in record
-    }
+def _reviewer_check(config: Config, record: dict[str, Any], n: int) -> str:
+    """``n`` random rule-based settings on ``record``'s episodes against its frontier."""
+    from drqn_jax.frontier import frontier_vertices, random_settings, reviewer_check
+    from drqn_jax.study import config_frontier
+
+    seed = config["run"]["seed"]
+    limit = config["env"]["v_ref"] / KMH
+    tried = config_frontier(
+        config, planner=False, settings=random_settings(n, seed, limit), keep_all=True
+    )
+    vertices = frontier_vertices(record["rule_based"]["points"])
+    return reviewer_check(tried["rule_based"]["swept_points"], vertices, seed)
 
 
 def _check_section(section: str) -> None:

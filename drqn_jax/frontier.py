@@ -52,6 +52,7 @@ from drqn_jax.stats import t_interval
 
 __all__ = [
     "PLANNER_CAPS_KMH",
+    "REVIEWER_RANGES",
     "RULE_BASED_SETTINGS",
     "WIDE_GRID",
     "family_points",
@@ -61,6 +62,8 @@ __all__ = [
     "grid_settings",
     "pareto_points",
     "planner_frontier",
+    "random_settings",
+    "reviewer_check",
     "rule_based_frontier",
     "sweep_family",
     "with_margin",
@@ -321,6 +324,44 @@ def with_margin(row: Mapping[str, Any], record: Mapping[str, Any]) -> dict[str, 
     vertices = frontier_vertices(record["rule_based"]["points"])
     margin, interval = frontier_margin(row, vertices)
     return {**row, "frontier_margin": margin, "frontier_margin_ci": interval}
+
+
+#: The ranges a reviewer's random rule-based settings are drawn from (uniform; km/h, m,
+#: s, m), :func:`random_settings`; ``v_max`` up to the speed limit.
+REVIEWER_RANGES = {"lookahead": (2.0, 25.0), "horizon": (0.0, 5.0), "corridor_margin": (0.0, 2.5)}
+
+
+def random_settings(n: int, seed: int, limit_kmh: float) -> list[dict[str, float]]:
+    """``n`` rule-based settings drawn uniformly (NumPy generator ``seed``): ``v_max``
+    from 1 km/h to ``limit_kmh``, the others from :data:`REVIEWER_RANGES`, rounded to
+    0.01: what a reviewer would try against the frontier."""
+    rng = np.random.default_rng(seed)
+    ranges = {"v_max_kmh": (1.0, limit_kmh), **REVIEWER_RANGES}
+    return [
+        {name: round(float(rng.uniform(low, high)), 2) for name, (low, high) in ranges.items()}
+        for _ in range(n)
+    ]
+
+
+def reviewer_check(
+    points: Sequence[Mapping[str, Any]], vertices: Sequence[Sequence[float]], seed: int
+) -> str:
+    """A sentence: how many of ``points`` (:func:`random_settings` of ``seed``, evaluated
+    on the frontier's episodes) lie above the frontier at their own speed, by how much,
+    and whether any one's Wilson interval lies wholly above it."""
+    at = frontier_rate(vertices, np.array([p["avg_speed_kmh"] for p in points]))
+    excess = np.array([p["collision_free_rate"] for p in points]) - at
+    lows = np.array([p["collision_free_ci"][0] for p in points]) - at
+    ranges = ", ".join(
+        f"{name.replace('_', ' ')} {low:g}–{high:g}"
+        for name, (low, high) in REVIEWER_RANGES.items()
+    )
+    return (
+        f"{len(points)} random rule-based settings (v_max 1 km/h to the limit, {ranges}; "
+        f"seed {seed}) on the same episodes: {int((excess > 0).sum())} lie above the frontier "
+        f"at their own speed, by at most {100 * max(float(excess.max()), 0.0):.1f} points; "
+        f"{int((lows > 0).sum())} with a Wilson interval wholly above it"
+    )
 
 
 def world_frontier(

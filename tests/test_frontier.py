@@ -21,6 +21,8 @@ from drqn_jax.frontier import (
     frontier_vertices,
     grid_settings,
     pareto_points,
+    random_settings,
+    reviewer_check,
     rule_based_frontier,
 )
 from drqn_jax.report import load_results
@@ -103,6 +105,24 @@ def test_margin_of_a_trained_config_is_over_seeds_each_at_its_own_speed():
     assert interval == pytest.approx(t_interval(diffs))
 
 
+def test_the_reviewer_check_counts_settings_above_the_frontier():
+    v = frontier_vertices(FAMILY)  # 45 % at 6 km/h
+    tried = [
+        {**_point(6.0, 0.50), "collision_free_ci": (0.47, 0.53)},  # above, interval too
+        {**_point(6.0, 0.46), "collision_free_ci": (0.43, 0.49)},  # above, interval not
+        {**_point(6.0, 0.30), "collision_free_ci": (0.27, 0.33)},  # below
+    ]
+    line = reviewer_check(tried, v, seed=7)
+    assert line.startswith("3 random rule-based settings (v_max 1 km/h to the limit")
+    assert (
+        "seed 7) on the same episodes: 2 lie above the frontier at their own speed, by at " in line
+    )
+    assert line.endswith("most 5.0 points; 1 with a Wilson interval wholly above it")
+    drawn = random_settings(50, seed=7, limit_kmh=15.0)
+    assert drawn == random_settings(50, seed=7, limit_kmh=15.0)
+    assert all(1.0 <= d["v_max_kmh"] <= 15.0 and 0.0 <= d["horizon"] <= 5.0 for d in drawn)
+
+
 def test_grid_settings_is_the_product_of_the_axes():
     settings = grid_settings({"a": (1.0, 2.0), "b": (3.0,), "c": (4.0, 5.0)})
     assert len(settings) == 4
@@ -152,7 +172,7 @@ def test_the_frontier_command_stores_both_frontiers(tmp_path, capsys):
     points in OUT/frontier.json, and the wall time of each sweep."""
     out, results = tmp_path / "f", tmp_path / "results.json"
     argv = ["frontier", "--episodes", "2", "--caps", "5,15", "--out", str(out), "--quiet"]
-    assert cli.main([*argv, "--results", str(results), "--no-png"]) == 0
+    assert cli.main([*argv, "--results", str(results), "--no-png", "--check", "3"]) == 0
     printed = capsys.readouterr().out
     assert "rule_based" in printed and "planner" in printed and "s in all" in printed
     record = load_results(results)
@@ -171,6 +191,10 @@ def test_the_frontier_command_stores_both_frontiers(tmp_path, capsys):
     )
     about = record["sections"]["frontier"]
     assert about["rule_based_wall_time_s"] > 0 and about["planner_wall_time_s"] > 0
+    (check,) = about["comparisons"]  # the reviewer's random settings against the frontier
+    assert check.startswith("3 random rule-based settings") and "lie above the frontier" in check
+    (stored,) = about["frontiers"].values()
+    assert "swept_points" not in stored["rule_based"]  # every point: OUT/frontier.json only
     swept = json.loads((out / "frontier.json").read_text())["rule_based"]
     assert len(swept["swept_points"]) == swept["swept"] == len(RULE_BASED_SETTINGS)
     assert {r["collision_free_rate"] for r in rule} <= {
