@@ -43,11 +43,10 @@ def _points(ax: Any, points: Sequence[Mapping[str, Any]], style: Mapping[str, An
     ax.plot(xs, ys, **style)
 
 
-def _agent(ax: Any, row: Mapping[str, Any], color: str | None = None) -> None:
-    """One row: its seeds as dots, its mean with its collision-free interval."""
+def _agent(ax: Any, row: Mapping[str, Any], label: str, color: str | None = None) -> None:
+    """One row: its mean with its collision-free interval, its seeds as dots."""
     low, high = (100 * x for x in row["collision_free_ci"])
     mean = 100 * row["collision_free_rate"]
-    label = f"{row['label'].removeprefix('drqn_jax: ')} ({row['agent']})"
     bar = ax.errorbar(
         row["avg_speed_kmh"],
         mean,
@@ -83,7 +82,7 @@ def plot_safety_speed(
         color="0.35",
         label=f"rule-based frontier ({frontier['rule_based']['swept']} settings swept)",
     )
-    _points(ax, rule, {"ls": "none", "marker": "x", "color": "0.35"})
+    _points(ax, rule, {"ls": "none", "marker": "x", "color": "0.35", "label": "its Pareto points"})
     if "planner" in frontier:
         caps = sorted(frontier["planner"]["points"], key=lambda p: p["avg_speed_kmh"])
         _points(
@@ -97,10 +96,10 @@ def plot_safety_speed(
             },
         )
     for row in rows:
-        if row["world"] == frontier["world"]:
-            _agent(ax, row)
-        elif row["world"] == PAPER_WORLD:
-            _agent(ax, {**row, "label": f"paper (CARLA): {row['agent']}"}, color="k")
+        if row["world"] == PAPER_WORLD:
+            _agent(ax, row, f"paper (CARLA), 10 episodes: {row['agent']}", color="k")
+        elif row["world"] == frontier["world"] and "params" not in row:  # not a frontier point
+            _agent(ax, row, f"{row['label'].removeprefix('drqn_jax: ')} ({row['agent']})")
     ax.set_xlabel("average speed (km/h)")
     ax.set_ylabel("collision-free episodes (%)")
     ax.set_ylim(-2, 102)

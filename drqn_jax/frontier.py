@@ -347,20 +347,23 @@ def reviewer_check(
     points: Sequence[Mapping[str, Any]], vertices: Sequence[Sequence[float]], seed: int
 ) -> str:
     """A sentence: how many of ``points`` (:func:`random_settings` of ``seed``, evaluated
-    on the frontier's episodes) lie above the frontier at their own speed, by how much,
-    and whether any one's Wilson interval lies wholly above it."""
+    on the frontier's episodes) lie above the frontier at their own speed, the nearest
+    one's distance to it, and how many have a Wilson interval wholly above it."""
     at = frontier_rate(vertices, np.array([p["avg_speed_kmh"] for p in points]))
     excess = np.array([p["collision_free_rate"] for p in points]) - at
     lows = np.array([p["collision_free_ci"][0] for p in points]) - at
+    units = {"lookahead": "m", "horizon": "s", "corridor_margin": "m"}
     ranges = ", ".join(
-        f"{name.replace('_', ' ')} {low:g}–{high:g}"
+        f"{name.replace('_', ' ')} {low:g}–{high:g} {units[name]}"
         for name, (low, high) in REVIEWER_RANGES.items()
     )
+    best = float(excess.max())
     return (
         f"{len(points)} random rule-based settings (v_max 1 km/h to the limit, {ranges}; "
         f"seed {seed}) on the same episodes: {int((excess > 0).sum())} lie above the frontier "
-        f"at their own speed, by at most {100 * max(float(excess.max()), 0.0):.1f} points; "
-        f"{int((lows > 0).sum())} with a Wilson interval wholly above it"
+        f"at their own speed (the highest {100 * abs(best):.1f} points "
+        f"{'above' if best > 0 else 'below'} it), {int((lows > 0).sum())} with a Wilson "
+        "interval wholly above it"
     )
 
 

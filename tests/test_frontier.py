@@ -114,10 +114,12 @@ def test_the_reviewer_check_counts_settings_above_the_frontier():
     ]
     line = reviewer_check(tried, v, seed=7)
     assert line.startswith("3 random rule-based settings (v_max 1 km/h to the limit")
-    assert (
-        "seed 7) on the same episodes: 2 lie above the frontier at their own speed, by at " in line
+    assert "lookahead 2–25 m, horizon 0–5 s, corridor margin 0–2.5 m; seed 7) on the " in line
+    assert line.endswith(
+        "same episodes: 2 lie above the frontier at their own speed (the highest 5.0 points "
+        "above it), 1 with a Wilson interval wholly above it"
     )
-    assert line.endswith("most 5.0 points; 1 with a Wilson interval wholly above it")
+    assert "(the highest 15.0 points below it), 0 with" in reviewer_check(tried[2:], v, seed=7)
     drawn = random_settings(50, seed=7, limit_kmh=15.0)
     assert drawn == random_settings(50, seed=7, limit_kmh=15.0)
     assert all(1.0 <= d["v_max_kmh"] <= 15.0 and 0.0 <= d["horizon"] <= 5.0 for d in drawn)
