@@ -172,6 +172,8 @@ def sweep_family(
     """
 
     def one(setting: Any) -> EpisodeMetrics:
+        # the rollout inline, not run_episodes' jitted call: XLA drops the unused TTC
+        # only within one computation
         agent = make_agent(setting)
         m = map_episodes(lambda k: rollout_episode(agent, k, env, params), keys, batch_size)
         return m.replace(  # the reward's near-collision term reads the TTC too
