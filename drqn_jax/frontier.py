@@ -136,10 +136,12 @@ RULE_BASED_SETTINGS: tuple[dict[str, float], ...] = tuple(
 
 
 def _rule_based_params(settings: Sequence[Mapping[str, float]]) -> RuleBasedParams:
-    """The settings as one batched :class:`RuleBasedParams` (leaves (S,))."""
+    """The settings as one batched :class:`RuleBasedParams` (leaves (S,)); a setting
+    without ``speed_band_kmh`` keeps the agent's ±1 km/h."""
     each = [
         RuleBasedParams(
             v_max=s["v_max_kmh"] * KMH,
+            speed_band=s.get("speed_band_kmh", 1.0) * KMH,
             lookahead=s["lookahead"],
             horizon=s["horizon"],
             corridor_margin=s["corridor_margin"],
@@ -328,9 +330,15 @@ def with_margin(row: Mapping[str, Any], record: Mapping[str, Any]) -> dict[str, 
     return {**row, "frontier_margin": margin, "frontier_margin_ci": interval}
 
 
-#: The ranges a reviewer's random rule-based settings are drawn from (uniform; km/h, m,
-#: s, m), :func:`random_settings`; ``v_max`` up to the speed limit.
-REVIEWER_RANGES = {"lookahead": (2.0, 25.0), "horizon": (0.0, 5.0), "corridor_margin": (0.0, 2.5)}
+#: The ranges a reviewer's random rule-based settings are drawn from (uniform; m, s, m,
+#: km/h), :func:`random_settings`; ``v_max`` from 1 km/h up to the speed limit. Wider
+#: than :data:`WIDE_GRID`'s, and the speed band, which it keeps at ±1 km/h, varies.
+REVIEWER_RANGES = {
+    "lookahead": (2.0, 25.0),
+    "horizon": (0.0, 5.0),
+    "corridor_margin": (0.0, 2.5),
+    "speed_band_kmh": (0.25, 2.0),
+}
 
 
 def random_settings(n: int, seed: int, limit_kmh: float) -> list[dict[str, float]]:
@@ -354,9 +362,9 @@ def reviewer_check(
     at = frontier_rate(vertices, np.array([p["avg_speed_kmh"] for p in points]))
     excess = np.array([p["collision_free_rate"] for p in points]) - at
     lows = np.array([p["collision_free_ci"][0] for p in points]) - at
-    units = {"lookahead": "m", "horizon": "s", "corridor_margin": "m"}
+    units = {"lookahead": "m", "horizon": "s", "corridor_margin": "m", "speed_band_kmh": "km/h"}
     ranges = ", ".join(
-        f"{name.replace('_', ' ')} {low:g}–{high:g} {units[name]}"
+        f"{name.removesuffix('_kmh').replace('_', ' ')} {low:g}–{high:g} {units[name]}"
         for name, (low, high) in REVIEWER_RANGES.items()
     )
     best = float(excess.max())

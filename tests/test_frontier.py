@@ -115,7 +115,7 @@ def test_the_reviewer_check_counts_settings_above_the_frontier():
     ]
     line = reviewer_check(tried, v, seed=7)
     assert line.startswith("3 random rule-based settings (v_max 1 km/h to the limit")
-    assert "lookahead 2–25 m, horizon 0–5 s, corridor margin 0–2.5 m; seed 7) on the " in line
+    assert "horizon 0–5 s, corridor margin 0–2.5 m, speed band 0.25–2 km/h; seed 7) on " in line
     assert line.endswith(
         "same episodes: 2 lie above the frontier at their own speed (the highest 5.0 points "
         "above it), 1 with a Wilson interval wholly above it"
@@ -124,6 +124,7 @@ def test_the_reviewer_check_counts_settings_above_the_frontier():
     drawn = random_settings(50, seed=7, limit_kmh=15.0)
     assert drawn == random_settings(50, seed=7, limit_kmh=15.0)
     assert all(1.0 <= d["v_max_kmh"] <= 15.0 and 0.0 <= d["horizon"] <= 5.0 for d in drawn)
+    assert all(0.25 <= d["speed_band_kmh"] <= 2.0 for d in drawn)
 
 
 def test_grid_settings_is_the_product_of_the_axes():
