@@ -367,12 +367,12 @@ def reviewer_check(
         f"{name.removesuffix('_kmh').replace('_', ' ')} {low:g}–{high:g} {units[name]}"
         for name, (low, high) in REVIEWER_RANGES.items()
     )
-    best = float(excess.max())
+    best = round(100 * float(excess.max()), 1)
+    side = "on it" if best == 0 else f"{abs(best):.1f} points {'above' if best > 0 else 'below'} it"
     return (
         f"{len(points)} random rule-based settings (v_max 1 km/h to the limit, {ranges}; "
         f"seed {seed}) on the same episodes: {int((excess > 0).sum())} lie above the frontier "
-        f"at their own speed (the highest {100 * abs(best):.1f} points "
-        f"{'above' if best > 0 else 'below'} it), {int((lows > 0).sum())} with a Wilson "
+        f"at their own speed (the highest {side}), {int((lows > 0).sum())} with a Wilson "
         "interval wholly above it"
     )
 

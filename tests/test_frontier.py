@@ -121,6 +121,10 @@ def test_the_reviewer_check_counts_settings_above_the_frontier():
         "above it), 1 with a Wilson interval wholly above it"
     )
     assert "(the highest 15.0 points below it), 0 with" in reviewer_check(tried[2:], v, seed=7)
+    standing = [{**_point(0.0, 1.0), "collision_free_ci": (0.99, 1.0)}]  # the frontier's start
+    assert "0 lie above the frontier at their own speed (the highest on it)" in reviewer_check(
+        standing, v, seed=7
+    )
     drawn = random_settings(50, seed=7, limit_kmh=15.0)
     assert drawn == random_settings(50, seed=7, limit_kmh=15.0)
     assert all(1.0 <= d["v_max_kmh"] <= 15.0 and 0.0 <= d["horizon"] <= 5.0 for d in drawn)
