@@ -599,12 +599,19 @@ def _comparisons(
     if headline["agent"] == "drqn" and not headline["teacher"]:
         comparisons.insert(0, claim_verdict(headline))
     first = names[0]
+    # arms on the same frontier: the same world, whatever the reward (the rule-based
+    # agent ignores it), and the same episodes
     vertices = frontier_vertices(frontiers[env_key(config)]["rule_based"]["points"])
-    own = {row["label"].removeprefix("drqn_jax: "): env_key(c) for row, c in trained}
+    own = {
+        row["label"].removeprefix("drqn_jax: "): frontier_vertices(
+            frontiers[env_key(c)]["rule_based"]["points"]
+        )
+        for row, c in trained
+    }
     paired = [
         compare_paired(first, runs[first], name, runs[name], vertices)
         for name in names[1:]
-        if own[name] == env_key(config)
+        if own[name] == vertices
     ]
     return comparisons + [c for c in paired if c is not None]
 

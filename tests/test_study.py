@@ -287,12 +287,15 @@ def test_configs_differing_only_in_reward_share_one_rule_based_row(tmp_path):
     config = tmp_path / "smoke-reward.toml"
     config.write_text('extends = "smoke"\n[env]\nreward_collision = -50.0\n')
     out = tmp_path / "out"
-    args = ["--configs", f"smoke,{config}", "--seeds", "1", "--episodes", "2", "--quiet"]
+    args = ["--configs", f"smoke,{config}", "--seeds", "2", "--episodes", "2", "--quiet"]
     args += [arg for setting in SMOKE_SWEEP_SET for arg in ("--set", setting)]
     assert cli.main(["study", *args, "--out", str(out), "--no-png"]) == 0
     rows = json.loads((out / "study.json").read_text())["rows"]
     assert len(list((out / "baselines").glob("rule-based-*.json"))) == 2  # two env keys
     assert [r["agent"] for r in rows].count("rule-based") == 2  # the paper's and ours
+    # the same world and episodes, so the same frontier: the arms are paired
+    comparisons = json.loads((out / "study.json").read_text())["comparisons"]
+    assert any(c.startswith("smoke − smoke-reward, margin to the rule-based") for c in comparisons)
 
 
 def test_the_curves_are_the_logged_metrics(study):
