@@ -2,13 +2,13 @@
 
 Usage::
 
-    drqn-jax frontier --wide --no-planner --no-png --out runs/frontier-wide   # ~25 min
+    drqn-jax frontier --wide --no-planner --no-png --out runs/frontier-wide   # 6 min on an H100
     python -m benchmarks.frontier_settings runs/frontier-wide/frontier.json [--keep 30]
 
 A frontier sweep must be cheap (it runs in every study, for every world) and
 strong (no rule-based setting a reviewer tries should beat it). The wide sweep
-(``drqn_jax.frontier.WIDE_GRID``) evaluates 1680 settings; this script keeps its
-Pareto-efficient ones and drops, one at a time, the setting whose loss moves the
+(``drqn_jax.frontier.WIDE_GRID``) evaluates 3000 settings; this script keeps its
+Pareto-efficient ones and the paper's, and drops, one at a time, the setting whose loss moves the
 Pareto curve (linear between its points) least, never a vertex of the envelope
 (the frontier margins read), the fastest setting or the paper's, until ``--keep``
 remain. It prints them as ``drqn_jax.frontier._SETTINGS`` holds them, with the
@@ -34,7 +34,8 @@ PAPER = {"v_max_kmh": 15.0, "lookahead": 7.0, "horizon": 0.0, "corridor_margin":
 
 
 def _curve(points: Sequence[Mapping[str, Any]], speeds: np.ndarray) -> np.ndarray:
-    """The Pareto curve of ``points`` (by speed), linear between them, at ``speeds``."""
+    """The Pareto curve of ``points``, linear between its points, at ``speeds``."""
+    points = pareto_points(points)
     xs = [p["avg_speed_kmh"] for p in points]
     return np.interp(speeds, xs, [p["collision_free_rate"] for p in points])
 
@@ -43,6 +44,7 @@ def thin(points: Sequence[Mapping[str, Any]], keep: int) -> tuple[list[Mapping[s
     """The Pareto points of ``points`` thinned to ``keep`` (module docstring), and the
     largest gap (rate) between their curve and the full Pareto curve."""
     pareto = pareto_points(points)
+    paper = [p for p in points if dict(p["params"]) == PAPER and p not in pareto]
     vertices = set(frontier_vertices(points))
     top = max(p["avg_speed_kmh"] for p in pareto)
     speeds = np.linspace(0.0, top, 1001)
@@ -52,7 +54,7 @@ def thin(points: Sequence[Mapping[str, Any]], keep: int) -> tuple[list[Mapping[s
         on_envelope = (p["avg_speed_kmh"], p["collision_free_rate"]) in vertices
         return on_envelope or p["avg_speed_kmh"] == top or dict(p["params"]) == PAPER
 
-    kept = list(pareto)
+    kept = sorted([*pareto, *paper], key=lambda p: p["avg_speed_kmh"])
     while len(kept) > keep:
         gaps = [
             (float(np.abs(full - _curve(kept[:i] + kept[i + 1 :], speeds)).max()), i)

@@ -70,13 +70,13 @@ __all__ = [
     "world_frontier",
 ]
 
-#: The wide grid (1680 settings): the evidence behind :data:`RULE_BASED_SETTINGS`
-#: (``drqn-jax frontier --wide``).
+#: The wide grid (3000 settings, each axis out to the end of :data:`REVIEWER_RANGES`):
+#: the evidence behind :data:`RULE_BASED_SETTINGS` (``drqn-jax frontier --wide``).
 WIDE_GRID: dict[str, tuple[float, ...]] = {
     "v_max_kmh": (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0),
-    "lookahead": (3.5, 7.0, 14.0, 20.0),
-    "horizon": (0.0, 1.0, 2.0, 4.0),
-    "corridor_margin": (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0),
+    "lookahead": (3.5, 7.0, 14.0, 20.0, 25.0),
+    "horizon": (0.0, 1.0, 2.0, 4.0, 5.0),
+    "corridor_margin": (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 2.5),
 }
 
 #: The privileged planner's speed caps (km/h): its frontier, the ceiling.
@@ -92,39 +92,40 @@ def grid_settings(grid: Mapping[str, Sequence[float]]) -> list[dict[str, float]]
 #: The rule-based settings a frontier sweeps by default: ``(v_max km/h, lookahead m,
 #: horizon s, corridor_margin m)``. They are the Pareto-efficient settings of the
 #: :data:`WIDE_GRID` sweep on the paper's world (1000 episodes of seed 0's evaluation
-#: key), thinned to 30 by dropping, one at a time, the setting whose loss moved the
-#: Pareto curve least, keeping every vertex of its envelope, the fastest setting and
-#: the paper's (15 km/h, 7 m, 0 s, 0.5 m); ``v_max = 1 km/h`` never accelerates (the
-#: ±1 km/h band): the standing car. On those episodes their envelope is the wide
-#: sweep's (docs/results.md, "The yardstick").
+#: key, swept on an H100: ``benchmarks/results/frontier-wide.md``), thinned to 30 by
+#: ``benchmarks/frontier_settings.py`` (dropping, one at a time, the setting whose loss
+#: moved the Pareto curve least, keeping every vertex of its envelope, the fastest
+#: setting and the paper's, 15 km/h, 7 m, 0 s, 0.5 m); ``v_max = 1 km/h`` never
+#: accelerates (the ±1 km/h band): the standing car. On those episodes their envelope
+#: is the wide sweep's (docs/results.md, "The yardstick").
 _SETTINGS = (
     (1.0, 3.5, 0.0, 0.0),
-    (14.0, 20.0, 1.0, 2.0),
-    (10.0, 14.0, 4.0, 1.5),
-    (10.0, 3.5, 2.0, 2.0),
-    (13.0, 20.0, 4.0, 1.0),
+    (12.0, 25.0, 5.0, 1.5),
+    (14.0, 14.0, 1.0, 1.5),
+    (15.0, 25.0, 5.0, 1.0),
+    (13.0, 25.0, 2.0, 1.0),
+    (14.0, 25.0, 1.0, 1.0),
     (13.0, 20.0, 1.0, 1.0),
     (15.0, 14.0, 4.0, 1.0),
-    (11.0, 3.5, 4.0, 1.0),
-    (14.0, 3.5, 4.0, 1.0),
-    (15.0, 20.0, 4.0, 0.75),
-    (15.0, 3.5, 2.0, 1.0),
-    (15.0, 3.5, 1.0, 1.0),
-    (15.0, 14.0, 4.0, 0.75),
-    (14.0, 14.0, 2.0, 0.75),
+    (11.0, 3.5, 5.0, 1.0),
+    (15.0, 25.0, 4.0, 0.75),
+    (15.0, 20.0, 5.0, 0.75),
+    (15.0, 14.0, 5.0, 0.75),
+    (15.0, 14.0, 2.0, 0.75),
     (15.0, 3.5, 2.0, 0.75),
     (15.0, 3.5, 1.0, 0.75),
     (15.0, 20.0, 0.0, 2.0),
+    (15.0, 25.0, 0.0, 1.5),
     (15.0, 20.0, 0.0, 1.5),
+    (15.0, 7.0, 5.0, 0.5),
+    (15.0, 3.5, 0.0, 2.5),
     (15.0, 7.0, 4.0, 0.5),
-    (15.0, 7.0, 0.0, 2.0),
-    (15.0, 7.0, 2.0, 0.5),
-    (15.0, 7.0, 1.0, 0.5),
-    (15.0, 3.5, 2.0, 0.5),
-    (15.0, 3.5, 0.0, 0.75),
+    (15.0, 25.0, 0.0, 1.0),
+    (15.0, 7.0, 0.0, 1.0),
     (15.0, 7.0, 0.0, 0.5),
+    (15.0, 3.5, 0.0, 0.75),
     (15.0, 3.5, 0.0, 0.5),
-    (15.0, 20.0, 0.0, 0.25),
+    (15.0, 7.0, 1.0, 0.25),
     (15.0, 7.0, 0.0, 0.25),
     (15.0, 7.0, 2.0, 0.0),
     (15.0, 3.5, 0.0, 0.0),
@@ -331,8 +332,9 @@ def with_margin(row: Mapping[str, Any], record: Mapping[str, Any]) -> dict[str, 
 
 
 #: The ranges a reviewer's random rule-based settings are drawn from (uniform; m, s, m,
-#: km/h), :func:`random_settings`; ``v_max`` from 1 km/h up to the speed limit. Wider
-#: than :data:`WIDE_GRID`'s, and the speed band, which it keeps at ±1 km/h, varies.
+#: km/h), :func:`random_settings`; ``v_max`` from 1 km/h up to the speed limit. The
+#: look-ahead reaches below :data:`WIDE_GRID`'s, its settings fall between the grid's
+#: points, and the speed band, which the grid keeps at ±1 km/h, varies.
 REVIEWER_RANGES = {
     "lookahead": (2.0, 25.0),
     "horizon": (0.0, 5.0),

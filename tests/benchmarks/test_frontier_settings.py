@@ -45,3 +45,29 @@ def test_the_script_prints_the_settings(tmp_path, capsys):
     out = capsys.readouterr().out
     assert out.startswith("# 6 of 9 settings (8 Pareto-efficient)")
     assert "same envelope: True" in out and "    (15.0, 7.0, 0.0, 0.5)," in out
+
+
+def test_a_dominated_papers_setting_is_kept_off_the_curve():
+    """The paper's setting is swept even when dominated, and the curve the thinning
+    measures is the Pareto points' alone (no dip to the dominated point)."""
+    dominated = [*SWEPT[:-1], _point(5.5, 0.2, **PAPER)]
+    kept, gap = thin(dominated, keep=5)
+    assert any(p["params"] == PAPER for p in kept) and len(kept) == 5
+    assert frontier_vertices(kept) == frontier_vertices(dominated)
+    assert gap == thin(SWEPT[:-1], keep=4)[1]
+
+
+def test_the_stored_wide_sweep_gives_the_default_settings(capsys):
+    """benchmarks/results/frontier-wide.json (the wide sweep's Pareto points) thinned
+    to 30 is drqn_jax.frontier.RULE_BASED_SETTINGS, in order."""
+    from pathlib import Path
+
+    from drqn_jax.frontier import RULE_BASED_SETTINGS
+
+    stored = Path(__file__).parents[2] / "benchmarks" / "results" / "frontier-wide.json"
+    main([str(stored), "--keep", str(len(RULE_BASED_SETTINGS))])
+    printed = [line for line in capsys.readouterr().out.splitlines() if line[:5] == "    ("]
+    axes = ("v_max_kmh", "lookahead", "horizon", "corridor_margin")
+    assert printed == [
+        "    (" + ", ".join(repr(float(s[a])) for a in axes) + ")," for s in RULE_BASED_SETTINGS
+    ]
