@@ -8,8 +8,8 @@ Usage::
 A frontier sweep must be cheap (it runs in every study, for every world) and
 strong (no rule-based setting a reviewer tries should beat it). The wide sweep
 (``drqn_jax.frontier.WIDE_GRID``) evaluates 3000 settings; this script keeps its
-Pareto-efficient ones and the paper's, and drops, one at a time, the setting whose loss moves the
-Pareto curve (linear between its points) least, never a vertex of the envelope
+Pareto-efficient ones and the paper's, and drops, one at a time, the setting whose
+loss moves the Pareto curve (linear between its points) least, never a vertex of the envelope
 (the frontier margins read), the fastest setting or the paper's, until ``--keep``
 remain. It prints them as ``drqn_jax.frontier._SETTINGS`` holds them, with the
 largest gap left between the thinned and the full Pareto curve, and whether the

@@ -92,12 +92,12 @@ def grid_settings(grid: Mapping[str, Sequence[float]]) -> list[dict[str, float]]
 #: The rule-based settings a frontier sweeps by default: ``(v_max km/h, lookahead m,
 #: horizon s, corridor_margin m)``. They are the Pareto-efficient settings of the
 #: :data:`WIDE_GRID` sweep on the paper's world (1000 episodes of seed 0's evaluation
-#: key, swept on an H100: ``benchmarks/results/frontier-wide.md``), thinned to 30 by
+#: key, swept on an H100: ``benchmarks/results/frontier-wide.json``), thinned to 30 by
 #: ``benchmarks/frontier_settings.py`` (dropping, one at a time, the setting whose loss
 #: moved the Pareto curve least, keeping every vertex of its envelope, the fastest
 #: setting and the paper's, 15 km/h, 7 m, 0 s, 0.5 m); ``v_max = 1 km/h`` never
-#: accelerates (the ±1 km/h band): the standing car. On those episodes their envelope
-#: is the wide sweep's (docs/results.md, "The yardstick").
+#: accelerates (the ±1 km/h band): the standing car. On the GPU's run of those
+#: episodes their envelope is the wide sweep's (docs/results.md, "The yardstick").
 _SETTINGS = (
     (1.0, 3.5, 0.0, 0.0),
     (12.0, 25.0, 5.0, 1.5),
