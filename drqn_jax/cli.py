@@ -965,7 +965,7 @@ def _frontier_outputs(
     """OUT/frontier.json (every swept point) and frontier.png; the section of --results
     (the frontiers' rows, the check, the wall times); the table on stdout."""
     from drqn_jax.report import study_table
-    from drqn_jax.study import env_key, frontier_rows, paper_rows
+    from drqn_jax.study import frontier_key, frontier_rows, paper_rows
 
     rows = paper_rows() + frontier_rows(record)
     out = Path(args.out or _default_run_dir("frontier", args.config))
@@ -988,7 +988,7 @@ def _frontier_outputs(
         about = {"command": args.command_line, "wall_time_s": wall, **times}
         about |= {
             "machine": machine_info(),
-            "frontiers": {env_key(config): {**record, "rule_based": rule}},
+            "frontiers": {frontier_key(config): {**record, "rule_based": rule}},
         }
         write_results(args.results, args.section, rows, checks, about)
     print(study_table(rows) + "".join(f"\n* {line}" for line in checks))

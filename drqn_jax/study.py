@@ -161,17 +161,30 @@ def plan_study(
     return arms
 
 
-def env_key(config: Config) -> str:
-    """A short digest of a config's ``[env]`` and ``[rule_based]`` sections and its
-    evaluation (episodes, seed): configs that agree share the rule-based baseline."""
+def _digest(config: Config, **sections: Any) -> str:
+    """A short digest of ``sections`` and ``config``'s evaluation episodes (count, seed)."""
     record = {
-        "env": config["env"],
-        "rule_based": config["rule_based"],
+        **sections,
         "episodes": config["evaluate"]["episodes"],
         "seed": config["run"]["seed"],
     }
     text = json.dumps(record, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def env_key(config: Config) -> str:
+    """A short digest of a config's ``[env]`` and ``[rule_based]`` sections and its
+    evaluation (episodes, seed): configs that agree share the rule-based baseline."""
+    return _digest(config, env=config["env"], rule_based=config["rule_based"])
+
+
+def frontier_key(config: Config) -> str:
+    """A short digest of what a config's frontiers read: its ``[env]`` section but the
+    reward (``reward_*``: the rule-based family and the planner ignore it), its
+    ``[planner]`` and its evaluation: configs that agree share the frontiers, and
+    their arms are paired."""
+    env = {k: v for k, v in config["env"].items() if not k.startswith("reward_")}
+    return _digest(config, env=env, planner=config["planner"])
 
 
 # ----------------------------------------------------------------------------- the table
@@ -432,13 +445,13 @@ class StudyOutcome:
 
 def rule_based_results(
     configs: Sequence[Config], out: Path
-) -> dict[str, tuple[str, dict[str, Any]]]:
+) -> dict[str, tuple[Config, dict[str, Any]]]:
     """The rule-based agent on each distinct environment of ``configs`` (the arms'
-    and those of their ``cross_envs``), on the study's episodes: ``{env_key: (env id,
-    result)}``, cached in ``OUT/baselines/``."""
+    and those of their ``cross_envs``), on the study's episodes: ``{env_key: (the first
+    config of that key, result)}``, cached in ``OUT/baselines/``."""
     from drqn_jax.runner import builtin_agent, evaluate_agents, json_ready
 
-    found: dict[str, tuple[str, dict[str, Any]]] = {}
+    found: dict[str, tuple[Config, dict[str, Any]]] = {}
     for config in configs:
         key = env_key(config)
         if key in found:
@@ -449,7 +462,7 @@ def rule_based_results(
             return json_ready(result)
 
         result = _cached(out / "baselines" / f"rule-based-{key}.json", evaluated)
-        found[key] = (config["env"]["id"], result)
+        found[key] = (config, result)
     return found
 
 
@@ -545,11 +558,11 @@ def frontier_results(
     configs: Sequence[Config], out: Path, planner_keys: set[str], *, quiet: bool = True
 ) -> dict[str, dict[str, Any]]:
     """The rule-based frontier of each distinct environment of ``configs`` on the study's
-    episodes, and the planner's where its :func:`env_key` is in ``planner_keys``:
-    ``{env_key: world_frontier record}``, cached in ``OUT/baselines/``."""
+    episodes, and the planner's where its :func:`frontier_key` is in ``planner_keys``:
+    ``{frontier_key: world_frontier record}``, cached in ``OUT/baselines/``."""
     found: dict[str, dict[str, Any]] = {}
     for config in configs:
-        key = env_key(config)
+        key = frontier_key(config)
         if key in found:
             continue
         if not quiet:
@@ -599,19 +612,13 @@ def _comparisons(
     if headline["agent"] == "drqn" and not headline["teacher"]:
         comparisons.insert(0, claim_verdict(headline))
     first = names[0]
-    # arms on the same frontier: the same world, whatever the reward (the rule-based
-    # agent ignores it), and the same episodes
-    vertices = frontier_vertices(frontiers[env_key(config)]["rule_based"]["points"])
-    own = {
-        row["label"].removeprefix("drqn_jax: "): frontier_vertices(
-            frontiers[env_key(c)]["rule_based"]["points"]
-        )
-        for row, c in trained
-    }
+    key = frontier_key(config)
+    vertices = frontier_vertices(frontiers[key]["rule_based"]["points"])
+    own = {row["label"].removeprefix("drqn_jax: "): frontier_key(c) for row, c in trained}
     paired = [
         compare_paired(first, runs[first], name, runs[name], vertices)
         for name in names[1:]
-        if own[name] == vertices
+        if own[name] == key
     ]
     return comparisons + [c for c in paired if c is not None]
 
@@ -660,11 +667,14 @@ def run_study(
     }
     configs = [a.config for a in arms] + [c for cs in cross_configs.values() for c in cs.values()]
     frontiers = frontier_results(
-        configs, out, {env_key(done[0].config)} if done else set(), quiet=quiet
+        configs, out, {frontier_key(done[0].config)} if done else set(), quiet=quiet
     )
     baselines = {
-        key: with_margin(baseline_row(f"drqn_jax: {env}", r, world=env), frontiers[key])
-        for key, (env, r) in rule_based_results(configs, out).items()
+        key: with_margin(
+            baseline_row(f"drqn_jax: {c['env']['id']}", r, world=c["env"]["id"]),
+            frontiers[frontier_key(c)],
+        )
+        for key, (c, r) in rule_based_results(configs, out).items()
     }
     trained: list[tuple[dict[str, Any], Config]] = []  # each row and the config it was evaluated on
     for arm in done:
@@ -676,7 +686,7 @@ def run_study(
         ]
         for name, config, results in evaluated:
             row = study_row(f"drqn_jax: {name}", agent, results, world=config["env"]["id"])
-            trained.append((with_margin(row, frontiers[env_key(config)]), config))
+            trained.append((with_margin(row, frontiers[frontier_key(config)]), config))
     # configs that differ only in what the rule-based agent ignores (the reward) share its row
     shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines.values()}
     rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]
@@ -704,5 +714,6 @@ def run_study(
         record_study_curves(out / "curves.rrd", curves)
         if png:
             plot_curves(curves, out / "curves.png", smooth)
-            plot_safety_speed(rows, frontiers[env_key(done[0].config)], out / "safety_speed.png")
+            first = frontiers[frontier_key(done[0].config)]
+            plot_safety_speed(rows, first, out / "safety_speed.png")
     return StudyOutcome("finished", rows, runs, table, comparisons, continued, frontiers)
