@@ -17,7 +17,7 @@ import jax
 
 import drqn_jax
 from drqn_jax.evaluation import metrics_table
-from drqn_jax.machine import machine_info, machine_lines
+from drqn_jax.experiments.machine import machine_info, machine_lines
 
 
 def main() -> None:

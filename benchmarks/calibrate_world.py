@@ -32,8 +32,8 @@ from typing import Any
 
 from drqn_jax.config import load_config
 from drqn_jax.evaluation import wilson_interval
-from drqn_jax.machine import machine_info
-from drqn_jax.runner import builtin_agent, evaluate_agents
+from drqn_jax.experiments.machine import machine_info
+from drqn_jax.experiments.runner import builtin_agent, evaluate_agents
 
 ROOT = Path(__file__).resolve().parent.parent
 SPEC_DOC = ROOT / "docs" / "spec.md"

@@ -7,11 +7,11 @@ Usage::
 
 A frontier sweep must be cheap (it runs in every study, for every world) and
 strong (no rule-based setting a reviewer tries should beat it). The wide sweep
-(``drqn_jax.frontier.WIDE_GRID``) evaluates 3000 settings; this script keeps its
+(``drqn_jax.experiments.frontier.WIDE_GRID``) evaluates 3000 settings; this script keeps its
 Pareto-efficient ones and the paper's, and drops, one at a time, the setting whose
 loss moves the Pareto curve (linear between its points) least, never a vertex of the envelope
 (the frontier margins read), the fastest setting or the paper's, until ``--keep``
-remain. It prints them as ``drqn_jax.frontier._SETTINGS`` holds them, with the
+remain. It prints them as ``drqn_jax.experiments.frontier._SETTINGS`` holds them, with the
 largest gap left between the thinned and the full Pareto curve, and whether the
 two envelopes are the same.
 """
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from drqn_jax.frontier import frontier_vertices, pareto_points
+from drqn_jax.experiments.frontier import frontier_vertices, pareto_points
 
 AXES = ("v_max_kmh", "lookahead", "horizon", "corridor_margin")
 #: The paper's rule-based agent (SPEC §6): always kept.

@@ -8,7 +8,7 @@ README):
   PureJaxRL's DQN recipe as far as ours has the knobs (:func:`cartpole_config`)
   and its budget of about 5·10⁵ env steps (2000 episodes). Target: mean
   greedy return ≥ 475 (of 500), every seed.
-* ``cartpole-ppo``: recurrent PPO (:mod:`drqn_jax.ppo`) on ``CartPole-v1``
+* ``cartpole-ppo``: recurrent PPO (:mod:`drqn_jax.learners.ppo`) on ``CartPole-v1``
   with PureJaxRL's ppo_rnn recipe and its budget (5·10⁵ env steps) in
   episodes (:func:`ppo_config`). Target: mean greedy return ≥ 475, every seed.
 * ``memory-drqn`` / ``memory-dqn``: bsuite's MemoryChain (gymnax defaults:
@@ -38,9 +38,9 @@ import numpy as np
 
 from benchmarks.harness import base_parser, markdown_table, report
 from drqn_jax.evaluation import episode_keys
+from drqn_jax.learners import Hyperparams, TrainConfig, make_train
+from drqn_jax.learners.task import greedy_returns
 from drqn_jax.networks import NetworkConfig
-from drqn_jax.task import greedy_returns
-from drqn_jax.train import Hyperparams, TrainConfig, make_train
 
 __all__ = ["RECIPES", "cartpole_config", "main", "memory_config", "ppo_config", "run_recipe"]
 

@@ -24,7 +24,7 @@ from typing import Any
 
 import jax
 
-from drqn_jax.machine import machine_info, machine_lines
+from drqn_jax.experiments.machine import machine_info, machine_lines
 
 __all__ = [
     "base_parser",

@@ -117,7 +117,7 @@ def _env_program(args: argparse.Namespace) -> tuple[jax.stages.Compiled, tuple, 
 
 def _update_program(args: argparse.Namespace) -> tuple[jax.stages.Compiled, tuple, int, str]:
     from benchmarks.train_throughput import fill_replay, make_updates, update_args
-    from drqn_jax.train import TrainConfig, make_train
+    from drqn_jax.learners import TrainConfig, make_train
 
     trainer = make_train(TrainConfig())
     fill_run = jax.jit(trainer.run, static_argnums=1, donate_argnums=0)

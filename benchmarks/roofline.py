@@ -85,9 +85,9 @@ from benchmarks.train_throughput import (
 from drqn_jax.config import load_config
 from drqn_jax.determinism import fma_disabled
 from drqn_jax.env.grid import GridInputs
-from drqn_jax.optim import adam
-from drqn_jax.replay import EpisodeReplay, init_replay
-from drqn_jax.train import TrainConfig, Trainer, make_train
+from drqn_jax.learners import TrainConfig, Trainer, make_train
+from drqn_jax.learners.dqn.replay import EpisodeReplay, init_replay
+from drqn_jax.learners.optim import adam
 
 __all__ = [
     "TARGET_ENV_FRACTION",

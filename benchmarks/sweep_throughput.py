@@ -21,7 +21,7 @@ step), learning active throughout:
    keys (``jax.random.split``), stacked on a leading run axis, so every run
    learns from the first timed iteration on and the runs diverge from there.
 2. **One program per run count** (``--runs``): the program a sweep call runs
-   (``drqn_jax.sweep_runner.call_programs`` with ``chunk_iterations`` = I: a
+   (``drqn_jax.experiments.sweep_runner.call_programs`` with ``chunk_iterations`` = I: a
    ``shard_map`` over the devices, each device's runs batched with ``vmap``
    or one after another with ``lax.map``, ``--strategy``; default what the
    sweep picks, ``map`` on CPU), state donated; 1 run is the plain unbatched
@@ -51,7 +51,7 @@ step), learning active throughout:
    XLA's ``memory_analysis()`` of the compiled R-run program (arguments,
    outputs, aliased = donated, temporaries; peak ≈ arguments + outputs −
    aliased + temporaries). For the 64-run sweep, also the program
-   ``drqn_jax.sweep`` compiles, ``jit(vmap(trainer.train))`` over 64 keys,
+   ``drqn_jax.experiments.sweep`` compiles, ``jit(vmap(trainer.train))`` over 64 keys,
    hyperparameters and env parameters (compiled, not run), against 24 GB and
    against this machine's ``/proc/meminfo``.
 
@@ -85,10 +85,11 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import drqn_jax  # noqa: F401  (sets XLA_FLAGS; no JAX computation runs before this import)
-from drqn_jax.machine import machine_info
-from drqn_jax.replay import replay_bytes
-from drqn_jax.sweep_runner import call_programs, resolve_strategy
-from drqn_jax.train import TrainConfig, Trainer, TrainState, make_train
+from drqn_jax.experiments.machine import machine_info
+from drqn_jax.experiments.sweep_runner import call_programs, resolve_strategy
+from drqn_jax.learners import TrainConfig, Trainer, make_train
+from drqn_jax.learners.dqn.replay import replay_bytes
+from drqn_jax.learners.dqn.state import TrainState
 
 if __package__ in (None, ""):  # python benchmarks/sweep_throughput.py: the root importable
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -147,7 +148,7 @@ def run_program(
 ) -> Callable[[TrainState], TrainState]:
     """The jitted, donating program that advances the runs by ``iterations``: for 1
     unsharded run the plain ``jit(trainer.run)``; otherwise the program a sweep call
-    runs (``drqn_jax.sweep_runner.call_programs``: ``shard_map`` over the devices,
+    runs (``drqn_jax.experiments.sweep_runner.call_programs``: ``shard_map`` over the devices,
     each device's runs batched with ``vmap`` or one after another with ``lax.map``)."""
     if runs == 1 and sharding is None:
         return jax.jit(functools.partial(trainer.run, num_iterations=iterations), donate_argnums=0)
@@ -524,8 +525,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--strategy",
         choices=("vmap", "map"),
         default=None,
-        help="how a device trains its runs (drqn_jax.sweep_runner.STRATEGIES; default: what "
-        "the sweep chooses here, map on CPU, vmap elsewhere)",
+        help="how a device trains its runs (drqn_jax.experiments.sweep_runner.STRATEGIES; "
+        "default: what the sweep chooses here, map on CPU, vmap elsewhere)",
     )
     parser.add_argument("--sharded-child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)

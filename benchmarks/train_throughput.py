@@ -73,9 +73,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from benchmarks.harness import base_parser, compile_timed, report, time_calls
+from drqn_jax.learners import Hyperparams, TrainConfig, Trainer, make_train
+from drqn_jax.learners.dqn.replay import replay_bytes
+from drqn_jax.learners.dqn.state import TrainState
 from drqn_jax.networks import NetworkConfig, param_count
-from drqn_jax.replay import replay_bytes
-from drqn_jax.train import Hyperparams, TrainConfig, Trainer, TrainState, make_train
 
 TARGET_UPDATES_PER_S = 20.0  # issue 3: gradient updates/s at batch 32 × 8, 2-core CPU
 TARGET_REPLAY_MB = 32.0  # issue 3: replay of M = 50 episodes ≤ 32 MB per run

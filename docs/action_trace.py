@@ -25,7 +25,7 @@ from drqn_jax.agents import Agent, drqn_agent, rule_based_agent
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action
 from drqn_jax.env.collision import box_disc_overlap, ego_box
 from drqn_jax.env.state import BRAKE
-from drqn_jax.runner import load_run, load_trained_network
+from drqn_jax.experiments.runner import load_run, load_trained_network
 
 ACTIONS = ("accelerate", "slow_down", "brake", "steer")
 BEHAVIOURS = ("crossing", "jaywalking", "sidewalk")  # SPEC §3, state.CROSSING … SIDEWALK

@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 
 import drqn_jax
-from drqn_jax import recording
 from drqn_jax.config import load_config
+from drqn_jax.interop import recording
 
 
 def main() -> None:

@@ -18,7 +18,7 @@ import itertools
 import time
 
 from drqn_jax.config import load_config
-from drqn_jax.runner import builtin_agent, evaluate_agents
+from drqn_jax.experiments.runner import builtin_agent, evaluate_agents
 
 #: (env.reward_collision, env.reward_stopped): the paper's, then the alternatives.
 REWARDS = ((-10.0, -1.0), (-100.0, -1.0), (-10.0, -0.1), (-100.0, -0.1))

@@ -34,13 +34,13 @@ from drqn_jax.env import (  # noqa: E402
     UrbanPedestrians,
 )
 from drqn_jax.evaluation import EpisodeMetrics, evaluate, run_episodes, summarize  # noqa: E402
-from drqn_jax.gymnasium_env import (  # noqa: E402
+from drqn_jax.interop.gymnasium_env import (  # noqa: E402
     UrbanPedestriansGymEnv,
     UrbanPedestriansVectorEnv,
     register_gymnasium_envs,
 )
+from drqn_jax.learners import Hyperparams, TrainConfig, make_train  # noqa: E402
 from drqn_jax.registry import make, registered_envs  # noqa: E402
-from drqn_jax.train import Hyperparams, TrainConfig, make_train  # noqa: E402
 
 register_gymnasium_envs()  # gymnasium.make("drqn_jax/UrbanPedestrians-v0"), make_vec(...)
 

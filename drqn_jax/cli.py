@@ -2,7 +2,7 @@
 ``sweep``, ``study``, ``frontier``, ``report``, ``bench``.
 
 ``replay`` records greedy episodes of a trained run or a built-in agent as a
-rerun ``.rrd`` file (:mod:`drqn_jax.recording`); ``train --rrd`` and
+rerun ``.rrd`` file (:mod:`drqn_jax.interop.recording`); ``train --rrd`` and
 ``reproduce --rrd`` write the training curves as one.
 
 Exit statuses: 0 done; 1 the run failed (non-finite loss: the last good
@@ -27,14 +27,13 @@ from typing import Any
 
 from drqn_jax import __version__
 from drqn_jax.agents import drqn_agent
-from drqn_jax.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.config import Config, ConfigError, config_names, load_config
 from drqn_jax.env.params import KMH
 from drqn_jax.evaluation import metrics_table
-from drqn_jax.frontier import PLANNER_CAPS_KMH
-from drqn_jax.hyperparams import agent_name
-from drqn_jax.report import check_section
-from drqn_jax.runner import (
+from drqn_jax.experiments.checkpoint import CheckpointError, atomic_write_text
+from drqn_jax.experiments.frontier import PLANNER_CAPS_KMH
+from drqn_jax.experiments.report import check_section
+from drqn_jax.experiments.runner import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
@@ -48,8 +47,9 @@ from drqn_jax.runner import (
     train_run,
     write_evaluation,
 )
-from drqn_jax.sweep import STRATEGIES
-from drqn_jax.train import selection
+from drqn_jax.experiments.sweep import STRATEGIES
+from drqn_jax.learners.hyperparams import agent_name
+from drqn_jax.learners.selection import selection
 
 __all__ = ["main"]
 
@@ -315,8 +315,8 @@ def _frontier_parser(sub: Any) -> None:
     frontier.add_argument(
         "--wide",
         action="store_true",
-        help="sweep the wide grid (drqn_jax.frontier.WIDE_GRID, the evidence behind the "
-        "default settings; about 25 min on 2 cores at 1000 episodes)",
+        help="sweep the wide grid (drqn_jax.experiments.frontier.WIDE_GRID, the evidence "
+        "behind the default settings; about 25 min on 2 cores at 1000 episodes)",
     )
     frontier.add_argument(
         "--caps",
@@ -521,7 +521,7 @@ def _train_and_evaluate(
         raise ConfigError(f"--rrd {rrd}: is a directory; give a file name such as training.rrd")
     result = train_run(config, run_dir, resume=resume, quiet=quiet)
     if rrd is not None:
-        from drqn_jax.recording import record_training
+        from drqn_jax.interop.recording import record_training
 
         try:
             record_training(rrd, recorded_metrics(result.state))
@@ -538,7 +538,7 @@ def _train_and_evaluate(
         _say_evaluating(config, agents)
     results = evaluate_agents(config, agents, quiet=quiet)
     if reproduce:
-        from drqn_jax.study import config_frontier
+        from drqn_jax.experiments.study import config_frontier
 
         if not quiet:
             print("sweeping the rule-based frontier on the same episodes...", file=sys.stderr)
@@ -645,11 +645,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def paper_comparison(results: list[dict[str, Any]], frontier: dict[str, Any]) -> str:
     """The paper's Table III rows (with the interval its 10 episodes allow) beside ours
     (one trained DRQN, then the rule-based agent), each with its margin to the rule-based
-    frontier of ``frontier`` (:func:`~drqn_jax.frontier.world_frontier`), and the verdict
-    on the paper's claim."""
-    from drqn_jax.frontier import with_margin
-    from drqn_jax.report import claim_verdict, study_table
-    from drqn_jax.study import baseline_row, paper_rows
+    frontier of ``frontier`` (:func:`~drqn_jax.experiments.frontier.world_frontier`), and
+    the verdict on the paper's claim."""
+    from drqn_jax.experiments.frontier import with_margin
+    from drqn_jax.experiments.report import claim_verdict, study_table
+    from drqn_jax.experiments.study import baseline_row, paper_rows
 
     world = frontier["world"]
     ours = [with_margin(baseline_row("drqn_jax", r, world=world), frontier) for r in results]
@@ -673,7 +673,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from drqn_jax.recording import collect_episodes, write_episodes
+    from drqn_jax.interop.recording import collect_episodes, write_episodes
 
     if args.episodes < 1:
         raise ConfigError(f"--episodes = {args.episodes}: must be an integer >= 1")
@@ -738,8 +738,8 @@ def _run_benchmark(name: str, args: Sequence[str]) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.name == "quick":
-        from drqn_jax.bench import bench_env, bench_train
-        from drqn_jax.machine import machine_info, machine_lines
+        from drqn_jax.experiments.bench import bench_env, bench_train
+        from drqn_jax.experiments.machine import machine_info, machine_lines
 
         quick = _quick_parser().parse_args(args.args)
         config = load_config(quick.config, quick.overrides)
@@ -769,8 +769,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_sweep(args: argparse.Namespace) -> int:
     import jax
 
-    from drqn_jax.sweep import load_sweep, summarize_sweep, sweep_csv, sweep_table
-    from drqn_jax.sweep_runner import describe_plan, init_distributed, plan_calls, run_sweep
+    from drqn_jax.experiments.sweep import load_sweep, summarize_sweep, sweep_csv, sweep_table
+    from drqn_jax.experiments.sweep_runner import (
+        describe_plan,
+        init_distributed,
+        plan_calls,
+        run_sweep,
+    )
 
     dist = init_distributed(args.coordinator, args.num_processes, args.process_id)
     if dist.processes > 1 and args.out is None:
@@ -820,7 +825,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_study(args: argparse.Namespace) -> int:
-    from drqn_jax.study import plan_study, require_matplotlib, run_study
+    from drqn_jax.experiments.study import plan_study, require_matplotlib, run_study
 
     configs = [c.strip() for c in args.configs.split(",") if c.strip()]
     if args.smooth < 1:
@@ -853,8 +858,8 @@ def cmd_study(args: argparse.Namespace) -> int:
         return EXIT_INTERRUPTED
     wall = time.perf_counter() - start
     if args.results:
-        from drqn_jax.machine import machine_info
-        from drqn_jax.report import load_results, write_results
+        from drqn_jax.experiments.machine import machine_info
+        from drqn_jax.experiments.report import load_results, write_results
 
         about = {
             "command": args.command_line,
@@ -880,7 +885,7 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from drqn_jax.report import load_results, stale_documents, update_document
+    from drqn_jax.experiments.report import load_results, stale_documents, update_document
 
     if not Path(args.results).is_file():
         raise ConfigError(f"--results {args.results}: no such file (a study writes it)")
@@ -904,8 +909,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_frontier(args: argparse.Namespace) -> int:
-    from drqn_jax.frontier import WIDE_GRID, grid_settings
-    from drqn_jax.study import config_frontier
+    from drqn_jax.experiments.frontier import WIDE_GRID, grid_settings
+    from drqn_jax.experiments.study import config_frontier
 
     config, caps = _frontier_config(args)
     settings = grid_settings(WIDE_GRID) if args.wide else None
@@ -947,7 +952,7 @@ def _frontier_config(args: argparse.Namespace) -> tuple[Config, list[float]]:
     if args.check < 0:
         raise ConfigError(f"--check {args.check}: must be an integer >= 0")
     if not args.no_png:
-        from drqn_jax.figures import require_matplotlib
+        from drqn_jax.experiments.figures import require_matplotlib
 
         require_matplotlib()
     if args.results:
@@ -964,15 +969,15 @@ def _frontier_outputs(
 ) -> None:
     """OUT/frontier.json (every swept point) and frontier.png; the section of --results
     (the frontiers' rows, the check, the wall times); the table on stdout."""
-    from drqn_jax.report import study_table
-    from drqn_jax.study import frontier_key, frontier_rows, paper_rows
+    from drqn_jax.experiments.report import study_table
+    from drqn_jax.experiments.study import frontier_key, frontier_rows, paper_rows
 
     rows = paper_rows() + frontier_rows(record)
     out = Path(args.out or _default_run_dir("frontier", args.config))
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "frontier.json", json.dumps(record, indent=1) + "\n")
     if not args.no_png:
-        from drqn_jax.figures import plot_safety_speed
+        from drqn_jax.experiments.figures import plot_safety_speed
 
         plot_safety_speed(rows, record, out / "frontier.png")
     times = {
@@ -981,8 +986,8 @@ def _frontier_outputs(
         if kind in record
     }
     if args.results:
-        from drqn_jax.machine import machine_info
-        from drqn_jax.report import write_results
+        from drqn_jax.experiments.machine import machine_info
+        from drqn_jax.experiments.report import write_results
 
         rule = {k: v for k, v in record["rule_based"].items() if k != "swept_points"}
         about = {"command": args.command_line, "wall_time_s": wall, **times}
@@ -1003,8 +1008,8 @@ def _frontier_outputs(
 
 def _reviewer_check(config: Config, record: dict[str, Any], n: int) -> str:
     """``n`` random rule-based settings on ``record``'s episodes against its frontier."""
-    from drqn_jax.frontier import frontier_vertices, random_settings, reviewer_check
-    from drqn_jax.study import config_frontier
+    from drqn_jax.experiments.frontier import frontier_vertices, random_settings, reviewer_check
+    from drqn_jax.experiments.study import config_frontier
 
     seed = config["run"]["seed"]
     limit = config["env"]["v_ref"] / KMH

@@ -45,9 +45,9 @@ from drqn_jax.agents.planner import PlannerParams
 from drqn_jax.agents.rule_based import RuleBasedParams
 from drqn_jax.env.params import KMH, EnvParams, StaticEnvParams
 from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.learners import Hyperparams, TrainConfig
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.registry import make, preset, registered_envs
-from drqn_jax.train import Hyperparams, TrainConfig
 
 __all__ = [
     "ADDED_LATER",

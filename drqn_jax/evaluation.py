@@ -154,7 +154,7 @@ def play_episode(
     trace: Callable[[Decision], Any] | None = None,
 ) -> tuple[EpisodeMetrics, Any, Any, Any]:
     """Play one episode to its end (at most ``max_steps`` = T) and measure it: the one
-    rollout of evaluation (:func:`rollout_episode`) and recording (``drqn_jax.recording``).
+    rollout of evaluation (:func:`rollout_episode`) and recording (``drqn_jax.interop.recording``).
 
     The scan always runs T steps (branch-free under ``vmap``); steps after the
     episode ended are not counted. Keys: ``key`` splits into the reset, the agent's
@@ -267,7 +267,7 @@ def _nearest_quantile(values: np.ndarray, q: float) -> float:
 def summarize_outcomes(episodes: EpisodeMetrics) -> dict[str, Any]:
     """The §8 metrics that need no time to collision (host-side, float64): what
     :func:`summarize` returns but its ``min_ttc_*`` and ``near_collision_*`` keys, so a
-    sweep that drops the TTC from its program (:mod:`drqn_jax.frontier`) reads the
+    sweep that drops the TTC from its program (:mod:`drqn_jax.experiments.frontier`) reads the
     same numbers as an evaluation."""
     ep = jax.tree.map(np.asarray, episodes)
     n = int(ep.collision.shape[0])
@@ -387,7 +387,8 @@ def _in_host_calls(
 
 def metrics_table(results: list[dict[str, Any]]) -> str:
     """A Markdown table of :func:`evaluate` results, one row per agent (SPEC §8); the
-    ``teacher`` column is what :func:`drqn_jax.runner.evaluate_agents` adds (– without it)."""
+    ``teacher`` column is what :func:`drqn_jax.experiments.runner.evaluate_agents` adds
+    (– without it)."""
     header = (
         "| agent | teacher | episodes | collision-free % (95 % CI) | struck while stopped % "
         "| goal % "

@@ -13,7 +13,7 @@ Layers (default widths, Table I):
 
 The conv stack is the torso for the paper's grid observation. For an
 environment whose observation is a flat vector (any env of the gymnax
-contract, :mod:`drqn_jax.task`) the torso is an MLP instead (``torso =
+contract, :mod:`drqn_jax.learners.task`) the torso is an MLP instead (``torso =
 "mlp"``: dense ReLU layers of widths ``mlp``), and the core sees its features
 alone (no speed, no last action); the core and head are the same.
 

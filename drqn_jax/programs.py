@@ -2,7 +2,7 @@
 
 ``jit`` compiles once per function object and argument shapes, so a program is
 compiled once only if the function behind it is built once. Everything the
-package builds from static (hashable) descriptions — a :class:`~drqn_jax.train.Trainer`
+package builds from static (hashable) descriptions — a :class:`~drqn_jax.learners.trainer.Trainer`
 per ``TrainConfig``, the Gymnasium env's jitted reset/step/render per static env,
 a DRQN agent's ``init``/``act`` per network, a compiled training chunk per
 program key — goes through :func:`cached_program` (or :func:`cached`),

@@ -12,8 +12,8 @@ import numpy as np
 from drqn_jax.config import load_config
 from drqn_jax.env.road_map import WALKWAY, semantic_class
 from drqn_jax.env.state import SIDEWALK
+from drqn_jax.learners import Hyperparams, TrainConfig, make_train
 from drqn_jax.networks import NetworkConfig
-from drqn_jax.train import Hyperparams, TrainConfig, make_train
 
 #: The smoke config as test_sweep's sweep sets it. test_study and test_memory
 #: train with the same settings so that the suite compiles those programs once

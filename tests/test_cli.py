@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 
 from benchmarks.env_throughput import QUICK_ENVS, QUICK_STEPS
-from drqn_jax import cli, runner
-from drqn_jax.checkpoint import CHECKPOINT_JSON, CHECKPOINT_NPZ, load_checkpoint
+from drqn_jax import cli
 from drqn_jax.config import load_config
 from drqn_jax.env.state import ACTIONS
+from drqn_jax.experiments import runner
+from drqn_jax.experiments.checkpoint import CHECKPOINT_JSON, CHECKPOINT_NPZ, load_checkpoint
 from tests.helpers import SMOKE_CHUNK
 
 SMOKE = ["--config", "smoke", "--quiet"]

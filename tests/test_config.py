@@ -18,8 +18,8 @@ from drqn_jax.config import (
     load_config,
     parse_override,
 )
+from drqn_jax.learners import TrainConfig
 from drqn_jax.networks import NetworkConfig
-from drqn_jax.train import TrainConfig
 
 
 def changed(preset, base, section: str) -> dict:
@@ -37,8 +37,8 @@ def test_presets_say_when_they_have_a_teacher():
     its name says ``teacher`` (and then it has one: guided exploration or imitation);
     a sweep whose name does not say so has no teacher at any point."""
     from drqn_jax.config import _is_sweep_file
-    from drqn_jax.sweep import load_sweep
-    from drqn_jax.train import REWARD_ALONE, teacher_label
+    from drqn_jax.experiments.sweep import load_sweep
+    from drqn_jax.learners.hyperparams import REWARD_ALONE, teacher_label
 
     for path in _shipped():
         if _is_sweep_file(path):
@@ -88,7 +88,7 @@ def test_shipped_configs_load_and_run_directories_do_not_need_them(tmp_path):
 
 def test_shipped_sweep_files_validate():
     """Every sweep file in configs/sweeps/ names valid points."""
-    from drqn_jax.sweep import load_sweep
+    from drqn_jax.experiments.sweep import load_sweep
 
     sweeps = sorted(CONFIG_DIR.glob("sweeps/*.toml"))
     assert {p.stem for p in sweeps} >= {"sweep", "reward", "occlusion"}

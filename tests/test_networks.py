@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 from drqn_jax.env.state import Observation
-from drqn_jax.networks import NetworkConfig, conv_torso, lstm_cell, make_network, param_count
+from drqn_jax.networks import (
+    NetworkConfig,
+    conv_torso,
+    lstm_cell,
+    make_network,
+    param_count,
+)
 from tests.helpers import flat_random
 
 

@@ -3,7 +3,7 @@
 A toy env (a walk on the integers, compiled in well under a second) is broken
 one rule at a time; each break must make :func:`check_env_contract` fail with
 the rule's message. The checker on the drqn_jax worlds is in
-``tests/env/test_urban.py``, on a gymnax env in ``tests/test_task.py``.
+``tests/env/test_urban.py``, on a gymnax env in ``tests/learners/test_task.py``.
 """
 
 from __future__ import annotations

@@ -3,9 +3,9 @@
 As Jumanji's ``viewer.py`` does for its environments, this module owns every
 decision about how the simulator looks, for both picture backends:
 
-* the Gymnasium envs' ``render_mode="rgb_array"`` (:mod:`drqn_jax.gymnasium_env`)
+* the Gymnasium envs' ``render_mode="rgb_array"`` (:mod:`drqn_jax.interop.gymnasium_env`)
   show :func:`render_frame`, a pure-JAX raster (jit- and vmap-able);
-* the rerun recordings (:mod:`drqn_jax.recording`) draw the map, the ego and the
+* the rerun recordings (:mod:`drqn_jax.interop.recording`) draw the map, the ego and the
   pedestrians with the same colours and label the ego with the same HUD text
   (:func:`hud_glyphs` → :func:`hud_text`).
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 from benchmarks.frontier_settings import PAPER, main, thin
-from drqn_jax.frontier import frontier_vertices
+from drqn_jax.experiments.frontier import frontier_vertices
 
 
 def _point(speed: float, rate: float, **params: float) -> dict:
@@ -59,10 +59,10 @@ def test_a_dominated_papers_setting_is_kept_off_the_curve():
 
 def test_the_stored_wide_sweep_gives_the_default_settings(capsys):
     """benchmarks/results/frontier-wide.json (the wide sweep's Pareto points) thinned
-    to 30 is drqn_jax.frontier.RULE_BASED_SETTINGS, in order."""
+    to 30 is drqn_jax.experiments.frontier.RULE_BASED_SETTINGS, in order."""
     from pathlib import Path
 
-    from drqn_jax.frontier import RULE_BASED_SETTINGS
+    from drqn_jax.experiments.frontier import RULE_BASED_SETTINGS
 
     stored = Path(__file__).parents[2] / "benchmarks" / "results" / "frontier-wide.json"
     main([str(stored), "--keep", str(len(RULE_BASED_SETTINGS))])

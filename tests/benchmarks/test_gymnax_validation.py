@@ -1,7 +1,7 @@
 """``benchmarks/gymnax_validation.py``, fast: the learner on environments nobody here
 wrote (gymnax): the DQN learns CartPole-v1, and on bsuite's MemoryChain the DRQN
 remembers where the memoryless DQN cannot; the recipes differ only where they say.
-(The gymnax env as a task is tested in ``tests/test_task.py``.)"""
+(The gymnax env as a task is tested in ``tests/learners/test_task.py``.)"""
 
 from __future__ import annotations
 

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 import drqn_jax
-from drqn_jax import gymnasium_env, recording
 from drqn_jax.env import viewer
 from drqn_jax.env.collision import time_to_collision
 from drqn_jax.env.road_map import lane_centre_y
 from drqn_jax.env.state import ACCELERATE, ACTIONS, BRAKE, JAYWALKING
+from drqn_jax.interop import gymnasium_env, recording
 
 PPM = viewer.RENDER_PIXELS_PER_M
 HEIGHT, WIDTH = 240, 480

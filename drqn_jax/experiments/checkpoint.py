@@ -1,0 +1,534 @@
+"""Checkpoints of a training state: a self-contained ``.npz`` and a ``.json`` copy of its manifest.
+
+A checkpoint of any pytree (in practice a :class:`~drqn_jax.learners.dqn.state.TrainState`)
+in ``run_dir`` is:
+
+* ``checkpoint.npz``, the checkpoint itself: a zip archive with one ``.npy``
+  entry per leaf, in flatten order, named after the leaf's key path
+  (``jax.tree_util.keystr``, reduced to ``[A-Za-z0-9_]`` and made unique),
+  and a ``manifest.json`` entry. Typed PRNG keys are stored as their
+  ``jax.random.key_data`` (uint32, the key shape plus the impl's trailing
+  axis); dtypes NumPy does not know natively (``bfloat16`` …) as unsigned
+  integers of the same width. The manifest holds ``format`` (1),
+  ``drqn_jax_version``, every key of the caller's ``meta`` (``config``,
+  ``config_hash``, ``recorded``, ``grad_steps``, …) and ``leaves`` (one
+  ``{name, path, shape, dtype}`` per leaf in npz order, plus ``key_impl`` for
+  a PRNG key leaf; ``shape`` and ``dtype`` are the leaf's own, e.g. ``[]``
+  and ``"key<fry>"`` for one key). The bytes are deterministic (fixed zip
+  timestamps, no compression): the same state and meta give the same file.
+* ``checkpoint.json``: a human-readable copy of that manifest plus
+  ``npz_sha256`` (the SHA-256 of the npz bytes), for people and tools.
+  :func:`load_checkpoint` never reads it; it may be missing or stale.
+
+Restoration is bit-exact: every leaf comes back with the same dtype, shape
+and bits (NaN payloads and signed zeros included), in the tree structure of
+the caller's template, so a run resumed from a checkpoint continues exactly
+as the uninterrupted run would have.
+
+Crash safety: the npz is written to a temporary file in ``run_dir``, flushed
+and fsynced, then renamed over the old one (``os.replace``, then the
+directory is fsynced). That one rename is the commit point: a process that
+dies at any instant leaves the previous npz or the new one, each complete
+and self-contained, never a mixture, so a run that is interrupted keeps its
+last good checkpoint (at worst beside a stray hidden ``.checkpoint.npz.*.tmp``
+file, which nothing reads). The json is written the same way after the npz;
+after a crash between the two renames it lags one save behind (its
+``npz_sha256`` is then not the npz's), until the next save rewrites it.
+Integrity rests on the CRC-32 that the zip format keeps for every entry:
+each entry is checked as it is read, so a truncated archive or a changed
+byte in an entry is detected.
+
+Every problem on loading (no checkpoint, i.e. no ``checkpoint.npz``; an
+unreadable, truncated or corrupt npz, a CRC-32 mismatch included; an unknown
+format; a leaf missing or of another shape or dtype than the template;
+another configuration) raises :class:`CheckpointError` with a one-line
+message that names the file, the leaf or the configuration field.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import json
+import os
+import re
+import secrets
+import zipfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = [
+    "AGENT",
+    "CHECKPOINT",
+    "CHECKPOINT_JSON",
+    "CHECKPOINT_NPZ",
+    "FORMAT",
+    "CheckpointError",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "config_hash",
+    "load_checkpoint",
+    "save_checkpoint",
+]
+
+CHECKPOINT = "checkpoint"  # the default file stem: checkpoint.npz and checkpoint.json
+CHECKPOINT_NPZ = f"{CHECKPOINT}.npz"
+CHECKPOINT_JSON = f"{CHECKPOINT}.json"
+AGENT = "agent"  # the stem of a trained agent's parameters alone (a sweep's OUT/agents/run-NNNN)
+FORMAT = 1
+_MANIFEST = "manifest.json"  # the npz entry that holds the manifest
+_RESERVED = ("format", "drqn_jax_version", "npz_sha256", "leaves")
+_MAX_LISTED = 5  # mismatches named in one error message
+_ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # fixed entry timestamps: deterministic bytes
+
+
+_ZIP_ERRORS = (
+    zipfile.BadZipFile,
+    zipfile.LargeZipFile,
+    OSError,
+    EOFError,
+    ValueError,
+    RuntimeError,  # an entry flagged as encrypted; NotImplementedError: unknown compression
+)
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that is missing, truncated/corrupt or incompatible; the message names what."""
+
+
+# ----------------------------------------------------------------------------- atomic writes
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically: readers see the old file or the new one.
+
+    The bytes go to a temporary file in the same directory (created with the
+    usual ``0o666 & ~umask`` permissions), which is flushed, fsynced and then
+    renamed over ``path`` with ``os.replace``; the directory is fsynced too
+    where the platform allows, so the rename survives a power loss. On any
+    error the temporary file is removed. The parent directory must exist.
+    """
+    path = Path(path)
+    while True:
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+        try:
+            fd = os.open(
+                tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666
+            )
+        except FileExistsError:  # pragma: no cover - 48 random bits collided
+            continue
+        break
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    _fsync_dir(path.parent)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """:func:`atomic_write_bytes` of ``text`` encoded as UTF-8."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def _fsync_dir(directory: Path) -> None:
+    """Make a rename in ``directory`` durable (POSIX; silently skipped elsewhere)."""
+    flags = getattr(os, "O_DIRECTORY", None)
+    if flags is None:
+        return
+    try:
+        fd = os.open(directory, os.O_RDONLY | flags)
+    except OSError:
+        return
+    try:
+        with contextlib.suppress(OSError):
+            os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+# ----------------------------------------------------------------------------- configuration
+
+
+def config_hash(config: dict[str, Any]) -> str:
+    """SHA-256 hex digest of ``json.dumps(config, sort_keys=True, separators=(",", ":"))``."""
+    text = json.dumps(config, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _config_diff(saved: Any, expected: Any, prefix: str = "") -> list[str]:
+    """``"a.b: checkpoint X, this run Y"`` for every differing leaf of two nested dicts."""
+    if isinstance(saved, dict) and isinstance(expected, dict):
+        out: list[str] = []
+        for key in sorted(set(saved) | set(expected), key=str):
+            name = f"{prefix}.{key}" if prefix else str(key)
+            if key not in saved:
+                out.append(f"{name}: checkpoint <absent>, this run {_show(expected[key])}")
+            elif key not in expected:
+                out.append(f"{name}: checkpoint {_show(saved[key])}, this run <absent>")
+            else:
+                out.extend(_config_diff(saved[key], expected[key], name))
+        return out
+    if saved == expected and type(saved) is type(expected):
+        return []
+    return [f"{prefix or '<config>'}: checkpoint {_show(saved)}, this run {_show(expected)}"]
+
+
+def _show(value: Any) -> str:
+    return json.dumps(value, sort_keys=True)
+
+
+def _json_default(value: Any) -> Any:
+    """JSON for NumPy/JAX scalars and arrays in ``meta`` (``int(x)`` is not needed)."""
+    if isinstance(value, np.generic | np.ndarray | jax.Array):
+        return np.asarray(value).tolist()
+    raise TypeError(f"checkpoint meta: {type(value).__name__} {value!r} is not JSON-serialisable")
+
+
+# ----------------------------------------------------------------------------- leaves
+
+
+def _is_key_dtype(dtype: Any) -> bool:
+    return jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key)
+
+
+def _shape_dtype(leaf: Any) -> tuple[tuple[int, ...], Any]:
+    """Logical (shape, dtype) of a leaf: an array, a key array, a ShapeDtypeStruct or a
+    Python scalar (taken as JAX would: ``jnp.asarray``)."""
+    if not hasattr(leaf, "dtype") or not hasattr(leaf, "shape"):
+        leaf = jnp.asarray(leaf)
+    return tuple(int(d) for d in leaf.shape), leaf.dtype
+
+
+def _npz_name(path: str, used: set[str]) -> str:
+    """``path`` (a keystr) reduced to ``[A-Za-z0-9_]``, unique among ``used``."""
+    base = re.sub(r"[^A-Za-z0-9]+", "_", path).strip("_") or "leaf"
+    name, n = base, 1
+    while name in used:
+        n += 1
+        name = f"{base}__{n}"
+    used.add(name)
+    return name
+
+
+def _storage_dtype(dtype: np.dtype) -> np.dtype:
+    """The dtype an array is stored as: itself if NumPy knows it, else uint of its width."""
+    return dtype if dtype.isbuiltin == 1 else np.dtype(f"uint{8 * dtype.itemsize}")
+
+
+def _encode(state: Any) -> tuple[list[dict[str, Any]], list[np.ndarray]]:
+    """The manifest entries and host arrays of ``state``'s leaves, in flatten order."""
+    leaves, _ = jax.tree_util.tree_flatten_with_path(state)
+    entries: list[dict[str, Any]] = []
+    arrays: list[Any] = []
+    used: set[str] = set()
+    for path, leaf in leaves:
+        keystr = jax.tree_util.keystr(path)
+        shape, dtype = _shape_dtype(leaf)
+        entry: dict[str, Any] = {
+            "name": _npz_name(keystr, used),
+            "path": keystr,
+            "shape": list(shape),
+            "dtype": str(dtype),
+        }
+        if _is_key_dtype(dtype):
+            impl = jax.random.key_impl(leaf)
+            entry["key_impl"] = impl if isinstance(impl, str) else str(impl)
+            arrays.append(jax.random.key_data(leaf))
+        else:
+            arrays.append(leaf if hasattr(leaf, "dtype") else jnp.asarray(leaf))
+        entries.append(entry)
+    host = [np.asarray(a, order="C") for a in jax.device_get(arrays)]
+    host = [a.view(_storage_dtype(a.dtype)) for a in host]
+    return entries, host
+
+
+def _npz_bytes(entries: list[dict[str, Any]], arrays: list[np.ndarray], manifest: bytes) -> bytes:
+    """The npz: one ``.npy`` entry per leaf, then ``manifest.json`` (fixed timestamps)."""
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as zf:
+        for entry, array in zip(entries, arrays, strict=True):
+            info = zipfile.ZipInfo(entry["name"] + ".npy", date_time=_ZIP_TIME)
+            with zf.open(info, "w", force_zip64=array.nbytes > 2**31) as f:
+                np.lib.format.write_array(f, array, allow_pickle=False)
+        zf.writestr(zipfile.ZipInfo(_MANIFEST, date_time=_ZIP_TIME), manifest)
+    return buffer.getvalue()
+
+
+# ----------------------------------------------------------------------------- save / load
+
+
+def save_checkpoint(
+    run_dir: str | os.PathLike, state: Any, meta: dict[str, Any], *, name: str = CHECKPOINT
+) -> None:
+    """Save the pytree ``state`` and ``meta`` as ``run_dir/checkpoint.npz`` (+ its ``.json``).
+
+    Args:
+        run_dir: the run's directory, created if missing.
+        state: any pytree of arrays, typed PRNG key arrays or Python scalars
+            (a :class:`~drqn_jax.learners.dqn.state.TrainState`); it is copied to the host.
+        meta: JSON-serialisable values stored at the top level of the
+            manifest (NumPy/JAX scalars are converted); it may not use the
+            reserved keys ``format``, ``drqn_jax_version``, ``npz_sha256``,
+            ``leaves``.
+        name: the files' stem (``NAME.npz``, ``NAME.json``); e.g. ``agent`` for a
+            sweep's trained agent parameters beside no training state.
+
+    The npz, which holds the manifest, is written atomically first (the
+    commit point), then the json copy (see the module docstring for what a
+    crash leaves behind).
+
+    Raises:
+        ValueError: ``meta`` uses a reserved key.
+        TypeError: ``meta`` holds a value JSON cannot represent.
+    """
+    import drqn_jax  # late: drqn_jax may import this module while initialising
+
+    clash = [k for k in _RESERVED if k in meta]
+    if clash:
+        raise ValueError(f"checkpoint meta may not use the reserved key(s) {', '.join(clash)}")
+    run_dir = Path(run_dir)
+    entries, arrays = _encode(state)
+    version = getattr(drqn_jax, "__version__", "unknown")
+    manifest = {"format": FORMAT, "drqn_jax_version": version, **meta, "leaves": entries}
+    text = json.dumps(manifest, indent=1, default=_json_default) + "\n"  # may raise: no write
+    data = _npz_bytes(entries, arrays, text.encode("utf-8"))
+    saved = json.loads(text)  # as stored: NumPy scalars and tuples already converted
+    copy = {
+        "format": FORMAT,
+        "drqn_jax_version": version,
+        "npz_sha256": hashlib.sha256(data).hexdigest(),
+        **saved,
+    }
+    run_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(run_dir / f"{name}.npz", data)
+    atomic_write_text(run_dir / f"{name}.json", json.dumps(copy, indent=1) + "\n")
+
+
+def load_checkpoint(
+    run_dir: str | os.PathLike,
+    template: Any,
+    expected_meta: dict[str, Any] | None = None,
+    fill: Mapping[str, Any] | None = None,
+    *,
+    name: str = CHECKPOINT,
+    renamed: Mapping[str, str] | None = None,
+) -> tuple[Any, dict[str, Any]]:
+    """Load the checkpoint in ``run_dir`` into the structure of ``template``.
+
+    Only ``checkpoint.npz`` is read (with the manifest it holds);
+    ``checkpoint.json`` is ignored, missing or not.
+
+    Args:
+        run_dir: the directory :func:`save_checkpoint` wrote.
+        template: a pytree of the saved state's structure whose leaves are
+            arrays, key arrays or ``jax.ShapeDtypeStruct`` (e.g.
+            ``jax.eval_shape(trainer.init, key)``); only shapes, dtypes and
+            key paths are used. Every template leaf must have a saved leaf at
+            the same key path with the same shape and dtype, and vice versa.
+        expected_meta: optional; if it and the checkpoint both have a
+            ``config_hash``, they must be equal. Other keys are not checked.
+        fill: optional values of leaves added to the state after the
+            checkpoint was written (key path -> array of the template's shape
+            and dtype), used where the checkpoint lacks them.
+        name: the npz's stem, as given to :func:`save_checkpoint`.
+        renamed: optional old key path -> new key path of leaves renamed after
+            the checkpoint was written (their values read unchanged).
+
+    Returns:
+        ``(state, meta)``: the state (``jax.Array`` leaves, typed keys
+        rebuilt with ``jax.random.wrap_key_data``, bit-identical to the saved
+        leaves) in ``template``'s tree structure, and the manifest's fields
+        except ``leaves`` (the caller's ``meta`` plus ``format`` and
+        ``drqn_jax_version``).
+
+    Raises:
+        CheckpointError: no checkpoint (no npz); the npz unreadable,
+            truncated or corrupt (a CRC-32 mismatch in any entry); an unknown
+            format; leaves that do not fit the template (the first few are
+            named, with saved and expected shape and dtype); another
+            configuration (the differing ``config`` fields are named).
+    """
+    run_dir = Path(run_dir)
+    npz_path = run_dir / f"{name}.npz"
+    if not run_dir.is_dir():
+        raise CheckpointError(f"no checkpoint: directory {run_dir} does not exist")
+    try:
+        data = npz_path.read_bytes()
+    except FileNotFoundError:
+        raise CheckpointError(f"no checkpoint in {run_dir} (no {npz_path.name})") from None
+    except OSError as err:
+        raise CheckpointError(f"cannot read {npz_path}: {err.strerror or err}") from None
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(data))
+    except _ZIP_ERRORS as err:
+        raise CheckpointError(
+            f"{npz_path} is not a valid npz archive (truncated or corrupt: {err})"
+        ) from None
+    manifest = _read_manifest(npz_path, archive)
+    if expected_meta is not None:
+        _check_config(run_dir, manifest, expected_meta)
+    saved = [
+        {**entry, "path": (renamed or {}).get(entry["path"], entry["path"])}
+        for entry in manifest["leaves"]
+    ]
+    entries = _check_template(run_dir, saved, template, fill or {})
+    leaves = [
+        _decode(npz_path, archive, entry) if isinstance(entry, dict) else entry for entry in entries
+    ]
+    treedef = jax.tree.structure(template)
+    meta = {k: v for k, v in manifest.items() if k != "leaves"}
+    return jax.tree.unflatten(treedef, leaves), meta
+
+
+def _read_entry(npz_path: Path, archive: zipfile.ZipFile, member: str, what: str) -> bytes:
+    """The bytes of one archive entry, its CRC-32 checked."""
+    try:
+        return archive.read(member)
+    except KeyError:
+        raise CheckpointError(f"{npz_path} is corrupt: it has no {member} ({what})") from None
+    except _ZIP_ERRORS as err:
+        raise CheckpointError(
+            f"{npz_path} is corrupt: cannot read {member} ({what}): {err}"
+        ) from None
+
+
+def _read_manifest(npz_path: Path, archive: zipfile.ZipFile) -> dict[str, Any]:
+    """The parsed and validated ``manifest.json`` entry of the npz."""
+    raw = _read_entry(npz_path, archive, _MANIFEST, "the checkpoint manifest")
+    where = f"{npz_path} ({_MANIFEST})"
+    try:
+        manifest = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise CheckpointError(f"{where} is unreadable (truncated or corrupt: {err})") from None
+    if not isinstance(manifest, dict):
+        raise CheckpointError(f"{where} is not a checkpoint manifest (not a JSON object)")
+    if "format" not in manifest:
+        raise CheckpointError(f"{where} is not a checkpoint manifest (no 'format')")
+    if manifest["format"] != FORMAT:
+        raise CheckpointError(
+            f"{where} has unknown checkpoint format {manifest['format']!r} "
+            f"(this drqn_jax reads format {FORMAT})"
+        )
+    if not isinstance(manifest.get("leaves"), list):
+        raise CheckpointError(f"{where} is corrupt: 'leaves' missing or malformed")
+    for entry in manifest["leaves"]:
+        if not (
+            isinstance(entry, dict)
+            and all(isinstance(entry.get(k), str) for k in ("name", "path", "dtype"))
+            and isinstance(entry.get("shape"), list)
+        ):
+            raise CheckpointError(f"{where} is corrupt: malformed leaf entry {entry!r}")
+    return manifest
+
+
+def _check_config(run_dir: Path, manifest: dict[str, Any], expected: dict[str, Any]) -> None:
+    """Raise unless the saved ``config_hash`` equals ``expected``'s (when it has one)."""
+    if "config_hash" not in expected:
+        return
+    saved_hash = manifest.get("config_hash")
+    if saved_hash is None:
+        raise CheckpointError(f"checkpoint in {run_dir} records no config_hash to compare")
+    if saved_hash == expected["config_hash"]:
+        return
+    saved, wanted = manifest.get("config"), expected.get("config")
+    diffs: list[str] = []
+    if isinstance(saved, dict) and isinstance(wanted, dict):
+        wanted = json.loads(json.dumps(wanted, default=_json_default))  # tuples → lists
+        diffs = _config_diff(saved, wanted)
+    if not diffs:
+        raise CheckpointError(
+            f"checkpoint in {run_dir} was made with another configuration: config_hash "
+            f"{str(saved_hash)[:12]}… in the checkpoint, {str(expected['config_hash'])[:12]}… "
+            "in this run"
+        )
+    more = f"; and {len(diffs) - _MAX_LISTED} more" if len(diffs) > _MAX_LISTED else ""
+    raise CheckpointError(
+        f"checkpoint in {run_dir} was made with another configuration "
+        f"({len(diffs)} field{'s differ' if len(diffs) > 1 else ' differs'}): "
+        + "; ".join(diffs[:_MAX_LISTED])
+        + more
+    )
+
+
+def _describe(shape: Any, dtype: Any) -> str:
+    return f"{tuple(shape)} {dtype}"
+
+
+def _check_template(
+    run_dir: Path, saved: list[dict[str, Any]], template: Any, fill: Mapping[str, Any]
+) -> list[dict[str, Any] | jax.Array]:
+    """The saved entries in ``template``'s leaf order (or, for a leaf the checkpoint
+    lacks, its value in ``fill``); raise if any leaf does not fit."""
+    by_path = {entry["path"]: entry for entry in saved}
+    wanted, _ = jax.tree_util.tree_flatten_with_path(template)
+    problems: list[str] = []
+    entries: list[dict[str, Any]] = []
+    for path, leaf in wanted:
+        keystr = jax.tree_util.keystr(path)
+        shape, dtype = _shape_dtype(leaf)
+        entry = by_path.pop(keystr, None)
+        if entry is None and keystr in fill:
+            entries.append(jnp.broadcast_to(jnp.asarray(fill[keystr], dtype), shape))
+            continue
+        if entry is None:
+            problems.append(f"{keystr}: not in the checkpoint, expected {_describe(shape, dtype)}")
+            continue
+        if tuple(entry["shape"]) != shape or entry["dtype"] != str(dtype):
+            problems.append(
+                f"{keystr}: checkpoint {_describe(entry['shape'], entry['dtype'])}, "
+                f"expected {_describe(shape, dtype)}"
+            )
+        entries.append(entry)
+    problems += [
+        f"{path}: in the checkpoint ({_describe(entry['shape'], entry['dtype'])}), "
+        "not in the template"
+        for path, entry in by_path.items()
+    ]
+    if problems:
+        more = f"; and {len(problems) - _MAX_LISTED} more" if len(problems) > _MAX_LISTED else ""
+        raise CheckpointError(
+            f"checkpoint in {run_dir} does not fit the expected state "
+            f"({len(problems)} {'leaves differ' if len(problems) > 1 else 'leaf differs'}): "
+            + "; ".join(problems[:_MAX_LISTED])
+            + more
+        )
+    return entries
+
+
+def _decode(npz_path: Path, archive: zipfile.ZipFile, entry: dict[str, Any]) -> jax.Array:
+    """One leaf, bit-identical to the saved one."""
+    member = entry["name"] + ".npy"
+    raw = _read_entry(npz_path, archive, member, entry["path"])
+    try:
+        stored = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
+    except (ValueError, OSError) as err:
+        raise CheckpointError(
+            f"{npz_path} is corrupt: cannot read {member} ({entry['path']}): {err}"
+        ) from None
+    shape, key_impl = tuple(entry["shape"]), entry.get("key_impl")
+    if key_impl is not None:
+        if stored.shape[: len(shape)] != shape:
+            raise CheckpointError(
+                f"{npz_path} is corrupt: {entry['path']} has key data of shape {stored.shape}, "
+                f"not {shape} + impl axes"
+            )
+        return jax.random.wrap_key_data(jnp.asarray(stored), impl=key_impl)
+    dtype = jnp.dtype(entry["dtype"])
+    if stored.shape != shape or stored.dtype != _storage_dtype(dtype):
+        raise CheckpointError(
+            f"{npz_path} is corrupt: {entry['path']} is stored as "
+            f"{_describe(stored.shape, stored.dtype)}, its manifest says {_describe(shape, dtype)}"
+        )
+    return jax.device_put(stored.view(dtype))

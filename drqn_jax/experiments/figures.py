@@ -1,0 +1,116 @@
+"""The study's safety/speed figure (SPEC §9), and matplotlib for every PNG of the package.
+
+:func:`plot_safety_speed` draws collision-free rate against average speed: the
+rule-based family's frontier, the privileged planner's (a ceiling: it sees the
+true state and the simulator), the paper's two points with their 10-episode
+intervals, and every agent of a results table (seeds as dots, the mean with its
+interval). It reads only a results section's rows and its frontier record, so
+``docs/results.json`` alone redraws it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from drqn_jax.config import ConfigError
+from drqn_jax.experiments.frontier import frontier_vertices
+from drqn_jax.experiments.report import PAPER_WORLD
+from drqn_jax.learners.hyperparams import NOT_LEARNED
+
+__all__ = ["plot_safety_speed", "require_matplotlib"]
+
+
+def require_matplotlib() -> Any:
+    """``matplotlib.pyplot`` on the Agg backend; a ConfigError naming the extra if missing."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise ConfigError(
+            "the study's PNG figures need matplotlib: pip install 'drqn-jax[plots]' "
+            "(or run the study with --no-png; the .rrd recording needs no extra)"
+        ) from None
+    return plt
+
+
+def _points(ax: Any, points: Sequence[Mapping[str, Any]], style: Mapping[str, Any]) -> None:
+    xs = [p["avg_speed_kmh"] for p in points]
+    ys = [100 * p["collision_free_rate"] for p in points]
+    ax.plot(xs, ys, **style)
+
+
+def _agent(ax: Any, row: Mapping[str, Any], label: str, color: str | None = None) -> None:
+    """One row: its mean with its collision-free interval, its seeds as dots."""
+    low, high = (100 * x for x in row["collision_free_ci"])
+    mean = 100 * row["collision_free_rate"]
+    bar = ax.errorbar(
+        row["avg_speed_kmh"],
+        mean,
+        yerr=[[mean - low], [high - mean]],
+        fmt="s" if row.get("learned") == NOT_LEARNED else "o",
+        color=color,
+        capsize=3,
+        label=label,
+    )
+    seeds = row.get("per_seed") or []
+    if len(seeds) > 1:
+        _points(ax, seeds, {"ls": "none", "marker": ".", "alpha": 0.5, "color": bar[0].get_color()})
+
+
+def plot_safety_speed(
+    rows: Sequence[Mapping[str, Any]], frontier: Mapping[str, Any], path: str | Path
+) -> None:
+    """Collision-free rate against average speed (SPEC §9) as a PNG at ``path``.
+
+    Args:
+        rows: a results table's rows; those of ``frontier``'s world and the paper's
+            (another world: CARLA) are drawn.
+        frontier: :func:`drqn_jax.experiments.frontier.world_frontier`'s record of that world.
+    """
+    plt = require_matplotlib()
+    fig, ax = plt.subplots(figsize=(8, 5.5), constrained_layout=True)
+    rule = frontier["rule_based"]["points"]
+    vertices = frontier_vertices(rule)
+    ax.plot(
+        [v for v, _ in vertices],
+        [100 * r for _, r in vertices],
+        "-",
+        color="0.35",
+        label=f"rule-based frontier ({frontier['rule_based']['swept']} settings swept)",
+    )
+    _points(ax, rule, {"ls": "none", "marker": "x", "color": "0.35", "label": "its Pareto points"})
+    if "planner" in frontier:
+        caps = sorted(frontier["planner"]["points"], key=lambda p: p["avg_speed_kmh"])
+        _points(
+            ax,
+            caps,
+            {
+                "ls": "--",
+                "marker": "^",
+                "color": "tab:green",
+                "label": "privileged planner (true state + simulator): ceiling",
+            },
+        )
+    for row in rows:
+        if row["world"] == PAPER_WORLD:
+            _agent(ax, row, f"paper (CARLA), 10 episodes: {row['agent']}", color="k")
+        elif row["world"] == frontier["world"] and "params" not in row:  # not a frontier point
+            _agent(ax, row, f"{row['label'].removeprefix('drqn_jax: ')} ({row['agent']})")
+    ax.set_xlabel("average speed (km/h)")
+    ax.set_ylabel("collision-free episodes (%)")
+    ax.set_ylim(-2, 102)
+    ax.set_xlim(left=0)
+    ax.grid(alpha=0.3)
+    ax.set_title(
+        f"{frontier['world']}: {frontier['episodes']} evaluation episodes (seed "
+        f"{frontier['seed']}); the paper's rows are CARLA, 10 episodes each",
+        fontsize=9,
+    )
+    ax.legend(fontsize=7, loc="upper right")
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

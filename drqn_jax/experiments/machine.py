@@ -1,0 +1,103 @@
+"""The machine block every benchmark prints beside its figures."""
+
+from __future__ import annotations
+
+import datetime
+import os
+import platform
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import jax
+import jaxlib
+
+import drqn_jax
+from drqn_jax.determinism import cpu_thread_pool_size, fma_disabled
+
+__all__ = ["machine_info", "machine_lines"]
+
+
+def cpu_model() -> str:
+    """The CPU's "model name" from /proc/cpuinfo, else ``platform.processor()``."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "(unknown)"
+
+
+def git_commit() -> str:
+    """``HEAD``'s short hash of this checkout, ``+dirty`` if ``drqn_jax/`` has edits."""
+    root = Path(__file__).resolve().parents[2]  # the checkout: drqn_jax/experiments/..
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True
+        )
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no", "--", "drqn_jax"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+        )
+    except OSError:
+        return "(unknown)"
+    if head.returncode != 0:
+        return "(unknown)"
+    return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+
+
+def machine_info() -> dict[str, Any]:
+    """What the numbers depend on: CPU, cores, JAX versions, devices, XLA flags, date."""
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        usable = None
+    devices = jax.devices()
+    return {
+        "cpu_model": cpu_model(),
+        "logical_cores": os.cpu_count(),
+        "usable_cores": usable,
+        "jax_version": jax.__version__,
+        "jaxlib_version": jaxlib.__version__,
+        "platform": devices[0].platform,
+        "devices": [str(d) for d in devices],
+        # As in effect: ``import drqn_jax`` appends --xla_cpu_max_isa=AVX (no FMA, for
+        # batch-independent results) unless DRQN_JAX_ALLOW_FMA=1 or the user set an ISA.
+        "xla_flags": os.environ.get("XLA_FLAGS", "(unset)"),
+        "fma_disabled": fma_disabled(),
+        "xla_cpu_threads": cpu_thread_pool_size(),
+        "drqn_jax_allow_fma": os.environ.get("DRQN_JAX_ALLOW_FMA", "(unset)"),
+        # When set, the compile time of a program compiled before may be a cache load.
+        "compilation_cache_dir": jax.config.jax_compilation_cache_dir or "(off)",
+        "drqn_jax_version": drqn_jax.__version__,
+        "git_commit": git_commit(),
+        "python_version": platform.python_version(),
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "loadavg_1min_at_start": os.getloadavg()[0],
+    }
+
+
+def machine_lines(info: dict[str, Any]) -> list[str]:
+    """The machine block as Markdown bullet lines."""
+    return [
+        f"- CPU: {info['cpu_model']}",
+        f"- logical cores (os.cpu_count()): {info['logical_cores']}"
+        f" (usable by this process: {info['usable_cores']})",
+        f"- JAX {info['jax_version']}, jaxlib {info['jaxlib_version']}",
+        f"- jax.devices(): platform {info['platform']}, {', '.join(info['devices'])}",
+        f"- XLA_FLAGS (after import drqn_jax): {info['xla_flags']}"
+        f" (FMA {'disabled' if info['fma_disabled'] else 'allowed'};"
+        f" DRQN_JAX_ALLOW_FMA: {info['drqn_jax_allow_fma']})",
+        f"- XLA:CPU thread pool: {info['xla_cpu_threads']} threads (PJRT_NPROC: "
+        f"{os.environ.get('PJRT_NPROC', '(unset)')})",
+        f"- JAX persistent compilation cache: {info['compilation_cache_dir']}"
+        " (when on, a compile time may be the load of an earlier compile)",
+        f"- drqn_jax {info['drqn_jax_version']}, git commit {info['git_commit']}",
+        f"- Python {info['python_version']}",
+        f"- date (UTC): {info['date']}",
+        f"- load average (1 min) at start: {info['loadavg_1min_at_start']:.2f}",
+    ]

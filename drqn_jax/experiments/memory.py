@@ -1,0 +1,221 @@
+"""Memory plan of a sweep: bytes per training run, estimated before anything compiles.
+
+A run of :func:`drqn_jax.learners.make_train` holds its ``TrainState`` (episode
+replay, online and target parameters, Adam moments, env states, metrics) for
+the whole run, and while it learns, the temporaries of one gradient update:
+the ``B × (T + 1)`` grids re-rasterised from the replay and every layer's
+activations for the online and target unrolls plus the backward pass. The
+state's bytes are exact (``jax.eval_shape`` of ``init``: shapes only, no
+compilation); the temporaries are estimated from the network's layer sizes
+(:func:`activation_bytes`), calibrated against XLA's own
+``memory_analysis()`` of the compiled program (tests/experiments/test_memory.py: the
+estimate lies between 1× and 2× of XLA's figure for the paper preset).
+
+:func:`runs_per_call` turns the per-run figure and the memory available
+(``MemAvailable`` of the host for CPU devices, the devices' own limit on
+accelerators, or the user's budget) into how many runs one compiled call may
+train at once; a sweep larger than that runs in sequential calls, and a sweep
+whose single run does not fit is refused with the breakdown.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import jax
+import numpy as np
+
+from drqn_jax.config import Config, ConfigError
+from drqn_jax.networks import NetworkConfig
+
+__all__ = [
+    "MemoryPlanError",
+    "RunMemory",
+    "activation_bytes",
+    "available_memory",
+    "call_bytes",
+    "format_bytes",
+    "run_memory",
+    "runs_per_call",
+]
+
+FLOAT_BYTES = 4
+#: Share of the available memory a plan may fill (XLA's allocator and the
+#: host process need the rest).
+USABLE_FRACTION = 0.8
+#: Temporaries per forward activation byte: online + target unroll and the
+#: backward pass of the online one (XLA reuses buffers between them; it
+#: reports about 1.7× for the paper preset and the smoke config).
+ACTIVATION_FACTOR = 2.0
+#: Gradient, update and parameter-sized temporaries of one Adam step, in units
+#: of the parameters' bytes.
+PARAM_TEMPORARIES = 4
+
+
+class MemoryPlanError(ConfigError):
+    """One run (per device) does not fit in the memory available."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunMemory:
+    """Bytes of one training run, by what holds them."""
+
+    replay: int
+    params: int  # online + target networks (+ the snapshots of train.snapshots)
+    optimiser: int  # Adam's two moments
+    other_state: int  # env states, observations, LSTM carries, metrics, counters
+    activations: int  # temporaries of one gradient update (estimated)
+
+    @property
+    def total(self) -> int:
+        return self.replay + self.params + self.optimiser + self.other_state + self.activations
+
+    def describe(self) -> str:
+        parts = ", ".join(
+            f"{name} {format_bytes(getattr(self, name))}"
+            for name in ("replay", "params", "optimiser", "other_state", "activations")
+        )
+        return f"{format_bytes(self.total)} ({parts})"
+
+
+def format_bytes(n: float) -> str:
+    """``12.3 MB`` (decimal units)."""
+    for unit, size in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if abs(n) >= size:
+            return f"{n / size:.3g} {unit}"
+    return f"{int(n)} B"
+
+
+def _nbytes(tree: Any) -> int:
+    total = 0
+    for leaf in jax.tree.leaves(tree):
+        if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+            total += 2 * 4 * math.prod(leaf.shape)  # threefry key data: 2 × uint32
+        else:
+            total += math.prod(leaf.shape) * np.dtype(leaf.dtype).itemsize
+    return total
+
+
+def forward_bytes_per_step(network: NetworkConfig) -> int:
+    """Bytes of one observation's forward activations (paper Table I layers).
+
+    The grid, each conv layer's gathered patches and output, the flattened
+    features, the recurrent core (LSTM: 4 gates, h and c per layer, plus the
+    second layer's ``[h1, speed, last action]`` input; ``dqn``: two dense
+    layers), the FC layer and the Q-values. A ``dqn`` stacking k grids sees a
+    grid of k times the channels.
+    """
+    h, w, c = network.grid_shape
+    c *= network.frames
+    floats = h * w * c
+    for kh, kw, stride, filters in network.conv:
+        h, w = (h - kh) // stride + 1, (w - kw) // stride + 1
+        floats += h * w * (kh * kw * c + filters)
+        c = filters
+    r = network.recurrent
+    core = 2 * (6 * r) + r if network.kind == "drqn" else 2 * r
+    floats += network.features + core + network.hidden + network.num_actions
+    return floats * FLOAT_BYTES
+
+
+def activation_bytes(config: Config) -> int:
+    """Estimated temporaries of one gradient update (and of acting, which is smaller):
+    the DQN's minibatch of windows, or PPO's rollout (whose minibatches are parts of it)."""
+    train = config["train"]
+    if train["algorithm"] == "ppo":
+        samples = train["rollout_steps"] * train["num_envs"]
+    else:
+        samples = train["batch_size"] * (train["burn_in"] + train["window"] + 1)
+    forward = samples * forward_bytes_per_step(config.network_config())
+    return int(ACTIVATION_FACTOR * forward)
+
+
+def run_memory(config: Config) -> RunMemory:
+    """Bytes of one run of ``config``: the state exactly (shapes only), temporaries estimated."""
+    from drqn_jax.learners import make_train  # late: train imports the env stack
+
+    trainer = make_train(config.train_config())
+    state = jax.eval_shape(trainer.init, config.keys()[0])
+    replay = _nbytes(getattr(state, "replay", None))  # PPO's state has no replay
+    params = _nbytes((state.online, getattr(state, "target", None), state.snapshots))
+    optimiser = _nbytes(state.opt_state)
+    other = _nbytes(state) - replay - params - optimiser
+    activations = activation_bytes(config) + PARAM_TEMPORARIES * _nbytes(state.online)
+    return RunMemory(replay, params, optimiser, other, activations)
+
+
+def _host_available() -> int:
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        import os
+
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def available_memory(devices: Sequence[Any]) -> tuple[int, str]:
+    """Bytes the ``devices`` can hold together, and where the figure comes from.
+
+    Accelerators report their own limit (``memory_stats()["bytes_limit"]``
+    minus what is in use); CPU devices share the host's ``MemAvailable``.
+    """
+    if all(d.platform == "cpu" for d in devices):
+        return _host_available(), "host MemAvailable"
+    total = 0
+    for d in devices:
+        stats = d.memory_stats() or {}
+        total += int(stats.get("bytes_limit", 0)) - int(stats.get("bytes_in_use", 0))
+    return total, f"{devices[0].platform} memory of {len(devices)} device(s)"
+
+
+def call_bytes(per_run: RunMemory, runs: int, *, batched: bool = True) -> int:
+    """Peak bytes of ``runs`` runs trained together on one device.
+
+    ``batched`` (``vmap``): every run's state and update temporaries at once.
+    Otherwise (``lax.map``, one run after another): the runs' states twice
+    (the map writes a new stack of states beside its input) and one run's
+    temporaries — XLA's own analysis of the 64-run paper program says 3.7 GB
+    against 3.7 GB here (benchmarks/RESULTS.md).
+    """
+    if batched:
+        return runs * per_run.total
+    return 2 * runs * (per_run.total - per_run.activations) + per_run.activations
+
+
+def runs_per_call(
+    per_run: RunMemory, runs: int, devices: int, budget: int, source: str, *, batched: bool = True
+) -> int:
+    """How many runs one compiled call trains at once: a multiple of ``devices``
+    (the run axis is sharded over them), at most ``runs`` rounded up to one.
+
+    Raises:
+        MemoryPlanError: not even one run per device fits in ``budget``.
+    """
+    usable = USABLE_FRACTION * budget
+    per_device_budget = usable / devices
+    per_device = 0
+    most = math.ceil(runs / devices)
+    while per_device < most and call_bytes(per_run, per_device + 1, batched=batched) <= (
+        per_device_budget
+    ):
+        per_device += 1
+    if per_device < 1:
+        need = devices * call_bytes(per_run, 1, batched=batched)
+        raise MemoryPlanError(
+            f"memory plan: one run needs {per_run.describe()}; {devices} device(s) need "
+            f"{format_bytes(need)} but {format_bytes(usable)} is usable "
+            f"({USABLE_FRACTION:.0%} of {format_bytes(budget)}, {source}). Reduce "
+            "train.replay_episodes, train.batch_size, train.window or the network, "
+            "or give --memory-gb"
+        )
+    return per_device * devices

@@ -1,0 +1,274 @@
+"""One machine-readable results file, and the documents that quote it (issue 41).
+
+A study run with ``--results docs/results.json --section NAME`` stores its table's
+rows there (:func:`write_results`), beside the command that produced them, its
+wall time and the machine. Documents never retype those numbers: a block ::
+
+    <!-- results:NAME -->
+    (generated: the section's table, its comparisons and its command)
+    <!-- /results -->
+
+is filled from the file by ``drqn-jax report FILE.md …`` (:func:`update_document`),
+and ``drqn-jax report --check`` (and the test suite) fails when a document and the
+file disagree.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drqn_jax.experiments.checkpoint import atomic_write_text
+
+__all__ = [
+    "PAPER_DRQN_SPEED_KMH",
+    "PAPER_EPISODES",
+    "PAPER_TABLE_III",
+    "PAPER_WORLD",
+    "SECTION_NAME",
+    "check_section",
+    "claim_verdict",
+    "frontier_comparison",
+    "load_results",
+    "margin_cell",
+    "render_section",
+    "stale_documents",
+    "strict_json",
+    "study_table",
+    "update_document",
+    "write_results",
+]
+
+#: A section's name: letters, digits, '_', '.' and '-'.
+SECTION_NAME = re.compile(r"[\w.-]+")
+#: A generated block of a document: its section name and its current body.
+BLOCK = re.compile(
+    rf"(?P<open><!-- results:(?P<section>{SECTION_NAME.pattern}) -->\n)(?P<body>.*?)"
+    r"(?P<close><!-- /results -->)",
+    re.S,
+)
+
+
+def strict_json(value: Any) -> Any:
+    """``value`` with tuples as lists and non-finite floats as None (strict JSON)."""
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [strict_json(v) for v in value]
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+def check_section(section: str) -> None:
+    """ValueError unless ``section`` is a valid section name (:data:`SECTION_NAME`)."""
+    if not SECTION_NAME.fullmatch(section):
+        raise ValueError(f"--section {section!r}: must be letters, digits, '_', '.' or '-'")
+
+
+def load_results(path: str | Path) -> dict[str, Any]:
+    """The results file (``{"rows": [...], "sections": {...}}``), or an empty one."""
+    path = Path(path)
+    if not path.is_file():
+        return {"rows": [], "sections": {}}
+    return json.loads(path.read_text())
+
+
+def write_results(
+    path: str | Path,
+    section: str,
+    rows: Sequence[Mapping[str, Any]],
+    comparisons: Sequence[str],
+    about: Mapping[str, Any],
+) -> dict[str, Any]:
+    """Replace ``section``'s rows of the results file at ``path`` (other sections stay).
+
+    Each row (:func:`drqn_jax.experiments.study.study_row`) gains ``"section"``; ``about`` (the
+    command, its wall time, the machine) and ``comparisons`` are stored under
+    ``sections[section]``. Returns the whole record written.
+    """
+    check_section(section)
+    record = load_results(path)
+    kept = [r for r in record["rows"] if r.get("section") != section]
+    record["rows"] = kept + [{"section": section, **r} for r in rows]
+    record["sections"][section] = {**about, "comparisons": list(comparisons)}
+    record = strict_json(record)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(Path(path), json.dumps(record, indent=1) + "\n")
+    return record
+
+
+def _nan(row: Mapping[str, Any]) -> dict[str, Any]:
+    """A stored row with None (JSON's stand-in) back as NaN for the table."""
+    return {k: math.nan if v is None else v for k, v in row.items()}
+
+
+def render_section(record: Mapping[str, Any], section: str) -> str:
+    """Markdown of one section: its table, its comparisons and the command beside them."""
+    if section not in record["sections"]:
+        known = ", ".join(record["sections"]) or "none"
+        raise ValueError(f"results section {section!r}: not in the results file (has: {known})")
+    about = record["sections"][section]
+    rows = [_nan(r) for r in record["rows"] if r.get("section") == section]
+    lines = [study_table(rows), ""]
+    lines += [f"* {c}" for c in about.get("comparisons", [])]
+    machine = about.get("machine", {})
+    went_on = (
+        "; earlier invocations trained its runs, the wall time is the last one's"
+        if about.get("continued")
+        else ""
+    )
+    lines += [
+        "",
+        f"Command (wall time {about['wall_time_s'] / 60:.0f} min on {machine.get('usable_cores')} "
+        f"cores of {machine.get('cpu_model')}, JAX {machine.get('jax_version')}, "
+        f"commit {machine.get('git_commit')}{went_on}):",
+        "",
+        "```bash",
+        about["command"],
+        "```",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def update_document(text: str, record: Mapping[str, Any]) -> str:
+    """``text`` with every ``results:NAME`` block regenerated from ``record``."""
+
+    def filled(match: re.Match[str]) -> str:
+        body = render_section(record, match["section"])
+        return match["open"] + body + match["close"]
+
+    return BLOCK.sub(filled, text)
+
+
+def stale_documents(paths: Sequence[str | Path], record: Mapping[str, Any]) -> list[str]:
+    """The documents among ``paths`` whose blocks differ from ``record``'s numbers."""
+    return [
+        str(p) for p in paths if update_document(Path(p).read_text(), record) != Path(p).read_text()
+    ]
+
+
+#: The paper's Table III: agent, collision-free episodes of 10, avg speed (km/h), distance (m).
+PAPER_TABLE_III = (
+    ("rule-based", 4, 7.79, 82.6),
+    ("DRQN", 7, 6.09, 123.1),
+)
+PAPER_EPISODES = 10
+#: The world column of the paper's rows.
+PAPER_WORLD = "CARLA (paper)"
+#: km/h: the paper's DRQN's average speed (Table III), at or above which the paper's
+#: claim is judged (SPEC §9).
+PAPER_DRQN_SPEED_KMH = PAPER_TABLE_III[1][2]
+
+
+def _cell(value: float | None, spec: str, scale: float = 1.0) -> str:
+    return "–" if value is None or not math.isfinite(value) else format(scale * value, spec)
+
+
+def margin_cell(row: Mapping[str, Any]) -> str:
+    """``+5.2 (+1.0 to +9.4)``: the row's frontier margin in points with its interval
+    (– for a row without one: the paper's, measured in another world)."""
+    margin, interval = row.get("frontier_margin"), row.get("frontier_margin_ci")
+    if margin is None or not math.isfinite(margin) or interval is None:
+        return "–"
+    low, high = (100 * x if x is not None and math.isfinite(x) else math.nan for x in interval)
+    return f"{100 * margin:+.1f} ({low:+.1f} to {high:+.1f})"
+
+
+def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown: one row per agent; ``± std`` is across seeds."""
+    header = (
+        "| source | agent | teacher | seeds × episodes | collision-free % (95 % interval) "
+        "| margin to the rule-based frontier, points (95 %) | struck while stopped % "
+        "| avg speed (km/h) | authors' speed (km/h) | distance (m) "
+        "| distance, collision-free (m) | goal % | collisions / km |"
+    )
+    lines = [
+        header,
+        "| --- | --- | --- | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for r in rows:
+        low, high = r["collision_free_ci"]
+        speed = _cell(r["avg_speed_kmh"], ".2f")
+        if math.isfinite(r["avg_speed_kmh_std"]):
+            speed += f" ± {r['avg_speed_kmh_std']:.2f}"
+        seeds = f"{r['seeds']} × {r['episodes']}"
+        if r["diverged"]:
+            seeds += f" ({r['diverged']} diverged)"
+        lines.append(
+            f"| {r['label']} | {r['agent']} | {r.get('learned', '–')} | {seeds} "
+            f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
+            f"| {margin_cell(r)} "
+            f"| {_cell(r.get('struck_while_stopped_rate'), '.1f', 100.0)} "
+            f"| {speed} | {_cell(r.get('avg_speed_authors_kmh'), '.2f')} "
+            f"| {_cell(r['avg_distance_m'], '.1f')} "
+            f"| {_cell(r['avg_distance_collision_free_m'], '.1f')} "
+            f"| {_cell(r['goal_rate'], '.1f', 100.0)} | {_cell(r['collisions_per_km'], '.2f')} |"
+        )
+    lines += [
+        "",
+        "Collision-free interval: 95 % Student t of the mean across seeds for a trained "
+        "config (training and episodes vary; cut to 0–100 %); Wilson over the episodes "
+        "for one policy (the rule-based agent, the paper's 10-episode rows). Margin: the "
+        "collision-free rate minus the rule-based family's frontier at the agent's own "
+        "average speed (SPEC §9; each seed at its own speed, Student t across seeds; the "
+        "Wilson interval shifted for one policy); – where the world has no frontier here "
+        "(the paper's CARLA). ± is the standard deviation across seeds. The authors' speed is "
+        "the mean over the steps faster than 0.5 km/h (carla-gym tester.py); a pedestrian "
+        "striking the standing car is not a collision (struck while stopped).",
+    ]
+    return "\n".join(lines)
+
+
+def _side(low: float, high: float) -> str:
+    return "above" if low > 0.0 else "below" if high < 0.0 else "not distinguishable from"
+
+
+def frontier_comparison(row: Mapping[str, Any]) -> str:
+    """A row against the rule-based frontier at its own speed, as a sentence."""
+    low, high = row["frontier_margin_ci"]
+    return (
+        f"{row['label']} ({row['agent']}) at {row['avg_speed_kmh']:.2f} km/h: "
+        f"{_side(low, high)} the rule-based frontier at its own speed "
+        f"(margin {margin_cell(row)} points)"
+    )
+
+
+def claim_verdict(drqn: Mapping[str, Any]) -> str:
+    """One line on the paper's claim (Table III: the DRQN is safer than the rule-based
+    agent) from the DRQN's row, in SPEC §9's terms: supported only where its margin to
+    the rule-based frontier lies above 0 (safer than the rule-based family at its own
+    speed) *and* it drives at least as fast as the paper's DRQN
+    (:data:`PAPER_DRQN_SPEED_KMH`): a car that barely drives avoids nearly every
+    collision the authors' test counts."""
+    low, high = drqn["frontier_margin_ci"]
+    speed = drqn["avg_speed_kmh"]
+    fast = speed >= PAPER_DRQN_SPEED_KMH
+    if low > 0.0 and fast:
+        verdict = (
+            "supported: the DRQN is above the rule-based frontier at its own speed, "
+            "at least as fast as the paper's DRQN"
+        )
+    elif low > 0.0:
+        verdict = (
+            "not shown: the DRQN is above the rule-based frontier at its own speed, but "
+            f"slower than the paper's DRQN ({PAPER_DRQN_SPEED_KMH} km/h)"
+        )
+    elif high < 0.0:
+        verdict = "reversed: the DRQN is below the rule-based frontier at its own speed"
+    else:
+        verdict = (
+            "not shown: the DRQN is not distinguishable from the rule-based frontier "
+            "at its own speed"
+        )
+    return (
+        f"The paper's claim (a DRQN safer than the rule-based agent, at the paper's DRQN's "
+        f"{PAPER_DRQN_SPEED_KMH} km/h or faster) is {verdict} (margin {margin_cell(drqn)} "
+        f"points at {speed:.2f} km/h)."
+    )

@@ -1,0 +1,410 @@
+"""Host-side driver of a training run: chunks, progress, checkpoints, signals, evaluation.
+
+The learning itself is the pure :func:`drqn_jax.learners.make_train`; this module
+calls its compiled ``run(state, chunk_iterations)`` from Python so that it can
+show progress, write checkpoints and stop cleanly between chunks. A run split
+into chunks ends bit-identical to a one-shot run (issue 3), so none of this
+changes the results: not the progress bar, not the checkpoint interval, not an
+interruption followed by ``--resume``.
+
+A run directory holds:
+
+* ``config.toml``: the resolved configuration (every field);
+* ``metrics.csv``: one row per recorded training episode (SI units: m, m/s);
+* ``checkpoint.npz`` + ``checkpoint.json``: the whole ``TrainState`` (online
+  and target parameters, Adam state, replay, PRNG key, counters) and its
+  metadata (config hash, counters, wall time), written atomically;
+* ``evaluation.json`` and ``results.md``: the final greedy evaluation (SPEC §8).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import functools
+import io
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from drqn_jax.agents import rule_based_agent
+from drqn_jax.agents.base import Agent
+from drqn_jax.config import RENAMED_LEAVES, Config, added_leaves, load_config
+from drqn_jax.evaluation import evaluate
+from drqn_jax.experiments.checkpoint import (
+    AGENT,
+    CHECKPOINT_NPZ,
+    CheckpointError,
+    atomic_write_text,
+    load_checkpoint,
+    save_checkpoint,
+)
+from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
+from drqn_jax.learners import Trainer, make_train
+from drqn_jax.learners.dqn.state import TrainState
+from drqn_jax.learners.hyperparams import LEARNED_AGENTS, NOT_LEARNED, teacher_label
+from drqn_jax.networks import Network
+from drqn_jax.programs import cached
+
+#: The order of ``metrics.csv``'s columns (a task's other metrics come after, by name).
+METRIC_COLUMNS = (
+    "episode_return",
+    "length",
+    "collision",
+    "goal",
+    "distance",
+    "mean_speed",
+    "epsilon",
+    "mean_loss",
+)
+
+__all__ = [
+    "RunResult",
+    "builtin_agent",
+    "evaluate_agents",
+    "init_program",
+    "json_ready",
+    "load_run",
+    "load_trained_network",
+    "metrics_csv",
+    "recorded_metrics",
+    "train_run",
+    "validated",
+    "write_evaluation",
+]
+
+#: Exit statuses of the command line.
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+_RECENT = 20  # episodes in the progress bar's running means
+
+
+@dataclasses.dataclass
+class RunResult:
+    """What :func:`train_run` ended with.
+
+    ``status`` is ``"finished"``, ``"interrupted"`` (a signal: checkpoint
+    saved) or ``"diverged"`` (a non-finite loss or parameter: the last good
+    checkpoint is kept, nothing newer is written).
+    """
+
+    status: str
+    state: TrainState
+    trainer: Trainer
+    run_dir: Path
+    wall_time_s: float
+    compile_time_s: float
+    message: str = ""
+
+
+def init_program(trainer: Trainer) -> Callable[[jax.Array], TrainState]:
+    """``init(key) -> TrainState``: ``trainer.init`` jitted with the hyperparameters
+    and env params as arguments, not constants: one program per shape, which the
+    persistent compilation cache serves to other values and to every caller that
+    builds its state this way (``train``, ``bench``, the tests)."""
+    return functools.partial(
+        jax.jit(trainer.init), hparams=trainer.config.hyperparams, env_params=trainer.env_params
+    )
+
+
+def _compiled_run(trainer: Trainer, state: TrainState) -> Any:
+    """``run(state, chunk_iterations)`` compiled once per program and process (the
+    hyperparameters are in the state: :meth:`TrainConfig.program_key`)."""
+
+    def build() -> Any:
+        run = jax.jit(trainer.run, static_argnums=1)
+        return run.lower(state, trainer.config.chunk_iterations).compile()
+
+    return cached("runner.run", trainer.config.program_key(), build)
+
+
+def recorded_metrics(state: TrainState | Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """Host copies of the recorded episodes' metrics, in episode order, plus ``episode``.
+
+    ``state`` is a run's ``TrainState`` or its ``metrics`` dict (one run's: leaves
+    ``(num_episodes,)``). With N parallel environments episodes finish out of
+    order; an episode is recorded once it ended (its ``length`` is then >= 1).
+    """
+    source = state if isinstance(state, Mapping) else state.metrics
+    metrics = {name: np.asarray(v) for name, v in source.items()}
+    done = metrics["length"] > 0
+    out = {"episode": np.flatnonzero(done)}
+    columns = sorted(
+        metrics,
+        key=lambda n: (
+            (METRIC_COLUMNS.index(n), n) if n in METRIC_COLUMNS else (len(METRIC_COLUMNS), n)
+        ),
+    )
+    out.update({name: metrics[name][done] for name in columns})
+    return out
+
+
+def _format(value: Any) -> str:
+    if isinstance(value, np.floating):
+        return np.format_float_positional(value, unique=True, trim="-")
+    if isinstance(value, np.bool_):
+        return str(int(value))
+    return str(value)
+
+
+def metrics_csv(state: TrainState | Mapping[str, Any]) -> str:
+    """``metrics.csv`` text: ``episode`` then every training metric (SI units).
+
+    ``state``: as :func:`recorded_metrics` takes it.
+    """
+    rows = recorded_metrics(state)
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(rows.keys())
+    for i in range(len(rows["episode"])):
+        writer.writerow(_format(column[i]) for column in rows.values())
+    return out.getvalue()
+
+
+def _progress_postfix(state: TrainState, steps_per_s: float) -> dict[str, str]:
+    rows = recorded_metrics(state)
+    recent = slice(-_RECENT, None)
+    postfix = {"steps/s": f"{steps_per_s:,.0f}"}
+    if len(rows["episode"]):
+        postfix["return"] = f"{rows['episode_return'][recent].mean():.1f}"
+        postfix["collisions"] = f"{100 * rows['collision'][recent].mean():.0f}%"
+    return postfix
+
+
+def _checkpoint_meta(config: Config, state: TrainState, wall: float, chunks: int) -> dict:
+    return {
+        **config.training_identity(),
+        "recorded": int(state.recorded),
+        "grad_steps": int(state.grad_steps),
+        "env_steps": int(state.env_steps),
+        "finished": bool(state.finished),
+        "chunks": chunks,
+        "wall_time_s": wall,
+    }
+
+
+def _save(run_dir: Path, config: Config, state: TrainState, wall: float, chunks: int) -> None:
+    save_checkpoint(run_dir, state, _checkpoint_meta(config, state, wall, chunks))
+    atomic_write_text(run_dir / "metrics.csv", metrics_csv(state))
+
+
+def train_run(
+    config: Config, run_dir: str | Path, *, resume: bool = False, quiet: bool = False
+) -> RunResult:
+    """Train (or continue training) the run in ``run_dir`` until it finishes or is stopped.
+
+    Args:
+        config: the resolved configuration (for a resume: the run's own, from
+            :func:`load_run`, with any non-training overrides).
+        run_dir: created if needed; a fresh run refuses a directory that
+            already holds a checkpoint.
+        resume: continue from the directory's checkpoint.
+        quiet: no progress bar.
+    Raises:
+        CheckpointError: a fresh run in a used directory, or a missing,
+            corrupt or incompatible checkpoint on resume.
+    """
+    run_dir = Path(run_dir)
+    trainer = make_train(config.train_config())
+    train_key, _ = config.keys()
+    init = init_program(trainer)
+    wall_before, chunks = 0.0, 0
+    if resume:
+        expected = config.training_identity()
+        template = jax.eval_shape(init, train_key)
+        fill = added_leaves(trainer.config.hyperparams, trainer.env_params)
+        state, meta = load_checkpoint(run_dir, template, expected, fill, renamed=RENAMED_LEAVES)
+        wall_before, chunks = float(meta["wall_time_s"]), int(meta["chunks"])
+    else:
+        if (run_dir / CHECKPOINT_NPZ).exists():
+            raise CheckpointError(
+                f"{run_dir} already holds a training run; continue it with --resume {run_dir} "
+                "or choose another --run-dir"
+            )
+        run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(run_dir / "config.toml", config.to_toml())
+        state = init(train_key)
+
+    stop = StopRequest()
+    with stop.installed():  # a signal while compiling also stops cleanly
+        start = time.perf_counter()
+        if not quiet:
+            print("compiling the training program...", file=sys.stderr, flush=True)
+        run = _compiled_run(trainer, state)
+        compile_s = time.perf_counter() - start
+        if not resume:
+            _save(run_dir, config, state, 0.0, 0)  # resume works from here on
+
+        def elapsed() -> float:
+            return wall_before + time.perf_counter() - start
+
+        status, state, chunks = _chunks(config, run, state, chunks, stop, quiet, run_dir, elapsed)
+        if status == "finished":
+            state = validated(trainer, state)
+    wall = elapsed()
+    if status != "diverged":
+        _save(run_dir, config, state, wall, chunks)
+    num_episodes = config["train"]["num_episodes"]
+    message = {
+        "finished": "",
+        "interrupted": f"interrupted after {int(state.recorded)}/{num_episodes} episodes; "
+        f"checkpoint saved, continue with: drqn-jax train --resume {run_dir}",
+        "diverged": f"non-finite loss or parameters after episode {int(state.recorded)} "
+        f"(chunk {chunks + 1}); the last good checkpoint in {run_dir} is kept",
+    }[status]
+    return RunResult(status, state, trainer, run_dir, wall, compile_s, message)
+
+
+def validated(trainer: Trainer, state: TrainState) -> TrainState:
+    """A finished run's ``state`` with its candidates' validation metrics filled in
+    (``train.snapshots`` > 0; :func:`~drqn_jax.learners.make_train`); else unchanged."""
+    if not trainer.config.snapshots or not bool(jnp.isnan(state.validation["return"]).any()):
+        return state
+    validate = cached(
+        "runner.validate", trainer.config.program_key(), lambda: jax.jit(trainer.validation_metrics)
+    )
+    return state.replace(validation=validate(state))
+
+
+def _chunks(
+    config: Config,
+    run: Any,
+    state: TrainState,
+    chunks: int,
+    stop: StopRequest,
+    quiet: bool,
+    run_dir: Path,
+    elapsed: Callable[[], float],
+) -> tuple[str, TrainState, int]:
+    """:func:`~drqn_jax.experiments.host_loop.run_chunks` for one run: a progress bar, a checkpoint
+    every ``run.checkpoint_every_s``, and a stop at the first non-finite loss."""
+    total, unit, done = _budget(config)
+    with progress_bar(total, done(state), quiet, unit) as bar:
+        clock = {"t": time.perf_counter(), "steps": int(state.env_steps)}
+
+        def show(state: TrainState) -> None:  # copies metrics to the host: only when shown
+            now, steps = time.perf_counter(), int(state.env_steps)
+            steps_per_s = (steps - clock["steps"]) / max(now - clock["t"], 1e-9)
+            clock.update(t=now, steps=steps)
+            bar.update(done(state) - bar.n)
+            bar.set_postfix(_progress_postfix(state, steps_per_s), refresh=False)
+
+        return run_chunks(
+            run,
+            state,
+            finished=lambda s: bool(s.finished),
+            stop=stop,
+            save=lambda s, n: _save(run_dir, config, s, elapsed(), n),
+            every_s=config["run"]["checkpoint_every_s"],
+            healthy=lambda s: bool(finite_training(s)),
+            on_chunk=None if quiet else show,
+            chunks=chunks,
+        )
+
+
+def _budget(config: Config) -> tuple[int, str, Callable[[Any], int]]:
+    """The run's budget for its progress bar: (total, unit, how much of it a state
+    has used): ``train.num_env_steps`` env steps when set, else ``num_episodes``."""
+    steps = config["train"]["num_env_steps"]
+    if steps:
+        return steps, "step", lambda state: min(int(state.env_steps), steps)
+    return config["train"]["num_episodes"], "ep", lambda state: int(state.recorded)
+
+
+def load_run(run_dir: str | Path, overrides: tuple[str, ...] = ()) -> Config:
+    """The resolved configuration stored in a run directory, with ``overrides``."""
+    path = Path(run_dir) / "config.toml"
+    if not path.is_file():
+        raise CheckpointError(f"{run_dir}: not a run directory (no config.toml)")
+    return load_config(path, overrides)
+
+
+def load_trained_network(
+    config: Config, run_dir: str | Path
+) -> tuple[Network, Any, dict[str, Any]]:
+    """The network, the run's agent parameters (``Trainer.agent_params``: the final
+    online parameters, or the validated choice among snapshots) and the metadata
+    of a run directory's last checkpoint, or of a sweep's trained agent (a
+    directory with ``agent.npz`` and no ``checkpoint.npz``:
+    :func:`drqn_jax.experiments.sweep_runner.agent_dir`)."""
+    trainer = make_train(config.train_config())
+    template = jax.eval_shape(trainer.init, config.keys()[0])
+    expected = config.training_identity()
+    run_dir = Path(run_dir)
+    if not (run_dir / CHECKPOINT_NPZ).exists() and (run_dir / f"{AGENT}.npz").exists():
+        agent_template = jax.eval_shape(trainer.agent_params, template)
+        params, meta = load_checkpoint(run_dir, agent_template, expected, name=AGENT)
+        return trainer.network, params, meta
+    fill = added_leaves(trainer.config.hyperparams, trainer.env_params)
+    state, meta = load_checkpoint(run_dir, template, expected, fill, renamed=RENAMED_LEAVES)
+    return trainer.network, trainer.agent_params(state), meta
+
+
+def builtin_agent(name: str, config: Config) -> Agent:
+    """``rule-based``, ``planner`` (privileged: it sees the true state and plays the
+    simulator, SPEC §9), ``random`` or ``accelerate`` (the constant agent)."""
+    from drqn_jax.agents import constant_agent, planner_agent, random_agent
+
+    if name == "rule-based":
+        return rule_based_agent(config.rule_based_params())
+    if name == "planner":
+        return planner_agent(config.planner_params())
+    if name == "random":
+        return random_agent()
+    if name == "accelerate":
+        return constant_agent("accelerate")
+    raise ValueError(f"unknown agent {name!r}: rule-based, planner, random or accelerate")
+
+
+def evaluate_agents(
+    config: Config, agents: list[Agent], *, quiet: bool = True
+) -> list[dict[str, Any]]:
+    """SPEC §8 metrics of each agent on ``evaluate.episodes`` episodes of the
+    evaluation key (the same episodes for every agent), and its ``teacher``: how
+    ``config``'s training taught a network agent (:func:`teacher_label`), or
+    :data:`NOT_LEARNED` for a built-in one. Unless ``quiet``, a progress bar per agent."""
+    env, env_params = config.make_env()
+    _, eval_key = config.keys()
+    batch = config["evaluate"]["batch_size"] or None
+    episodes = config["evaluate"]["episodes"]
+    learned = teacher_label(config.hyperparams())
+    results = []
+    for a in agents:
+        with progress_bar(episodes, 0, quiet, "episode", f"evaluating {a.name}") as bar:
+            show = None if quiet else (lambda done, bar=bar: bar.update(done - bar.n))
+            result = evaluate(
+                a, eval_key, episodes, env, env_params, batch_size=batch, on_episodes=show
+            )
+        teacher = learned if a.name in LEARNED_AGENTS else NOT_LEARNED
+        results.append({**result, "teacher": teacher})
+    return results
+
+
+def json_ready(result: dict[str, Any]) -> dict[str, Any]:
+    """An :func:`evaluate` result without per-episode arrays; non-finite numbers as null."""
+
+    def clean(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, tuple | list):
+            return [clean(x) for x in v]
+        return v
+
+    return {k: clean(v) for k, v in result.items() if k != "episodes"}
+
+
+def write_evaluation(
+    run_dir: Path, results: list[dict[str, Any]], extra: dict[str, Any], table: str
+) -> None:
+    """``evaluation.json`` (results + ``extra``) and ``results.md`` (``table``)."""
+    payload = {**extra, "agents": [json_ready(r) for r in results]}
+    atomic_write_text(run_dir / "evaluation.json", json.dumps(payload, indent=2) + "\n")
+    atomic_write_text(run_dir / "results.md", table + "\n")

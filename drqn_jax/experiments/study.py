@@ -1,0 +1,736 @@
+"""A study (issue 8): configs × seeds, each evaluated greedily, beside the rule-based agent.
+
+The paper compared one DRQN with the rule-based agent on 10 episodes each
+(Table III) and plotted one training run ("Training performance", §V-F).
+A study trains every config for several seeds and evaluates every agent on
+the same episodes (the evaluation key of the first seed), so that the rows
+differ only by the agent::
+
+    drqn-jax study --configs paper,default,dqn --seeds 5 --episodes 1000 --out studies/table3
+
+Each config is a sweep over ``run.seed`` (:mod:`drqn_jax.experiments.sweep`) in
+``OUT/<config>/``: one program per config, run by
+:func:`~drqn_jax.experiments.sweep_runner.run_sweep` with its checkpoints, so an
+interrupted study continues where it stopped when the same command runs again.
+The rule-based agent is evaluated once per distinct ``[env]`` section on the
+same episodes, and so is its family's frontier (SPEC §9,
+:mod:`drqn_jax.experiments.frontier`; the privileged planner's too, in the first
+config's world). Then:
+
+* ``OUT/study.md``: the paper's rows beside ours — collision-free % with a 95 %
+  interval (across seeds: Student t; a single policy: Wilson over its
+  episodes), the margin to the rule-based frontier at the agent's own speed,
+  average speed, distance (all and collision-free), goal %, collisions per km;
+* ``OUT/study.json``: the rows, every run's evaluation and the frontiers;
+* ``OUT/safety_speed.png``: collision-free rate against average speed, the
+  frontiers and every agent (:func:`~drqn_jax.experiments.figures.plot_safety_speed`);
+* with ``--eval-envs``: every config's trained agents
+  (``OUT/<config>/agents/run-NNNN``) evaluated among other envs' pedestrians
+  too, on the same episodes, one row per env (``<config> on <env id>``) beside
+  that env's rule-based agent (cached in ``OUT/<config>/cross/<env id>/``);
+* ``OUT/curves.png`` (matplotlib, the ``plots`` extra) and ``OUT/curves.rrd``:
+  average reward and steps per episode against training episode, mean and
+  min–max over seeds, as the paper's figure.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import hashlib
+import json
+import math
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drqn_jax.config import Config, ConfigError, load_config
+from drqn_jax.evaluation import wilson_interval
+from drqn_jax.experiments.checkpoint import CheckpointError, atomic_write_text
+from drqn_jax.experiments.figures import plot_safety_speed, require_matplotlib
+from drqn_jax.experiments.frontier import (
+    frontier_rate,
+    frontier_vertices,
+    with_margin,
+    world_frontier,
+)
+from drqn_jax.experiments.report import (
+    PAPER_EPISODES,
+    PAPER_TABLE_III,
+    PAPER_WORLD,
+    claim_verdict,
+    frontier_comparison,
+    strict_json,
+    study_table,
+)
+from drqn_jax.experiments.stats import t_interval
+from drqn_jax.experiments.sweep import Sweep, build_sweep
+from drqn_jax.interop.recording import running_mean
+from drqn_jax.learners.hyperparams import (
+    NOT_LEARNED,
+    REWARD_ALONE,
+    agent_name,
+    has_teacher,
+    teachers_of,
+)
+from drqn_jax.registry import registered_envs
+
+__all__ = [
+    "PAPER_TABLE_III",
+    "Arm",
+    "Curve",
+    "StudyOutcome",
+    "baseline_row",
+    "compare_paired",
+    "config_frontier",
+    "cross_results",
+    "finished_results",
+    "frontier_results",
+    "frontier_rows",
+    "load_curves",
+    "paper_rows",
+    "plan_study",
+    "plot_curves",
+    "rule_based_results",
+    "run_study",
+    "study_row",
+]
+
+
+#: The curves of the paper's "Training performance" figure: metrics.csv column, label.
+CURVES = (
+    ("episode_return", "average reward (return per episode)"),
+    ("length", "steps per episode"),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Arm:
+    """One row of the study: a config trained for every seed (a sweep over ``run.seed``),
+    and one more row per env of ``cross_envs``, where its trained agents are evaluated
+    as well (among other pedestrians, on the same episodes)."""
+
+    name: str
+    sweep: Sweep
+    cross_envs: tuple[str, ...] = ()
+
+    @property
+    def config(self) -> Config:
+        """The first seed's resolved config (the others differ only in ``run.seed``)."""
+        return self.sweep.points[0].config
+
+    def cross_config(self, env_id: str) -> Config:
+        """:attr:`config` with ``env.id = env_id`` (its preset follows): the evaluation
+        among ``env_id``'s pedestrians; the agent stays the one trained with :attr:`config`."""
+        return load_config(self.config.values, [f"env.id={env_id}"])
+
+
+def plan_study(
+    configs: Sequence[str],
+    seeds: int,
+    episodes: int,
+    overrides: Sequence[str] = (),
+    eval_envs: Sequence[str] = (),
+) -> list[Arm]:
+    """Validate the study before anything compiles: one :class:`Arm` per config.
+
+    Args:
+        configs: config names in ``configs/`` or TOML paths (row names: the file stem).
+        seeds: seeds ``0 … seeds − 1`` per config.
+        episodes: greedy evaluation episodes per run (the same for every agent).
+        overrides: ``section.field=value`` applied to every config.
+        eval_envs: env ids every config's agents are evaluated on as well as their
+            own (a config's own id among them adds nothing): trained on one kind of
+            pedestrians, tested on another.
+    Raises:
+        ConfigError: a bad count, a duplicate name, an unknown env id, or a config
+            field at fault.
+    """
+    unknown = [e for e in eval_envs if e not in registered_envs()]
+    if unknown:
+        raise ConfigError(
+            f"--eval-envs {unknown[0]!r}: must be one of {', '.join(registered_envs())}"
+        )
+    if not isinstance(seeds, int) or seeds < 1:
+        raise ConfigError(f"--seeds {seeds!r}: must be an integer >= 1")
+    if not isinstance(episodes, int) or episodes < 1:
+        raise ConfigError(f"--episodes {episodes!r}: must be an integer >= 1")
+    names = [Path(c).stem for c in configs]
+    if not names:
+        raise ConfigError("--configs: name at least one config")
+    if len(set(names)) < len(names):
+        raise ConfigError(f"--configs {','.join(configs)}: two configs share a name")
+    shared = [*overrides, f"evaluate.episodes={episodes}"]
+    arms = []
+    for name, config in zip(names, configs, strict=True):
+        sweep = build_sweep(config, {"run.seed": list(range(seeds))}, shared)
+        own = sweep.points[0].config["env"]["id"]
+        cross = tuple(dict.fromkeys(e for e in eval_envs if e != own))
+        arms.append(Arm(name, sweep, cross))
+    return arms
+
+
+def _digest(config: Config, **sections: Any) -> str:
+    """A short digest of ``sections`` and ``config``'s evaluation episodes (count, seed)."""
+    record = {
+        **sections,
+        "episodes": config["evaluate"]["episodes"],
+        "seed": config["run"]["seed"],
+    }
+    text = json.dumps(record, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def env_key(config: Config) -> str:
+    """A short digest of a config's ``[env]`` and ``[rule_based]`` sections and its
+    evaluation (episodes, seed): configs that agree share the rule-based baseline."""
+    return _digest(config, env=config["env"], rule_based=config["rule_based"])
+
+
+def frontier_key(config: Config) -> str:
+    """A short digest of what a config's frontiers read: its ``[env]`` section but the
+    reward (``reward_*``: the rule-based family and the planner ignore it), its
+    ``[planner]`` and its evaluation: configs that agree share the frontiers, and
+    their arms are paired."""
+    env = {k: v for k, v in config["env"].items() if not k.startswith("reward_")}
+    return _digest(config, env=env, planner=config["planner"])
+
+
+# ----------------------------------------------------------------------------- the table
+
+
+def _mean(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
+    values = [r[metric] for r in runs if r.get(metric) is not None]
+    return float(np.mean(values)) if values else math.nan
+
+
+def _std(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
+    values = [r[metric] for r in runs if r.get(metric) is not None]
+    return float(np.std(values, ddof=1)) if len(values) > 1 else math.nan
+
+
+def study_row(
+    label: str, agent: str, runs: Sequence[Mapping[str, Any]], *, world: str
+) -> dict[str, Any]:
+    """One table row from the evaluations of an agent's runs (one per seed).
+
+    ``runs``: :func:`drqn_jax.evaluation.evaluate` results as JSON (``json_ready``);
+    ``world``: the env id they were evaluated in.
+    The collision-free interval is the 95 % Student-t interval of the mean
+    across seeds (it holds the training's variation as well as the episodes'),
+    cut to [0, 1]; with one run, the Wilson interval over its episodes. Collisions per km are
+    pooled: all collisions over all distance. ``per_seed`` keeps each run's seed,
+    collision-free rate and average speed (the frontier margin reads each seed at its
+    own speed, :func:`drqn_jax.experiments.frontier.frontier_margin`).
+    """
+    if not runs:
+        raise ValueError(f"study_row {label!r}: no runs")
+    rates = np.array([r["collision_free_rate"] for r in runs], np.float64)
+    if len(runs) > 1:
+        low, high = t_interval(rates)
+        interval, interval_kind = (max(low, 0.0), min(high, 1.0)), "t over seeds"
+    else:
+        interval, interval_kind = tuple(runs[0]["collision_free_ci"]), "Wilson over episodes"
+    episodes = [r["num_episodes"] for r in runs]
+    collisions = sum(round(n * (1.0 - r)) for n, r in zip(episodes, rates, strict=True))
+    km = sum(n * r["avg_distance_m"] for n, r in zip(episodes, runs, strict=True)) / 1000.0
+    free = [round(n * r) for n, r in zip(episodes, rates, strict=True)]
+    free_distance = [r.get("avg_distance_collision_free_m") for r in runs]
+    pooled_free = [(k, d) for k, d in zip(free, free_distance, strict=True) if k and d is not None]
+    return {
+        "label": label,
+        "agent": agent,
+        "world": world,
+        "teacher": any(has_teacher(r.get("teacher")) for r in runs),
+        "learned": teachers_of(runs),
+        "seeds": len(runs),
+        "episodes": int(episodes[0]),
+        "diverged": sum(bool(r.get("diverged")) for r in runs),
+        "collision_free_rate": float(rates.mean()),
+        "collision_free_ci": (float(interval[0]), float(interval[1])),
+        "interval": interval_kind,
+        "avg_speed_kmh": _mean(runs, "avg_speed_kmh"),
+        "avg_speed_kmh_std": _std(runs, "avg_speed_kmh"),
+        "avg_speed_authors_kmh": _mean(runs, "avg_speed_authors_kmh"),
+        "struck_while_stopped_rate": _mean(runs, "struck_while_stopped_rate"),
+        "avg_distance_m": _mean(runs, "avg_distance_m"),
+        "avg_distance_collision_free_m": (
+            sum(k * d for k, d in pooled_free) / sum(k for k, _ in pooled_free)
+            if pooled_free
+            else math.nan
+        ),
+        "goal_rate": _mean(runs, "goal_rate"),
+        "collisions_per_km": collisions / km if km > 0 else math.nan,
+        "per_seed": [
+            {
+                "seed": r.get("values", {}).get("run.seed"),
+                "collision_free_rate": r["collision_free_rate"],
+                "avg_speed_kmh": r["avg_speed_kmh"],
+            }
+            for r in runs
+        ],
+    }
+
+
+def baseline_row(label: str, result: Mapping[str, Any], *, world: str) -> dict[str, Any]:
+    """A row for a single policy evaluated once (the rule-based agent): Wilson interval."""
+    return study_row(label, result["agent"], [result], world=world)
+
+
+def _setting_text(params: Mapping[str, float]) -> str:
+    names = {"v_max_kmh": "v_max", "v_cap_kmh": "cap", "corridor_margin": "margin"}
+    units = {"v_max_kmh": " km/h", "v_cap_kmh": " km/h", "lookahead": " m", "horizon": " s"}
+    return ", ".join(f"{names.get(k, k)} {v:g}{units.get(k, '')}" for k, v in params.items())
+
+
+def frontier_rows(record: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """A :func:`~drqn_jax.experiments.frontier.world_frontier` record as table rows, each with its
+    ``params`` and its margin: the rule-based frontier's points (margin 0 by
+    definition) and the privileged planner's, labelled as privileged."""
+    world = record["world"]
+    kinds = [("rule_based", "rule-based frontier", "rule-based")]
+    kinds += [("planner", "privileged planner (true state + simulator)", "planner")]
+    rows = []
+    for kind, label, agent in kinds:
+        for point in record.get(kind, {}).get("points", []):
+            result = {**point, "agent": agent, "teacher": NOT_LEARNED}
+            row = baseline_row(f"{label}: {_setting_text(point['params'])}", result, world=world)
+            rows.append({**with_margin(row, record), "params": point["params"]})
+    return rows
+
+
+def paper_rows() -> list[dict[str, Any]]:
+    """The paper's Table III as rows, with the Wilson interval its 10 episodes allow."""
+    rows = []
+    for agent, free, speed, distance in PAPER_TABLE_III:
+        rows.append(
+            {
+                "label": "paper (CARLA)",
+                "agent": agent,
+                "world": PAPER_WORLD,
+                "teacher": False,
+                "learned": NOT_LEARNED if agent == "rule-based" else REWARD_ALONE,
+                "seeds": 1,
+                "episodes": PAPER_EPISODES,
+                "diverged": 0,
+                "collision_free_rate": free / PAPER_EPISODES,
+                "collision_free_ci": wilson_interval(free, PAPER_EPISODES),
+                "interval": "Wilson over episodes",
+                "avg_speed_kmh": speed,
+                "avg_speed_kmh_std": math.nan,
+                "avg_speed_authors_kmh": math.nan,
+                "struck_while_stopped_rate": math.nan,
+                "avg_distance_m": distance,
+                "avg_distance_collision_free_m": math.nan,
+                "goal_rate": math.nan,
+                "collisions_per_km": math.nan,
+            }
+        )
+    return rows
+
+
+# ----------------------------------------------------------------------------- curves
+
+
+@dataclasses.dataclass(frozen=True)
+class Curve:
+    """A training curve over seeds against env steps (issue 41: a learner that ends
+    episodes early or runs many envs gets no credit from an episode axis).
+
+    ``env_steps`` (G,): a common grid from 0 to the fewest env steps any seed took;
+    ``mean``, ``low``, ``high`` (G,): the mean and min–max across seeds of each seed's
+    running mean over ``smooth`` episodes, read at the grid (linear between episodes);
+    ``seeds`` (S, E): each seed's raw values per training episode, in the order
+    they ended; ``seed_steps`` (S, E): the env steps taken when each had ended
+    (the running total of episode lengths).
+    """
+
+    env_steps: np.ndarray
+    mean: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    seeds: np.ndarray
+    seed_steps: np.ndarray
+
+
+#: Points of a :class:`Curve`'s env-step grid.
+CURVE_POINTS = 200
+
+
+def _read_csv(path: Path) -> dict[str, np.ndarray]:
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return {}
+    return {name: np.array([float(r[name]) for r in rows]) for name in rows[0]}
+
+
+def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Curve]:
+    """The :data:`CURVES` of one config over its seeds' ``metrics.csv`` files, against
+    env steps (:class:`Curve`).
+
+    Seeds are cut to the episodes they all recorded. Raises ValueError when a
+    file is missing or empty.
+    """
+    if smooth < 1:
+        raise ValueError(f"smooth = {smooth!r}: must be an integer >= 1")
+    tables = []
+    for path in metrics_files:
+        if not path.is_file():
+            raise ValueError(f"{path}: no training metrics (has the run finished?)")
+        table = _read_csv(path)
+        if not table:
+            raise ValueError(f"{path}: no recorded episodes")
+        tables.append(table)
+    n = min(len(t["episode"]) for t in tables)
+    steps = np.stack([np.cumsum(t["length"][:n]) for t in tables])
+    grid = np.linspace(0.0, steps[:, -1].min(), CURVE_POINTS)
+    curves = {}
+    for column, _ in CURVES:
+        raw = np.stack([t[column][:n] for t in tables])
+        read = np.stack(
+            [np.interp(grid, x, running_mean(y, smooth)) for x, y in zip(steps, raw, strict=True)]
+        )
+        curves[column] = Curve(
+            env_steps=grid,
+            mean=read.mean(axis=0),
+            low=read.min(axis=0),
+            high=read.max(axis=0),
+            seeds=raw,
+            seed_steps=steps,
+        )
+    return curves
+
+
+def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smooth: int) -> None:
+    """The paper's "Training performance" figure for every config: a PNG at ``path``.
+
+    ``curves``: config name → :func:`load_curves`. Needs matplotlib (the ``plots`` extra).
+    """
+    plt = require_matplotlib()
+    fig, axes = plt.subplots(1, len(CURVES), figsize=(11, 4), constrained_layout=True)
+    for ax, (column, label) in zip(axes, CURVES, strict=True):
+        for name, by_metric in curves.items():
+            c = by_metric[column]
+            seeds = c.seeds.shape[0]
+            plural = "s" if seeds > 1 else ""
+            (line,) = ax.plot(c.env_steps, c.mean, label=f"{name} ({seeds} seed{plural})")
+            ax.fill_between(c.env_steps, c.low, c.high, color=line.get_color(), alpha=0.2, lw=0)
+        ax.set_xlabel("env steps (thousands)")
+        ax.xaxis.set_major_formatter(lambda x, _: f"{x / 1000:g}")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    fig.suptitle(
+        f"Mean and min–max over seeds of a running mean over {smooth} training episodes",
+        fontsize=10,
+    )
+    axes[0].legend(fontsize=8)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- running it
+
+
+@dataclasses.dataclass
+class StudyOutcome:
+    """``finished`` (``rows``: the table; ``runs``: config → its runs' results;
+    ``comparisons``: each trained row against its world's rule-based frontier;
+    ``frontiers``: each world's :func:`~drqn_jax.experiments.frontier.world_frontier` record, by
+    :func:`env_key`) or ``interrupted`` (checkpoints saved; the same command
+    continues). ``continued``: some runs were trained, wholly or in part, by an
+    earlier invocation (or not at all here: a report only), so this one's wall time
+    does not cover them."""
+
+    status: str
+    rows: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    runs: dict[str, list[dict[str, Any]]] = dataclasses.field(default_factory=dict)
+    table: str = ""
+    comparisons: list[str] = dataclasses.field(default_factory=list)
+    continued: bool = False
+    frontiers: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+
+
+def rule_based_results(
+    configs: Sequence[Config], out: Path
+) -> dict[str, tuple[Config, dict[str, Any]]]:
+    """The rule-based agent on each distinct environment of ``configs`` (the arms'
+    and those of their ``cross_envs``), on the study's episodes: ``{env_key: (the first
+    config of that key, result)}``, cached in ``OUT/baselines/``."""
+    from drqn_jax.experiments.runner import builtin_agent, evaluate_agents, json_ready
+
+    found: dict[str, tuple[Config, dict[str, Any]]] = {}
+    for config in configs:
+        key = env_key(config)
+        if key in found:
+            continue
+
+        def evaluated(config: Config = config) -> dict[str, Any]:
+            (result,) = evaluate_agents(config, [builtin_agent("rule-based", config)])
+            return json_ready(result)
+
+        result = _cached(out / "baselines" / f"rule-based-{key}.json", evaluated)
+        found[key] = (config, result)
+    return found
+
+
+def _cached(path: Path, compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """The JSON at ``path``, or ``compute()``'s result, then written there (atomically)."""
+    if path.is_file():
+        return json.loads(path.read_text())
+    result = compute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, json.dumps(result, indent=1) + "\n")
+    return result
+
+
+def cross_results(
+    arm: Arm, config: Config, runs: Sequence[Mapping[str, Any]], out: Path
+) -> list[dict[str, Any]]:
+    """Each of ``runs``' trained agents (``OUT/<arm>/agents/run-NNNN``) evaluated with
+    ``config`` (``arm.cross_config(env_id)``: among ``env_id``'s pedestrians, on the
+    study's episodes), cached in ``OUT/<arm>/cross/<env_id>/run-NNNN.json``.
+
+    Raises:
+        CheckpointError: a run's agent is missing (a study run before sweeps kept
+            their agents: train it again in a new directory).
+    """
+    from drqn_jax.agents import drqn_agent
+    from drqn_jax.experiments.runner import (
+        evaluate_agents,
+        json_ready,
+        load_run,
+        load_trained_network,
+    )
+    from drqn_jax.experiments.sweep_runner import agent_dir
+
+    env_id = config["env"]["id"]
+
+    def evaluated(run: Mapping[str, Any]) -> dict[str, Any]:
+        directory = agent_dir(out / arm.name, run["index"])
+        if not (directory / "config.toml").is_file():
+            raise CheckpointError(
+                f"{directory}: no trained agent to evaluate on {env_id} (the run ended before "
+                "sweeps kept their agents); run the study in a new --out"
+            )
+        trained = load_run(directory)
+        network, params, _ = load_trained_network(trained, directory)
+        name = agent_name(trained.train_config())
+        (result,) = evaluate_agents(config, [drqn_agent(network, params, name)])
+        return {"index": run["index"], "values": run["values"], **json_ready(result)}
+
+    cache = out / arm.name / "cross" / env_id
+    return [
+        _cached(cache / f"run-{run['index']:04d}.json", lambda run=run: evaluated(run))
+        for run in runs
+    ]
+
+
+def _by_seed(runs: Sequence[Mapping[str, Any]]) -> dict[Any, Mapping[str, Any]]:
+    return {r["values"].get("run.seed"): r for r in runs}
+
+
+def compare_paired(
+    name: str,
+    runs: Sequence[Mapping[str, Any]],
+    other: str,
+    others: Sequence[Mapping[str, Any]],
+    vertices: Sequence[Sequence[float]],
+) -> str | None:
+    """``name``'s margin to the rule-based frontier (``vertices``, SPEC §9) against
+    ``other``'s, paired over the seeds both trained (seed i against seed i, on the same
+    evaluation episodes, each at its own speed): the mean difference in percentage
+    points with its 95 % Student-t interval; None with fewer than 2 common seeds."""
+    mine, theirs = _by_seed(runs), _by_seed(others)
+    common = sorted(set(mine) & set(theirs))
+    if len(common) < 2:
+        return None
+
+    def margin(run: Mapping[str, Any]) -> float:
+        return run["collision_free_rate"] - float(frontier_rate(vertices, run["avg_speed_kmh"]))
+
+    diff = np.array([margin(mine[k]) - margin(theirs[k]) for k in common])
+    low, high = t_interval(diff)
+    side = "above" if low > 0 else "below" if high < 0 else "not distinguishable"
+    return (
+        f"{name} − {other}, margin to the rule-based frontier, paired over {len(common)} "
+        f"seeds: {100 * diff.mean():+.1f} points ({100 * low:+.1f} to {100 * high:+.1f}): "
+        f"{name} {side}"
+    )
+
+
+def finished_results(directory: Path) -> list[dict[str, Any]]:
+    """The runs of a config's sweep whose call has ended (``calls/*/runs.json``), by index."""
+    results: dict[int, dict[str, Any]] = {}  # by index: a grown plan may regroup its calls
+    for path in sorted((directory / "calls").glob("*/runs.json")):
+        results.update((r["index"], r) for r in json.loads(path.read_text()))
+    return [results[i] for i in sorted(results)]
+
+
+def frontier_results(
+    configs: Sequence[Config], out: Path, planner_keys: set[str], *, quiet: bool = True
+) -> dict[str, dict[str, Any]]:
+    """The rule-based frontier of each distinct environment of ``configs`` on the study's
+    episodes, and the planner's where its :func:`frontier_key` is in ``planner_keys``:
+    ``{frontier_key: world_frontier record}``, cached in ``OUT/baselines/``."""
+    found: dict[str, dict[str, Any]] = {}
+    for config in configs:
+        key = frontier_key(config)
+        if key in found:
+            continue
+        if not quiet:
+            print(f"the frontiers of {config['env']['id']}...", file=sys.stderr, flush=True)
+        planner = key in planner_keys
+        name = f"frontier-{key}{'-planner' if planner else ''}.json"
+        found[key] = _cached(
+            out / "baselines" / name,
+            lambda config=config, planner=planner: config_frontier(config, planner=planner),
+        )
+    return found
+
+
+def config_frontier(config: Config, *, planner: bool = True, **options: Any) -> dict[str, Any]:
+    """:func:`~drqn_jax.experiments.frontier.world_frontier` on ``config``'s world and evaluation
+    episodes (``evaluate.episodes`` of ``run.seed``'s evaluation key, as every agent of a
+    study plays), with its ``[planner]`` settings; ``options`` go on to it."""
+    env, params = config.make_env()
+    _, key = config.keys()
+    return world_frontier(
+        env,
+        params,
+        key,
+        config["evaluate"]["episodes"],
+        world=config["env"]["id"],
+        seed=config["run"]["seed"],
+        planner=config.planner_params() if planner else None,
+        batch_size=config["evaluate"]["batch_size"] or None,
+        **options,
+    )
+
+
+def _comparisons(
+    trained: Sequence[tuple[dict[str, Any], Config]],
+    names: Sequence[str],
+    runs: Mapping[str, Sequence[Mapping[str, Any]]],
+    frontiers: Mapping[str, Mapping[str, Any]],
+) -> list[str]:
+    """The sentences under a study's table: the verdict on the paper's claim (a
+    teacher-free headline DRQN, the first arm), each trained row against its world's
+    rule-based frontier, and the first arm against each other arm of its world, seed
+    by seed."""
+    comparisons = [frontier_comparison(row) for row, _ in trained]
+    if not names:
+        return comparisons
+    headline, config = trained[0]
+    if headline["agent"] == "drqn" and not headline["teacher"]:
+        comparisons.insert(0, claim_verdict(headline))
+    first = names[0]
+    key = frontier_key(config)
+    vertices = frontier_vertices(frontiers[key]["rule_based"]["points"])
+    own = {row["label"].removeprefix("drqn_jax: "): frontier_key(c) for row, c in trained}
+    paired = [
+        compare_paired(first, runs[first], name, runs[name], vertices)
+        for name in names[1:]
+        if own[name] == key
+    ]
+    return comparisons + [c for c in paired if c is not None]
+
+
+def run_study(
+    arms: Sequence[Arm],
+    out: str | Path,
+    *,
+    smooth: int = 10,
+    png: bool = True,
+    quiet: bool = False,
+    train: bool = True,
+) -> StudyOutcome:
+    """Train and evaluate every arm (continuing a study already in ``out``), evaluate
+    the rule-based agent, and write the table and the curves (module docstring).
+
+    With ``train=False`` nothing trains: the report covers the runs that have
+    finished so far (a config with none is left out), e.g. of a long study
+    interrupted to go on later.
+    """
+    from drqn_jax.experiments.sweep_runner import metrics_path, run_sweep
+    from drqn_jax.interop.recording import record_study_curves
+
+    out = Path(out)
+    runs: dict[str, list[dict[str, Any]]] = {}
+    continued = not train
+    for arm in arms:
+        directory = out / arm.name
+        if not train:
+            runs[arm.name] = finished_results(directory)
+            continue
+        resume = (directory / "plan.json").is_file()
+        outcome = run_sweep(arm.sweep, directory, resume=resume, quiet=quiet)
+        if outcome.status == "interrupted":
+            return StudyOutcome("interrupted")
+        runs[arm.name] = outcome.results
+        continued = continued or outcome.continued > 0
+    done = [arm for arm in arms if runs[arm.name]]
+    cross_configs = {a.name: {e: a.cross_config(e) for e in a.cross_envs} for a in done}
+    cross = {
+        arm.name: {
+            env: cross_results(arm, config, runs[arm.name], out)
+            for env, config in cross_configs[arm.name].items()
+        }
+        for arm in done
+    }
+    configs = [a.config for a in arms] + [c for cs in cross_configs.values() for c in cs.values()]
+    frontiers = frontier_results(
+        configs, out, {frontier_key(done[0].config)} if done else set(), quiet=quiet
+    )
+    baselines = {
+        key: with_margin(
+            baseline_row(f"drqn_jax: {c['env']['id']}", r, world=c["env"]["id"]),
+            frontiers[frontier_key(c)],
+        )
+        for key, (c, r) in rule_based_results(configs, out).items()
+    }
+    trained: list[tuple[dict[str, Any], Config]] = []  # each row and the config it was evaluated on
+    for arm in done:
+        agent = agent_name(arm.config.train_config())
+        evaluated = [(arm.name, arm.config, runs[arm.name])]
+        evaluated += [
+            (f"{arm.name} on {env}", cross_configs[arm.name][env], results)
+            for env, results in cross[arm.name].items()
+        ]
+        for name, config, results in evaluated:
+            row = study_row(f"drqn_jax: {name}", agent, results, world=config["env"]["id"])
+            trained.append((with_margin(row, frontiers[frontier_key(config)]), config))
+    # configs that differ only in what the rule-based agent ignores (the reward) share its row
+    shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines.values()}
+    rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]
+    comparisons = _comparisons(trained, [a.name for a in done], runs, frontiers)
+    curves = {
+        arm.name: load_curves(
+            [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth
+        )
+        for arm in done
+    }
+    table = "\n\n".join([study_table(rows), "\n".join(f"* {c}" for c in comparisons)])
+    atomic_write_text(out / "study.md", table + "\n")
+    record = strict_json(
+        {
+            "rows": rows,
+            "comparisons": comparisons,
+            "runs": runs,
+            "cross": cross,
+            "smooth": smooth,
+            "frontiers": frontiers,
+        }
+    )
+    atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
+    if curves:
+        record_study_curves(out / "curves.rrd", curves)
+        if png:
+            plot_curves(curves, out / "curves.png", smooth)
+            first = frontiers[frontier_key(done[0].config)]
+            plot_safety_speed(rows, first, out / "safety_speed.png")
+    return StudyOutcome("finished", rows, runs, table, comparisons, continued, frontiers)

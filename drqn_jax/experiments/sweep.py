@@ -1,0 +1,335 @@
+"""Hyperparameter sweeps: the sweep file, its points, their programs, the results table.
+
+A sweep file (TOML) names a base config and axes::
+
+    base = "smoke"                      # a config name or path
+    mode = "product"                    # or "zip": the i-th values of every axis
+    [set]                               # overrides shared by every point
+    "train.num_episodes" = 12
+    [axes]                              # "section.field" = list, or a range table
+    "run.seed" = { start = 0, stop = 4 }                    # 0, 1, 2, 3
+    "train.learning_rate" = [1e-3, 3e-4]
+    "train.gamma" = { start = 0.9, stop = 0.99, num = 3 }   # linspace, ends included
+
+Every point is a full :class:`~drqn_jax.config.Config`, validated before
+anything compiles. Points whose shapes agree (static env parameters, network,
+training sizes) form one program: ``jit(vmap(train))`` over their PRNG keys,
+``Hyperparams`` and ``EnvParams``; an axis that changes shapes (network
+width, pedestrian count, window …) splits the sweep into several programs,
+listed by :meth:`Sweep.describe` before any runs. How they run (memory
+plan, sharding over devices, checkpoints, several processes) is
+:mod:`drqn_jax.experiments.sweep_runner`.
+
+Evaluation: every run is evaluated greedily on the same episodes — the
+evaluation key of the first point — so runs differ only by their training.
+:func:`summarize_sweep` pools the seeds of each setting.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import itertools
+import math
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drqn_jax.config import (
+    TRAIN_SIZES,
+    Config,
+    ConfigError,
+    load_config,
+    parse_override,
+    toml_value,
+)
+from drqn_jax.experiments.stats import interquartile_mean, t_interval
+from drqn_jax.learners.hyperparams import teachers_of
+
+__all__ = [
+    "STRATEGIES",
+    "Sweep",
+    "SweepPoint",
+    "build_sweep",
+    "load_sweep",
+    "shape_key",
+    "summarize_sweep",
+    "sweep_csv",
+    "sweep_table",
+]
+
+MODES = ("product", "zip")
+#: How a device trains its runs: ``vmap`` batches them (one program step
+#: advances all; what accelerators want), ``map`` runs them one after another
+#: inside the same program (``lax.map``; on CPUs, where one run already keeps
+#: the cores busy and batched products are slower); ``auto``: ``map`` on CPU
+#: devices, ``vmap`` elsewhere (:mod:`drqn_jax.experiments.sweep_runner`).
+STRATEGIES = ("auto", "vmap", "map")
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepPoint:
+    """One run: its index in the sweep, axis values and resolved config."""
+
+    index: int
+    values: dict[str, Any]
+    config: Config
+
+    @functools.cached_property
+    def shape(self) -> tuple:
+        """:func:`shape_key` of the point's config (computed once)."""
+        return shape_key(self.config)
+
+    @property
+    def setting(self) -> tuple[tuple[str, Any], ...]:
+        """The axis values other than the seed: the runs a results row pools."""
+        return tuple((k, v) for k, v in self.values.items() if k != "run.seed")
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """A validated sweep: its points and their grouping into programs."""
+
+    base: str
+    axes: dict[str, list[Any]]
+    points: list[SweepPoint]
+    strategy: str = "auto"
+
+    def programs(self) -> list[list[SweepPoint]]:
+        """Points grouped by shapes, in order of first appearance: one program each."""
+        groups: dict[Any, list[SweepPoint]] = {}
+        for point in self.points:
+            groups.setdefault(point.shape, []).append(point)
+        return list(groups.values())
+
+    def describe(self) -> str:
+        """What will run: points, programs and which axes split them."""
+        programs = self.programs()
+        lines = [
+            f"sweep over {len(self.points)} runs from {self.base!r}: "
+            + ", ".join(f"{k} ({len(v)})" for k, v in self.axes.items())
+        ]
+        if len(programs) > 1:
+            splitting = [axis for axis in self.axes if _changes_shape(self, axis)]
+            lines.append(
+                f"{len(programs)} separate programs: {', '.join(splitting)} change(s) shapes"
+            )
+        else:
+            lines.append("one program")
+        return "\n".join(lines)
+
+
+def shape_key(config: Config) -> tuple:
+    """What fixes a training program's shapes: static env params, network, sizes."""
+    env, _ = config.make_env()
+    sizes = tuple(config["train"][name] for name in TRAIN_SIZES)
+    return (env.static, config.network_config(), sizes)
+
+
+def _changes_shape(sweep: Sweep, axis: str) -> bool:
+    """Whether two points that differ only in ``axis`` have different shapes."""
+    seen: dict[tuple, set] = {}
+    for p in sweep.points:
+        rest = tuple((k, _hashable(v)) for k, v in p.values.items() if k != axis)
+        seen.setdefault(rest, set()).add(p.shape)
+    return any(len(keys) > 1 for keys in seen.values())
+
+
+def _hashable(value: Any) -> Any:
+    return tuple(_hashable(v) for v in value) if isinstance(value, list) else value
+
+
+def _axis_values(name: str, spec: Any) -> list[Any]:
+    if isinstance(spec, list):
+        if not spec:
+            raise ConfigError(f"axes.{name} = []: an axis needs at least one value")
+        return spec
+    if isinstance(spec, dict):
+        unknown = set(spec) - {"start", "stop", "num", "step"}
+        if unknown or "start" not in spec or "stop" not in spec:
+            raise ConfigError(
+                f"axes.{name} = {spec!r}: a range is {{start, stop}} (integers, stop excluded),"
+                " {start, stop, step} or {start, stop, num} (num values, ends included)"
+            )
+        start, stop = spec["start"], spec["stop"]
+        if "num" in spec:
+            num = spec["num"]
+            if not isinstance(num, int) or num < 1:
+                raise ConfigError(f"axes.{name}.num = {num!r}: must be an integer >= 1")
+            return [float(x) for x in np.linspace(start, stop, num)]
+        step = spec.get("step", 1)
+        if not all(isinstance(x, int) for x in (start, stop, step)) or step == 0:
+            raise ConfigError(
+                f"axes.{name} = {spec!r}: start, stop and step must be integers, step != 0"
+            )
+        values = list(range(start, stop, step))
+        if not values:
+            raise ConfigError(f"axes.{name} = {spec!r}: the range is empty")
+        return values
+    raise ConfigError(f"axes.{name} = {spec!r}: must be a list of values or a range table")
+
+
+def _override(name: str, value: Any) -> str:
+    return f"{name}={toml_value(value)}"
+
+
+def load_sweep(path: str | Path, overrides: Sequence[str] = ()) -> Sweep:
+    """Read a sweep file and validate every point's config (nothing compiles).
+
+    Args:
+        path: the sweep TOML.
+        overrides: ``section.field=value`` applied to every point after ``[set]``.
+    Raises:
+        ConfigError: naming the sweep key, axis or point field at fault.
+    """
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"sweep {str(path)!r}: no such file") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"sweep {str(path)!r}: not valid TOML: {err}") from None
+    unknown = set(raw) - {"base", "mode", "strategy", "set", "axes"}
+    if unknown:
+        raise ConfigError(
+            f"sweep {str(path)!r}: unknown key(s) {', '.join(sorted(unknown))}; "
+            "allowed: base, mode, strategy, set, axes"
+        )
+    base = raw.get("base", "default")
+    base_path = path.parent / base
+    shared = [_override(k, v) for k, v in raw.get("set", {}).items()] + list(overrides)
+    return build_sweep(
+        base,
+        raw.get("axes", {}),
+        shared,
+        mode=raw.get("mode", "product"),
+        strategy=raw.get("strategy", "auto"),
+        base_source=base_path if base_path.is_file() else base,
+    )
+
+
+def build_sweep(
+    base: str,
+    axes: dict[str, Any],
+    overrides: Sequence[str] = (),
+    *,
+    mode: str = "product",
+    strategy: str = "auto",
+    base_source: str | Path | None = None,
+) -> Sweep:
+    """A sweep from its parts, as a sweep file names them (nothing compiles).
+
+    Args:
+        base: a config name in ``configs/`` or a path.
+        axes: ``{"section.field": list | range table}``.
+        overrides: ``section.field=value`` shared by every point.
+        base_source: where to read ``base`` from, when not ``base`` itself.
+    Raises:
+        ConfigError: naming the key, axis or point field at fault.
+    """
+    if strategy not in STRATEGIES:
+        raise ConfigError(
+            f"strategy = {strategy!r}: must be one of {', '.join(map(repr, STRATEGIES))}"
+        )
+    if mode not in MODES:
+        raise ConfigError(f"mode = {mode!r}: must be one of {', '.join(map(repr, MODES))}")
+    base_source = base if base_source is None else base_source
+    shared = list(overrides)
+    axes = {name: _axis_values(name, spec) for name, spec in axes.items()}
+    for name in axes:
+        parse_override(f"{name}=0")  # a well-formed section.field
+    if mode == "zip":
+        lengths = {name: len(v) for name, v in axes.items()}
+        if len(set(lengths.values())) > 1:
+            raise ConfigError(f"mode = 'zip' needs axes of one length; got {lengths}")
+        combos = list(zip(*axes.values(), strict=True)) if axes else [()]
+    else:
+        combos = list(itertools.product(*axes.values()))
+    points = []
+    for i, combo in enumerate(combos):
+        values = dict(zip(axes, combo, strict=True))
+        point_overrides = shared + [_override(k, v) for k, v in values.items()]
+        try:
+            config = load_config(base_source, point_overrides)
+        except ConfigError as err:
+            raise ConfigError(f"sweep point {i} ({values}): {err}") from None
+        points.append(SweepPoint(i, values, config))
+    return Sweep(str(base), axes, points, strategy)
+
+
+TABLE_METRICS = (
+    "collision_free_rate",
+    "struck_while_stopped_rate",
+    "goal_rate",
+    "avg_speed_kmh",
+    "avg_speed_authors_kmh",
+    "avg_distance_m",
+    "avg_return",
+    "final_train_return",
+)
+
+
+def summarize_sweep(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per setting (axis values but the seed): n runs, how many diverged (a
+    non-finite loss or parameter), and per metric the mean, std, 95 % t-interval
+    and interquartile mean across the seeds."""
+    settings: dict[tuple, list[dict[str, Any]]] = {}
+    for r in results:
+        key = tuple((k, _hashable(v)) for k, v in r["values"].items() if k != "run.seed")
+        settings.setdefault(key, []).append(r)
+    rows = []
+    for key, runs in settings.items():
+        diverged = sum(bool(r.get("diverged")) for r in runs)
+        row: dict[str, Any] = {"setting": dict(key), "runs": len(runs), "diverged": diverged}
+        row["teacher"] = teachers_of(runs)
+        for metric in TABLE_METRICS:
+            # None: a non-finite number in JSON; absent: a run evaluated before the metric
+            x = np.array([r.get(metric) for r in runs], np.float64)
+            low, high = t_interval(x)
+            row[metric] = {
+                "mean": float(x.mean()),
+                "std": float(x.std(ddof=1)) if len(x) > 1 else math.nan,
+                "ci95": (low, high),
+                "iqm": interquartile_mean(x),
+            }
+        rows.append(row)
+    return rows
+
+
+def sweep_table(rows: Sequence[dict[str, Any]]) -> str:
+    """Markdown: one row per setting, ``mean ± std [95 % CI] (IQM)`` per metric."""
+    names = list(rows[0]["setting"]) if rows else []
+    header = [*names, "runs", "teacher", *TABLE_METRICS]
+    lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
+    for row in rows:
+        runs = f"{row['runs']}" + (f" ({row['diverged']} diverged)" if row["diverged"] else "")
+        cells = [str(row["setting"][n]) for n in names] + [runs, row.get("teacher", "–")]
+        for metric in TABLE_METRICS:
+            m = row[metric]
+            low, high = m["ci95"]
+            cells.append(
+                f"{m['mean']:.3g} ± {m['std']:.2g} [{low:.3g}, {high:.3g}] ({m['iqm']:.3g})"
+            )
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def sweep_csv(rows: Sequence[dict[str, Any]]) -> str:
+    """CSV of :func:`summarize_sweep`: setting columns, runs, diverged, then per metric
+    ``<metric>_mean``, ``_std``, ``_ci_low``, ``_ci_high``, ``_iqm``."""
+    names = list(rows[0]["setting"]) if rows else []
+    header = [*names, "runs", "diverged"]
+    for metric in TABLE_METRICS:
+        header += [f"{metric}_{s}" for s in ("mean", "std", "ci_low", "ci_high", "iqm")]
+    lines = [",".join(header)]
+    for row in rows:
+        cells = [str(row["setting"][n]) for n in names] + [str(row["runs"]), str(row["diverged"])]
+        for metric in TABLE_METRICS:
+            m = row[metric]
+            cells += [repr(m["mean"]), repr(m["std"]), repr(m["ci95"][0]), repr(m["ci95"][1])]
+            cells.append(repr(m["iqm"]))
+        lines.append(",".join(cells))
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,742 @@
+"""Running a sweep: memory plan, compiled calls, checkpoints, progress, several processes.
+
+The points of a :class:`~drqn_jax.experiments.sweep.Sweep` are grouped into programs by
+shape; each process takes a contiguous slice of every program, and the
+memory plan (:mod:`drqn_jax.experiments.memory`) cuts that slice into **calls**: runs
+trained together by one compiled ``jit(vmap(run))``, the run axis sharded
+over the process's devices (a ``NamedSharding`` on a one-axis ``Mesh``),
+padded to a multiple of the device count with copies of the last run.
+
+A call runs chunk by chunk (``train.chunk_iterations`` iterations of every
+run) from the host, like ``drqn-jax train``: a progress bar counts the
+episodes of all runs, a checkpoint of the whole batched ``TrainState`` is
+written every ``run.checkpoint_every_s`` and on SIGINT/SIGTERM, and a call
+that ends writes its runs' results. ``resume=True`` skips the calls that
+ended and continues the others from their checkpoints. A run's results do not
+depend on the call it was in, the device count or the process count: each is
+bit-identical to the same run alone (tests/experiments/test_sweep.py).
+
+Output directory::
+
+    OUT/plan.json                      the points (values, training hash) and processes
+    OUT/calls/runs-<first>-<last>/     checkpoint.npz/.json while a call runs,
+                                       runs.json once it ended
+    OUT/metrics/run-<index>.csv        each run's training metrics, one row per episode
+                                       (written by the process that trained it)
+    OUT/agents/run-<index>/            each run's trained agent: config.toml and agent.npz
+                                       (its parameters, no training state), read by
+                                       ``drqn-jax evaluate`` and ``replay`` like a run directory
+    OUT/results.md, results.csv        per setting: mean, std, 95 % interval, IQM
+    OUT/runs.json                      every run's evaluation and training summary
+
+Several processes (machines): :func:`init_distributed` calls
+``jax.distributed.initialize``; every process trains its slice and publishes
+its runs' results in the coordination service's key-value store; process 0
+gathers them and writes the tables. No file system needs to be shared.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from drqn_jax.agents import drqn_agent
+from drqn_jax.config import RENAMED_LEAVES, ConfigError, added_leaves
+from drqn_jax.evaluation import evaluate
+from drqn_jax.experiments.checkpoint import (
+    AGENT,
+    CHECKPOINT_JSON,
+    CHECKPOINT_NPZ,
+    CheckpointError,
+    atomic_write_text,
+    load_checkpoint,
+    save_checkpoint,
+)
+from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
+from drqn_jax.experiments.memory import (
+    RunMemory,
+    available_memory,
+    call_bytes,
+    format_bytes,
+    run_memory,
+    runs_per_call,
+)
+from drqn_jax.experiments.runner import json_ready, metrics_csv
+from drqn_jax.experiments.sweep import STRATEGIES, Sweep, SweepPoint
+from drqn_jax.learners import Trainer, make_train
+from drqn_jax.learners.dqn.state import TrainState
+from drqn_jax.learners.hyperparams import agent_name, teacher_label
+from drqn_jax.learners.selection import selection, unvalidated
+from drqn_jax.programs import cached
+
+__all__ = [
+    "Call",
+    "Distributed",
+    "SweepOutcome",
+    "call_inputs",
+    "call_programs",
+    "evaluate_runs",
+    "init_distributed",
+    "metrics_path",
+    "plan_calls",
+    "run_sweep",
+    "train_call",
+]
+
+_GATHER_TIMEOUT_MS = 2**31 - 1  # process 0 waits for the others as long as they train
+
+
+@dataclasses.dataclass(frozen=True)
+class Distributed:
+    """This process's place among the processes of a sweep (1 of 1 when alone)."""
+
+    process: int = 0
+    processes: int = 1
+
+    @property
+    def leader(self) -> bool:
+        return self.process == 0
+
+
+def init_distributed(
+    coordinator: str | None, num_processes: int | None, process_id: int | None
+) -> Distributed:
+    """``jax.distributed.initialize`` from the flags, else ``JAX_COORDINATOR_ADDRESS``,
+    ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``; alone (no call) when none is given.
+
+    Must run before any JAX computation.
+    """
+    env = os.environ
+    coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS")
+    given = [coordinator, num_processes, process_id]
+    if num_processes is None and "JAX_NUM_PROCESSES" in env:
+        num_processes = _int_variable("JAX_NUM_PROCESSES")
+    if process_id is None and "JAX_PROCESS_ID" in env:
+        process_id = _int_variable("JAX_PROCESS_ID")
+    if coordinator is None and num_processes is None and process_id is None:
+        return Distributed()
+    if None in (coordinator, num_processes, process_id):
+        raise ConfigError(
+            "several processes need all three of --coordinator HOST:PORT, --num-processes N "
+            "and --process-id I (or JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES, "
+            f"JAX_PROCESS_ID); got {given}"
+        )
+    if num_processes < 1 or not 0 <= process_id < num_processes:
+        raise ConfigError(
+            f"--num-processes = {num_processes}, --process-id = {process_id}: need "
+            "num_processes >= 1 and 0 <= process_id < num_processes"
+        )
+    jax.distributed.initialize(coordinator, num_processes, process_id)
+    return Distributed(process_id, num_processes)
+
+
+def _int_variable(name: str) -> int:
+    try:
+        return int(os.environ[name])
+    except ValueError:
+        raise ConfigError(f"{name} = {os.environ[name]!r}: must be an integer") from None
+
+
+# ------------------------------------------------------------------------------- the plan
+
+
+@dataclasses.dataclass(frozen=True)
+class Call:
+    """Runs of one program trained together by one compiled call."""
+
+    program: int
+    points: tuple[SweepPoint, ...]
+    size: int  # runs in the call, padding included: a multiple of the device count
+    strategy: str = "vmap"  # "vmap" or "map" (see STRATEGIES)
+    memory: RunMemory | None = None  # per run, as planned
+
+    @property
+    def episodes(self) -> int:
+        """Training episodes of the call's runs, padding excluded."""
+        return len(self.points) * self.points[0].config["train"]["num_episodes"]
+
+    @property
+    def name(self) -> str:
+        return f"runs-{self.points[0].index:04d}-{self.points[-1].index:04d}"
+
+    def fingerprint(self) -> str:
+        """What the call's checkpoint must match: its runs' training configs and size."""
+        hashes = [p.config.training_hash() for p in self.points]
+        text = json.dumps([self.size, self.strategy, hashes])
+        return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _process_slice(points: Sequence[SweepPoint], dist: Distributed) -> list[SweepPoint]:
+    """Contiguous, near-equal slices of ``points``, one per process."""
+    n, p = len(points), dist.processes
+    bounds = [n * i // p for i in range(p + 1)]
+    return list(points[bounds[dist.process] : bounds[dist.process + 1]])
+
+
+def resolve_strategy(strategy: str, devices: Sequence[Any]) -> str:
+    """``vmap`` or ``map`` for ``strategy`` on ``devices``."""
+    if strategy not in STRATEGIES:
+        raise ConfigError(f"strategy = {strategy!r}: must be one of {', '.join(STRATEGIES)}")
+    if strategy == "auto":
+        return "map" if all(d.platform == "cpu" for d in devices) else "vmap"
+    return strategy
+
+
+def plan_calls(
+    sweep: Sweep,
+    devices: int,
+    dist: Distributed = Distributed(),
+    budget: int | None = None,
+    memory_source: str = "",
+    strategy: str | None = None,
+) -> list[Call]:
+    """This process's calls, in order: its slice of every program, cut to fit in memory.
+
+    With ``map`` a call holds one run per device: its runs would take as long
+    together as one after another, and a call's results are saved when it
+    ends, so runs finish (and survive an interruption) one by one.
+
+    Args:
+        devices: local device count (each call's size is a multiple of it).
+        budget: bytes available to one call (default: :func:`available_memory`).
+        strategy: one of :data:`~drqn_jax.experiments.sweep.STRATEGIES` (default: the sweep file's).
+    Raises:
+        MemoryPlanError: one run per device does not fit (before anything compiles).
+    """
+    local = jax.local_devices()[:devices]
+    strategy = resolve_strategy(sweep.strategy if strategy is None else strategy, local)
+    if budget is None:
+        budget, memory_source = available_memory(local)
+    calls = []
+    for k, program in enumerate(sweep.programs()):
+        mine = _process_slice(program, dist)
+        if not mine:
+            continue
+        memory = run_memory(mine[0].config)
+        batched = strategy == "vmap"
+        most = runs_per_call(memory, len(mine), devices, budget, memory_source, batched=batched)
+        if not batched:  # one after another gains nothing from a bigger call, and a call's
+            most = min(most, devices)  # runs save their results only when all have ended
+        count = math.ceil(len(mine) / most)  # calls of near-equal size: one compile
+        per_call = math.ceil(len(mine) / count)
+        size = call_size(per_call, devices, strategy, most // devices)
+        for i in range(0, len(mine), per_call):
+            calls.append(Call(k, tuple(mine[i : i + per_call]), size, strategy, memory))
+    return calls
+
+
+def call_size(runs: int, devices: int, strategy: str = "vmap", most_per_device: int = 2) -> int:
+    """Runs in a call of ``runs`` runs, padding included: a multiple of ``devices``;
+    for ``vmap``, at least 2 runs per device where memory allows.
+
+    A batch of one run per device is avoided because XLA then compiles
+    unbatched matrix products, which round differently from batched ones: the
+    run would drift by an ulp from the same run among others (or alone).
+    ``map`` runs every run unbatched, as alone, and skips the padding.
+    """
+    per_device = math.ceil(runs / devices)
+    if strategy == "vmap":
+        per_device = max(per_device, min(2, most_per_device))
+    return per_device * devices
+
+
+def describe_plan(calls: Sequence[Call], devices: int, dist: Distributed) -> str:
+    """One line per call (consecutive alike calls of a program share one): its
+    runs, padding, strategy, memory in all and per run."""
+    where = f"process {dist.process} of {dist.processes}, " if dist.processes > 1 else ""
+    lines = [f"memory plan ({where}{devices} device(s)):"]
+    groups: list[list[Call]] = []
+    for call in calls:
+        alike = (call.program, len(call.points), call.size, call.strategy)
+        last = groups[-1][-1] if groups else None
+        if last is not None and (last.program, len(last.points), last.size, last.strategy) == alike:
+            groups[-1].append(call)
+        else:
+            groups.append([call])
+    for group in groups:
+        call = group[0]
+        pad = call.size - len(call.points)
+        names = (
+            call.name if len(group) == 1 else f"{len(group)} calls {call.name} … {group[-1].name}"
+        )
+        line = f"  program {call.program}, {names}: {len(call.points)} run(s)"
+        line += f" + {pad} padding" if pad else ""
+        line += " each" if len(group) > 1 else ""
+        line += f", {call.strategy}"
+        if call.strategy == "vmap" and call.size == devices:
+            line += " (1 per device: rounds unlike batched runs)"
+        if call.memory is not None:
+            batched = call.strategy == "vmap"
+            total = devices * call_bytes(call.memory, call.size // devices, batched=batched)
+            line += f", {format_bytes(total)} in all; per run {call.memory.describe()}"
+        lines.append(line)
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- a call
+
+
+def _stack(trees: Sequence[Any]) -> Any:
+    return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)
+
+
+def _pad(tree: Any, size: int) -> Any:
+    """Leading axis padded to ``size`` with copies of the last row."""
+
+    def pad(x):
+        n = x.shape[0]
+        return x if n == size else jnp.concatenate([x, jnp.repeat(x[-1:], size - n, axis=0)])
+
+    return jax.tree.map(pad, tree)
+
+
+def _sharding(devices: Sequence[Any]) -> NamedSharding:
+    return NamedSharding(Mesh(np.asarray(devices), ("runs",)), PartitionSpec("runs"))
+
+
+def call_inputs(call: Call, devices: Sequence[Any]) -> tuple[tuple[Any, Any, Any], jax.Array]:
+    """What a call's programs (:func:`call_programs`) take: ``init``'s arguments
+    ``(keys, hparams, env_params)``, the runs' stacked and padded to ``call.size``,
+    and ``run``'s ``real`` flags ``(size,)`` (False for padding), sharded over
+    ``devices``."""
+    points = call.points
+    keys = jnp.stack([p.config.keys()[0] for p in points])
+    hparams = _stack([p.config.hyperparams() for p in points])
+    env_params = _stack([p.config.make_env()[1] for p in points])
+    real = np.arange(call.size) < len(points)
+    return _pad((keys, hparams, env_params), call.size), jax.device_put(real, _sharding(devices))
+
+
+def _over_runs(
+    fn: Callable[[TrainState], Any],
+    skipped: Callable[[TrainState, jax.Array], Any],
+    devices: Sequence[Any],
+    strategy: str,
+    **jit_options: Any,
+) -> Callable:
+    """``program(states, real)``: ``fn`` on every run of a call, each device on
+    its shard of the run axis (``shard_map``), batched (``vmap``) or one after
+    another (``map``, where a run that ``skipped(state, is_real)`` says to skip
+    costs nothing: ``lax.cond`` with the identity or a placeholder result)."""
+    runs = PartitionSpec("runs")
+
+    def batched(states: TrainState, real: jax.Array) -> Any:
+        return jax.vmap(fn)(states)
+
+    def one_by_one(states: TrainState, real: jax.Array) -> Any:
+        def one(args):
+            state, is_real = args
+            return skipped(state, is_real)
+
+        return jax.lax.map(one, (states, real))
+
+    body = batched if strategy == "vmap" else one_by_one
+    mesh = Mesh(np.asarray(devices), ("runs",))
+    # no collectives: each device's runs are independent (check_vma off, as
+    # the env's lax.cond branches mix per-device and replicated values)
+    program = jax.shard_map(body, mesh=mesh, in_specs=(runs, runs), out_specs=runs, check_vma=False)
+    return jax.jit(program, **jit_options)
+
+
+def call_programs(
+    trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
+) -> tuple[Callable, Callable]:
+    """``(init, run)`` of a call, jitted once per process and shape: calls whose
+    runs differ in hyperparameter values only share them (``init`` takes the
+    hyperparameters as arguments and ``run`` finds them in the state).
+
+    ``init(keys, hparams, env_params)`` builds the ``size`` runs' batched
+    state (sharded over ``devices``); ``run(state, real)`` advances every run
+    whose ``real`` (size,) flag is set and that has not finished by one chunk
+    (``train.chunk_iterations`` iterations). Each device trains its shard of
+    the runs (``shard_map``): batched (``vmap``) or one after another
+    (``map``, where padding and finished runs cost nothing).
+    """
+    chunk = trainer.config.chunk_iterations
+
+    def build() -> tuple[Callable, Callable]:
+
+        def advance(state: TrainState) -> TrainState:
+            return trainer.run(state, chunk)
+
+        def advance_unless_done(state: TrainState, is_real: jax.Array) -> TrainState:
+            return jax.lax.cond(is_real & ~state.finished, advance, lambda s: s, state)
+
+        init = jax.jit(jax.vmap(trainer.init), out_shardings=_sharding(devices))
+        run = _over_runs(advance, advance_unless_done, devices, strategy, donate_argnums=0)
+        return init, run
+
+    key = (trainer.config.program_key(), size, tuple(devices), strategy)
+    return cached("sweep_runner.call", key, build)
+
+
+def validation_program(
+    trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
+) -> Callable:
+    """``validate(states, real) -> {metric: (size, K + 1)}``: the validation
+    metrics of a call's finished runs (``train.snapshots`` = K > 0), sharded and
+    batched as its ``run``; padding rows are skipped (NaN) when the runs go one
+    after another."""
+
+    def build() -> Callable:
+        nan = unvalidated(trainer.config.snapshots, trainer.task.validation_metrics)
+
+        def validate_if_real(state: TrainState, is_real: jax.Array) -> dict[str, jax.Array]:
+            return jax.lax.cond(is_real, trainer.validation_metrics, lambda s: nan, state)
+
+        validate = trainer.validation_metrics
+        return _over_runs(validate, validate_if_real, devices, strategy)
+
+    key = (trainer.config.program_key(), size, tuple(devices), strategy)
+    return cached("sweep_runner.validate", key, build)
+
+
+@dataclasses.dataclass
+class CallOutcome:
+    """How a call ended: ``finished`` or ``interrupted`` (checkpoint saved)."""
+
+    status: str
+    trainer: Trainer
+    state: TrainState  # batched, padding included
+
+    def agent_params(self) -> Any:
+        """Every run's agent (``Trainer.agent_params``), padding included."""
+        return jax.vmap(self.trainer.agent_params)(self.state)
+
+
+def train_call(
+    call: Call,
+    devices: Sequence[Any],
+    *,
+    directory: Path | None = None,
+    checkpoint_every_s: float = math.inf,
+    stop: StopRequest | None = None,
+    on_chunk: Callable[[TrainState], None] | None = None,
+) -> CallOutcome:
+    """Train the call's runs to the end, chunk by chunk; sharded over ``devices``.
+
+    With ``directory``: continue from its checkpoint if there is one, save one
+    every ``checkpoint_every_s`` and when ``stop`` is set (then the outcome is
+    ``interrupted``).
+    """
+    trainer = make_train(call.points[0].config.train_config())
+    init, run = call_programs(trainer, call.size, devices, call.strategy)
+    args, real = call_inputs(call, devices)
+    checkpoint = directory is not None and (directory / CHECKPOINT_NPZ).exists()
+    if checkpoint:
+        template = jax.eval_shape(init, *args)
+        _, hparams, env_params = args
+        expected = {"config_hash": call.fingerprint()}
+        fill = added_leaves(hparams, env_params)
+        state, _ = load_checkpoint(directory, template, expected, fill, renamed=RENAMED_LEAVES)
+        state = jax.device_put(state, _sharding(devices))
+    else:
+        state = init(*args)
+    status, state, _ = run_chunks(
+        lambda state: run(state, real),
+        state,
+        finished=lambda state: bool(jnp.all(state.finished)),
+        stop=StopRequest() if stop is None else stop,
+        save=lambda state, _: _save_call(directory, call, state),
+        every_s=checkpoint_every_s if directory is not None else math.inf,
+        on_chunk=on_chunk,
+    )
+    if status == "interrupted":
+        _save_call(directory, call, state)
+        return CallOutcome("interrupted", trainer, state)
+    if trainer.config.snapshots:
+        validate = validation_program(trainer, call.size, devices, call.strategy)
+        state = state.replace(validation=validate(state, real))
+    return CallOutcome("finished", trainer, state)
+
+
+def _save_call(directory: Path | None, call: Call, state: TrainState) -> None:
+    if directory is not None:
+        meta = {"config_hash": call.fingerprint(), "runs": [p.index for p in call.points]}
+        save_checkpoint(directory, state, meta)
+
+
+def evaluate_runs(
+    network: Any, params: Any, points: Sequence[SweepPoint], eval_key: jax.Array
+) -> list[dict[str, Any]]:
+    """SPEC §8 metrics of each run's greedy DRQN on the episodes of ``eval_key``
+    (``evaluate.episodes`` of them, in batches of ``evaluate.batch_size``), as
+    ``drqn-jax evaluate`` computes them."""
+    out = []
+    for i, point in enumerate(points):
+        env, env_params = point.config.make_env()
+        name = agent_name(point.config.train_config())
+        agent = drqn_agent(network, jax.tree.map(lambda x, i=i: x[i], params), name)
+        settings = point.config["evaluate"]
+        batch = settings["batch_size"] or None
+        result = evaluate(agent, eval_key, settings["episodes"], env, env_params, batch_size=batch)
+        out.append({**result, "teacher": teacher_label(point.config.hyperparams())})
+    return out
+
+
+def real_agent_params(call: Call, outcome: CallOutcome) -> Any:
+    """The agent parameters of the call's runs, padding dropped: NumPy leaves of
+    leading size ``len(call.points)``."""
+    n = len(call.points)
+    return jax.tree.map(lambda x: np.asarray(x)[:n], outcome.agent_params())
+
+
+def call_results(
+    call: Call, outcome: CallOutcome, eval_key: jax.Array, params: Any
+) -> list[dict[str, Any]]:
+    """Per run: its index and axis values, the evaluation of its agent (``params``:
+    :func:`real_agent_params`), the final training return (mean of the last 10 % of
+    episodes) and whether it diverged."""
+    n = len(call.points)
+    returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
+    finite = np.asarray(jax.vmap(finite_training)(outcome.state))[:n]
+    evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key)
+    results = []
+    rows = zip(call.points, evaluations, returns, finite, strict=True)
+    for i, (point, evaluation, ret, ok) in enumerate(rows):
+        val, hp = jax.tree.map(
+            lambda x, i=i: np.asarray(x)[i], (outcome.state.validation, outcome.state.hparams)
+        )
+        tail = max(1, len(ret) // 10)
+        results.append(
+            {
+                "index": point.index,
+                "values": point.values,
+                "final_train_return": float(np.mean(ret[-tail:])),
+                "diverged": not bool(ok),
+                **selection(val, hp),
+                **json_ready(evaluation),
+            }
+        )
+    return results
+
+
+def metrics_path(out: str | Path, index: int) -> Path:
+    """``OUT/metrics/run-NNNN.csv``: the training metrics of the sweep's run ``index``."""
+    return Path(out) / "metrics" / f"run-{index:04d}.csv"
+
+
+def write_training_metrics(out: Path, call: Call, state: TrainState) -> None:
+    """Each run's per-episode training metrics as a ``metrics.csv`` (as ``drqn-jax
+    train`` writes it) at :func:`metrics_path`."""
+    metrics = jax.tree.map(np.asarray, state.metrics)
+    for i, point in enumerate(call.points):
+        path = metrics_path(out, point.index)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, metrics_csv({k: v[i] for k, v in metrics.items()}))
+
+
+def agent_dir(out: str | Path, index: int) -> Path:
+    """``OUT/agents/run-NNNN``: the sweep's run ``index`` as a directory that ``drqn-jax
+    evaluate`` and ``replay`` read like a trained run's (its ``config.toml`` and
+    ``agent.npz``)."""
+    return Path(out) / "agents" / f"run-{index:04d}"
+
+
+def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
+    """Each run's resolved ``config.toml`` and trained agent (``params``:
+    :func:`real_agent_params`; the final or the validated parameters, as
+    evaluated) as ``agent.npz`` at :func:`agent_dir`, with the training hash that
+    ``drqn-jax evaluate`` checks against the config."""
+    counts = jax.tree.map(np.asarray, (state.recorded, state.grad_steps, state.env_steps))
+    for i, point in enumerate(call.points):
+        directory = agent_dir(out, point.index)
+        directory.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(directory / "config.toml", point.config.to_toml())
+        recorded, grad_steps, env_steps = (int(c[i]) for c in counts)
+        meta = {
+            **point.config.training_identity(),
+            "values": point.values,
+            "finished": True,
+            "recorded": recorded,
+            "grad_steps": grad_steps,
+            "env_steps": env_steps,
+        }
+        run_params = jax.tree.map(lambda x, i=i: x[i], params)
+        save_checkpoint(directory, run_params, meta, name=AGENT)
+
+
+# ------------------------------------------------------------------------------ the sweep
+
+
+@dataclasses.dataclass
+class SweepOutcome:
+    """``finished`` (``results``: every run, in point order, on process 0; this
+    process's runs elsewhere) or ``interrupted``. ``continued``: this process's calls
+    that an earlier invocation had begun (a checkpoint) or finished (their results)."""
+
+    status: str
+    results: list[dict[str, Any]]
+    calls: list[Call]
+    continued: int = 0
+
+
+def _plan_record(sweep: Sweep, dist: Distributed) -> dict[str, Any]:
+    return {
+        "base": sweep.base,
+        "axes": sweep.axes,
+        "processes": dist.processes,
+        "points": [
+            {"index": p.index, "values": p.values, "training_hash": p.config.training_hash()}
+            for p in sweep.points
+        ],
+    }
+
+
+def _plan_path(out: Path, dist: Distributed) -> Path:
+    """``OUT/plan.json``; one per process when there are several (no shared file system needed)."""
+    return out / ("plan.json" if dist.processes == 1 else f"plan.process-{dist.process}.json")
+
+
+def _check_plan(path: Path, record: dict[str, Any]) -> bool:
+    """Check that ``path`` holds this sweep, or its first points (a study given more
+    seeds); return whether the plan grows. Every saved point must keep its training hash."""
+    out = path.parent
+    if not path.is_file():
+        raise CheckpointError(f"{out}: no sweep to resume (no {path.name})")
+    saved = json.loads(path.read_text())
+    if saved.get("processes") != record["processes"]:
+        raise CheckpointError(
+            f"{out}: the sweep ran as {saved.get('processes')} process(es); resume it with as many"
+        )
+    old = {p["index"]: p for p in saved.get("points", [])}
+    new = {p["index"]: p for p in record["points"]}
+    for index, point in old.items():
+        if new.get(index, {}).get("training_hash") != point["training_hash"]:
+            raise CheckpointError(
+                f"{out} holds another sweep: point {index} ({point['values']}) "
+                "differs or is missing; resume with the same sweep file and --set overrides "
+                "(more points may follow the saved ones, none may change)"
+            )
+    return len(new) > len(old)
+
+
+def run_sweep(
+    sweep: Sweep,
+    out: str | Path,
+    *,
+    calls: Sequence[Call] | None = None,
+    dist: Distributed = Distributed(),
+    resume: bool = False,
+    quiet: bool = False,
+    keep_agents: bool = True,
+) -> SweepOutcome:
+    """Train and evaluate this process's runs call by call; gather on process 0.
+
+    Args:
+        calls: the plan (default: :func:`plan_calls` on all local devices).
+        resume: continue a sweep in ``out``: the same points, or more after them (e.g.
+            more seeds), and the same process count. A call whose runs ended is kept
+            when the plan has the same call (always with one run per call, as on CPU);
+            a grown batched plan may regroup runs, which then train again.
+        keep_agents: write each run's trained agent (:func:`write_agents`).
+    """
+    out = Path(out)
+    devices = jax.local_devices()
+    if calls is None:
+        calls = plan_calls(sweep, len(devices), dist)
+    record, plan = _plan_record(sweep, dist), _plan_path(out, dist)
+    if resume:
+        write_plan = _check_plan(plan, record)  # grown (more seeds): the new points are added
+    else:
+        if plan.exists():
+            raise CheckpointError(
+                f"{out} already holds a sweep; continue it with --resume or choose another --out"
+            )
+        out.mkdir(parents=True, exist_ok=True)
+        write_plan = True
+    if write_plan:
+        atomic_write_text(plan, json.dumps(record, indent=1) + "\n")
+    first = sweep.points[0].config
+    eval_key = first.keys()[1]
+    every = first["run"]["checkpoint_every_s"]
+    results: list[dict[str, Any]] = []
+    total = sum(call.episodes for call in calls)
+    stop = StopRequest()
+    desc = f"sweep (process {dist.process})" if dist.processes > 1 else "sweep"
+    with stop.installed(), progress_bar(total, 0, quiet or not dist.leader) as bar:
+        bar.set_description(desc)
+        done_before = continued = 0
+        for call in calls:
+            directory = out / "calls" / call.name
+            saved = directory / "runs.json"
+            continued += resume and (saved.is_file() or (directory / CHECKPOINT_NPZ).is_file())
+            if resume and saved.is_file():
+                results += json.loads(saved.read_text())
+                done_before += call.episodes
+                bar.update(done_before - bar.n)
+                continue
+
+            def progress(state: TrainState, before: int = done_before, n: int = len(call.points)):
+                bar.update(before + int(np.asarray(state.recorded)[:n].sum()) - bar.n)
+
+            outcome = train_call(
+                call,
+                devices,
+                directory=directory,
+                checkpoint_every_s=every,
+                stop=stop,
+                on_chunk=None if bar.disable else progress,  # no host copy unless shown
+            )
+            if outcome.status == "interrupted":
+                return SweepOutcome("interrupted", results, list(calls), continued)
+            params = real_agent_params(call, outcome)
+            call_result = call_results(call, outcome, eval_key, params)
+            directory.mkdir(parents=True, exist_ok=True)
+            write_training_metrics(out, call, outcome.state)
+            if keep_agents:
+                write_agents(out, call, outcome.state, params)
+            atomic_write_text(saved, json.dumps(call_result, indent=1) + "\n")
+            for name in (CHECKPOINT_NPZ, CHECKPOINT_JSON):  # the results replace them
+                (directory / name).unlink(missing_ok=True)
+            results += call_result
+            done_before += call.episodes
+    if dist.processes > 1:
+        results = _gather(results, dist)
+    results = sorted(results, key=lambda r: r["index"])
+    return SweepOutcome("finished", results, list(calls), continued)
+
+
+def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, Any]]:
+    """Every process's results on process 0, through the coordination service's
+    key-value store (no shared file system, no device collectives)."""
+    from jax._src import distributed
+
+    client = distributed.global_state.client
+    client.key_value_set(f"drqn_jax/sweep/results/{dist.process}", json.dumps(results))
+    if not dist.leader:
+        return results
+    gathered = []
+    for p in range(dist.processes):
+        text = client.blocking_key_value_get(f"drqn_jax/sweep/results/{p}", _GATHER_TIMEOUT_MS)
+        gathered += json.loads(text)
+    return gathered
+
+
+def train_runs(
+    points: Sequence[SweepPoint], devices: Sequence[Any] | None = None, strategy: str = "auto"
+) -> tuple[Trainer, Any, dict[str, np.ndarray]]:
+    """Train ``points`` (all of one shape) in one call on ``devices`` (default: all
+    local devices), no checkpoints, no memory plan.
+
+    Returns:
+        ``(trainer, params, metrics)`` with NumPy leaves of leading size ``len(points)``.
+    """
+    devices = list(jax.local_devices() if devices is None else devices)
+    strategy = resolve_strategy(strategy, devices)
+    size = call_size(len(points), len(devices), strategy)
+    call = Call(0, tuple(points), size, strategy)
+    outcome = train_call(call, devices)
+    metrics = jax.tree.map(lambda x: np.asarray(x)[: len(points)], outcome.state.metrics)
+    return outcome.trainer, real_agent_params(call, outcome), metrics

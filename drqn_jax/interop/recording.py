@@ -1,0 +1,868 @@
+"""Rerun recordings of evaluated episodes and of training curves (paper §V-E; SPEC §1–5, §8).
+
+Two writers, each producing one ``.rrd`` file (open it with ``rerun FILE.rrd``;
+no viewer is needed to write it):
+
+* :func:`record_episodes` plays ``num_episodes`` greedy episodes of an agent
+  with one jitted, vmapped rollout (:func:`collect_episodes`) and logs them
+  (:func:`write_episodes`). Episode *i* uses ``fold_in(key, i)`` exactly as
+  :func:`drqn_jax.evaluation.evaluate` does, so recorded episode *i* is the
+  evaluated episode *i* (same length, return, collision).
+* :func:`record_training` logs the per-episode training metrics of a run
+  (``drqn_jax.experiments.runner.recorded_metrics``) as curves;
+  :func:`record_study_curves` logs a study's curves over seeds
+  (:mod:`drqn_jax.experiments.study`).
+
+Entity layout of an episode recording (timeline ``"step"`` = the env's
+``state.time``; every episode has its own entity prefix ``episode/<i>``, so
+episodes never overwrite each other and the saved blueprint shows one tab per
+episode)::
+
+    map/road, map/walkways, map/crosswalks   Boxes2D, static (SPEC §1 regions)
+    map/centre_line, map/goal                 LineStrips2D, static
+    episode/<i>/world/ego                     Boxes2D, steps 0…L, labelled with the HUD text
+                                              (blue; magenta from a collision on)
+    episode/<i>/world/pedestrians             Points2D (radius = ped_radius), steps 0…L
+    episode/<i>/world/headings                Arrows2D: velocity × ttc_horizon, steps 0…L
+    episode/<i>/grid/<channel>                Image (45, 30) float32, steps 0…L, one entity
+                                              per channel: occupancy, heading, speed, semantics
+    episode/<i>/speed_kmh                     Scalars, steps 0…L
+    episode/<i>/action                        Scalars (action code), steps 0…L-1
+    episode/<i>/q/<action name>               Scalars, steps 0…L-1 (DRQN only)
+    episode/<i>/reward                        Scalars, steps 1…L
+    episode/<i>/ttc                           Scalars, steps 1…L where TTC is finite
+    episode/<i>/events                        TextLog: action names at 0…L-1 (a warning
+                                              where a pedestrian struck the standing
+                                              car), end at L
+
+L is the episode's length. Step t shows the state the agent sees before its
+t-th decision (t = 0 is the reset state, t = L the state the episode ended
+in) with its observation grid and speed; ``action`` and ``q`` at t are the
+decision taken in that state; ``reward`` and ``ttc`` at t are what the step
+*into* state t produced (so the collision's −10 and TTC 0 sit on the frame
+that shows the collision). TTC is logged only where it is finite (``inf``:
+no overlap within the horizon or the ego stopped, SPEC §5), as points. Steps
+after the episode ended are not logged.
+
+World coordinates are the simulator's metres with **y negated** (rerun's 2D
+views point y down; negating keeps the ego's left up, so the ego drives on
+the right of the road as in SPEC §1): a logged position ``(x, y)`` is the
+simulator's ``(x, -y)``, see :func:`to_view`. Grid images are the observation
+as the network sees it: row 0 is 5 m behind the ego (top), column 0 is 15 m
+to its right (SPEC §4).
+
+Colours: the palette of :mod:`drqn_jax.env.viewer`, which the Gymnasium
+envs' ``rgb_array`` frames use too (:data:`BEHAVIOUR_COLOURS`,
+:data:`OCCLUDED_ALPHA` are its names, re-exported). Map regions in
+``MAP_COLOURS`` (road dark grey, walkways light grey, crosswalks off-white; the
+view's background is the off-road colour), centre line ``LANE_MARK_COLOUR``,
+goal ``GOAL_COLOUR`` (yellow), ego ``EGO_COLOUR`` (blue) and
+``EGO_COLLISION_COLOUR`` (magenta), Q-value curves ``ACTION_COLOURS``
+(accelerate green, slow_down orange, brake red, steer blue). Pedestrians
+(legend; also an ``AnnotationContext`` on ``/`` labels the class ids 0, 1, 2
+with the behaviour names):
+
+* crossing (legal, on crosswalks): green;
+* jaywalking: red;
+* sidewalk (never enters the road): orange;
+
+faded (alpha :data:`OCCLUDED_ALPHA`) while occluded, i.e. left out of the
+observation grid (``EnvParams.occlusion_prob``).
+
+The ego's label at step t is the HUD of state t, the text the rendered frames
+show (:func:`drqn_jax.env.viewer.hud_glyphs` read back by
+:func:`~drqn_jax.env.viewer.hud_text`), e.g. ``step 12  36.0 km/h  accelerate
+TTC 1.5 s``: the step, the speed, the action that led to the state (``-`` at
+t = 0) and the TTC of state t itself (``-`` when infinite), computed for all
+states by one jitted ``vmap`` (:func:`hud_labels`). The ``ttc`` scalars are the
+step's ``info["ttc"]``, measured before far or finished pedestrians are
+replaced, so the two can differ on a step that replaced one.
+
+Entity layout of a training recording (timeline ``"episode"`` = the training
+episode's index): ``training/return``, ``training/length`` (steps),
+``training/loss`` (mean TD loss of the episode, 0 before learning starts),
+``training/epsilon``, ``training/collision_rate`` and ``training/goal_rate``
+(running means over the last :data:`COLLISION_RATE_WINDOW` = 20 recorded
+episodes, fewer at the start), ``training/distance`` (m) and
+``training/mean_speed_kmh`` when the metrics hold them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from drqn_jax.agents.base import ActFn, Agent, InitFn
+from drqn_jax.env.collision import ego_box
+from drqn_jax.env.params import EnvParams
+from drqn_jax.env.road_map import (
+    CROSSING_AREA,
+    OFF_ROAD,
+    ROAD,
+    WALKWAY,
+    crosswalk_centres,
+    intersection_centres,
+)
+from drqn_jax.env.state import ACTIONS, BEHAVIOURS, EnvState
+from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.env.viewer import (
+    ACTION_COLOURS,
+    BEHAVIOUR_COLOURS,
+    EGO_COLLISION_COLOUR,
+    EGO_COLOUR,
+    GOAL_COLOUR,
+    LANE_MARK_COLOUR,
+    MAP_COLOURS,
+    OCCLUDED_ALPHA,
+    hud_glyphs,
+    hud_text,
+)
+from drqn_jax.evaluation import Decision, episode_keys, map_episodes, play_episode
+from drqn_jax.networks import Network
+from drqn_jax.programs import cached_program
+from drqn_jax.pytree import pytree_dataclass
+
+__all__ = [
+    "BEHAVIOUR_COLOURS",
+    "COLLISION_RATE_WINDOW",
+    "EPISODE_TIMELINE",
+    "GRID_CHANNELS",
+    "OCCLUDED_ALPHA",
+    "STEP_TIMELINE",
+    "EpisodeRecord",
+    "MapRegion",
+    "collect_episodes",
+    "episode_blueprint",
+    "hud_labels",
+    "map_extent",
+    "map_regions",
+    "record_episodes",
+    "record_study_curves",
+    "record_training",
+    "running_mean",
+    "to_view",
+    "with_q_values",
+    "write_episodes",
+]
+
+STEP_TIMELINE = "step"
+EPISODE_TIMELINE = "episode"
+ENV_STEPS_TIMELINE = "env_steps"  # a study's curves (issue 41)
+GRID_CHANNELS = ("occupancy", "heading", "speed", "semantics")  # SPEC §4 channel order
+COLLISION_RATE_WINDOW = 20  # episodes in the running collision/goal rates (as the progress bar)
+_VIEW_FLIP = np.array([1.0, -1.0], np.float32)
+
+
+def to_view(xy: np.ndarray) -> np.ndarray:
+    """Simulator (x, y) → logged (x, −y), (..., 2) float32 (rerun's 2D y axis points down)."""
+    return (np.asarray(xy, np.float32) * _VIEW_FLIP).astype(np.float32)
+
+
+# --- the rollout -----------------------------------------------------------------
+
+
+@pytree_dataclass
+class EpisodeRecord:
+    """N recorded episodes, everything the recording logs; T = ``max_steps``.
+
+    Index t of a per-state array is the state before the t-th decision (0 is
+    the reset state); index t of a per-step array is the step from state t to
+    state t + 1. Only ``[:L + 1]`` (states) and ``[:L]`` (steps) of episode i
+    are meaningful, L = ``length[i]``; the rollout runs all T steps
+    branch-free and what follows the end is never logged.
+
+    Attributes:
+        state: EnvState, leaves (N, T + 1, ...).
+        grid: (N, T + 1, rows, cols, 4) float32, observation grid of each state.
+        ego_centre: (N, T + 1, 2) float32, ego box centre (simulator frame, m).
+        ego_half: (N, 2) float32, ego box half extents (m).
+        action: (N, T) int32, the action taken in state t.
+        q_values: (N, T, 4) float32 Q-values of state t (DRQN only, else None).
+        reward: (N, T) float32; ttc: (N, T) float32 (s, inf: none), of the state
+            the step leads to; collision, struck_while_stopped, goal, truncated:
+            (N, T) bool (SPEC §5: a pedestrian striking the standing ego is no
+            collision and does not end the episode).
+        length: (N,) int32 steps until termination or truncation.
+        episode_return: (N,) float32, accumulated as ``rollout_episode`` does.
+    """
+
+    state: EnvState
+    grid: Any
+    ego_centre: Any
+    ego_half: Any
+    action: Any
+    q_values: Any
+    reward: Any
+    ttc: Any
+    collision: Any
+    struck_while_stopped: Any
+    goal: Any
+    truncated: Any
+    length: Any
+    episode_return: Any
+
+    @property
+    def num_episodes(self) -> int:
+        return int(np.shape(self.length)[0])
+
+    def outcome(self, i: int) -> str:
+        """How episode ``i`` ended: ``"collision"``, ``"goal"`` or ``"truncated"``."""
+        n = int(self.length[i])
+        if n and self.collision[i, n - 1]:
+            return "collision"
+        return "goal" if n and self.goal[i, n - 1] else "truncated"
+
+
+def _stack_last(seq: Any, last: Any) -> Any:
+    """Append ``last`` (leaves (...)) to a scanned sequence (leaves (T, ...)) → (T + 1, ...)."""
+    return jax.tree.map(lambda s, x: jnp.concatenate([s, x[None]], axis=0), seq, last)
+
+
+def with_q_values(agent: Agent, network: Network, network_params: Any) -> Agent:
+    """``agent``, with ``network`` stepping beside it on the same observations (its own
+    carry, zeros at reset): the carry becomes ``(agent's carry, network carry, Q)``, Q
+    (4,) float32 of the last observation. For ``drqn_agent(network, network_params)``
+    these are exactly the values whose argmax is the action."""
+    init, act = _q_values_beside(agent.init_fn, agent.act_fn, network)
+    return Agent(params=(agent.params, network_params), name=agent.name, init_fn=init, act_fn=act)
+
+
+@cached_program
+def _q_values_beside(init_fn: InitFn, act_fn: ActFn, network: Network) -> tuple[InitFn, ActFn]:
+    """:func:`with_q_values`'s functions, once per agent kind and network (one compile)."""
+
+    def init(params: Any, key: jax.Array) -> Any:
+        inner, _ = params
+        q = jnp.zeros((len(ACTIONS),), jnp.float32)
+        return init_fn(inner, key), network.initial_carry(()), q
+
+    def act(params: Any, key: jax.Array, obs: Any, carry: Any, *rest: Any) -> Any:
+        (inner, net), (inner_carry, q_carry, _) = params, carry
+        action, inner_carry = act_fn(inner, key, obs, inner_carry, *rest)
+        q, q_carry = network.step(net, obs, q_carry)
+        return action, (inner_carry, q_carry, q)
+
+    return init, act
+
+
+def _record_decision(with_q: bool) -> Any:
+    def trace(d: Decision) -> dict[str, Any]:
+        return {
+            "state": d.state,
+            "grid": d.obs.grid,
+            "action": d.action,
+            "q_values": d.carry[2] if with_q else None,
+            "reward": d.reward,
+            "ttc": d.info["ttc"],
+            "collision": d.info["collision"],
+            "struck_while_stopped": d.info["struck_while_stopped"],
+            "goal": d.info["goal"],
+            "truncated": d.truncated,
+        }
+
+    return trace
+
+
+@partial(jax.jit, static_argnames=("env", "with_q"))
+def _rollouts(
+    agent: Agent, keys: jax.Array, env: UrbanPedestrians, params: EnvParams, with_q: bool
+) -> EpisodeRecord:
+    """One episode per key: :func:`~drqn_jax.evaluation.play_episode`, traced."""
+
+    def one(key: jax.Array) -> EpisodeRecord:
+        metrics, out, obs, state = play_episode(agent, key, env, params, _record_decision(with_q))
+        states = _stack_last(out["state"], state)
+        centre, half = ego_box(states.ego.s, params)
+        return EpisodeRecord(
+            state=states,
+            grid=_stack_last(out["grid"], obs.grid),
+            ego_centre=centre,
+            ego_half=half,
+            action=out["action"],
+            q_values=out["q_values"],
+            reward=out["reward"],
+            ttc=out["ttc"],
+            collision=out["collision"],
+            struck_while_stopped=out["struck_while_stopped"],
+            goal=out["goal"],
+            truncated=out["truncated"],
+            length=metrics.length,
+            episode_return=metrics.episode_return,
+        )
+
+    return map_episodes(one, keys)
+
+
+def collect_episodes(
+    agent: Agent,
+    key: jax.Array,
+    num_episodes: int,
+    env: UrbanPedestrians,
+    env_params: EnvParams | None = None,
+    *,
+    network: Network | None = None,
+    network_params: Any = None,
+) -> EpisodeRecord:
+    """Play ``num_episodes`` episodes of ``agent`` in one jitted, vmapped rollout.
+
+    Episode i uses ``episode_keys(key, num_episodes)[i]`` = ``fold_in(key, i)``
+    and the same key schedule as :func:`drqn_jax.evaluation.rollout_episode`,
+    so it is the episode :func:`drqn_jax.evaluate` plays. With ``network`` and
+    ``network_params`` (the DRQN's), the network also steps on the same
+    observations with its own carry (zeros at reset) and its Q-values are
+    recorded: for ``drqn_agent(network, network_params)`` these are exactly
+    the values whose argmax is the action.
+
+    Memory: (T + 1) grids of 45 × 30 × 4 float32 per episode (21.6 MB at
+    T = 1000), all on the device at once.
+
+    Returns:
+        :class:`EpisodeRecord` with NumPy leaves.
+    """
+    if not isinstance(num_episodes, int) or num_episodes < 1:
+        raise ValueError(f"num_episodes = {num_episodes!r}, must be an integer >= 1")
+    if (network is None) != (network_params is None):
+        raise ValueError("network and network_params go together (both or neither)")
+    env_params = env.default_params if env_params is None else env.check_params(env_params)
+    keys = episode_keys(key, num_episodes)
+    if network is not None:
+        agent = with_q_values(agent, network, network_params)
+    record = _rollouts(agent, keys, env, env_params, network is not None)
+    return jax.tree.map(np.asarray, record)
+
+
+# --- the map ---------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class MapRegion:
+    """An axis-aligned rectangle of one semantic class (simulator frame, m).
+
+    Attributes:
+        name: what it is ("main road", "crosswalk", …).
+        semantic: ROAD, WALKWAY or CROSSING_AREA (drqn_jax.env.road_map).
+        x_min, x_max, y_min, y_max: its extent.
+    """
+
+    name: str
+    semantic: int
+    x_min: float
+    x_max: float
+    y_min: float
+    y_max: float
+
+
+def _f(x: Any) -> float:
+    return float(np.asarray(x))
+
+
+def map_extent(env: UrbanPedestrians, params: EnvParams) -> tuple[float, float, float]:
+    """``(x_min, x_max, y_half)`` of the drawn map: everywhere an ego or pedestrian can be."""
+    x_min = min(0.0, _f(params.ego_start_s) + env.static.grid_x_min)
+    x_max = _f(params.goal_x) + max(_f(params.spawn_max), _f(params.despawn_ahead))
+    y_half = max(-env.static.grid_y_min, _f(params.lane_width) + _f(params.sidewalk_width))
+    return x_min, x_max, y_half
+
+
+def map_regions(env: UrbanPedestrians, params: EnvParams) -> list[MapRegion]:
+    """The SPEC §1 map as rectangles: roads, walkways and crosswalks.
+
+    The positions come from :mod:`drqn_jax.env.road_map` (intersection and
+    crosswalk centres) and the map widths; every rectangle's interior has the
+    class :func:`~drqn_jax.env.road_map.semantic_class` gives it.
+    """
+    x_min, x_max, y_half = map_extent(env, params)
+    lane, side = _f(params.lane_width), _f(params.sidewalk_width)
+    half_street, cw = 0.5 * _f(params.cross_street_width), _f(params.crosswalk_width)
+    xcs = [float(x) for x in np.asarray(intersection_centres(params, env.static))]
+    regions = [MapRegion("main road", ROAD, x_min, x_max, -lane, lane)]
+    # main sidewalks, cut where they cross a cross street (there they are crosswalks)
+    cuts = [x_min, *[c for xc in xcs for c in (xc - half_street, xc + half_street)], x_max]
+    for lo, hi in zip(cuts[::2], cuts[1::2], strict=True):
+        for sign in (1.0, -1.0):
+            y0, y1 = sorted((sign * lane, sign * (lane + side)))
+            regions.append(MapRegion("sidewalk", WALKWAY, lo, hi, y0, y1))
+    for xc in xcs:
+        for sign in (1.0, -1.0):  # sign: the ego's left (+) or right (-) side of the road
+            y_far = sorted((sign * (lane + side), sign * y_half))
+            y_near = sorted((sign * lane, sign * (lane + side)))
+            x_street = (xc - half_street, xc + half_street)
+            regions.append(MapRegion("cross street", ROAD, *x_street, *y_far))
+            regions.append(MapRegion("crosswalk", CROSSING_AREA, *x_street, *y_near))
+            for x_sign in (-1.0, 1.0):  # the cross street's sidewalks, before and after it
+                x0, x1 = sorted((xc + x_sign * half_street, xc + x_sign * (half_street + side)))
+                regions.append(MapRegion("cross-street sidewalk", WALKWAY, x0, x1, *y_far))
+    for xw in np.asarray(crosswalk_centres(params, env.static)).tolist():
+        regions.append(MapRegion("crosswalk", CROSSING_AREA, xw - cw / 2, xw + cw / 2, -lane, lane))
+    return regions
+
+
+def _log_map(rec: rr.RecordingStream, env: UrbanPedestrians, params: EnvParams) -> None:
+    """The static map (SPEC §1) under ``map/`` and the behaviour annotation context."""
+    regions = map_regions(env, params)
+    for entity, semantic in (("road", ROAD), ("walkways", WALKWAY), ("crosswalks", CROSSING_AREA)):
+        rs = [r for r in regions if r.semantic == semantic]
+        mins = to_view(np.array([[r.x_min, r.y_max] for r in rs]))  # y_max → view minimum
+        sizes = np.array([[r.x_max - r.x_min, r.y_max - r.y_min] for r in rs], np.float32)
+        rec.log(
+            f"map/{entity}",
+            rr.Boxes2D(
+                mins=mins,
+                sizes=sizes,
+                colors=MAP_COLOURS[semantic],
+                labels=[r.name for r in rs],
+                show_labels=False,
+                radii=0.08,
+                draw_order=1.0,
+            ),
+            static=True,
+        )
+    x_min, x_max, _ = map_extent(env, params)
+    lane = _f(params.lane_width)
+    rec.log(
+        "map/centre_line",
+        rr.LineStrips2D(
+            [to_view([[x_min, 0.0], [x_max, 0.0]])], colors=LANE_MARK_COLOUR, radii=0.1
+        ),
+        static=True,
+    )
+    goal = _f(params.goal_x)
+    rec.log(
+        "map/goal",
+        rr.LineStrips2D(
+            [to_view([[goal, -lane], [goal, lane]])],
+            colors=GOAL_COLOUR,
+            radii=0.25,
+            labels="goal",
+        ),
+        static=True,
+    )
+    rec.log(
+        "/",
+        rr.AnnotationContext(
+            [
+                rr.AnnotationInfo(id=code, label=BEHAVIOURS[code], color=colour)
+                for code, colour in BEHAVIOUR_COLOURS.items()
+            ]
+        ),
+        static=True,
+    )
+
+
+# --- logging episodes ------------------------------------------------------------
+
+
+def _steps(values: np.ndarray | range) -> list[rr.TimeColumn]:
+    return [rr.TimeColumn(STEP_TIMELINE, sequence=np.asarray(values, np.int64))]
+
+
+def _scalars(rec: rr.RecordingStream, entity: str, steps: np.ndarray, values: np.ndarray) -> None:
+    if len(steps):
+        rec.send_columns(
+            entity,
+            indexes=_steps(steps),
+            columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
+        )
+
+
+@cached_program
+def _hud_program(env: UrbanPedestrians) -> Any:
+    """``(states, params) -> glyphs``: :func:`~drqn_jax.env.viewer.hud_glyphs` over
+    states with leaves (N, T + 1, ...), one jitted double ``vmap``; built once per env."""
+    one = partial(hud_glyphs, static=env.static)
+    return jax.jit(jax.vmap(jax.vmap(one, in_axes=(0, None)), in_axes=(0, None)))
+
+
+def hud_labels(record: EpisodeRecord, env: UrbanPedestrians, params: EnvParams) -> np.ndarray:
+    """The HUD of every recorded state (SPEC §5 TTC of the state itself), as
+    :func:`~drqn_jax.env.viewer.hud_glyphs`: (N, T + 1, 2, L) int32, one jitted call;
+    :func:`~drqn_jax.env.viewer.hud_text` turns one (2, L) entry into the ego's label."""
+    return np.asarray(_hud_program(env)(record.state, params))
+
+
+def _log_episode(
+    rec: rr.RecordingStream,
+    record: EpisodeRecord,
+    i: int,
+    env: UrbanPedestrians,
+    params: EnvParams,
+    hud: np.ndarray,
+) -> None:
+    """Log episode ``i`` of ``record`` under ``episode/<i>`` (layout: module docstring);
+    ``hud``: its states' HUD glyphs, (T + 1, 2, L) (:func:`hud_labels`)."""
+    root = f"episode/{i}"
+    n = int(record.length[i])
+    states = np.arange(n + 1)  # state steps 0…L
+    decisions = np.arange(n)  # decision steps 0…L-1
+    peds = jax.tree.map(lambda x: x[i, : n + 1], record.state.pedestrians)
+    num_peds = peds.position.shape[1]
+
+    collided = np.concatenate([[False], np.cumsum(record.collision[i, :n]) > 0])
+    ego_colours = np.where(collided[:, None], EGO_COLLISION_COLOUR, EGO_COLOUR).astype(np.uint8)
+    rec.send_columns(
+        f"{root}/world/ego",
+        indexes=_steps(states),
+        columns=rr.Boxes2D.columns(
+            centers=to_view(record.ego_centre[i, : n + 1]),
+            half_sizes=np.broadcast_to(record.ego_half[i], (n + 1, 2)),
+            colors=ego_colours,
+            labels=[hud_text(glyphs) for glyphs in hud[: n + 1]],
+            draw_order=np.full(n + 1, 3.0, np.float32),
+        ),
+    )
+
+    behaviour = peds.behaviour.reshape(-1)
+    palette = np.array([BEHAVIOUR_COLOURS[k] for k in sorted(BEHAVIOUR_COLOURS)], np.uint8)
+    # pedestrians the grid leaves out this step (EnvParams.occlusion_prob) are faded
+    alpha = np.where(peds.visible.reshape(-1), 255, OCCLUDED_ALPHA).astype(np.uint8)
+    colours = np.concatenate([palette[behaviour], alpha[:, None]], axis=1)
+    positions = to_view(peds.position.reshape(-1, 2))
+    lengths = [num_peds] * (n + 1)
+    # the behaviour names (annotation context) show on hover, not over every pedestrian
+    rec.log(f"{root}/world/pedestrians", rr.Points2D.from_fields(show_labels=False), static=True)
+    rec.send_columns(
+        f"{root}/world/pedestrians",
+        indexes=_steps(states),
+        columns=rr.Points2D.columns(
+            positions=positions,
+            colors=colours,
+            radii=np.full(len(positions), _f(params.ped_radius), np.float32),
+            class_ids=behaviour.astype(np.uint16),
+            draw_order=np.full(len(positions), 4.0, np.float32),
+        ).partition(lengths),
+    )
+    rec.send_columns(
+        f"{root}/world/headings",
+        indexes=_steps(states),
+        columns=rr.Arrows2D.columns(
+            origins=positions,
+            vectors=to_view(peds.velocity.reshape(-1, 2) * env.static.ttc_horizon),
+            colors=colours,
+            radii=np.full(len(positions), 0.06, np.float32),
+        ).partition(lengths),
+    )
+
+    rows, cols, _ = env.static.grid_shape
+    image_format = rr.components.ImageFormat(
+        width=cols, height=rows, color_model="L", channel_datatype="F32"
+    )
+    grids = np.ascontiguousarray(record.grid[i, : n + 1], np.float32)
+    for c, name in enumerate(GRID_CHANNELS):
+        entity = f"{root}/grid/{name}"
+        rec.log(entity, rr.Image.from_fields(format=image_format), static=True)
+        buffers = np.ascontiguousarray(grids[..., c]).reshape(n + 1, -1).view(np.uint8)
+        rec.send_columns(entity, indexes=_steps(states), columns=rr.Image.columns(buffer=buffers))
+
+    speed_kmh = record.state.ego.v[i, : n + 1].astype(np.float64) * 3.6
+    _scalars(rec, f"{root}/speed_kmh", states, speed_kmh)
+    actions = record.action[i, :n]
+    _scalars(rec, f"{root}/action", decisions, actions)
+    if record.q_values is not None:
+        for a, name in enumerate(ACTIONS):
+            rec.log(
+                f"{root}/q/{name}",
+                rr.SeriesLines(names=name, colors=ACTION_COLOURS[a]),
+                static=True,
+            )
+            _scalars(rec, f"{root}/q/{name}", decisions, record.q_values[i, :n, a])
+    _scalars(rec, f"{root}/reward", decisions + 1, record.reward[i, :n])
+    ttc = record.ttc[i, :n]
+    finite = np.isfinite(ttc)
+    _scalars(rec, f"{root}/ttc", (decisions + 1)[finite], ttc[finite])
+
+    rec.log(f"{root}/action", rr.SeriesPoints(names="action", marker_sizes=2.0), static=True)
+    rec.log(f"{root}/ttc", rr.SeriesPoints(names="TTC (s)", marker_sizes=2.0), static=True)
+    rec.log(f"{root}/reward", rr.SeriesLines(names="reward"), static=True)
+    rec.log(f"{root}/speed_kmh", rr.SeriesLines(names="speed (km/h)"), static=True)
+
+    end, level = {
+        "collision": ("collision", "WARN"),
+        "goal": ("goal reached", "INFO"),
+        "truncated": (f"truncated after {n} steps", "INFO"),
+    }[record.outcome(i)]
+    struck = record.struck_while_stopped[i, :n]
+    texts = [
+        ACTIONS[a] + (" · struck while stopped" if hit else "")
+        for a, hit in zip(actions, struck, strict=True)
+    ]
+    levels = ["WARN" if hit else "DEBUG" for hit in struck] + [level]
+    texts.append(end)
+    rec.send_columns(
+        f"{root}/events",
+        indexes=_steps(states),
+        columns=rr.TextLog.columns(text=texts, level=levels),
+    )
+
+
+def episode_blueprint(
+    num_episodes: int,
+    has_q: bool,
+    env: UrbanPedestrians,
+    params: EnvParams,
+    *,
+    x_range: tuple[float, float] | None = None,
+) -> rrb.Blueprint:
+    """The layout :func:`write_episodes` saves: one tab per episode.
+
+    Each tab shows the world over the map (x from ``x_range``, default the whole
+    drawn map), the four grid channels, speed/reward/TTC, Q-values and action,
+    and the action log. Pass another one to :func:`write_episodes` to zoom, e.g.
+    ``episode_blueprint(1, False, env, params, x_range=(80, 140))``.
+    """
+    x_min, x_max, y_half = map_extent(env, params)
+    if x_range is not None:
+        x_min, x_max = x_range
+        y_half = min(y_half, 0.25 * (x_max - x_min))
+    bounds = rrb.VisualBounds2D(x_range=[x_min, x_max], y_range=[-y_half, y_half])
+    tabs = []
+    for i in range(num_episodes):
+        root = f"/episode/{i}"
+        world = rrb.Spatial2DView(
+            name=f"episode {i}",
+            origin="/",
+            contents=["+ /map/**", f"+ {root}/world/**"],
+            visual_bounds=bounds,
+            background=MAP_COLOURS[OFF_ROAD],
+        )
+        grids = rrb.Horizontal(
+            *[rrb.Spatial2DView(name=name, origin=f"{root}/grid/{name}") for name in GRID_CHANNELS]
+        )
+        curves = [
+            rrb.TimeSeriesView(
+                name="speed (km/h), reward, TTC (s)",
+                origin=root,
+                contents=[f"+ {root}/speed_kmh", f"+ {root}/reward", f"+ {root}/ttc"],
+            ),
+            rrb.TimeSeriesView(
+                name="Q-values and action" if has_q else "action",
+                origin=root,
+                contents=[f"+ {root}/q/**", f"+ {root}/action"],
+            ),
+            rrb.TextLogView(name="actions", origin=f"{root}/events"),
+        ]
+        tabs.append(
+            rrb.Vertical(
+                world,
+                rrb.Horizontal(grids, *curves, column_shares=[3, 2, 2, 2]),
+                row_shares=[2, 1],
+                name=f"episode {i}",
+            )
+        )
+    return rrb.Blueprint(
+        rrb.Tabs(*tabs),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", timeline=STEP_TIMELINE),
+    )
+
+
+def _open(path: str | Path, application_id: str, blueprint: rrb.Blueprint) -> rr.RecordingStream:
+    """A recording stream saving to ``path`` (parents created); OSError if it cannot be written."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rec = rr.RecordingStream(application_id)
+    try:
+        rec.save(path, default_blueprint=blueprint)
+    except RuntimeError as err:  # rerun reports file errors as RuntimeError
+        raise OSError(f"cannot write {path}: {err}") from err
+    return rec
+
+
+def _close(rec: rr.RecordingStream) -> None:
+    rec.flush()
+    rec.disconnect()  # writes the footer and closes the file
+
+
+def write_episodes(
+    path: str | Path,
+    record: EpisodeRecord,
+    env: UrbanPedestrians,
+    env_params: EnvParams | None = None,
+    *,
+    application_id: str = "drqn_jax",
+    blueprint: rrb.Blueprint | None = None,
+) -> None:
+    """Log :func:`collect_episodes`' episodes to a new ``.rrd`` file (layout: module docstring).
+
+    The file also holds ``blueprint`` as the default layout (default:
+    :func:`episode_blueprint`, one tab per episode).
+    """
+    env_params = env.default_params if env_params is None else env_params
+    if blueprint is None:
+        has_q = record.q_values is not None
+        blueprint = episode_blueprint(record.num_episodes, has_q, env, env_params)
+    rec = _open(path, application_id, blueprint)
+    try:
+        _log_map(rec, env, env_params)
+        hud = hud_labels(record, env, env_params)
+        for i in range(record.num_episodes):
+            _log_episode(rec, record, i, env, env_params, hud[i])
+    finally:
+        _close(rec)
+
+
+def record_episodes(
+    path: str | Path,
+    agent: Agent,
+    key: jax.Array,
+    num_episodes: int,
+    env: UrbanPedestrians,
+    env_params: EnvParams | None = None,
+    *,
+    network: Network | None = None,
+    network_params: Any = None,
+    application_id: str = "drqn_jax",
+) -> None:
+    """Play ``num_episodes`` episodes of ``agent`` and save them as a rerun recording.
+
+    Episode i is the one :func:`drqn_jax.evaluate` plays with the same
+    ``key`` (``fold_in(key, i)``). Pass the DRQN's ``network`` and
+    ``network_params`` to record its four Q-values per step (what
+    ``drqn_agent(network, network_params)`` takes the argmax of). The entity
+    layout, timeline and conventions are in the module docstring.
+    """
+    record = collect_episodes(
+        agent,
+        key,
+        num_episodes,
+        env,
+        env_params,
+        network=network,
+        network_params=network_params,
+    )
+    write_episodes(path, record, env, env_params, application_id=application_id)
+
+
+# --- training curves --------------------------------------------------------------
+
+_REQUIRED_METRICS = ("episode", "episode_return", "length", "collision", "mean_loss", "epsilon")
+
+
+def running_mean(values: np.ndarray, window: int = COLLISION_RATE_WINDOW) -> np.ndarray:
+    """(N,) float64 mean of ``values[max(0, k - window + 1) : k + 1]`` for each k."""
+    values = np.asarray(values, np.float64)
+    total = np.concatenate([[0.0], np.cumsum(values)])
+    k = np.arange(len(values))
+    start = np.maximum(0, k - window + 1)
+    return (total[k + 1] - total[start]) / (k + 1 - start)
+
+
+def record_training(
+    path: str | Path,
+    metrics: Mapping[str, np.ndarray],
+    *,
+    application_id: str = "drqn_jax",
+) -> None:
+    """Save training curves as a rerun recording, one value per recorded episode.
+
+    Args:
+        path: the ``.rrd`` file to write (its directory is created).
+        metrics: per-episode arrays as ``drqn_jax.experiments.runner.recorded_metrics``
+            returns them: ``episode`` (N,) int (the timeline ``"episode"``),
+            ``episode_return``, ``length``, ``collision``, ``mean_loss``,
+            ``epsilon`` (N,), and optionally ``goal``, ``distance`` (m),
+            ``mean_speed`` (m/s).
+    Raises:
+        ValueError: a required metric is missing or the lengths differ.
+
+    Entities (module docstring): ``training/return``, ``training/length``,
+    ``training/loss``, ``training/epsilon``, ``training/collision_rate`` and
+    ``training/goal_rate`` (running means over the last 20 episodes),
+    ``training/distance``, ``training/mean_speed_kmh``.
+    """
+    missing = [name for name in _REQUIRED_METRICS if name not in metrics]
+    if missing:
+        raise ValueError(f"record_training: metrics lack {', '.join(missing)}")
+    m = {name: np.asarray(v) for name, v in metrics.items()}
+    episodes = m["episode"].astype(np.int64)
+    if any(v.shape != episodes.shape for v in m.values()):
+        raise ValueError("record_training: every metric must have one value per episode")
+    curves = {
+        "return": m["episode_return"],
+        "length": m["length"],
+        "loss": m["mean_loss"],
+        "epsilon": m["epsilon"],
+        "collision_rate": running_mean(m["collision"]),
+    }
+    if "goal" in m:
+        curves["goal_rate"] = running_mean(m["goal"])
+    if "distance" in m:
+        curves["distance"] = m["distance"]
+    if "mean_speed" in m:
+        curves["mean_speed_kmh"] = m["mean_speed"].astype(np.float64) * 3.6
+    blueprint = _series_blueprint({name: f"/training/{name}" for name in curves})
+    rec = _open(path, application_id, blueprint)
+    try:
+        for name, values in curves.items():
+            _send_series(rec, f"training/{name}", name, episodes, values)
+    finally:
+        _close(rec)
+
+
+def _series_blueprint(views: Mapping[str, str], timeline: str = EPISODE_TIMELINE) -> rrb.Blueprint:
+    """One time-series view per ``name → origin entity``, on ``timeline``."""
+    return rrb.Blueprint(
+        rrb.Grid(*[rrb.TimeSeriesView(name=name, origin=o) for name, o in views.items()]),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", timeline=timeline),
+    )
+
+
+def _send_series(
+    rec: rr.RecordingStream,
+    entity: str,
+    name: str,
+    at: np.ndarray,
+    values: np.ndarray,
+    timeline: str = EPISODE_TIMELINE,
+) -> None:
+    """A line named ``name`` at ``entity``: ``values`` (E,) at the sequence ``at`` (E,)
+    of ``timeline``."""
+    rec.log(entity, rr.SeriesLines(names=name), static=True)
+    if len(at):
+        rec.send_columns(
+            entity,
+            indexes=[rr.TimeColumn(timeline, sequence=np.asarray(at, np.int64))],
+            columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
+        )
+
+
+def record_study_curves(
+    path: str | Path,
+    curves: Mapping[str, Mapping[str, Any]],
+    *,
+    application_id: str = "drqn_jax",
+) -> None:
+    """Save a study's training curves (:func:`drqn_jax.experiments.study.load_curves` per config).
+
+    Entities ``curves/<metric>/<config>/{mean,low,high}`` (the running mean's
+    mean and min–max over seeds) and ``curves/<metric>/<config>/seed<k>``
+    (each seed's raw values at the env steps its episodes ended), on the
+    ``env_steps`` timeline; one time-series view per metric (``episode_return``,
+    ``length``).
+    """
+    metrics = sorted({m for by_metric in curves.values() for m in by_metric})
+    views = {m: f"/curves/{m}" for m in metrics}
+    rec = _open(path, application_id, _series_blueprint(views, ENV_STEPS_TIMELINE))
+    try:
+        for name, by_metric in curves.items():
+            for metric, c in by_metric.items():
+                series = {part: (c.env_steps, getattr(c, part)) for part in ("mean", "low", "high")}
+                series |= {
+                    f"seed{k}": xy for k, xy in enumerate(zip(c.seed_steps, c.seeds, strict=True))
+                }
+                for part, (at, values) in series.items():
+                    entity = f"curves/{metric}/{name}/{part}"
+                    _send_series(rec, entity, f"{name} {part}", at, values, ENV_STEPS_TIMELINE)
+    finally:
+        _close(rec)

@@ -1,0 +1,61 @@
+"""What a run of the replay DQN carries between iterations and checkpoints
+(paper §V-B; SPEC §7): :class:`TrainState` and the metrics it records.
+
+Its own module so that :mod:`~drqn_jax.learners.dqn.acting` and
+:mod:`~drqn_jax.learners.dqn.train` both read it without importing each other.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+
+from drqn_jax.learners.dqn.replay import EpisodeReplay
+from drqn_jax.learners.episodes import BASE_METRICS, budget_met
+from drqn_jax.learners.hyperparams import Hyperparams
+from drqn_jax.pytree import pytree_dataclass
+
+__all__ = ["METRIC_NAMES", "TrainState"]
+
+#: Per-episode metrics of the DQN learner on every task; a task adds its own
+#: (the paper's env: collision, goal, distance, mean speed).
+METRIC_NAMES = (*BASE_METRICS, "epsilon")
+
+
+@pytree_dataclass
+class TrainState:
+    """Everything a training run carries between iterations (and checkpoints).
+
+    Per-environment leaves have a leading N axis; ``metrics`` holds one
+    (num_episodes,) array per name in ``METRIC_NAMES`` and the task's metrics.
+    """
+
+    key: jax.Array
+    hparams: Hyperparams
+    env_params: Any
+    env_state: Any
+    obs: Any
+    carry: Any
+    online: Any
+    target: Any
+    opt_state: Any
+    replay: EpisodeReplay
+    episode: jax.Array  # (N,) int32 index of each env's current episode
+    epsilon: jax.Array  # (N,) float32 ε of each env's current episode
+    ep_return: jax.Array
+    ep_length: jax.Array
+    ep_loss_sum: jax.Array
+    ep_loss_count: jax.Array
+    episodes_started: jax.Array
+    recorded: jax.Array  # () int32 training episodes whose metrics are written
+    grad_steps: jax.Array
+    env_steps: jax.Array
+    step_budget: jax.Array  # () int32 TrainConfig.num_env_steps (0: none)
+    metrics: dict[str, jax.Array]
+    snapshots: Any = None  # [K, ...] online parameters during training; None when K = 0
+    validation: Any = None  # {VALIDATION_METRICS: (K + 1,) float32}, NaN until validated
+
+    @property
+    def finished(self) -> jax.Array:
+        return budget_met(self)

@@ -1,0 +1,269 @@
+"""Training a (D)RQN end to end inside one jitted program (paper §V-B, Table II; SPEC §7).
+
+``make_dqn(config)`` (what :func:`drqn_jax.learners.make_train` calls for
+``algorithm = "dqn"``) returns a :class:`~drqn_jax.learners.trainer.Trainer`
+whose functions are pure:
+
+* ``init(key, hparams, env_params) -> TrainState``;
+* ``run(state, num_iterations) -> TrainState``: ``lax.scan`` over iterations
+  — act ε-greedily with the network's carry on N environments
+  (:mod:`drqn_jax.learners.dqn.acting`), store the step in the episode replay, take
+  ``updates_per_step`` Double-DQN gradient steps (:mod:`drqn_jax.learners.dqn.update`)
+  once the replay holds ``learning_starts`` whole episodes, copy the target
+  network every ``target_period`` gradient steps, write each ended episode's
+  metrics. An iteration after the last training episode has been recorded
+  changes nothing, so a run split into chunks of any size ends bit-identical
+  to a one-shot run;
+* ``train(key, hparams=None, env_params=None) -> (params, metrics)``: init,
+  then chunks in a ``lax.while_loop`` until ``num_episodes`` episodes are
+  recorded, then the choice of the run's agent (:mod:`drqn_jax.learners.selection`).
+  ``jax.jit(jax.vmap(train))(keys)`` runs several seeds at once.
+
+The environment is any of the gymnax contract, wrapped as a
+:class:`~drqn_jax.learners.task.Task` (``config.env_id``: a registered id of the
+paper's env, or ``"gymnax:<name>"``); the network's torso follows its
+observation. The acting network's carry advances on every step and is zeroed
+when its environment starts a new episode.
+
+Shape-setting choices live in the hashable :class:`TrainConfig`; the rest
+(learning rate, γ, ε schedule, target period, clip mode, …) in the traced
+:class:`Hyperparams`, so a sweep can ``vmap`` over them
+(:mod:`drqn_jax.learners.hyperparams`).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from drqn_jax.learners.dqn.acting import epsilon_of, explore
+from drqn_jax.learners.dqn.replay import (
+    EpisodeReplay,
+    add_transition,
+    begin_episodes,
+    end_episodes,
+    init_replay,
+)
+from drqn_jax.learners.dqn.state import TrainState
+from drqn_jax.learners.dqn.update import Learner, gradient_update, learn
+from drqn_jax.learners.episodes import (
+    init_counters,
+    init_metrics,
+    record_episodes,
+)
+from drqn_jax.learners.hyperparams import (
+    Hyperparams,
+    TrainConfig,
+    annealed,
+    step_share,
+)
+from drqn_jax.learners.optim import adam
+from drqn_jax.learners.selection import (
+    SELECT_SAFE,
+    take_snapshot,
+    unvalidated,
+)
+from drqn_jax.learners.task import Step, Task, make_task
+from drqn_jax.learners.trainer import Trainer, make_trainer
+from drqn_jax.networks import Network, make_network
+from drqn_jax.programs import cached_program
+from drqn_jax.pytree import tree_where
+
+__all__ = ["make_dqn"]
+
+
+def _small_leaves(state: TrainState) -> TrainState:
+    """``state`` with its large buffers (replay, networks, optimiser, metrics) emptied,
+    for cheap leaf-wise selection of everything else."""
+    return state.replace(
+        replay=None, online=None, target=None, opt_state=None, metrics=None, snapshots=None
+    )
+
+
+def make_dqn(config: TrainConfig) -> Trainer:
+    """The :class:`~drqn_jax.learners.trainer.Trainer` of a ``config`` with ``algorithm =
+    "dqn"`` (equal configs: the same functions, so ``jax.jit`` reuses what it
+    compiled). :func:`drqn_jax.learners.make_train` calls it."""
+    if config.algorithm != "dqn":
+        raise ValueError(f"make_dqn: TrainConfig.algorithm = {config.algorithm!r}; use 'dqn'")
+    return _make_train(config)
+
+
+def _check_task(config: TrainConfig, task: Task) -> None:
+    """Refuse settings the task cannot serve, in one line naming the field."""
+    hp = config.hyperparams
+    if task.teacher is None:
+        for name in ("explore_guide", "imitation_weight"):
+            if float(getattr(hp, name)) > 0.0:
+                raise ValueError(
+                    f"Hyperparams.{name} = {float(getattr(hp, name))}: {config.env_id} has no "
+                    "teacher (the rule-based agent drives the paper's env only); use 0"
+                )
+    if "collision_free" not in task.validation_metrics and int(hp.select_by) == SELECT_SAFE:
+        raise ValueError(
+            f"Hyperparams.select_by = 'safe': {config.env_id} measures no collisions; use 'return'"
+        )
+
+
+@cached_program
+def _make_train(config: TrainConfig) -> Trainer:
+    task = make_task(config.env_id, config.env_overrides)
+    _check_task(config, task)
+    network = make_network(task.network(config.network))
+    n_episodes = config.num_episodes
+
+    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
+        hp = config.hyperparams if hparams is None else hparams
+        env_params = task.env_params if env_params is None else env_params
+        return _init_state(config, task, network, key, hp, env_params)
+
+    def act(state: TrainState, key: jax.Array) -> tuple[jax.Array, Any]:
+        """ε-greedy actions (N,) and the advanced network carry."""
+        return explore(task, network, n_episodes, state, key)
+
+    def update(learner: tuple, key, replay, hp, env_params) -> tuple[tuple, jax.Array]:
+        """One gradient step on ``learner`` = (online, target, opt_state, grad_steps)."""
+        learner = Learner(*learner)
+        learner, loss = gradient_update(config, task, network, learner, key, replay, hp, env_params)
+        return tuple(learner), loss
+
+    def iteration(state: TrainState) -> TrainState:
+        return _iteration(config, task, network, act, state)
+
+    def run(state: TrainState, num_iterations: int) -> TrainState:
+        """``num_iterations`` iterations; those after the run finished change nothing."""
+
+        def body(state, _):
+            return iteration(state), None
+
+        state, _ = jax.lax.scan(body, state, None, length=num_iterations)
+        return state
+
+    return make_trainer(config, task, network, init, act, run, update)
+
+
+def _init_state(
+    config: TrainConfig, task: Task, network: Network, key: jax.Array, hp: Hyperparams, env_params
+) -> TrainState:
+    """The state before the first iteration: N envs reset, their first
+    observations in the replay, fresh networks and Adam, empty metrics."""
+    n_env, n_episodes = config.num_envs, config.num_episodes
+    key, k_net, k_env = jax.random.split(key, 3)
+    online = network.init(k_net)
+    opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+    obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
+    stored = network.initial_carry(()) if config.stored_state else None
+    replay = init_replay(config.replay_episodes, task.max_steps, n_env, task.record, stored)
+    first = jax.vmap(task.to_record)(obs, env_state)
+    replay = begin_episodes(
+        replay, jnp.ones((n_env,), bool), first, network.initial_carry((n_env,))
+    )
+    counters = init_counters(n_env, config.num_env_steps)
+    metrics = init_metrics(task, n_episodes, ("epsilon",))
+    snapshots = validation = None
+    if config.snapshots:
+        snapshots = jax.tree.map(lambda p: jnp.stack([p] * config.snapshots), online)
+        validation = unvalidated(config.snapshots, task.validation_metrics)
+    return TrainState(
+        key=key,
+        hparams=hp,
+        env_params=env_params,
+        env_state=env_state,
+        obs=obs,
+        carry=network.initial_carry((n_env,)),
+        online=online,
+        target=online,
+        opt_state=opt.init(online),
+        replay=replay,
+        epsilon=epsilon_of(counters["episode"], hp, n_episodes),
+        metrics=metrics,
+        **counters,
+        snapshots=snapshots,
+        validation=validation,
+    )
+
+
+def _store(
+    task: Task, network: Network, replay: EpisodeReplay, action, step: Step, carry, done, live
+) -> EpisodeReplay:
+    """The replay with one vector step stored: the transition (with the acting
+    network's ``carry`` for its next observation, when the replay keeps it), the
+    end of the episodes that ended and the first observation of those that begin."""
+    replay = add_transition(
+        replay,
+        action,
+        step.reward,
+        step.terminated,
+        step.final,
+        active=jnp.broadcast_to(live, done.shape),
+        next_carry=carry,
+    )
+    replay = end_episodes(replay, done)
+    first = jax.vmap(task.to_record)(step.obs, step.state)
+    return begin_episodes(replay, done, first, network.initial_carry(done.shape))
+
+
+def _iteration(
+    config: TrainConfig, task: Task, network: Network, act: Callable, state: TrainState
+) -> TrainState:
+    """One vector env step, its storage, learning and episode bookkeeping.
+
+    Once the run has finished (every training episode recorded) the
+    iteration changes nothing: small leaves are selected, replay and metric
+    writes are masked and learning is gated, so no large buffer is copied.
+    """
+    n_env = config.num_envs
+    live = ~state.finished
+    key, k_act, k_env, k_learn = jax.random.split(state.key, 4)
+    action, carry = act(state, k_act)
+    step = jax.vmap(task.step, (0, 0, 0, None))(
+        jax.random.split(k_env, n_env), state.env_state, action, state.env_params
+    )
+    done = (step.terminated | step.truncated) & live
+    replay = _store(task, network, state.replay, action, step, carry, done, live)
+
+    can_learn = live & (jnp.sum(replay.complete) >= state.hparams.learning_starts)
+    steps = step_share(config, state.env_steps)
+    learner = Learner(state.online, state.target, state.opt_state, state.grad_steps)
+    learner, loss_sum = jax.lax.cond(
+        can_learn,
+        functools.partial(learn, config, task, network),
+        lambda learner, *_: (learner, jnp.zeros((), jnp.float32)),
+        learner,
+        replay,
+        annealed(state.hparams, state.recorded, config.num_episodes, steps),
+        state.env_params,
+        k_learn,
+    )
+    n_updates = jnp.where(can_learn, config.updates_per_step, 0)
+    extra = {"epsilon": state.epsilon}
+    moved, metrics = record_episodes(
+        task, config.num_episodes, state, step, done, loss_sum, n_updates, extra
+    )
+    moved = moved.replace(
+        key=key,
+        carry=tree_where(done, network.initial_carry((n_env,)), carry),
+        epsilon=jnp.where(
+            done,
+            epsilon_of(moved.episode, state.hparams, config.num_episodes, steps),
+            state.epsilon,
+        ),
+    )
+    small = jax.tree.map(
+        lambda new, old: jnp.where(live, new, old), _small_leaves(moved), _small_leaves(state)
+    )
+    return small.replace(
+        replay=replay,
+        online=learner.online,
+        target=learner.target,
+        opt_state=learner.opt_state,
+        grad_steps=learner.grad_steps,
+        metrics=metrics,
+        snapshots=take_snapshot(
+            config, state.snapshots, learner.online, state.recorded, moved.recorded
+        ),
+    )

@@ -1,0 +1,448 @@
+"""What a training run is configured with (paper Table II; SPEC §7).
+
+* :class:`Hyperparams`: the traced hyperparameters (learning rate, γ, ε
+  schedule, target period, clip mode, teachers, R2D2's options, selection), so
+  a sweep can ``vmap`` over them;
+* :class:`TrainConfig`: the shape-setting settings (hashable; a change
+  recompiles) — the environment, the network, sizes of the run, replay and
+  minibatch;
+* :func:`teacher_label`: how an agent trained with given hyperparameters
+  learned (every results table says it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from drqn_jax.env.params import KMH
+from drqn_jax.learners.dqn.loss import CLIP_MODES
+from drqn_jax.learners.dqn.replay import WINDOW_STARTS
+from drqn_jax.networks import NetworkConfig
+from drqn_jax.pytree import check_counts, check_sums_to_one, param, pytree_dataclass, validate
+
+__all__ = [
+    "ALGORITHMS",
+    "IMITATION_STATES",
+    "LEARNED_AGENTS",
+    "NOT_LEARNED",
+    "REWARD_ALONE",
+    "SELECT_BY",
+    "Hyperparams",
+    "TrainConfig",
+    "agent_name",
+    "annealed",
+    "has_teacher",
+    "step_share",
+    "teacher_label",
+    "teachers_of",
+]
+
+#: Where the imitation term applies (``Hyperparams.imitation_states``).
+IMITATION_STATES = ("brake", "all")
+IMITATION_ALL = IMITATION_STATES.index("all")
+#: How the run's agent is chosen among its candidates (``Hyperparams.select_by``).
+SELECT_BY = ("return", "safe")
+#: The learners (``TrainConfig.algorithm``): the paper's (D)RQN, trained by
+#: Double-DQN on an episode replay, or recurrent PPO (:mod:`drqn_jax.learners.ppo`).
+ALGORITHMS = ("dqn", "ppo")
+
+
+@pytree_dataclass
+class Hyperparams:
+    """Traced training hyperparameters (paper Table II; SPEC §7)."""
+
+    learning_rate: float = param(1e-3, low=0.0, low_open=True)
+    learning_rate_end: float = param(
+        1.0,
+        low=0.0,
+        high=1.0,
+        doc="fraction of learning_rate reached at the last training episode, linear in "
+        "recorded episodes; 1 keeps it constant (paper)",
+    )
+    adam_b1: float = param(0.9, low=0.0, high=1.0, high_open=True)
+    adam_b2: float = param(0.999, low=0.0, high=1.0, high_open=True)
+    adam_eps: float = param(1e-8, low=0.0, low_open=True)
+    gamma: float = param(0.9, low=0.0, high=1.0)
+    epsilon_start: float = param(1.0, low=0.0, high=1.0)
+    epsilon_end: float = param(0.1, low=0.0, high=1.0)
+    epsilon_fraction: float = param(
+        1.0,
+        low=0.0,
+        high=1.0,
+        low_open=True,
+        doc="share of the training episodes over which ε falls to epsilon_end, then "
+        "stays (SB3's exploration_fraction); 1 = the paper: over all of them",
+    )
+    explore_bias_fraction: float = param(0.1, low=0.0, high=1.0)
+    explore_accelerate: float = param(0.4, low=0.0, high=1.0)
+    explore_slow_down: float = param(0.1, low=0.0, high=1.0)
+    explore_brake: float = param(0.1, low=0.0, high=1.0)
+    explore_steer: float = param(0.4, low=0.0, high=1.0)
+    explore_guide: float = param(
+        0.0,
+        low=0.0,
+        high=1.0,
+        doc="share of exploratory actions taken from the rule-based agent (SPEC §6) "
+        "instead of at random; 0 = the paper",
+    )
+    target_period: int = param(10_000, low=1, doc="gradient steps between target copies")
+    learning_starts: int = param(4, low=1, doc="complete episodes in replay before learning")
+    clip: int = param("huber", choices=CLIP_MODES)
+    window_start: int = param(
+        "inside",
+        choices=WINDOW_STARTS,
+        doc="where a replay window may start: 'inside' the episode (SPEC §7; its last "
+        "steps are in fewer windows) or 'anywhere', padded past its end",
+    )
+    imitation_weight: float = param(
+        0.0,
+        low=0.0,
+        doc="weight of a large-margin term (DQfD) pulling the greedy action toward the "
+        "rule-based agent's (SPEC §6) in the replayed states of imitation_states; 0 = the paper",
+    )
+    imitation_margin: float = param(
+        1.0, low=0.0, low_open=True, doc="the margin l by which the expert's Q must lead"
+    )
+    imitation_states: int = param(
+        "brake",
+        choices=IMITATION_STATES,
+        doc="where the imitation term applies: states where the rule-based agent 'brake's "
+        "(a pedestrian in its corridor) or 'all' states",
+    )
+    imitation_lookahead: float = param(
+        7.0,
+        low=0.0,
+        doc="m: the look-ahead of the rule-based agent whose actions are imitated "
+        "(SPEC §6: 7; exploration's guide keeps 7)",
+    )
+    imitation_corridor_margin: float = param(
+        0.5,
+        low=0.0,
+        doc="m: the corridor margin of the rule-based agent whose actions are imitated "
+        "(SPEC §6: 0.5; exploration's guide keeps 0.5)",
+    )
+    imitation_v_max: float = param(
+        15.0 * KMH,
+        low=0.0,
+        low_open=True,
+        doc="m/s: the speed the imitated rule-based agent tracks, within ±1 km/h "
+        "(SPEC §6: 15 km/h, the limit; exploration's guide keeps 15 km/h)",
+    )
+    imitation_horizon: float = param(
+        0.0,
+        low=0.0,
+        doc="s: the imitated rule-based agent also brakes for a pedestrian walking into its "
+        "corridor within this time (RuleBasedParams.horizon; 0 = SPEC §6's rule; "
+        "exploration's guide keeps 0)",
+    )
+    value_rescale: int = param(
+        0,
+        low=0,
+        high=1,
+        doc="1: the networks learn h(Q), R2D2's value rescaling, with targets "
+        "h(r + γ h⁻¹(Q')) (Kapturowski et al. 2019); 0 = the paper",
+    )
+    select_by: int = param(
+        "return",
+        choices=SELECT_BY,
+        doc="with snapshots > 0, the candidate chosen on the validation episodes: the best "
+        "mean 'return', or the 'safe' one (most collision-free at select_speed_floor or faster)",
+    )
+    select_speed_floor: float = param(
+        0.0,
+        low=0.0,
+        doc="m/s: with select_by = 'safe', candidates slower than this on the validation "
+        "episodes are not chosen (none as fast: the final parameters)",
+    )
+    gae_lambda: float = param(
+        0.95, low=0.0, high=1.0, doc="ppo: λ of the generalised advantage estimates"
+    )
+    clip_eps: float = param(
+        0.2, low=0.0, low_open=True, doc="ppo: clip range of the probability ratio and the value"
+    )
+    ent_coef: float = param(0.01, low=0.0, doc="ppo: weight of the policy's entropy bonus")
+    vf_coef: float = param(0.5, low=0.0, doc="ppo: weight of the value loss")
+    max_grad_norm: float = param(
+        0.5,
+        low=0.0,
+        low_open=True,
+        doc="ppo: gradients are scaled down to this global norm (PureJaxRL: 0.5)",
+    )
+
+    def __post_init__(self) -> None:
+        validate(self)
+        check_sums_to_one(
+            self,
+            ("explore_accelerate", "explore_slow_down", "explore_brake", "explore_steer"),
+        )
+
+
+#: The teacher column of a policy that did not learn (the rule-based agent, …).
+NOT_LEARNED = "– (not learned)"
+#: The teacher column of an agent that learned from the reward alone.
+REWARD_ALONE = "none (reward alone)"
+
+
+def teacher_label(hp: Hyperparams) -> str:
+    """How an agent trained with ``hp`` learned (SPEC §8: every table says it):
+    ``"none (reward alone)"``, or the teacher it had — exploration guided by the
+    rule-based agent (``explore_guide`` > 0), imitation of its actions
+    (``imitation_weight`` > 0), or both."""
+    teachers = [
+        name
+        for name, value in (
+            ("guided exploration", hp.explore_guide),
+            ("imitation", hp.imitation_weight),
+        )
+        if float(value) > 0.0
+    ]
+    return " + ".join(teachers) or REWARD_ALONE
+
+
+#: Names of trained agents in results tables (:func:`agent_name`).
+LEARNED_AGENTS = ("drqn", "dqn", "ppo", "ppo-ff")
+
+
+def agent_name(config: TrainConfig) -> str:
+    """The name of the agent ``config`` trains, in results tables: the network kind
+    of the paper's learner (``"drqn"``, ``"dqn"``), or ``"ppo"`` (recurrent) /
+    ``"ppo-ff"`` (feed-forward, network kind ``"dqn"``)."""
+    if config.algorithm == "ppo":
+        return "ppo" if config.network.kind == "drqn" else "ppo-ff"
+    return config.network.kind
+
+
+def has_teacher(label: str | None) -> bool:
+    """Whether a :func:`teacher_label` names a teacher (False for the reward alone,
+    a policy that did not learn, or a result without the label)."""
+    return label not in (None, "–", REWARD_ALONE, NOT_LEARNED)
+
+
+def teachers_of(results: Any) -> str:
+    """The teacher column of a row pooling several runs' results (their distinct
+    ``teacher`` labels; – for results written before the column existed)."""
+    return " / ".join(sorted({r.get("teacher") or "–" for r in results}))
+
+
+def step_share(config: TrainConfig, env_steps: jax.Array) -> jax.Array | None:
+    """() float32 share of ``num_env_steps`` taken, or None without a step budget."""
+    if not config.num_env_steps:
+        return None
+    return jnp.minimum(env_steps * (1.0 / config.num_env_steps), 1.0)
+
+
+def annealed(
+    hp: Hyperparams, recorded: jax.Array, num_episodes: int, steps: jax.Array | None = None
+) -> Hyperparams:
+    """``hp`` with the learning rate of this point of the run: linear from
+    ``learning_rate`` (no episode recorded) to ``learning_rate · learning_rate_end``
+    (all ``num_episodes`` recorded, or the ``steps`` share of a step budget
+    (:func:`step_share`) reached 1, whichever is further); exactly
+    ``learning_rate`` when ``learning_rate_end`` = 1 (the paper's constant rate)."""
+    frac = jnp.minimum(recorded * (1.0 / num_episodes), 1.0)
+    if steps is not None:
+        frac = jnp.maximum(frac, steps)
+    scale = 1.0 + (hp.learning_rate_end - 1.0) * frac
+    return hp.replace(learning_rate=hp.learning_rate * scale)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class TrainConfig:
+    """Shape-setting training settings (hashable; a change recompiles).
+
+    The defaults are the paper's protocol (SPEC §7): one environment, 200
+    episodes, replay of 50 episodes, minibatch 32 windows × 8 steps, one
+    gradient step per environment step.
+
+    ``hyperparams`` is only the default a run starts from: ``init`` copies it
+    (or the ``hparams`` it is given) into the state, and everything traced
+    reads that copy alone (``state.hparams``), which sweeps ``vmap`` over and a
+    resume restores. Equality and hashing compare it; the compiled programs
+    depend on :meth:`program_key`, which leaves it out.
+    """
+
+    env_id: str = "UrbanPedestrians-v0"
+    env_overrides: tuple[tuple[str, Any], ...] = ()
+    network: NetworkConfig = dataclasses.field(default_factory=NetworkConfig)
+    algorithm: str = dataclasses.field(
+        default="dqn",
+        metadata={
+            "choices": ALGORITHMS,
+            "doc": "the learner: 'dqn' (the paper: Double-DQN on an episode replay) or 'ppo' "
+            "(recurrent PPO, PureJaxRL's ppo_rnn; the replay and ε fields are unused)",
+        },
+    )
+    num_envs: int = 1
+    num_episodes: int = 200
+    num_env_steps: int = dataclasses.field(
+        default=0,
+        metadata={
+            "doc": "if > 0, the run also ends after this many env steps (all envs together), "
+            "and ε and the learning rate follow the larger share of either budget; "
+            "0 = the paper: num_episodes alone"
+        },
+    )
+    replay_episodes: int = 50
+    batch_size: int = 32
+    window: int = 8
+    n_step: int = dataclasses.field(
+        default=1,
+        metadata={"doc": "rewards summed per TD target, <= window (1 = the paper)"},
+    )
+    burn_in: int = dataclasses.field(
+        default=0,
+        metadata={
+            "doc": "steps before each replayed window that only warm the LSTM, without "
+            "loss or gradient (R2D2's burn-in; 0 = the paper: the LSTM starts from zeros)"
+        },
+    )
+    stored_state: int = dataclasses.field(
+        default=0,
+        metadata={
+            "doc": "1: the replay keeps the acting LSTM's state with every observation and "
+            "each replayed window starts from it (R2D2's stored state; drqn only; 0 = the "
+            "paper: from zeros)"
+        },
+    )
+    updates_per_step: int = 1
+    chunk_iterations: int = dataclasses.field(
+        default=1000,
+        metadata={"doc": "iterations per host chunk: env steps (dqn) or updates (ppo)"},
+    )
+    snapshots: int = dataclasses.field(
+        default=0,
+        metadata={
+            "doc": "parameter snapshots kept during training, the agent then chosen among them "
+            "and the final parameters on validation episodes (0 = the paper: the final ones)"
+        },
+    )
+    validation_episodes: int = dataclasses.field(
+        default=100,
+        metadata={"doc": "greedy episodes per candidate when snapshots > 0"},
+    )
+    rollout_steps: int = dataclasses.field(
+        default=128, metadata={"doc": "ppo: steps per env in each update's rollout"}
+    )
+    update_epochs: int = dataclasses.field(
+        default=4, metadata={"doc": "ppo: passes over each rollout"}
+    )
+    num_minibatches: int = dataclasses.field(
+        default=4,
+        metadata={"doc": "ppo: minibatches per pass, of whole env sequences; divides num_envs"},
+    )
+    hyperparams: Hyperparams = dataclasses.field(default_factory=Hyperparams)
+
+    def __post_init__(self) -> None:
+        check_counts(
+            self,
+            (
+                "num_envs",
+                "num_episodes",
+                "replay_episodes",
+                "batch_size",
+                "window",
+                "n_step",
+                "updates_per_step",
+                "chunk_iterations",
+                "validation_episodes",
+                "rollout_steps",
+                "update_epochs",
+                "num_minibatches",
+            ),
+        )
+        check_counts(self, ("burn_in", "num_env_steps"), low=0)
+        if self.num_env_steps and self.snapshots:
+            raise ValueError(
+                f"TrainConfig.snapshots = {self.snapshots}: snapshots are taken at shares of "
+                "num_episodes, which a run with num_env_steps > 0 may not reach; use 0"
+            )
+        if self.algorithm not in ALGORITHMS:
+            raise ValueError(
+                f"TrainConfig.algorithm = {self.algorithm!r}: must be one of {ALGORITHMS}"
+            )
+        if self.stored_state not in (0, 1) or isinstance(self.stored_state, bool):
+            raise ValueError(f"TrainConfig.stored_state = {self.stored_state!r}: must be 0 or 1")
+        if not isinstance(self.snapshots, int) or isinstance(self.snapshots, bool):
+            raise ValueError(f"TrainConfig.snapshots = {self.snapshots!r}: must be an integer")
+        most = self.num_episodes // self.num_envs - 1
+        if not 0 <= self.snapshots <= most:
+            raise ValueError(
+                f"TrainConfig.snapshots = {self.snapshots}: must be in [0, {most}] "
+                f"(num_episodes // num_envs - 1): snapshots are taken at least num_envs "
+                "episodes apart, the most that end in one iteration"
+            )
+        if self.algorithm == "ppo":
+            self._check_ppo()
+        else:
+            self._check_dqn()
+
+    def _check_dqn(self) -> None:
+        """The replay's rules (algorithm ``"dqn"``)."""
+        if self.stored_state and self.network.kind != "drqn":
+            raise ValueError(
+                f"TrainConfig.stored_state = 1: network kind {self.network.kind!r} has no "
+                "recurrent state to store; use kind 'drqn' or stored_state = 0"
+            )
+        if self.n_step > self.window:
+            raise ValueError(
+                f"TrainConfig.n_step = {self.n_step}: must be <= window ({self.window}); "
+                "an n-step target sums rewards inside one window"
+            )
+        if self.replay_episodes < 2 * self.num_envs:
+            raise ValueError(
+                f"TrainConfig.replay_episodes = {self.replay_episodes}: must be >= 2 × num_envs "
+                f"({2 * self.num_envs}); each environment writes its own replay slots"
+            )
+        most_complete = self.num_envs * (self.replay_episodes // self.num_envs - 1)
+        if int(self.hyperparams.learning_starts) > most_complete:
+            starts = int(self.hyperparams.learning_starts)
+            raise ValueError(
+                f"Hyperparams.learning_starts = {starts}: must be <= {most_complete}, the most "
+                f"complete episodes a replay of {self.replay_episodes} holds while "
+                f"{self.num_envs} environments write (learning would never start)"
+            )
+
+    def _check_ppo(self) -> None:
+        """PPO's rules (algorithm ``"ppo"``): whole env sequences per minibatch, and
+        none of the replay learner's options that would change what it learns."""
+        if self.num_envs % self.num_minibatches:
+            raise ValueError(
+                f"TrainConfig.num_minibatches = {self.num_minibatches}: must divide num_envs "
+                f"({self.num_envs}); a minibatch holds whole env sequences"
+            )
+        for name in ("stored_state", "burn_in", "snapshots"):
+            if getattr(self, name):
+                raise ValueError(
+                    f"TrainConfig.{name} = {getattr(self, name)}: algorithm 'ppo' has no "
+                    "replay and no snapshot selection; use 0"
+                )
+        for name in ("explore_guide", "imitation_weight", "value_rescale"):
+            if float(getattr(self.hyperparams, name)) > 0.0:
+                raise ValueError(
+                    f"Hyperparams.{name} = {float(getattr(self.hyperparams, name))}: "
+                    "algorithm 'ppo' learns from the reward alone, without it; use 0"
+                )
+
+    def program_key(self) -> tuple:
+        """Every field but ``hyperparams``: what a compiled program of ``make_train``'s
+        functions depends on when it takes the hyperparameters as arguments (in the
+        state, or as ``init``'s), as the runners' programs do. Configs that differ in
+        hyperparameter values only share those programs."""
+        return tuple(
+            getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "hyperparams"
+        )
+
+    def __hash__(self) -> int:  # Hyperparams holds arrays: hash the static part only
+        return hash(self.program_key())
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, TrainConfig):
+            return NotImplemented
+        mine, theirs = jax.tree.leaves(self.hyperparams), jax.tree.leaves(other.hyperparams)
+        return self.program_key() == other.program_key() and all(
+            bool(jnp.array_equal(a, b)) for a, b in zip(mine, theirs, strict=True)
+        )

@@ -1,0 +1,372 @@
+"""What the learner needs of an environment: the :class:`Task` (SPEC §7).
+
+``make_train`` (:mod:`drqn_jax.learners.dqn.train`) learns on any environment of the gymnax
+contract — ``reset(key, params) -> (obs, state)``, ``step(key, state, action,
+params) -> (obs, state, reward, done, info)`` with automatic resets, a
+discrete action space. A :class:`Task` wraps one such environment with the
+few things the learner needs beyond that contract:
+
+* what the replay stores per observation (``to_record``) and how a replayed
+  record becomes the network's input again (``observe``);
+* the network's torso, chosen from the observation (``network``): Table I's
+  conv stack for the paper's grid (+ speed + last action), an MLP for a flat
+  vector;
+* the per-episode metrics beyond return and length (``metrics``);
+* greedy validation episodes (snapshot selection): return, collision-free
+  share and speed for the paper's env, the return for others;
+* optionally a teacher (the rule-based agent, SPEC §6), which only the
+  paper's env has.
+
+:func:`urban_task` is the paper's env (``drqn_jax`` ids, :mod:`drqn_jax.registry`);
+:func:`gymnax_task` any gymnax env (ids ``"gymnax:<name>"``, e.g.
+``"gymnax:CartPole-v1"``). gymnax 1.x steps as Gymnasium does — ``(obs,
+state, reward, terminated, truncated, info)`` with the pre-reset observation
+in ``info["final_observation"]`` — so targets bootstrap through a time limit
+and never through a termination, as in the paper's env. The older contract,
+``(obs, state, reward, done, info)``, does not tell them apart: there, like
+PureJaxRL's DQN, every ``done`` is a termination.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from drqn_jax.agents.drqn import drqn_agent
+from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action, rule_based_labels
+from drqn_jax.env.grid import GridInputs, rasterize
+from drqn_jax.env.params import EnvParams, StaticEnvParams
+from drqn_jax.env.state import Observation
+from drqn_jax.evaluation import run_episodes
+from drqn_jax.networks import NetworkConfig
+from drqn_jax.registry import make
+
+__all__ = [
+    "GYMNAX_PREFIX",
+    "Step",
+    "Task",
+    "Teacher",
+    "greedy_returns",
+    "gymnax_task",
+    "make_task",
+    "observations",
+    "play_greedy",
+    "urban_task",
+]
+
+#: Env ids with this prefix name a gymnax environment (``gymnax.make``).
+GYMNAX_PREFIX = "gymnax:"
+#: The rule-based agent that guides exploration (SPEC §6, its default thresholds).
+RULE_BASED_GUIDE = RuleBasedParams()
+
+
+class Step(NamedTuple):
+    """One vectorised env step as the learner sees it (leaves (N, …)).
+
+    ``final`` is the record of the observation the action led to, before any
+    automatic reset (the replay's last observation of an ended episode);
+    ``info`` holds what the task's ``episode_metrics`` reads.
+    """
+
+    obs: Any
+    state: Any
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    final: Any
+    info: dict[str, jax.Array]
+
+
+class Teacher(NamedTuple):
+    """The rule-based agent as a teacher (the project's, not the paper's):
+
+    * ``act(env_state, env_params) -> ()`` int32, its action in one env (guided
+      exploration, ``explore_guide``);
+    * ``labels(records, env_params, hp) -> (…)`` int32, its actions in replayed
+      records (the imitation term's expert; thresholds from ``hp.imitation_*``).
+    """
+
+    act: Callable[[Any, Any], jax.Array]
+    labels: Callable[[Any, Any, Any], jax.Array]
+
+
+class Task(NamedTuple):
+    """An environment of the gymnax contract with what the learner needs of it.
+
+    Attributes:
+        env_id: the id it was made from.
+        env: the environment (static); ``env_params`` its default parameters.
+        num_actions: size of the discrete action space.
+        max_steps: longest episode (the replay's slot length).
+        record: zeros shaped as one observation's record (what the replay allocates).
+        reset: ``(key, params) -> (obs, state)`` for one env.
+        step: ``(key, state, action, params) -> Step`` for one env, resetting at the end.
+        to_record: ``(obs, state) -> record`` for one env.
+        observe: ``(records, last_action, params) -> obs``, leaves (T, B, …).
+        network: the network config completed for this observation (torso, sizes).
+        metrics: ``((name, dtype), …)``: per-episode metrics beyond return and length.
+        episode_metrics: ``(step, length, params) -> {name: (N,)}`` of ``metrics``.
+        explore_bias: ``hp -> (A,)`` the action distribution of biased exploration.
+        teacher: the rule-based agent, or None (no guidance, no imitation).
+        validate: ``(network, params, keys, env_params) -> {metric: ()}``, the
+            candidates' greedy validation episodes (snapshot selection).
+        validation_metrics: the names ``validate`` returns.
+    """
+
+    env_id: str
+    env: Any
+    env_params: Any
+    num_actions: int
+    max_steps: int
+    record: Any
+    reset: Callable[[jax.Array, Any], tuple[Any, Any]]
+    step: Callable[[jax.Array, Any, jax.Array, Any], Step]
+    to_record: Callable[[Any, Any], Any]
+    observe: Callable[[Any, jax.Array, Any], Any]
+    network: Callable[[NetworkConfig], NetworkConfig]
+    metrics: tuple[tuple[str, Any], ...]
+    episode_metrics: Callable[[Step, jax.Array, Any], dict[str, jax.Array]]
+    explore_bias: Callable[[Any], jax.Array]
+    validate: Callable[..., dict[str, jax.Array]]
+    validation_metrics: tuple[str, ...]
+    teacher: Teacher | None = None
+
+
+def make_task(env_id: str, overrides: tuple[tuple[str, Any], ...] = ()) -> Task:
+    """The task of ``env_id``: a registered ``drqn_jax`` id, or ``"gymnax:<name>"``."""
+    if env_id.startswith(GYMNAX_PREFIX):
+        return gymnax_task(env_id.removeprefix(GYMNAX_PREFIX), **dict(overrides))
+    return urban_task(env_id, **dict(overrides))
+
+
+def observations(
+    records: GridInputs, last_action: jax.Array, params: EnvParams, static: StaticEnvParams
+) -> Observation:
+    """Rasterise records of any leading shape into observations (as the env does)."""
+    lead = records.s.shape
+    flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[len(lead) :])), records)
+    grid = jax.vmap(rasterize, (0, None, None))(flat, params, static)
+    return Observation(
+        grid=grid.reshape((*lead, *grid.shape[1:])),
+        speed=(records.v * (1.0 / params.v_ref)).astype(jnp.float32),
+        last_action=last_action.astype(jnp.int32),
+    )
+
+
+def urban_task(env_id: str = "UrbanPedestrians-v0", **overrides: Any) -> Task:
+    """The paper's env (paper §IV; SPEC §1-5): grids rasterised from compact
+    records, the collision/goal/distance/speed metrics, the rule-based agent
+    as an optional teacher and greedy validation episodes."""
+    env, params = make(env_id, **overrides)
+    static = env.static
+
+    def step(key, state, action, params) -> Step:
+        obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+        final = info["final_state"]
+        return Step(obs, state, reward, terminated, truncated, _grid_record(final), info)
+
+    def episode_metrics(step: Step, length: jax.Array, params: EnvParams) -> dict:
+        info = step.info
+        duration = length.astype(jnp.float32) * params.dt
+        return {
+            "collision": info["collision"],
+            "goal": info["goal"],
+            "distance": info["distance"],
+            "mean_speed": info["distance"] / duration,
+        }
+
+    def explore_bias(hp: Any) -> jax.Array:
+        return jnp.stack(
+            [hp.explore_accelerate, hp.explore_slow_down, hp.explore_brake, hp.explore_steer]
+        )
+
+    def labels(records: GridInputs, params: EnvParams, hp: Any) -> jax.Array:
+        expert = RULE_BASED_GUIDE.replace(
+            lookahead=hp.imitation_lookahead,
+            corridor_margin=hp.imitation_corridor_margin,
+            v_max=hp.imitation_v_max,
+            horizon=hp.imitation_horizon,
+        )
+        return rule_based_labels(records, params, expert, static)
+
+    return Task(
+        env_id=env_id,
+        env=env,
+        env_params=params,
+        num_actions=env.num_actions,
+        max_steps=static.max_steps,
+        record=GridInputs.empty(static.num_pedestrians),
+        reset=env.reset,
+        step=step,
+        to_record=lambda obs, state: _grid_record(state),
+        observe=lambda records, last, params: observations(records, last, params, static),
+        network=lambda net: dataclasses.replace(net, grid_shape=static.grid_shape),
+        metrics=(
+            ("collision", jnp.bool_),
+            ("goal", jnp.bool_),
+            ("distance", jnp.float32),
+            ("mean_speed", jnp.float32),
+        ),
+        episode_metrics=episode_metrics,
+        explore_bias=explore_bias,
+        teacher=Teacher(
+            act=lambda state, params: rule_based_action(state, params, RULE_BASED_GUIDE, static),
+            labels=labels,
+        ),
+        validate=lambda network, params, keys, env_params: _urban_validation(
+            env, network, params, keys, env_params
+        ),
+        validation_metrics=("return", "collision_free", "speed"),
+    )
+
+
+def _grid_record(state: Any) -> GridInputs:
+    return GridInputs.of(state.ego, state.pedestrians)
+
+
+def _urban_validation(env, network, params, keys, env_params) -> dict[str, jax.Array]:
+    """Mean greedy return, collision-free share and mean speed (m/s) over ``keys``' episodes."""
+    episodes = run_episodes(drqn_agent(network, params), keys, env, env_params)
+    return {
+        "return": jnp.mean(episodes.episode_return),
+        "collision_free": jnp.mean(1.0 - episodes.collision.astype(jnp.float32)),
+        "speed": jnp.mean(episodes.mean_speed),
+    }
+
+
+def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Task:
+    """A gymnax environment (``gymnax.make(name)``), its observation flattened to
+    a float vector for the MLP torso (its step as either contract above).
+
+    Args:
+        name: a gymnax id, e.g. ``"CartPole-v1"`` or ``"MemoryChain-bsuite"``.
+        max_steps: the replay's slot length; default the env's
+            ``max_steps_in_episode`` (set it lower for envs whose episodes are
+            always shorter, such as MemoryChain's ``memory_length + 1``).
+        **overrides: fields of the env's ``EnvParams`` (e.g. ``memory_length=5``).
+    """
+    try:
+        import gymnax
+    except ImportError as err:  # pragma: no cover - depends on the install
+        raise ImportError(
+            f"env id {GYMNAX_PREFIX}{name}: gymnax is not installed; see the README "
+            "(pip install --no-deps gymnax, with the test extra)"
+        ) from err
+    env, params = gymnax.make(name)
+    unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(params)})
+    if unknown:
+        raise ValueError(f"gymnax_task({name!r}): unknown EnvParams field(s) {unknown}")
+    params = params.replace(**overrides)
+    shape = env.observation_space(params).shape
+    longest = int(params.max_steps_in_episode) if max_steps is None else max_steps
+    n_actions = int(env.num_actions)
+
+    size = math.prod(shape)
+
+    def flat(obs: Any) -> jax.Array:  # the MLP torso reads a flat float vector
+        return jnp.asarray(obs, jnp.float32).reshape(size)
+
+    def reset(key, params) -> tuple[jax.Array, Any]:
+        obs, state = env.reset(key, params)
+        return flat(obs), state
+
+    def step(key, state, action, params) -> Step:
+        out = env.step(key, state, action, params)
+        if len(out) == 5:  # gymnax < 1.0: (obs, state, reward, done, info)
+            obs, state, reward, done, _ = out
+            terminated, truncated, final = jnp.asarray(done, bool), jnp.zeros((), bool), obs
+        else:  # gymnax 1.x: (obs, state, reward, terminated, truncated, info)
+            obs, state, reward, terminated, truncated, info = out
+            final = info["final_observation"]
+        return Step(
+            flat(obs),
+            state,
+            jnp.asarray(reward, jnp.float32),
+            jnp.asarray(terminated, bool),
+            jnp.asarray(truncated, bool),
+            flat(final),
+            {},
+        )
+
+    task = Task(
+        env_id=GYMNAX_PREFIX + name,
+        env=env,
+        env_params=params,
+        num_actions=n_actions,
+        max_steps=longest,
+        record=jnp.zeros((size,), jnp.float32),
+        reset=reset,
+        step=step,
+        to_record=lambda obs, state: obs,
+        observe=lambda records, last, params: records,
+        network=lambda net: dataclasses.replace(
+            net, torso="mlp", obs_size=size, num_actions=n_actions
+        ),
+        metrics=(),
+        episode_metrics=lambda step, length, params: {},
+        explore_bias=lambda hp: jnp.full((n_actions,), 1.0 / n_actions),
+        validate=lambda network, params, keys, env_params: {
+            "return": jnp.mean(greedy_returns(task, network, params, keys, env_params))
+        },
+        validation_metrics=("return",),
+    )
+    return task
+
+
+def greedy_returns(
+    task: Task, network: Any, params: Any, keys: jax.Array, env_params: Any = None
+) -> jax.Array:
+    """(E,) float32 returns of the greedy network (``argmax Q``, its carry from
+    zeros) over one episode of ``task`` per key of ``keys`` (E,)."""
+
+    def act(obs, carry):
+        q, carry = network.step(params, obs, carry)
+        return jnp.argmax(q).astype(jnp.int32), carry
+
+    def play(key):
+        return play_greedy(task, act, network.initial_carry(()), key, env_params)[0]
+
+    return jax.vmap(play)(keys)
+
+
+def play_greedy(
+    task: Task,
+    act: Callable[[Any, Any], tuple[jax.Array, Any]],
+    carry: Any,
+    key: jax.Array,
+    env_params: Any = None,
+) -> tuple[jax.Array, jax.Array]:
+    """Play one episode of ``task`` (``env_params``, default the task's) with
+    ``act(obs, carry) -> (action, carry)`` from ``carry``: its return () float32
+    and length () int32.
+
+    Runs ``max_steps`` steps (branch-free under ``vmap``); steps after the
+    episode's end are not counted.
+    """
+    env_params = task.env_params if env_params is None else env_params
+    k_reset, k_run = jax.random.split(key)
+    obs, state = task.reset(k_reset, env_params)
+
+    def body(loop, k):
+        obs, state, carry, ret, length, done = loop
+        action, carry = act(obs, carry)
+        out = task.step(k, state, action, env_params)
+        live = ~done
+        ret = ret + jnp.where(live, out.reward, 0.0)
+        length = length + live.astype(jnp.int32)
+        done = done | out.terminated | out.truncated
+        return (out.obs, out.state, carry, ret, length, done), None
+
+    zero_f, zero_i, false = (
+        jnp.zeros((), jnp.float32),
+        jnp.zeros((), jnp.int32),
+        jnp.zeros((), bool),
+    )
+    init = (obs, state, carry, zero_f, zero_i, false)
+    (_, _, _, ret, length, _), _ = jax.lax.scan(body, init, jax.random.split(k_run, task.max_steps))
+    return ret, length

@@ -1,0 +1,460 @@
+"""Sweeps: points, programs per shape, runs bit-identical alone and on 4 devices, statistics."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from drqn_jax import cli
+from drqn_jax.config import ConfigError
+from drqn_jax.experiments.host_loop import StopRequest
+from drqn_jax.experiments.memory import USABLE_FRACTION, run_memory
+from drqn_jax.experiments.stats import interquartile_mean
+from drqn_jax.experiments.sweep import load_sweep, summarize_sweep
+from drqn_jax.experiments.sweep_runner import (
+    Call,
+    call_programs,
+    call_size,
+    plan_calls,
+    run_sweep,
+    train_call,
+    train_runs,
+    validation_program,
+)
+from drqn_jax.learners import make_train
+from tests.helpers import SMOKE_SWEEP as SWEEP
+from tests.helpers import assert_tree_equal, train_alone
+
+
+@pytest.fixture(scope="module")
+def sweep_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("sweep") / "sweep.toml"
+    path.write_text(SWEEP)
+    return path
+
+
+@pytest.fixture(scope="module")
+def trained(sweep_file):
+    """The 4-run sweep on one device, one run per call (``auto`` on the CPU: ``map``),
+    as ``cli_sweep`` trains it: the same compiled programs (``call_programs``), so
+    this module compiles them once."""
+    sweep = load_sweep(sweep_file)
+    (points,) = sweep.programs()
+    runs = [train_runs([point])[1:] for point in points]
+    params, metrics = jax.tree.map(lambda *x: np.concatenate(x), *runs)
+    return sweep, params, metrics
+
+
+def test_vmap_and_map_give_bit_identical_runs(trained):
+    """The batched strategy (what accelerators run) ≡ one run after another."""
+    sweep, params, metrics = trained
+    _, params_vmap, metrics_vmap = train_runs(sweep.points, strategy="vmap")
+    assert_tree_equal((params_vmap, metrics_vmap), (params, metrics))
+
+
+def test_points_are_the_product_of_the_axes(sweep_file):
+    sweep = load_sweep(sweep_file)
+    assert [p.values for p in sweep.points] == [
+        {"run.seed": 0, "train.learning_rate": 1e-3},
+        {"run.seed": 0, "train.learning_rate": 3e-4},
+        {"run.seed": 1, "train.learning_rate": 1e-3},
+        {"run.seed": 1, "train.learning_rate": 3e-4},
+    ]
+    config = sweep.points[3].config
+    assert config["run"]["seed"] == 1 and config["train"]["learning_rate"] == 3e-4
+    assert config["train"]["num_episodes"] == 4  # from [set]
+    assert "one program" in sweep.describe()
+
+
+def test_ranges_zip_mode_and_errors(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text(
+        'base = "smoke"\nmode = "zip"\n[axes]\n"train.gamma" = { start = 0.5, stop = 0.9, num = 3 }'
+        '\n"run.seed" = { start = 3, stop = 9, step = 2 }\n'
+    )
+    sweep = load_sweep(path)
+    assert [p.values["train.gamma"] for p in sweep.points] == [0.5, 0.7, 0.9]
+    assert [p.values["run.seed"] for p in sweep.points] == [3, 5, 7]
+    for text, message in [
+        ('base = "smoke"\nfoo = 1\n', r"unknown key\(s\) foo"),
+        ('base = "smoke"\nmode = "grid"\n', r"mode = 'grid'"),
+        ('base = "smoke"\nstrategy = "pmap"\n', r"strategy = 'pmap': must be one of 'auto'"),
+        ('base = "smoke"\n[axes]\n"train.gamma" = []\n', r"axes\.train\.gamma = \[\]"),
+        ('base = "smoke"\n[axes]\n"train.gamma" = [0.9, 2.0]\n', r"sweep point 1 .*train\.gamma"),
+        ('base = "smoke"\n[axes]\n"train.nope" = [1]\n', r"unknown field train\.nope"),
+        ('base = "smoke"\nmode = "zip"\n[axes]\n"run.seed" = [1, 2]\n"train.gamma" = [0.5]\n',
+         "one length"),
+    ]:  # fmt: skip
+        path.write_text(text)
+        with pytest.raises(ConfigError, match=message):
+            load_sweep(path)
+
+
+def test_each_run_is_bit_identical_to_the_run_alone(trained):
+    sweep, params, metrics = trained
+    point = sweep.points[3]  # the last run: seed and learning rate (traced) differ from run 0
+    alone = train_alone(point)
+    assert_tree_equal(alone, jax.tree.map(lambda x: x[3], (params, metrics)))
+
+
+def _train_on_forced_devices(
+    sweep_file: Path, devices: int, out: Path, jobs: dict[str, int], threads: int
+) -> dict[str, list[np.ndarray]]:
+    """Leaves of the sweep's first runs trained in one process with ``devices`` forced
+    host devices and an XLA:CPU pool of ``threads``: per job ``{strategy: runs}``,
+    the first ``runs`` points as one sweep call sharded over all the devices
+    (``"map"`` or ``"vmap"``) or each alone (``"alone"``: ``jit(train)``)."""
+    script = textwrap.dedent(f"""
+        import jax, numpy as np
+        import drqn_jax
+        from drqn_jax.experiments.sweep import load_sweep
+        from drqn_jax.experiments.sweep_runner import train_runs
+        from tests.helpers import train_alone
+        assert len(jax.devices()) == {devices}, jax.devices()
+        sweep = load_sweep({str(sweep_file)!r})
+        for strategy, runs in {jobs!r}.items():
+            points = sweep.points[:runs]
+            if strategy == "alone":
+                results = [train_alone(p) for p in points]
+                params, metrics = jax.tree.map(lambda *x: np.stack(x), *results)
+            else:
+                _, params, metrics = train_runs(points, strategy=strategy)
+            np.savez(f"{out}/{{strategy}}.npz", *jax.tree.leaves((params, metrics)))
+    """)
+    env = {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
+    env["PJRT_NPROC"] = str(threads)
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-3000:]
+    saved = {strategy: np.load(out / f"{strategy}.npz") for strategy in jobs}
+    return {k: [v[f"arr_{i}"] for i in range(len(v.files))] for k, v in saved.items()}
+
+
+@pytest.fixture(scope="module")
+def alone_with_four_threads(sweep_file, tmp_path_factory):
+    out = tmp_path_factory.mktemp("alone")
+    return _train_on_forced_devices(sweep_file, 1, out, {"alone": 4}, threads=4)["alone"]
+
+
+#: Runs per strategy on 4 forced devices: ``map`` one per device, ``vmap`` 3 padded to 8.
+FOUR_DEVICE_JOBS = {"map": 4, "vmap": 3}
+
+
+@pytest.fixture(scope="module")
+def on_four_devices(sweep_file, tmp_path_factory):
+    """Both strategies of ``FOUR_DEVICE_JOBS`` in one process (one start-up)."""
+    out = tmp_path_factory.mktemp("four")
+    return _train_on_forced_devices(sweep_file, 4, out, FOUR_DEVICE_JOBS, threads=4)
+
+
+@pytest.mark.parametrize(("strategy", "runs"), FOUR_DEVICE_JOBS.items())
+def test_four_forced_devices_reproduce_each_run_alone(
+    alone_with_four_threads, on_four_devices, strategy, runs
+):
+    """The sweep's first ``runs`` points sharded over 4 forced host devices
+    (``map``: one run per device; ``vmap``: 3 runs padded to 2 per device, 5 of
+    the 8 padding) ≡ each point trained alone on one device, bit for bit.
+
+    XLA:CPU's thread pool has max(cores, forced devices) threads, and Eigen's
+    matrix products split their sums by the pool size: on a machine with
+    fewer than 4 cores, 4 forced devices mean a bigger pool than one device
+    has. Both processes get the same pool (``PJRT_NPROC=4``), as two machines
+    with 4 cores would; see ``drqn_jax.determinism``.
+    """
+    four = on_four_devices[strategy]
+    assert len(four) == len(alone_with_four_threads)
+    for got, want in zip(four, alone_with_four_threads, strict=True):
+        assert len(got) == runs
+        np.testing.assert_array_equal(got, want[:runs], strict=True)
+
+
+def test_a_shape_changing_axis_splits_the_programs(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text(
+        'base = "smoke"\n[axes]\n"network.hidden" = [8, 16]\n"train.gamma" = [0.5, 0.9]\n'
+        '"env.ped_speed_max" = [0.3, 0.4]\n'
+    )
+    sweep = load_sweep(path)
+    programs = sweep.programs()
+    assert len(programs) == 2 and [len(p) for p in programs] == [4, 4]
+    assert {p.values["network.hidden"] for p in programs[0]} == {8}
+    description = sweep.describe()
+    assert "2 separate programs: network.hidden change(s) shapes" in description
+
+
+def test_calls_that_differ_in_hyperparameter_values_share_their_programs(sweep_file):
+    """The hyperparameters are arguments of a call's programs: a sweep over learning
+    rates traces and compiles them once per process (with no persistent cache, or in a
+    process that does not write it, every call would compile again)."""
+    first, second = (make_train(p.config.train_config()) for p in load_sweep(sweep_file).points[:2])
+    assert first.config != second.config  # learning rates 1e-3 and 3e-4
+    devices = jax.devices()[:1]
+    for programs in (call_programs, validation_program):
+        assert programs(first, 1, devices, "map") is programs(second, 1, devices, "map")
+        shorter = make_train(dataclasses.replace(first.config, chunk_iterations=8))
+        assert programs(shorter, 1, devices, "map") is not programs(first, 1, devices, "map")
+
+
+def test_statistics_are_computed_from_the_runs():
+    results = [
+        {
+            "values": {"run.seed": s, "train.gamma": g},
+            "teacher": "imitation" if g == 0.5 else "none (reward alone)",
+            **dict.fromkeys(_metrics(), float(v)),
+        }
+        for s, g, v in [(0, 0.9, 1.0), (1, 0.9, 2.0), (2, 0.9, 6.0), (0, 0.5, 3.0)]
+    ]
+    rows = summarize_sweep(results)
+    assert [r["setting"] for r in rows] == [{"train.gamma": 0.9}, {"train.gamma": 0.5}]
+    assert [r["teacher"] for r in rows] == ["none (reward alone)", "imitation"]
+    m = rows[0]["collision_free_rate"]
+    assert rows[0]["runs"] == 3 and m["mean"] == 3.0
+    std = math.sqrt(((1 - 3) ** 2 + (2 - 3) ** 2 + (6 - 3) ** 2) / 2)
+    assert m["std"] == pytest.approx(std)
+    half = 4.303 * std / math.sqrt(3)  # t(0.975, 2 degrees of freedom)
+    assert m["ci95"] == pytest.approx((3.0 - half, 3.0 + half))
+    assert math.isnan(rows[1]["collision_free_rate"]["std"])
+    assert interquartile_mean(np.array([1.0, 2.0, 3.0, 100.0])) == pytest.approx(2.5)
+    # n = 3: the middle half is [0.75, 2.25] of the ranks: (0.25·1 + 2 + 0.25·6) / 1.5
+    assert interquartile_mean(np.array([1.0, 2.0, 6.0])) == pytest.approx(2.5)
+
+
+def _metrics():
+    from drqn_jax.experiments.sweep import TABLE_METRICS
+
+    return TABLE_METRICS
+
+
+def test_cli_sweep_writes_tables(sweep_file, cli_sweep, capsys):
+    assert cli.main(["sweep", str(sweep_file), "--dry-run"]) == 0
+    err = capsys.readouterr().err
+    assert "sweep over 4 runs" in err and "memory plan (1 device(s))" in err
+    # auto on the CPU: map, one run per call
+    assert "4 calls runs-0000-0000 … runs-0003-0003: 1 run(s) each, map," in err
+    assert cli.main(["sweep", str(sweep_file), "--dry-run", "--strategy", "vmap"]) == 0
+    assert "4 run(s), vmap," in capsys.readouterr().err
+    runs = json.loads((cli_sweep / "runs.json").read_text())
+    assert [r["index"] for r in runs] == [0, 1, 2, 3]
+    assert all(r["num_episodes"] == 2 and r["diverged"] is False for r in runs)
+    # each run's agent chosen between its snapshot and its final parameters
+    assert all(len(r["validation_returns"]) == 2 and r["selected"] in (0, 1) for r in runs)
+    assert all(
+        len(r["validation_collision_free"]) == len(r["validation_speed_kmh"]) == 2 for r in runs
+    )
+    csv = (cli_sweep / "results.csv").read_text().splitlines()
+    assert csv[0].startswith("train.learning_rate,runs,diverged,collision_free_rate_mean")
+    assert len(csv) == 3
+    assert "| 0.001 | 2 | none (reward alone) |" in (cli_sweep / "results.md").read_text()
+    assert all(r["teacher"] == "none (reward alone)" for r in runs)
+    assert not list(cli_sweep.glob("calls/*/checkpoint.npz"))  # the results replaced them
+
+
+@pytest.fixture(scope="module")
+def cli_sweep(sweep_file, tmp_path_factory):
+    """The 4-run sweep through the command line, one process: its output directory."""
+    out = tmp_path_factory.mktemp("cli") / "out"
+    code = cli.main(
+        ["sweep", str(sweep_file), "--set", "evaluate.episodes=2", "--out", str(out), "--quiet"]
+    )
+    assert code == 0
+    return out
+
+
+def test_two_processes_on_localhost_match_one_process(sweep_file, cli_sweep, tmp_path):
+    """2 processes (jax.distributed on localhost), 2 runs each; process 0 gathers
+    the results: runs.json equal to the one-process sweep's."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        port = s.getsockname()[1]
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "drqn_jax.cli", "sweep", str(sweep_file), "--quiet"]
+    command += ["--set", "evaluate.episodes=2", "--out", str(out)]
+    command += ["--coordinator", f"localhost:{port}", "--num-processes", "2"]
+    env = {**os.environ, "XLA_FLAGS": ""}
+    procs = [
+        subprocess.Popen(
+            [*command, "--process-id", str(i)],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(2)
+    ]
+    for i, proc in enumerate(procs):
+        _, stderr = proc.communicate(timeout=600)
+        assert proc.returncode == 0, f"process {i}: {stderr[-3000:]}"
+    assert "process 1 of 2" in stderr  # the last one's plan
+    assert json.loads((out / "runs.json").read_text()) == json.loads(
+        (cli_sweep / "runs.json").read_text()
+    )
+    assert (out / "results.csv").read_text() == (cli_sweep / "results.csv").read_text()
+    assert (out / "plan.process-0.json").is_file() and (out / "plan.process-1.json").is_file()
+    for index in range(4):  # each process keeps the agents it trained, byte for byte
+        agent = Path("agents", f"run-{index:04d}", "agent.npz")
+        assert (out / agent).read_bytes() == (cli_sweep / agent).read_bytes()
+
+
+def test_an_interrupted_call_resumes_bit_identically(sweep_file, trained, tmp_path):
+    sweep, params, metrics = trained
+    call = Call(0, tuple(sweep.points), 4)
+    stop = StopRequest()
+
+    def interrupt(state):
+        stop.signal = 2  # as SIGINT's handler would, after the first chunk
+
+    first = train_call(call, jax.devices(), directory=tmp_path, stop=stop, on_chunk=interrupt)
+    assert first.status == "interrupted" and (tmp_path / "checkpoint.npz").is_file()
+    assert not bool(jax.numpy.all(first.state.finished))
+    resumed = train_call(call, jax.devices(), directory=tmp_path)
+    assert resumed.status == "finished"
+    chosen = jax.vmap(resumed.trainer.agent_params)(resumed.state)  # the sweep keeps a snapshot
+    assert_tree_equal((chosen, resumed.state.metrics), (params, metrics))
+
+
+def test_resume_skips_finished_calls_and_refuses_another_sweep(sweep_file, cli_sweep, capsys):
+    sweep = load_sweep(sweep_file, ["evaluate.episodes=2"])
+    outcome = run_sweep(sweep, cli_sweep, resume=True, quiet=True)  # no training: all ended
+    assert outcome.status == "finished"
+    assert outcome.results == json.loads((cli_sweep / "runs.json").read_text())
+    code = cli.main(
+        ["sweep", str(sweep_file), "--set", "train.gamma=0.5", "--out", str(cli_sweep), "--resume"]
+    )
+    assert code == 2
+    assert "holds another sweep: point 0" in capsys.readouterr().err
+    code = cli.main(["sweep", str(sweep_file), "--out", str(cli_sweep)])
+    assert code == 2 and "already holds a sweep" in capsys.readouterr().err
+
+
+def test_a_sweep_grows_by_seeds_and_keeps_its_runs(sweep_file, cli_sweep, tmp_path, capsys):
+    """Seed 0's sweep resumed with both seeds: seed 0's calls are kept, seed 1's train,
+    and runs.json is the full sweep's; the full sweep's directory refuses the smaller file."""
+    first = tmp_path / "seed0.toml"
+    first.write_text(SWEEP.replace("stop = 2", "stop = 1"))
+    out = tmp_path / "out"
+    args = ["--set", "evaluate.episodes=2", "--out", str(out), "--quiet"]
+    assert cli.main(["sweep", str(first), *args, "--no-agents"]) == 0
+    assert not (out / "agents").exists()
+    kept = {p: p.stat().st_mtime_ns for p in out.glob("calls/*/runs.json")}
+    assert len(kept) == 2
+    assert cli.main(["sweep", str(sweep_file), *args, "--resume"]) == 0
+    assert all(p.stat().st_mtime_ns == t for p, t in kept.items())  # not trained again
+    assert sorted(p.name for p in out.glob("agents/*")) == ["run-0002", "run-0003"]
+    assert len(json.loads((out / "plan.json").read_text())["points"]) == 4
+    assert json.loads((out / "runs.json").read_text()) == json.loads(
+        (cli_sweep / "runs.json").read_text()
+    )
+    capsys.readouterr()
+    code = cli.main(["sweep", str(first), "--out", str(cli_sweep), "--resume", "--quiet"])
+    assert code == 2
+    assert "point 2 ({'run.seed': 1" in capsys.readouterr().err
+
+
+def test_the_memory_plan_splits_or_refuses(sweep_file, capsys):
+    sweep = load_sweep(sweep_file)
+    per_run = run_memory(sweep.points[0].config)
+    batched = int(2.5 * per_run.total / USABLE_FRACTION)  # vmap: all temporaries at once
+    state = per_run.total - per_run.activations
+    one_by_one = int((per_run.activations + 2 * 2.5 * state) / USABLE_FRACTION)  # map
+    for strategy, budget in [("vmap", batched), ("map", one_by_one)]:
+        calls = plan_calls(sweep, 1, budget=budget, strategy=strategy)
+        per_call = 2 if strategy == "vmap" else 1  # map: one run per device and call
+        assert [len(c.points) for c in calls] == [per_call] * (4 // per_call)
+        assert all(c.size == per_call for c in calls)
+        assert [p.index for c in calls for p in c.points] == [0, 1, 2, 3]
+    assert [len(c.points) for c in plan_calls(sweep, 1, budget=10**12, strategy="vmap")] == [4]
+    assert [len(c.points) for c in plan_calls(sweep, 1, budget=10**12)] == [1, 1, 1, 1]  # map
+    code = cli.main(["sweep", str(sweep_file), "--memory-gb", "0.001", "--dry-run"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "memory plan: one run needs" in err and "replay" in err and "--memory-gb" in err
+
+
+def test_vmap_calls_never_hold_one_run_per_device():
+    assert [call_size(n, 1) for n in (1, 2, 3)] == [2, 2, 3]
+    assert [call_size(n, 4) for n in (1, 4, 5, 8, 9)] == [8, 8, 8, 8, 12]
+    assert call_size(3, 4, most_per_device=1) == 4  # memory allows no more
+    assert [call_size(n, 4, "map") for n in (1, 4, 5)] == [4, 4, 8]  # unbatched: as alone
+
+
+def test_the_thread_pool_size_follows_pjrt_nproc_and_forced_devices(monkeypatch):
+    from drqn_jax.determinism import cpu_thread_pool_size
+
+    monkeypatch.setenv("PJRT_NPROC", "3")
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=4")
+    assert cpu_thread_pool_size() == 4
+    monkeypatch.setenv("PJRT_NPROC", "6")
+    assert cpu_thread_pool_size() == 6
+    monkeypatch.delenv("XLA_FLAGS")
+    monkeypatch.delenv("PJRT_NPROC")
+    monkeypatch.delenv("NPROC", raising=False)
+    assert cpu_thread_pool_size() == len(os.sched_getaffinity(0))
+
+
+def test_several_processes_need_all_three_settings(monkeypatch):
+    from drqn_jax.experiments.sweep_runner import Distributed, init_distributed
+
+    for name in ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID"):
+        monkeypatch.delenv(name, raising=False)
+    assert init_distributed(None, None, None) == Distributed(0, 1)
+    monkeypatch.setenv("JAX_COORDINATOR_ADDRESS", "localhost:1")
+    with pytest.raises(ConfigError, match="need all three"):
+        init_distributed(None, 2, None)
+    monkeypatch.setenv("JAX_PROCESS_ID", "two")
+    with pytest.raises(ConfigError, match="JAX_PROCESS_ID = 'two'"):
+        init_distributed(None, 2, None)
+    with pytest.raises(ConfigError, match="0 <= process_id < num_processes"):
+        init_distributed(None, 2, 2)
+
+
+def test_every_run_writes_its_training_metrics(trained, cli_sweep):
+    """OUT/metrics/run-NNNN.csv: each run's metrics.csv, as ``drqn-jax train`` writes it."""
+    from drqn_jax.experiments.runner import metrics_csv
+    from drqn_jax.experiments.sweep_runner import metrics_path
+
+    sweep, _, metrics = trained
+    for point in sweep.points:
+        run_metrics = {name: values[point.index] for name, values in metrics.items()}
+        text = metrics_path(cli_sweep, point.index).read_text()
+        assert text == metrics_csv(run_metrics)
+        assert len(text.splitlines()) == 1 + 4  # header + train.num_episodes rows
+
+
+def test_every_run_keeps_its_trained_agent(trained, cli_sweep, tmp_path, capsys):
+    """OUT/agents/run-NNNN holds the run's agent bit for bit; ``drqn-jax evaluate``
+    reads it like a run directory and scores it as the sweep did."""
+    from drqn_jax.experiments.runner import load_run, load_trained_network
+    from drqn_jax.experiments.sweep_runner import agent_dir
+
+    sweep, params, _ = trained
+    for point in sweep.points:
+        directory = agent_dir(cli_sweep, point.index)
+        _, run_params, meta = load_trained_network(load_run(directory), directory)
+        assert_tree_equal(run_params, jax.tree.map(lambda x, i=point.index: x[i], params))
+        assert meta["values"] == point.values and meta["recorded"] == 4 and meta["finished"]
+    # on the sweep's episodes (its first point's evaluation key: seed 0)
+    run = json.loads((cli_sweep / "runs.json").read_text())[3]
+    out = tmp_path / "evaluation.json"
+    directory = agent_dir(cli_sweep, 3)
+    assert cli.main(["evaluate", str(directory), "--seed", "0", "--json", str(out)]) == 0
+    evaluation = json.loads(out.read_text())
+    for name in ("num_episodes", "collision_free_rate", "avg_speed_kmh", "goal_rate"):
+        assert evaluation[name] == run[name], name
+    # the agent is checked against its config: another training config is refused
+    text = (directory / "config.toml").read_text()
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "config.toml").write_text(text.replace("seed = 1", "seed = 7"))
+    (tmp_path / "other" / "agent.npz").write_bytes((directory / "agent.npz").read_bytes())
+    assert cli.main(["evaluate", str(tmp_path / "other")]) == 2
+    assert "run.seed" in capsys.readouterr().err

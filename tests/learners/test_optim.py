@@ -1,0 +1,103 @@
+"""The hand-written Adam against the textbook update and against optax (test extra)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from drqn_jax.learners.optim import adam, apply_updates, chain, clip, clip_by_global_norm
+
+
+def _problem(seed=0):
+    rng = np.random.default_rng(seed)
+    params = {"w": jnp.asarray(rng.normal(size=(5, 3)), jnp.float32), "b": jnp.zeros(3)}
+    x = jnp.asarray(rng.normal(size=(16, 5)), jnp.float32)
+    y = jnp.asarray(rng.normal(size=(16, 3)), jnp.float32)
+
+    def loss(p):
+        return jnp.mean((x @ p["w"] + p["b"] - y) ** 2)
+
+    return params, jax.grad(loss)
+
+
+def test_adam_matches_textbook_update():
+    """The same 100 gradients through ours and through the formulas in float64."""
+    rng = np.random.default_rng(0)
+    grads = rng.normal(size=(100, 4, 3)) * np.logspace(-3, 1, 100)[:, None, None]
+    lr, b1, b2, eps = 1e-2, 0.9, 0.999, 1e-8
+    opt = adam(lr, b1, b2, eps)
+    params = jnp.zeros((4, 3), jnp.float32)
+    state = opt.init(params)
+    ref, m, v = np.zeros((4, 3)), np.zeros((4, 3)), np.zeros((4, 3))
+    for t in range(1, 101):
+        g = grads[t - 1]
+        updates, state = opt.update(jnp.asarray(g, jnp.float32), state, params)
+        params = apply_updates(params, updates)
+        m = b1 * m + (1 - b1) * g
+        v = b2 * v + (1 - b2) * g * g
+        ref = ref - lr * (m / (1 - b1**t)) / (np.sqrt(v / (1 - b2**t)) + eps)
+        np.testing.assert_allclose(np.asarray(params), ref, rtol=1e-5, atol=1e-6)
+    assert int(state.count) == 100
+
+
+@pytest.mark.parametrize("lr", [1e-3, 3e-2])
+def test_adam_matches_optax_over_100_steps(lr):
+    params, grad = _problem(1)
+    ours, theirs = adam(lr), optax.adam(lr)
+    p_ours, p_theirs = params, params
+    s_ours, s_theirs = ours.init(params), theirs.init(params)
+    for _ in range(100):
+        u, s_ours = ours.update(grad(p_ours), s_ours, p_ours)
+        p_ours = apply_updates(p_ours, u)
+        u, s_theirs = theirs.update(grad(p_theirs), s_theirs, p_theirs)
+        p_theirs = optax.apply_updates(p_theirs, u)
+    for a, b in zip(jax.tree.leaves(p_ours), jax.tree.leaves(p_theirs), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-6, rtol=0)
+    assert not np.allclose(np.asarray(p_ours["w"]), np.asarray(params["w"]))  # it moved
+
+
+def test_clip_and_chain_match_optax():
+    params, grad = _problem(2)
+    g = jax.tree.map(lambda x: 50.0 * x, grad(params))  # large, so the clamp bites
+    ours = chain(clip(1.0), adam(1e-3))
+    theirs = optax.chain(optax.clip(1.0), optax.adam(1e-3))
+    u_ours, _ = ours.update(g, ours.init(params), params)
+    u_theirs, _ = theirs.update(g, theirs.init(params), params)
+    for a, b in zip(jax.tree.leaves(u_ours), jax.tree.leaves(u_theirs), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-7)
+    clipped, _ = clip(1.0).update(g, (), params)
+    assert float(jnp.max(jnp.abs(clipped["w"]))) == 1.0
+
+
+@pytest.mark.parametrize("scale", [1e-3, 50.0])
+def test_clip_by_global_norm_matches_optax(scale):
+    """Below the limit the gradients pass unchanged; above it they are scaled to it."""
+    params, grad = _problem(3)
+    g = jax.tree.map(lambda x: scale * x, grad(params))
+    ours, _ = clip_by_global_norm(0.5).update(g, (), params)
+    theirs, _ = optax.clip_by_global_norm(0.5).update(g, optax.EmptyState(), params)
+    for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(theirs), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-9)
+    norm = float(optax.tree.norm(ours))
+    assert norm <= 0.5 + 1e-6 and (norm > 0.49) == (scale > 1)
+
+
+def test_adam_jits_and_vmaps_over_learning_rate():
+    params, grad = _problem(3)
+    g = grad(params)
+
+    def one(lr):
+        opt = adam(lr)
+        u, _ = opt.update(g, opt.init(params), params)
+        return u
+
+    lrs = jnp.array([1e-3, 1e-2])
+    batched = jax.jit(jax.vmap(one))(lrs)
+    for i, lr in enumerate([1e-3, 1e-2]):
+        single = one(lr)
+        np.testing.assert_allclose(
+            np.asarray(batched["w"][i]), np.asarray(single["w"]), rtol=1e-6, atol=1e-9
+        )
