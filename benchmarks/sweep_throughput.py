@@ -86,7 +86,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import drqn_jax  # noqa: F401  (sets XLA_FLAGS; no JAX computation runs before this import)
 from drqn_jax.experiments.machine import machine_info
-from drqn_jax.experiments.sweep_runner import call_programs, resolve_strategy
+from drqn_jax.experiments.sweep_plan import resolve_strategy
+from drqn_jax.experiments.sweep_runner import call_programs
 from drqn_jax.learners import TrainConfig, Trainer, make_train
 from drqn_jax.learners.dqn.replay import replay_bytes
 from drqn_jax.learners.dqn.state import TrainState

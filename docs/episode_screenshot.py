@@ -19,7 +19,7 @@ from pathlib import Path
 
 import drqn_jax
 from drqn_jax.config import load_config
-from drqn_jax.interop import recording
+from drqn_jax.interop import episode_record, recording
 
 
 def main() -> None:
@@ -35,7 +35,7 @@ def main() -> None:
     env, params = config.make_env()
     _, eval_key = config.keys()
     agent = drqn_jax.rule_based_agent(config.rule_based_params())
-    record = recording.collect_episodes(agent, eval_key, 1, env, params)
+    record = episode_record.collect_episodes(agent, eval_key, 1, env, params)
     if args.step is None:
         args.step = max(0, int(record.length[0]) - 7)
     s = float(record.state.ego.s[0, args.step])

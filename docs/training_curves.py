@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from drqn_jax.experiments.study import load_curves, plot_curves
+from drqn_jax.experiments.curves import load_curves, plot_curves
 
 
 def main(argv: list[str] | None = None) -> None:

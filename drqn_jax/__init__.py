@@ -36,9 +36,9 @@ from drqn_jax.env import (  # noqa: E402
 from drqn_jax.evaluation import EpisodeMetrics, evaluate, run_episodes, summarize  # noqa: E402
 from drqn_jax.interop.gymnasium_env import (  # noqa: E402
     UrbanPedestriansGymEnv,
-    UrbanPedestriansVectorEnv,
     register_gymnasium_envs,
 )
+from drqn_jax.interop.gymnasium_vector import UrbanPedestriansVectorEnv  # noqa: E402
 from drqn_jax.learners import Hyperparams, TrainConfig, make_train  # noqa: E402
 from drqn_jax.registry import make, registered_envs  # noqa: E402
 

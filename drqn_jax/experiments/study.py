@@ -35,13 +35,10 @@ config's world). Then:
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import hashlib
 import json
 import math
-import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -49,13 +46,19 @@ import numpy as np
 
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import wilson_interval
-from drqn_jax.experiments.checkpoint import CheckpointError, atomic_write_text
-from drqn_jax.experiments.figures import plot_safety_speed, require_matplotlib
+from drqn_jax.experiments.baselines import (
+    cross_results,
+    frontier_key,
+    frontier_results,
+    rule_based_results,
+)
+from drqn_jax.experiments.checkpoint import atomic_write_text
+from drqn_jax.experiments.curves import load_curves, plot_curves
+from drqn_jax.experiments.figures import plot_safety_speed
 from drqn_jax.experiments.frontier import (
     frontier_rate,
     frontier_vertices,
     with_margin,
-    world_frontier,
 )
 from drqn_jax.experiments.report import (
     PAPER_EPISODES,
@@ -68,7 +71,6 @@ from drqn_jax.experiments.report import (
 )
 from drqn_jax.experiments.stats import t_interval
 from drqn_jax.experiments.sweep import Sweep, build_sweep
-from drqn_jax.interop.recording import running_mean
 from drqn_jax.learners.hyperparams import (
     NOT_LEARNED,
     REWARD_ALONE,
@@ -81,30 +83,16 @@ from drqn_jax.registry import registered_envs
 __all__ = [
     "PAPER_TABLE_III",
     "Arm",
-    "Curve",
     "StudyOutcome",
     "baseline_row",
     "compare_paired",
-    "config_frontier",
-    "cross_results",
     "finished_results",
-    "frontier_results",
     "frontier_rows",
-    "load_curves",
     "paper_rows",
     "plan_study",
-    "plot_curves",
-    "rule_based_results",
     "run_study",
     "study_row",
 ]
-
-
-#: The curves of the paper's "Training performance" figure: metrics.csv column, label.
-CURVES = (
-    ("episode_return", "average reward (return per episode)"),
-    ("length", "steps per episode"),
-)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,32 +159,6 @@ def plan_study(
         cross = tuple(dict.fromkeys(e for e in eval_envs if e != own))
         arms.append(Arm(name, sweep, cross))
     return arms
-
-
-def _digest(config: Config, **sections: Any) -> str:
-    """A short digest of ``sections`` and ``config``'s evaluation episodes (count, seed)."""
-    record = {
-        **sections,
-        "episodes": config["evaluate"]["episodes"],
-        "seed": config["run"]["seed"],
-    }
-    text = json.dumps(record, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:12]
-
-
-def env_key(config: Config) -> str:
-    """A short digest of a config's ``[env]`` and ``[rule_based]`` sections and its
-    evaluation (episodes, seed): configs that agree share the rule-based baseline."""
-    return _digest(config, env=config["env"], rule_based=config["rule_based"])
-
-
-def frontier_key(config: Config) -> str:
-    """A short digest of what a config's frontiers read: its ``[env]`` section but the
-    reward (``reward_*``: the rule-based family and the planner ignore it), its
-    ``[planner]`` and its evaluation: configs that agree share the frontiers, and
-    their arms are paired."""
-    env = {k: v for k, v in config["env"].items() if not k.startswith("reward_")}
-    return _digest(config, env=env, planner=config["planner"])
 
 
 # ----------------------------------------------------------------------------- the table
@@ -335,104 +297,6 @@ def paper_rows() -> list[dict[str, Any]]:
 # ----------------------------------------------------------------------------- curves
 
 
-@dataclasses.dataclass(frozen=True)
-class Curve:
-    """A training curve over seeds against env steps (issue 41: a learner that ends
-    episodes early or runs many envs gets no credit from an episode axis).
-
-    ``env_steps`` (G,): a common grid from 0 to the fewest env steps any seed took;
-    ``mean``, ``low``, ``high`` (G,): the mean and min–max across seeds of each seed's
-    running mean over ``smooth`` episodes, read at the grid (linear between episodes);
-    ``seeds`` (S, E): each seed's raw values per training episode, in the order
-    they ended; ``seed_steps`` (S, E): the env steps taken when each had ended
-    (the running total of episode lengths).
-    """
-
-    env_steps: np.ndarray
-    mean: np.ndarray
-    low: np.ndarray
-    high: np.ndarray
-    seeds: np.ndarray
-    seed_steps: np.ndarray
-
-
-#: Points of a :class:`Curve`'s env-step grid.
-CURVE_POINTS = 200
-
-
-def _read_csv(path: Path) -> dict[str, np.ndarray]:
-    with path.open(newline="") as f:
-        rows = list(csv.DictReader(f))
-    if not rows:
-        return {}
-    return {name: np.array([float(r[name]) for r in rows]) for name in rows[0]}
-
-
-def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Curve]:
-    """The :data:`CURVES` of one config over its seeds' ``metrics.csv`` files, against
-    env steps (:class:`Curve`).
-
-    Seeds are cut to the episodes they all recorded. Raises ValueError when a
-    file is missing or empty.
-    """
-    if smooth < 1:
-        raise ValueError(f"smooth = {smooth!r}: must be an integer >= 1")
-    tables = []
-    for path in metrics_files:
-        if not path.is_file():
-            raise ValueError(f"{path}: no training metrics (has the run finished?)")
-        table = _read_csv(path)
-        if not table:
-            raise ValueError(f"{path}: no recorded episodes")
-        tables.append(table)
-    n = min(len(t["episode"]) for t in tables)
-    steps = np.stack([np.cumsum(t["length"][:n]) for t in tables])
-    grid = np.linspace(0.0, steps[:, -1].min(), CURVE_POINTS)
-    curves = {}
-    for column, _ in CURVES:
-        raw = np.stack([t[column][:n] for t in tables])
-        read = np.stack(
-            [np.interp(grid, x, running_mean(y, smooth)) for x, y in zip(steps, raw, strict=True)]
-        )
-        curves[column] = Curve(
-            env_steps=grid,
-            mean=read.mean(axis=0),
-            low=read.min(axis=0),
-            high=read.max(axis=0),
-            seeds=raw,
-            seed_steps=steps,
-        )
-    return curves
-
-
-def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smooth: int) -> None:
-    """The paper's "Training performance" figure for every config: a PNG at ``path``.
-
-    ``curves``: config name → :func:`load_curves`. Needs matplotlib (the ``plots`` extra).
-    """
-    plt = require_matplotlib()
-    fig, axes = plt.subplots(1, len(CURVES), figsize=(11, 4), constrained_layout=True)
-    for ax, (column, label) in zip(axes, CURVES, strict=True):
-        for name, by_metric in curves.items():
-            c = by_metric[column]
-            seeds = c.seeds.shape[0]
-            plural = "s" if seeds > 1 else ""
-            (line,) = ax.plot(c.env_steps, c.mean, label=f"{name} ({seeds} seed{plural})")
-            ax.fill_between(c.env_steps, c.low, c.high, color=line.get_color(), alpha=0.2, lw=0)
-        ax.set_xlabel("env steps (thousands)")
-        ax.xaxis.set_major_formatter(lambda x, _: f"{x / 1000:g}")
-        ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
-    fig.suptitle(
-        f"Mean and min–max over seeds of a running mean over {smooth} training episodes",
-        fontsize=10,
-    )
-    axes[0].legend(fontsize=8)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
 # ----------------------------------------------------------------------------- running it
 
 
@@ -440,11 +304,11 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
 class StudyOutcome:
     """``finished`` (``rows``: the table; ``runs``: config → its runs' results;
     ``comparisons``: each trained row against its world's rule-based frontier;
-    ``frontiers``: each world's :func:`~drqn_jax.experiments.frontier.world_frontier` record, by
-    :func:`env_key`) or ``interrupted`` (checkpoints saved; the same command
-    continues). ``continued``: some runs were trained, wholly or in part, by an
-    earlier invocation (or not at all here: a report only), so this one's wall time
-    does not cover them."""
+    ``frontiers``: each world's :func:`~drqn_jax.experiments.frontier.world_frontier`
+    record, by :func:`~drqn_jax.experiments.baselines.frontier_key`) or ``interrupted``
+    (checkpoints saved; the same command continues). ``continued``: some runs were
+    trained, wholly or in part, by an earlier invocation (or not at all here: a report
+    only), so this one's wall time does not cover them."""
 
     status: str
     rows: list[dict[str, Any]] = dataclasses.field(default_factory=list)
@@ -453,81 +317,6 @@ class StudyOutcome:
     comparisons: list[str] = dataclasses.field(default_factory=list)
     continued: bool = False
     frontiers: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
-
-
-def rule_based_results(
-    configs: Sequence[Config], out: Path
-) -> dict[str, tuple[Config, dict[str, Any]]]:
-    """The rule-based agent on each distinct environment of ``configs`` (the arms'
-    and those of their ``cross_envs``), on the study's episodes: ``{env_key: (the first
-    config of that key, result)}``, cached in ``OUT/baselines/``."""
-    from drqn_jax.experiments.runner import builtin_agent, evaluate_agents, json_ready
-
-    found: dict[str, tuple[Config, dict[str, Any]]] = {}
-    for config in configs:
-        key = env_key(config)
-        if key in found:
-            continue
-
-        def evaluated(config: Config = config) -> dict[str, Any]:
-            (result,) = evaluate_agents(config, [builtin_agent("rule-based", config)])
-            return json_ready(result)
-
-        result = _cached(out / "baselines" / f"rule-based-{key}.json", evaluated)
-        found[key] = (config, result)
-    return found
-
-
-def _cached(path: Path, compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:
-    """The JSON at ``path``, or ``compute()``'s result, then written there (atomically)."""
-    if path.is_file():
-        return json.loads(path.read_text())
-    result = compute()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(path, json.dumps(result, indent=1) + "\n")
-    return result
-
-
-def cross_results(
-    arm: Arm, config: Config, runs: Sequence[Mapping[str, Any]], out: Path
-) -> list[dict[str, Any]]:
-    """Each of ``runs``' trained agents (``OUT/<arm>/agents/run-NNNN``) evaluated with
-    ``config`` (``arm.cross_config(env_id)``: among ``env_id``'s pedestrians, on the
-    study's episodes), cached in ``OUT/<arm>/cross/<env_id>/run-NNNN.json``.
-
-    Raises:
-        CheckpointError: a run's agent is missing (a study run before sweeps kept
-            their agents: train it again in a new directory).
-    """
-    from drqn_jax.agents import drqn_agent
-    from drqn_jax.experiments.runner import (
-        evaluate_agents,
-        json_ready,
-        load_run,
-        load_trained_network,
-    )
-    from drqn_jax.experiments.sweep_runner import agent_dir
-
-    env_id = config["env"]["id"]
-
-    def evaluated(run: Mapping[str, Any]) -> dict[str, Any]:
-        directory = agent_dir(out / arm.name, run["index"])
-        if not (directory / "config.toml").is_file():
-            raise CheckpointError(
-                f"{directory}: no trained agent to evaluate on {env_id} (the run ended before "
-                "sweeps kept their agents); run the study in a new --out"
-            )
-        trained = load_run(directory)
-        network, params, _ = load_trained_network(trained, directory)
-        name = agent_name(trained.train_config())
-        (result,) = evaluate_agents(config, [drqn_agent(network, params, name)])
-        return {"index": run["index"], "values": run["values"], **json_ready(result)}
-
-    cache = out / arm.name / "cross" / env_id
-    return [
-        _cached(cache / f"run-{run['index']:04d}.json", lambda run=run: evaluated(run))
-        for run in runs
-    ]
 
 
 def _by_seed(runs: Sequence[Mapping[str, Any]]) -> dict[Any, Mapping[str, Any]]:
@@ -569,47 +358,6 @@ def finished_results(directory: Path) -> list[dict[str, Any]]:
     for path in sorted((directory / "calls").glob("*/runs.json")):
         results.update((r["index"], r) for r in json.loads(path.read_text()))
     return [results[i] for i in sorted(results)]
-
-
-def frontier_results(
-    configs: Sequence[Config], out: Path, planner_keys: set[str], *, quiet: bool = True
-) -> dict[str, dict[str, Any]]:
-    """The rule-based frontier of each distinct environment of ``configs`` on the study's
-    episodes, and the planner's where its :func:`frontier_key` is in ``planner_keys``:
-    ``{frontier_key: world_frontier record}``, cached in ``OUT/baselines/``."""
-    found: dict[str, dict[str, Any]] = {}
-    for config in configs:
-        key = frontier_key(config)
-        if key in found:
-            continue
-        if not quiet:
-            print(f"the frontiers of {config['env']['id']}...", file=sys.stderr, flush=True)
-        planner = key in planner_keys
-        name = f"frontier-{key}{'-planner' if planner else ''}.json"
-        found[key] = _cached(
-            out / "baselines" / name,
-            lambda config=config, planner=planner: config_frontier(config, planner=planner),
-        )
-    return found
-
-
-def config_frontier(config: Config, *, planner: bool = True, **options: Any) -> dict[str, Any]:
-    """:func:`~drqn_jax.experiments.frontier.world_frontier` on ``config``'s world and evaluation
-    episodes (``evaluate.episodes`` of ``run.seed``'s evaluation key, as every agent of a
-    study plays), with its ``[planner]`` settings; ``options`` go on to it."""
-    env, params = config.make_env()
-    _, key = config.keys()
-    return world_frontier(
-        env,
-        params,
-        key,
-        config["evaluate"]["episodes"],
-        world=config["env"]["id"],
-        seed=config["run"]["seed"],
-        planner=config.planner_params() if planner else None,
-        batch_size=config["evaluate"]["batch_size"] or None,
-        **options,
-    )
 
 
 def _comparisons(
@@ -657,7 +405,7 @@ def run_study(
     interrupted to go on later.
     """
     from drqn_jax.experiments.sweep_runner import metrics_path, run_sweep
-    from drqn_jax.interop.recording import record_study_curves
+    from drqn_jax.interop.training_recording import record_study_curves
 
     out = Path(out)
     runs: dict[str, list[dict[str, Any]]] = {}
@@ -677,7 +425,7 @@ def run_study(
     cross_configs = {a.name: {e: a.cross_config(e) for e in a.cross_envs} for a in done}
     cross = {
         arm.name: {
-            env: cross_results(arm, config, runs[arm.name], out)
+            env: cross_results(arm.name, config, runs[arm.name], out)
             for env, config in cross_configs[arm.name].items()
         }
         for arm in done

@@ -1,8 +1,8 @@
-"""Running a sweep: memory plan, compiled calls, checkpoints, progress, several processes.
+"""Running a sweep: compiled calls, checkpoints, progress, several processes.
 
-The points of a :class:`~drqn_jax.experiments.sweep.Sweep` are grouped into programs by
-shape; each process takes a contiguous slice of every program, and the
-memory plan (:mod:`drqn_jax.experiments.memory`) cuts that slice into **calls**: runs
+The plan (:mod:`drqn_jax.experiments.sweep_plan`) groups the points of a
+:class:`~drqn_jax.experiments.sweep.Sweep` into programs by shape, gives each
+process a contiguous slice of every program, and cuts that slice into **calls**: runs
 trained together by one compiled ``jit(vmap(run))``, the run axis sharded
 over the process's devices (a ``NamedSharding`` on a one-axis ``Mesh``),
 padded to a multiple of the device count with copies of the last run.
@@ -38,10 +38,8 @@ gathers them and writes the tables. No file system needs to be shared.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
-import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -52,7 +50,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from drqn_jax.agents import drqn_agent
-from drqn_jax.config import RENAMED_LEAVES, ConfigError, added_leaves
+from drqn_jax.config import RENAMED_LEAVES, added_leaves
 from drqn_jax.evaluation import evaluate
 from drqn_jax.experiments.checkpoint import (
     AGENT,
@@ -64,16 +62,15 @@ from drqn_jax.experiments.checkpoint import (
     save_checkpoint,
 )
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
-from drqn_jax.experiments.memory import (
-    RunMemory,
-    available_memory,
-    call_bytes,
-    format_bytes,
-    run_memory,
-    runs_per_call,
-)
 from drqn_jax.experiments.runner import json_ready, metrics_csv
-from drqn_jax.experiments.sweep import STRATEGIES, Sweep, SweepPoint
+from drqn_jax.experiments.sweep import Sweep, SweepPoint
+from drqn_jax.experiments.sweep_plan import (
+    Call,
+    Distributed,
+    call_size,
+    plan_calls,
+    resolve_strategy,
+)
 from drqn_jax.learners import Trainer, make_train
 from drqn_jax.learners.dqn.state import TrainState
 from drqn_jax.learners.hyperparams import agent_name, teacher_label
@@ -81,15 +78,11 @@ from drqn_jax.learners.selection import selection, unvalidated
 from drqn_jax.programs import cached
 
 __all__ = [
-    "Call",
-    "Distributed",
     "SweepOutcome",
     "call_inputs",
     "call_programs",
     "evaluate_runs",
-    "init_distributed",
     "metrics_path",
-    "plan_calls",
     "run_sweep",
     "train_call",
 ]
@@ -97,191 +90,7 @@ __all__ = [
 _GATHER_TIMEOUT_MS = 2**31 - 1  # process 0 waits for the others as long as they train
 
 
-@dataclasses.dataclass(frozen=True)
-class Distributed:
-    """This process's place among the processes of a sweep (1 of 1 when alone)."""
-
-    process: int = 0
-    processes: int = 1
-
-    @property
-    def leader(self) -> bool:
-        return self.process == 0
-
-
-def init_distributed(
-    coordinator: str | None, num_processes: int | None, process_id: int | None
-) -> Distributed:
-    """``jax.distributed.initialize`` from the flags, else ``JAX_COORDINATOR_ADDRESS``,
-    ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``; alone (no call) when none is given.
-
-    Must run before any JAX computation.
-    """
-    env = os.environ
-    coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS")
-    given = [coordinator, num_processes, process_id]
-    if num_processes is None and "JAX_NUM_PROCESSES" in env:
-        num_processes = _int_variable("JAX_NUM_PROCESSES")
-    if process_id is None and "JAX_PROCESS_ID" in env:
-        process_id = _int_variable("JAX_PROCESS_ID")
-    if coordinator is None and num_processes is None and process_id is None:
-        return Distributed()
-    if None in (coordinator, num_processes, process_id):
-        raise ConfigError(
-            "several processes need all three of --coordinator HOST:PORT, --num-processes N "
-            "and --process-id I (or JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES, "
-            f"JAX_PROCESS_ID); got {given}"
-        )
-    if num_processes < 1 or not 0 <= process_id < num_processes:
-        raise ConfigError(
-            f"--num-processes = {num_processes}, --process-id = {process_id}: need "
-            "num_processes >= 1 and 0 <= process_id < num_processes"
-        )
-    jax.distributed.initialize(coordinator, num_processes, process_id)
-    return Distributed(process_id, num_processes)
-
-
-def _int_variable(name: str) -> int:
-    try:
-        return int(os.environ[name])
-    except ValueError:
-        raise ConfigError(f"{name} = {os.environ[name]!r}: must be an integer") from None
-
-
 # ------------------------------------------------------------------------------- the plan
-
-
-@dataclasses.dataclass(frozen=True)
-class Call:
-    """Runs of one program trained together by one compiled call."""
-
-    program: int
-    points: tuple[SweepPoint, ...]
-    size: int  # runs in the call, padding included: a multiple of the device count
-    strategy: str = "vmap"  # "vmap" or "map" (see STRATEGIES)
-    memory: RunMemory | None = None  # per run, as planned
-
-    @property
-    def episodes(self) -> int:
-        """Training episodes of the call's runs, padding excluded."""
-        return len(self.points) * self.points[0].config["train"]["num_episodes"]
-
-    @property
-    def name(self) -> str:
-        return f"runs-{self.points[0].index:04d}-{self.points[-1].index:04d}"
-
-    def fingerprint(self) -> str:
-        """What the call's checkpoint must match: its runs' training configs and size."""
-        hashes = [p.config.training_hash() for p in self.points]
-        text = json.dumps([self.size, self.strategy, hashes])
-        return hashlib.sha256(text.encode()).hexdigest()
-
-
-def _process_slice(points: Sequence[SweepPoint], dist: Distributed) -> list[SweepPoint]:
-    """Contiguous, near-equal slices of ``points``, one per process."""
-    n, p = len(points), dist.processes
-    bounds = [n * i // p for i in range(p + 1)]
-    return list(points[bounds[dist.process] : bounds[dist.process + 1]])
-
-
-def resolve_strategy(strategy: str, devices: Sequence[Any]) -> str:
-    """``vmap`` or ``map`` for ``strategy`` on ``devices``."""
-    if strategy not in STRATEGIES:
-        raise ConfigError(f"strategy = {strategy!r}: must be one of {', '.join(STRATEGIES)}")
-    if strategy == "auto":
-        return "map" if all(d.platform == "cpu" for d in devices) else "vmap"
-    return strategy
-
-
-def plan_calls(
-    sweep: Sweep,
-    devices: int,
-    dist: Distributed = Distributed(),
-    budget: int | None = None,
-    memory_source: str = "",
-    strategy: str | None = None,
-) -> list[Call]:
-    """This process's calls, in order: its slice of every program, cut to fit in memory.
-
-    With ``map`` a call holds one run per device: its runs would take as long
-    together as one after another, and a call's results are saved when it
-    ends, so runs finish (and survive an interruption) one by one.
-
-    Args:
-        devices: local device count (each call's size is a multiple of it).
-        budget: bytes available to one call (default: :func:`available_memory`).
-        strategy: one of :data:`~drqn_jax.experiments.sweep.STRATEGIES` (default: the sweep file's).
-    Raises:
-        MemoryPlanError: one run per device does not fit (before anything compiles).
-    """
-    local = jax.local_devices()[:devices]
-    strategy = resolve_strategy(sweep.strategy if strategy is None else strategy, local)
-    if budget is None:
-        budget, memory_source = available_memory(local)
-    calls = []
-    for k, program in enumerate(sweep.programs()):
-        mine = _process_slice(program, dist)
-        if not mine:
-            continue
-        memory = run_memory(mine[0].config)
-        batched = strategy == "vmap"
-        most = runs_per_call(memory, len(mine), devices, budget, memory_source, batched=batched)
-        if not batched:  # one after another gains nothing from a bigger call, and a call's
-            most = min(most, devices)  # runs save their results only when all have ended
-        count = math.ceil(len(mine) / most)  # calls of near-equal size: one compile
-        per_call = math.ceil(len(mine) / count)
-        size = call_size(per_call, devices, strategy, most // devices)
-        for i in range(0, len(mine), per_call):
-            calls.append(Call(k, tuple(mine[i : i + per_call]), size, strategy, memory))
-    return calls
-
-
-def call_size(runs: int, devices: int, strategy: str = "vmap", most_per_device: int = 2) -> int:
-    """Runs in a call of ``runs`` runs, padding included: a multiple of ``devices``;
-    for ``vmap``, at least 2 runs per device where memory allows.
-
-    A batch of one run per device is avoided because XLA then compiles
-    unbatched matrix products, which round differently from batched ones: the
-    run would drift by an ulp from the same run among others (or alone).
-    ``map`` runs every run unbatched, as alone, and skips the padding.
-    """
-    per_device = math.ceil(runs / devices)
-    if strategy == "vmap":
-        per_device = max(per_device, min(2, most_per_device))
-    return per_device * devices
-
-
-def describe_plan(calls: Sequence[Call], devices: int, dist: Distributed) -> str:
-    """One line per call (consecutive alike calls of a program share one): its
-    runs, padding, strategy, memory in all and per run."""
-    where = f"process {dist.process} of {dist.processes}, " if dist.processes > 1 else ""
-    lines = [f"memory plan ({where}{devices} device(s)):"]
-    groups: list[list[Call]] = []
-    for call in calls:
-        alike = (call.program, len(call.points), call.size, call.strategy)
-        last = groups[-1][-1] if groups else None
-        if last is not None and (last.program, len(last.points), last.size, last.strategy) == alike:
-            groups[-1].append(call)
-        else:
-            groups.append([call])
-    for group in groups:
-        call = group[0]
-        pad = call.size - len(call.points)
-        names = (
-            call.name if len(group) == 1 else f"{len(group)} calls {call.name} … {group[-1].name}"
-        )
-        line = f"  program {call.program}, {names}: {len(call.points)} run(s)"
-        line += f" + {pad} padding" if pad else ""
-        line += " each" if len(group) > 1 else ""
-        line += f", {call.strategy}"
-        if call.strategy == "vmap" and call.size == devices:
-            line += " (1 per device: rounds unlike batched runs)"
-        if call.memory is not None:
-            batched = call.strategy == "vmap"
-            total = devices * call_bytes(call.memory, call.size // devices, batched=batched)
-            line += f", {format_bytes(total)} in all; per run {call.memory.describe()}"
-        lines.append(line)
-    return "\n".join(lines)
 
 
 # ----------------------------------------------------------------------------- a call

@@ -68,9 +68,6 @@ import jax.numpy as jnp
 import numpy as np
 from gymnasium import spaces
 from gymnasium.error import ResetNeeded
-from gymnasium.utils import seeding
-from gymnasium.vector import AutoresetMode, VectorEnv
-from gymnasium.vector.utils import batch_space
 
 from drqn_jax.env import viewer
 from drqn_jax.env.params import SPEED_RELATIVE, EnvParams
@@ -94,7 +91,6 @@ __all__ = [
     "RENDER_HALF_WIDTH_M",
     "RENDER_PIXELS_PER_M",
     "UrbanPedestriansGymEnv",
-    "UrbanPedestriansVectorEnv",
     "grid_speed_high",
     "gymnasium_ids",
     "gymnasium_last_action",
@@ -175,7 +171,7 @@ def gymnasium_last_action(last_action: np.ndarray) -> np.ndarray:
     return np.where(last_action == NO_ACTION, NO_ACTION_YET, last_action)
 
 
-def _numpy_observation(obs: Observation) -> dict[str, Any]:
+def numpy_observation(obs: Observation) -> dict[str, Any]:
     """NumPy (fresh, writable) observation dict; leading batch axes are kept.
 
     ``grid`` (..., rows, cols, 4) float32, ``speed`` (..., 1) float32,
@@ -190,14 +186,14 @@ def _numpy_observation(obs: Observation) -> dict[str, Any]:
     }
 
 
-def _invalid_action(action: Any, space: spaces.Space) -> ValueError:
+def invalid_action(action: Any, space: spaces.Space) -> ValueError:
     return ValueError(
         f"invalid action {action!r}: not an element of the action space {space} "
         "(0 accelerate, 1 slow_down, 2 brake, 3 steer)"
     )
 
 
-def _contains(space: spaces.Space, x: Any) -> bool:
+def space_contains(space: spaces.Space, x: Any) -> bool:
     try:
         return bool(space.contains(x))
     except Exception:  # e.g. an object NumPy cannot compare
@@ -225,23 +221,15 @@ class _SingleFns(NamedTuple):
     render: Any  # (state, params) -> (H, W, 3) uint8
 
 
-class _VectorFns(NamedTuple):
-    reset: Any  # (key_data (N, w), params) -> (key_data, obs, states)
-    reset_masked: Any  # (key_data, held, states, mask, params) -> (key_data, obs, states)
-    step_next: Any  # NEXT_STEP / DISABLED step, see _vector_step
-    step_same: Any  # SAME_STEP step
-    render: Any  # (states, params) -> (N, H, W, 3) uint8
-
-
 @cached_program
-def _key_data_shape() -> tuple[int, ...]:
+def key_data_shape() -> tuple[int, ...]:
     """Shape of one key's raw data under JAX's default PRNG implementation ((2,) for threefry)."""
     return jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0))).shape
 
 
-def _draw_key_data(rng: np.random.Generator) -> np.ndarray:
+def draw_key_data(rng: np.random.Generator) -> np.ndarray:
     """One JAX key's raw data (uint32 words) drawn from a NumPy generator."""
-    return rng.integers(0, 2**32, size=_key_data_shape(), dtype=np.uint32)
+    return rng.integers(0, 2**32, size=key_data_shape(), dtype=np.uint32)
 
 
 def _split(key_data: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -250,13 +238,13 @@ def _split(key_data: jax.Array) -> tuple[jax.Array, jax.Array]:
     return jax.random.key_data(kept), use
 
 
-def _single_reset(env: UrbanPedestrians, key_data: jax.Array, params: EnvParams):
+def single_reset(env: UrbanPedestrians, key_data: jax.Array, params: EnvParams):
     held, reset_key = _split(key_data)
     obs, state = env.reset_env(reset_key, params)
     return held, obs, state
 
 
-def _single_step(
+def single_step(
     env: UrbanPedestrians, key_data: jax.Array, state: EnvState, action: jax.Array, params
 ):
     held, step_key = _split(key_data)
@@ -264,92 +252,11 @@ def _single_step(
     return held, obs, state, reward, terminated, truncated, info
 
 
-#: Most sub-environments restarted sparsely in one vector step: up to this many, only
-#: theirs are reset; more at once (rare), every one is computed and selected.
-SPARSE_RESETS = 8
-
-
-def _restart_where(
-    env: UrbanPedestrians,
-    restart: jax.Array,
-    reset_key_data: jax.Array,
-    held: jax.Array,
-    states: EnvState,
-    params: EnvParams,
-) -> tuple[jax.Array, EnvState]:
-    """``held`` (N, w) key data and ``states`` (N, …) with the sub-environments where
-    ``restart`` (N,) bool starts a fresh episode from ``reset_key_data`` (N, w), split
-    as :func:`_single_reset` splits it. Only the restarting envs' resets are
-    computed (none when none restarts; all when more than :data:`SPARSE_RESETS`
-    do); each env's fresh state depends on its own key alone, so the result is the
-    same whichever way it is computed."""
-    n = restart.shape[0]
-    k = min(n, SPARSE_RESETS)
-
-    def reset_one(key_data):  # _single_reset's; jit drops the unused observation
-        fresh_held, _, fresh = _single_reset(env, key_data, params)
-        return fresh_held, fresh
-
-    def none(_):
-        return held, states
-
-    def sparse(_):
-        index = jnp.nonzero(restart, size=k, fill_value=n)[0]  # (k,); n: no env, dropped
-        fresh_held, fresh = jax.vmap(reset_one)(reset_key_data[jnp.minimum(index, n - 1)])
-
-        def put(into: jax.Array, rows: jax.Array) -> jax.Array:
-            return into.at[index].set(rows, mode="drop")
-
-        return put(held, fresh_held), jax.tree.map(put, states, fresh)
-
-    def dense(_):
-        fresh_held, fresh = jax.vmap(reset_one)(reset_key_data)
-        select = functools.partial(jax.vmap(jnp.where), restart)
-        return select(fresh_held, held), jax.tree.map(select, fresh, states)
-
-    count = jnp.sum(restart)
-    branch = jnp.where(count == 0, 0, jnp.where(count <= k, 1, 2))
-    return jax.lax.switch(branch, (none, sparse, dense), None)
-
-
-def _vector_step(
-    env: UrbanPedestrians,
-    same_step: bool,
-    key_data: jax.Array,
-    reset_key_data: jax.Array,
-    states: EnvState,
-    actions: jax.Array,
-    autoreset: jax.Array,
-    params: EnvParams,
-):
-    """A batch of N sub-environments' steps with auto-reset (arrays (N, …)).
-
-    Every env steps (``step_env`` with a key split from its held one); the envs
-    that restart get a fresh episode (:func:`_restart_where`) and their
-    observation is rasterised from it. NEXT_STEP restarts where ``autoreset``
-    (the previous step ended the episode), with reward 0 and no termination;
-    SAME_STEP restarts where this step ends it and also returns the final
-    observation.
-    """
-    step = jax.vmap(functools.partial(_single_step, env), in_axes=(0, 0, 0, None))
-    held, obs_final, stepped, reward, terminated, truncated, info = step(
-        key_data, states, actions, params
-    )
-    restart = (terminated | truncated) if same_step else autoreset
-    new_held, new_states = _restart_where(env, restart, reset_key_data, held, stepped, params)
-    obs = jax.vmap(env.observation, (0, None))(new_states, params)
-    if not same_step:
-        reward = jnp.where(restart, jnp.zeros_like(reward), reward)
-        terminated = terminated & ~restart
-        truncated = truncated & ~restart
-    return new_held, obs, new_states, reward, terminated, truncated, info, obs_final, restart
-
-
 def _packed_step(env: UrbanPedestrians, key_data, state, action, params):
-    """:func:`_single_step` with what the host reads as two arrays: the grid and one
+    """:func:`single_step` with what the host reads as two arrays: the grid and one
     float32 vector of every scalar (speed, last action, reward, flags, info values in
     sorted key order). Each host transfer costs tens of µs; one step had fourteen."""
-    held, obs, state, reward, terminated, truncated, info = _single_step(
+    held, obs, state, reward, terminated, truncated, info = single_step(
         env, key_data, state, action, params
     )
     scalars = [obs.speed, obs.last_action, reward, terminated, truncated]
@@ -369,15 +276,15 @@ def _unpack_step(
         k: bool(v) if dtype == np.bool_ else np.asarray(v).astype(dtype)[()]
         for (k, dtype), v in zip(dtypes, packed[5:], strict=True)
     }
-    obs = _numpy_observation(Observation(grid=grid, speed=speed, last_action=last_action))
+    obs = numpy_observation(Observation(grid=grid, speed=speed, last_action=last_action))
     return obs, float(reward), bool(terminated), bool(truncated), info
 
 
 def _info_dtypes(env: UrbanPedestrians, params: EnvParams) -> tuple[tuple[str, Any], ...]:
     """The info dict's keys (sorted) and NumPy dtypes of one step (no computation)."""
-    key_data = np.zeros(_key_data_shape(), np.uint32)
-    state = jax.eval_shape(lambda: _single_reset(env, key_data, params)[2])
-    out = jax.eval_shape(lambda s: _single_step(env, key_data, s, jnp.int32(0), params), state)
+    key_data = np.zeros(key_data_shape(), np.uint32)
+    state = jax.eval_shape(lambda: single_reset(env, key_data, params)[2])
+    out = jax.eval_shape(lambda s: single_step(env, key_data, s, jnp.int32(0), params), state)
     return tuple((k, np.dtype(v.dtype)) for k, v in sorted(out[-1].items()))
 
 
@@ -385,30 +292,9 @@ def _info_dtypes(env: UrbanPedestrians, params: EnvParams) -> tuple[tuple[str, A
 def _single_fns(env: UrbanPedestrians) -> _SingleFns:
     """Jitted reset/step/render of one env, built once per static env."""
     return _SingleFns(
-        reset=jax.jit(functools.partial(_single_reset, env)),
+        reset=jax.jit(functools.partial(single_reset, env)),
         step=jax.jit(functools.partial(_packed_step, env)),
         render=jax.jit(functools.partial(render_frame, env)),
-    )
-
-
-@cached_program
-def _vector_fns(env: UrbanPedestrians) -> _VectorFns:
-    """Jitted, vmapped reset/step/render of a batch of one static env."""
-    reset = jax.vmap(functools.partial(_single_reset, env), in_axes=(0, None))
-
-    def reset_masked(key_data, held, states, mask, params):
-        held, states = _restart_where(env, mask, key_data, held, states, params)
-        return held, jax.vmap(env.observation, (0, None))(states, params), states
-
-    def step(same_step: bool):
-        return jax.jit(functools.partial(_vector_step, env, same_step))
-
-    return _VectorFns(
-        reset=jax.jit(reset),
-        reset_masked=jax.jit(reset_masked),
-        step_next=step(False),
-        step_same=step(True),
-        render=jax.jit(jax.vmap(functools.partial(render_frame, env), in_axes=(0, None))),
     )
 
 
@@ -471,9 +357,9 @@ class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
             ``(observation, {})``.
         """
         super().reset(seed=seed)
-        key_data = _draw_key_data(self.np_random)
+        key_data = draw_key_data(self.np_random)
         self._key_data, obs, self._state = self._fns.reset(key_data, self._device_params)
-        return _numpy_observation(jax.device_get(obs)), {}
+        return numpy_observation(jax.device_get(obs)), {}
 
     def step(self, action: Any) -> tuple[dict[str, Any], SupportsFloat, bool, bool, dict[str, Any]]:
         """One decision step (0.1 s) with ``action`` in ``Discrete(4)``.
@@ -488,8 +374,8 @@ class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
         """
         if isinstance(action, jax.Array):
             action = np.asarray(action)
-        if not _contains(self.action_space, action):
-            raise _invalid_action(action, self.action_space)
+        if not space_contains(self.action_space, action):
+            raise invalid_action(action, self.action_space)
         if self._state is None:
             raise ResetNeeded("Cannot call UrbanPedestriansGymEnv.step before reset")
         out = self._fns.step(self._key_data, self._state, np.int32(action), self._device_params)
@@ -508,233 +394,6 @@ class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
         if self._state is None:
             raise ResetNeeded("Cannot call UrbanPedestriansGymEnv.render before reset")
         return np.array(self._fns.render(self._state, self._device_params))
-
-
-# --- the vector env ---------------------------------------------------------
-def _batched_info(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
-    """Gymnasium's vector info layout: ``key`` (N,) (zero where absent) and mask ``_key``."""
-    if not mask.any():
-        return {}
-    out: dict[str, np.ndarray] = {}
-    for name, value in values.items():
-        value = np.asarray(value)
-        out[name] = np.where(mask, value, np.zeros_like(value))
-        out[f"_{name}"] = mask.copy()
-    return out
-
-
-class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
-    """``num_envs`` copies of the env stepped by one jitted, vmapped call (SPEC §1–5).
-
-    Args:
-        num_envs: N, the number of sub-environments.
-        env_id: a :func:`drqn_jax.registered_envs` id.
-        autoreset_mode: ``AutoresetMode`` (or its value): ``NEXT_STEP`` (default;
-            the step after an episode ends resets that sub-environment: its
-            action is ignored, reward 0, flags False, no info),
-            ``SAME_STEP`` (the ending step returns the new episode's first
-            observation; the last one is ``info["final_obs"]``, its info
-            ``info["final_info"]``, as :class:`gymnasium.vector.SyncVectorEnv`),
-            or ``DISABLED`` (reset ended sub-environments with
-            ``reset(options={"reset_mask": mask})``).
-        render_mode: ``None`` or ``"rgb_array"`` (a tuple of N frames).
-        **overrides: any :func:`drqn_jax.make` override, e.g. ``max_steps=300``.
-
-    Batches: observations ``grid`` (N, 45, 30, 4) float32, ``speed`` (N, 1)
-    float32, ``last_action`` (N,) int64; rewards (N,) float64; flags (N,) bool;
-    actions (N,) integers in ``MultiDiscrete([4] * N)``.
-    """
-
-    def __init__(
-        self,
-        num_envs: int = 1,
-        env_id: str = "UrbanPedestrians-v0",
-        autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
-        render_mode: str | None = None,
-        **overrides: Any,
-    ) -> None:
-        if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
-            raise ValueError(f"num_envs = {num_envs!r}: must be an integer >= 1")
-        self.autoreset_mode = AutoresetMode(autoreset_mode)
-        if render_mode is not None and render_mode != "rgb_array":
-            raise ValueError(f"render_mode={render_mode!r} is not supported; use 'rgb_array'")
-        self.num_envs = num_envs
-        self.env_id = env_id
-        self.jax_env, params = make_jax_env(env_id, **overrides)
-        self.params = params
-        self._device_params = jax.device_put(params)
-        self.render_mode = render_mode
-        self.metadata = {
-            **UrbanPedestriansGymEnv.metadata,
-            "autoreset_mode": self.autoreset_mode,
-        }
-        self.single_observation_space = gymnasium_observation_space(self.jax_env, params)
-        self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self.single_action_space = spaces.Discrete(NUM_ACTIONS)
-        self.action_space = batch_space(self.single_action_space, num_envs)
-        self._fns = _vector_fns(self.jax_env)
-        self._rngs: list[np.random.Generator | None] = [None] * num_envs
-        self._seeds: list[int | None] = [None] * num_envs
-        # Each sub-environment's next reset key, drawn ahead from its np_random.
-        self._next_key_data: np.ndarray | None = None
-        self._key_data: jax.Array | None = None  # (N, w) held keys
-        self._states: EnvState | None = None
-        self._ended = np.zeros(num_envs, bool)  # NEXT_STEP: reset on the next step
-
-    @property
-    def np_random(self) -> tuple[np.random.Generator | None, ...]:
-        """The sub-environments' generators (as :class:`SyncVectorEnv`'s ``np_random``)."""
-        return tuple(self._rngs)
-
-    @property
-    def np_random_seed(self) -> tuple[int | None, ...]:
-        """The seeds the sub-environments' generators were last made from."""
-        return tuple(self._seeds)
-
-    @property
-    def states(self) -> EnvState | None:
-        """The batched JAX ``EnvState`` (leading axis N; ``None`` before reset)."""
-        return self._states
-
-    def _take_reset_keys(self, seeds: list[int | None], which: np.ndarray) -> np.ndarray:
-        """(N, w) uint32: reset keys for the sub-environments in ``which``, drawn as
-        ``gymnasium.make(id).reset(seed=seeds[i])`` would draw them."""
-        if self._next_key_data is None:
-            self._next_key_data = np.zeros((self.num_envs, *_key_data_shape()), np.uint32)
-        keys = np.zeros_like(self._next_key_data)
-        following = self._next_key_data.copy()
-        for i in np.flatnonzero(which):
-            if seeds[i] is not None or self._rngs[i] is None:
-                self._rngs[i], self._seeds[i] = seeding.np_random(seeds[i])
-                following[i] = _draw_key_data(self._rngs[i])
-            keys[i] = following[i]
-            following[i] = _draw_key_data(self._rngs[i])
-        self._next_key_data = following
-        return keys
-
-    def reset(
-        self,
-        *,
-        seed: int | list[int | None] | None = None,
-        options: dict[str, Any] | None = None,
-    ) -> tuple[dict[str, Any], dict[str, Any]]:
-        """Reset all sub-environments, or those in ``options["reset_mask"]`` ((N,) bool).
-
-        Args:
-            seed: ``None`` (continue each sub-environment's stream), an int s
-                (sub-environment i gets s + i) or a list of N ints / ``None``.
-        Returns:
-            ``(observations, {})``; the observations of sub-environments not
-            reset are their current ones.
-        """
-        if seed is None:
-            seeds: list[int | None] = [None] * self.num_envs
-        elif isinstance(seed, int | np.integer):
-            seeds = [int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(
-                    f"seed: a list of length num_envs={self.num_envs} was expected, "
-                    f"got length {len(seeds)}"
-                )
-        mask = None if options is None else options.get("reset_mask")
-        if mask is not None:
-            if not isinstance(mask, np.ndarray) or mask.dtype != np.bool_:
-                raise TypeError(f"options['reset_mask'] must be a NumPy bool array, got {mask!r}")
-            if mask.shape != (self.num_envs,) or not mask.any():
-                raise ValueError(
-                    f"options['reset_mask'] must have shape ({self.num_envs},) and at least one "
-                    f"True value, got {mask!r}"
-                )
-            if self._states is None:
-                raise ResetNeeded("the first reset must reset every sub-environment")
-        which = np.ones(self.num_envs, bool) if mask is None else mask
-        key_data = self._take_reset_keys(seeds, which)
-        if mask is None:
-            self._key_data, obs, self._states = self._fns.reset(key_data, self._device_params)
-        else:
-            self._key_data, obs, self._states = self._fns.reset_masked(
-                key_data, self._key_data, self._states, mask, self._device_params
-            )
-        self._ended = self._ended & ~which
-        return _numpy_observation(jax.device_get(obs)), {}
-
-    def step(
-        self, actions: Any
-    ) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every sub-environment with ``actions`` ((N,) integers in 0–3).
-
-        Returns:
-            ``(observations, rewards, terminations, truncations, infos)`` with
-            Gymnasium's vector info layout (``key`` and mask ``_key``); see the
-            class docstring for the auto-reset modes.
-        Raises:
-            ValueError: ``actions`` is not in the action space.
-            ResetNeeded: called before ``reset``, or (``DISABLED``) with an
-                ended sub-environment not reset.
-        """
-        if isinstance(actions, jax.Array):
-            actions = np.asarray(actions)
-        if not _contains(self.action_space, actions):
-            raise _invalid_action(actions, self.action_space)
-        if self._states is None:
-            raise ResetNeeded("Cannot call UrbanPedestriansVectorEnv.step before reset")
-        same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
-        autoreset = self._ended & (self.autoreset_mode == AutoresetMode.NEXT_STEP)
-        if self.autoreset_mode == AutoresetMode.DISABLED and self._ended.any():
-            raise ResetNeeded(
-                f"sub-environments {np.flatnonzero(self._ended).tolist()} ended; with "
-                "AutoresetMode.DISABLED reset them with reset(options={'reset_mask': mask})"
-            )
-        step = self._fns.step_same if same_step else self._fns.step_next
-        out = step(
-            self._key_data,
-            self._next_key_data,
-            self._states,
-            np.asarray(actions, np.int32),
-            autoreset,
-            self._device_params,
-        )
-        self._key_data, obs, self._states = out[:3]
-        reward, terminated, truncated, info, restarted = jax.device_get(
-            (out[3], out[4], out[5], out[6], out[8])
-        )
-        observations = _numpy_observation(jax.device_get(obs))
-        done = terminated | truncated
-        if same_step:
-            infos = _batched_info(info, ~done)
-            if done.any():
-                final = _numpy_observation(jax.device_get(out[7]))
-                final_obs = np.full(self.num_envs, None, dtype=object)
-                for i in np.flatnonzero(done):
-                    final_obs[i] = {name: value[i] for name, value in final.items()}
-                infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
-                infos["final_info"], infos["_final_info"] = _batched_info(info, done), done.copy()
-        else:
-            infos = _batched_info(info, ~autoreset)
-        # The sub-environments that started an episode used their next reset key.
-        restarted = np.asarray(restarted, bool)
-        if restarted.any():
-            self._take_reset_keys([None] * self.num_envs, restarted)
-        self._ended = done
-        return (
-            observations,
-            np.asarray(reward, np.float64),
-            np.array(terminated, bool),
-            np.array(truncated, bool),
-            infos,
-        )
-
-    def render(self) -> tuple[np.ndarray, ...] | None:
-        """N (240, 480, 3) uint8 frames (:func:`render_frame`) for ``"rgb_array"``."""
-        if self.render_mode is None:
-            gymnasium.logger.warn("render() called without a render_mode")
-            return None
-        if self._states is None:
-            raise ResetNeeded("Cannot call UrbanPedestriansVectorEnv.render before reset")
-        frames = np.array(self._fns.render(self._states, self._device_params))
-        return tuple(frames)
 
 
 # --- registration -----------------------------------------------------------
@@ -762,7 +421,7 @@ def register_gymnasium_envs() -> tuple[str, ...]:
         gymnasium.register(
             id=gym_id,
             entry_point=f"{__name__}:UrbanPedestriansGymEnv",
-            vector_entry_point=f"{__name__}:UrbanPedestriansVectorEnv",
+            vector_entry_point="drqn_jax.interop.gymnasium_vector:UrbanPedestriansVectorEnv",
             kwargs={"env_id": env_id},
             order_enforce=False,
             disable_env_checker=True,

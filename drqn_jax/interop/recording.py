@@ -1,17 +1,11 @@
-"""Rerun recordings of evaluated episodes and of training curves (paper §V-E; SPEC §1–5, §8).
+"""Rerun recordings of evaluated episodes (paper §V-E; SPEC §1–5, §8).
 
-Two writers, each producing one ``.rrd`` file (open it with ``rerun FILE.rrd``;
-no viewer is needed to write it):
-
-* :func:`record_episodes` plays ``num_episodes`` greedy episodes of an agent
-  with one jitted, vmapped rollout (:func:`collect_episodes`) and logs them
-  (:func:`write_episodes`). Episode *i* uses ``fold_in(key, i)`` exactly as
-  :func:`drqn_jax.evaluation.evaluate` does, so recorded episode *i* is the
-  evaluated episode *i* (same length, return, collision).
-* :func:`record_training` logs the per-episode training metrics of a run
-  (``drqn_jax.experiments.runner.recorded_metrics``) as curves;
-  :func:`record_study_curves` logs a study's curves over seeds
-  (:mod:`drqn_jax.experiments.study`).
+:func:`record_episodes` plays ``num_episodes`` greedy episodes of an agent
+(:func:`~drqn_jax.interop.episode_record.collect_episodes`, the evaluated episodes
+themselves) and logs them (:func:`write_episodes`) to one ``.rrd`` file (open it
+with ``rerun FILE.rrd``; no viewer is needed to write it). Training curves are
+:mod:`drqn_jax.interop.training_recording`'s, through the same stream helpers
+(:func:`open_recording`, :func:`close_recording`).
 
 Entity layout of an episode recording (timeline ``"step"`` = the env's
 ``state.time``; every episode has its own entity prefix ``episode/<i>``, so
@@ -77,32 +71,21 @@ t = 0) and the TTC of state t itself (``-`` when infinite), computed for all
 states by one jitted ``vmap`` (:func:`hud_labels`). The ``ttc`` scalars are the
 step's ``info["ttc"]``, measured before far or finished pedestrians are
 replaced, so the two can differ on a step that replaced one.
-
-Entity layout of a training recording (timeline ``"episode"`` = the training
-episode's index): ``training/return``, ``training/length`` (steps),
-``training/loss`` (mean TD loss of the episode, 0 before learning starts),
-``training/epsilon``, ``training/collision_rate`` and ``training/goal_rate``
-(running means over the last :data:`COLLISION_RATE_WINDOW` = 20 recorded
-episodes, fewer at the start), ``training/distance`` (m) and
-``training/mean_speed_kmh`` when the metrics hold them.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from drqn_jax.agents.base import ActFn, Agent, InitFn
-from drqn_jax.env.collision import ego_box
+from drqn_jax.agents.base import Agent
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.road_map import (
     CROSSING_AREA,
@@ -112,7 +95,7 @@ from drqn_jax.env.road_map import (
     crosswalk_centres,
     intersection_centres,
 )
-from drqn_jax.env.state import ACTIONS, BEHAVIOURS, EnvState
+from drqn_jax.env.state import ACTIONS, BEHAVIOURS
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.env.viewer import (
     ACTION_COLOURS,
@@ -126,39 +109,29 @@ from drqn_jax.env.viewer import (
     hud_glyphs,
     hud_text,
 )
-from drqn_jax.evaluation import Decision, episode_keys, map_episodes, play_episode
+from drqn_jax.interop.episode_record import EpisodeRecord, collect_episodes
 from drqn_jax.networks import Network
 from drqn_jax.programs import cached_program
-from drqn_jax.pytree import pytree_dataclass
 
 __all__ = [
     "BEHAVIOUR_COLOURS",
-    "COLLISION_RATE_WINDOW",
-    "EPISODE_TIMELINE",
     "GRID_CHANNELS",
     "OCCLUDED_ALPHA",
     "STEP_TIMELINE",
-    "EpisodeRecord",
     "MapRegion",
-    "collect_episodes",
+    "close_recording",
     "episode_blueprint",
     "hud_labels",
     "map_extent",
     "map_regions",
+    "open_recording",
     "record_episodes",
-    "record_study_curves",
-    "record_training",
-    "running_mean",
     "to_view",
-    "with_q_values",
     "write_episodes",
 ]
 
 STEP_TIMELINE = "step"
-EPISODE_TIMELINE = "episode"
-ENV_STEPS_TIMELINE = "env_steps"  # a study's curves (issue 41)
 GRID_CHANNELS = ("occupancy", "heading", "speed", "semantics")  # SPEC §4 channel order
-COLLISION_RATE_WINDOW = 20  # episodes in the running collision/goal rates (as the progress bar)
 _VIEW_FLIP = np.array([1.0, -1.0], np.float32)
 
 
@@ -168,176 +141,6 @@ def to_view(xy: np.ndarray) -> np.ndarray:
 
 
 # --- the rollout -----------------------------------------------------------------
-
-
-@pytree_dataclass
-class EpisodeRecord:
-    """N recorded episodes, everything the recording logs; T = ``max_steps``.
-
-    Index t of a per-state array is the state before the t-th decision (0 is
-    the reset state); index t of a per-step array is the step from state t to
-    state t + 1. Only ``[:L + 1]`` (states) and ``[:L]`` (steps) of episode i
-    are meaningful, L = ``length[i]``; the rollout runs all T steps
-    branch-free and what follows the end is never logged.
-
-    Attributes:
-        state: EnvState, leaves (N, T + 1, ...).
-        grid: (N, T + 1, rows, cols, 4) float32, observation grid of each state.
-        ego_centre: (N, T + 1, 2) float32, ego box centre (simulator frame, m).
-        ego_half: (N, 2) float32, ego box half extents (m).
-        action: (N, T) int32, the action taken in state t.
-        q_values: (N, T, 4) float32 Q-values of state t (DRQN only, else None).
-        reward: (N, T) float32; ttc: (N, T) float32 (s, inf: none), of the state
-            the step leads to; collision, struck_while_stopped, goal, truncated:
-            (N, T) bool (SPEC §5: a pedestrian striking the standing ego is no
-            collision and does not end the episode).
-        length: (N,) int32 steps until termination or truncation.
-        episode_return: (N,) float32, accumulated as ``rollout_episode`` does.
-    """
-
-    state: EnvState
-    grid: Any
-    ego_centre: Any
-    ego_half: Any
-    action: Any
-    q_values: Any
-    reward: Any
-    ttc: Any
-    collision: Any
-    struck_while_stopped: Any
-    goal: Any
-    truncated: Any
-    length: Any
-    episode_return: Any
-
-    @property
-    def num_episodes(self) -> int:
-        return int(np.shape(self.length)[0])
-
-    def outcome(self, i: int) -> str:
-        """How episode ``i`` ended: ``"collision"``, ``"goal"`` or ``"truncated"``."""
-        n = int(self.length[i])
-        if n and self.collision[i, n - 1]:
-            return "collision"
-        return "goal" if n and self.goal[i, n - 1] else "truncated"
-
-
-def _stack_last(seq: Any, last: Any) -> Any:
-    """Append ``last`` (leaves (...)) to a scanned sequence (leaves (T, ...)) → (T + 1, ...)."""
-    return jax.tree.map(lambda s, x: jnp.concatenate([s, x[None]], axis=0), seq, last)
-
-
-def with_q_values(agent: Agent, network: Network, network_params: Any) -> Agent:
-    """``agent``, with ``network`` stepping beside it on the same observations (its own
-    carry, zeros at reset): the carry becomes ``(agent's carry, network carry, Q)``, Q
-    (4,) float32 of the last observation. For ``drqn_agent(network, network_params)``
-    these are exactly the values whose argmax is the action."""
-    init, act = _q_values_beside(agent.init_fn, agent.act_fn, network)
-    return Agent(params=(agent.params, network_params), name=agent.name, init_fn=init, act_fn=act)
-
-
-@cached_program
-def _q_values_beside(init_fn: InitFn, act_fn: ActFn, network: Network) -> tuple[InitFn, ActFn]:
-    """:func:`with_q_values`'s functions, once per agent kind and network (one compile)."""
-
-    def init(params: Any, key: jax.Array) -> Any:
-        inner, _ = params
-        q = jnp.zeros((len(ACTIONS),), jnp.float32)
-        return init_fn(inner, key), network.initial_carry(()), q
-
-    def act(params: Any, key: jax.Array, obs: Any, carry: Any, *rest: Any) -> Any:
-        (inner, net), (inner_carry, q_carry, _) = params, carry
-        action, inner_carry = act_fn(inner, key, obs, inner_carry, *rest)
-        q, q_carry = network.step(net, obs, q_carry)
-        return action, (inner_carry, q_carry, q)
-
-    return init, act
-
-
-def _record_decision(with_q: bool) -> Any:
-    def trace(d: Decision) -> dict[str, Any]:
-        return {
-            "state": d.state,
-            "grid": d.obs.grid,
-            "action": d.action,
-            "q_values": d.carry[2] if with_q else None,
-            "reward": d.reward,
-            "ttc": d.info["ttc"],
-            "collision": d.info["collision"],
-            "struck_while_stopped": d.info["struck_while_stopped"],
-            "goal": d.info["goal"],
-            "truncated": d.truncated,
-        }
-
-    return trace
-
-
-@partial(jax.jit, static_argnames=("env", "with_q"))
-def _rollouts(
-    agent: Agent, keys: jax.Array, env: UrbanPedestrians, params: EnvParams, with_q: bool
-) -> EpisodeRecord:
-    """One episode per key: :func:`~drqn_jax.evaluation.play_episode`, traced."""
-
-    def one(key: jax.Array) -> EpisodeRecord:
-        metrics, out, obs, state = play_episode(agent, key, env, params, _record_decision(with_q))
-        states = _stack_last(out["state"], state)
-        centre, half = ego_box(states.ego.s, params)
-        return EpisodeRecord(
-            state=states,
-            grid=_stack_last(out["grid"], obs.grid),
-            ego_centre=centre,
-            ego_half=half,
-            action=out["action"],
-            q_values=out["q_values"],
-            reward=out["reward"],
-            ttc=out["ttc"],
-            collision=out["collision"],
-            struck_while_stopped=out["struck_while_stopped"],
-            goal=out["goal"],
-            truncated=out["truncated"],
-            length=metrics.length,
-            episode_return=metrics.episode_return,
-        )
-
-    return map_episodes(one, keys)
-
-
-def collect_episodes(
-    agent: Agent,
-    key: jax.Array,
-    num_episodes: int,
-    env: UrbanPedestrians,
-    env_params: EnvParams | None = None,
-    *,
-    network: Network | None = None,
-    network_params: Any = None,
-) -> EpisodeRecord:
-    """Play ``num_episodes`` episodes of ``agent`` in one jitted, vmapped rollout.
-
-    Episode i uses ``episode_keys(key, num_episodes)[i]`` = ``fold_in(key, i)``
-    and the same key schedule as :func:`drqn_jax.evaluation.rollout_episode`,
-    so it is the episode :func:`drqn_jax.evaluate` plays. With ``network`` and
-    ``network_params`` (the DRQN's), the network also steps on the same
-    observations with its own carry (zeros at reset) and its Q-values are
-    recorded: for ``drqn_agent(network, network_params)`` these are exactly
-    the values whose argmax is the action.
-
-    Memory: (T + 1) grids of 45 × 30 × 4 float32 per episode (21.6 MB at
-    T = 1000), all on the device at once.
-
-    Returns:
-        :class:`EpisodeRecord` with NumPy leaves.
-    """
-    if not isinstance(num_episodes, int) or num_episodes < 1:
-        raise ValueError(f"num_episodes = {num_episodes!r}, must be an integer >= 1")
-    if (network is None) != (network_params is None):
-        raise ValueError("network and network_params go together (both or neither)")
-    env_params = env.default_params if env_params is None else env.check_params(env_params)
-    keys = episode_keys(key, num_episodes)
-    if network is not None:
-        agent = with_q_values(agent, network, network_params)
-    record = _rollouts(agent, keys, env, env_params, network is not None)
-    return jax.tree.map(np.asarray, record)
 
 
 # --- the map ---------------------------------------------------------------------
@@ -665,7 +468,9 @@ def episode_blueprint(
     )
 
 
-def _open(path: str | Path, application_id: str, blueprint: rrb.Blueprint) -> rr.RecordingStream:
+def open_recording(
+    path: str | Path, application_id: str, blueprint: rrb.Blueprint
+) -> rr.RecordingStream:
     """A recording stream saving to ``path`` (parents created); OSError if it cannot be written."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -677,7 +482,8 @@ def _open(path: str | Path, application_id: str, blueprint: rrb.Blueprint) -> rr
     return rec
 
 
-def _close(rec: rr.RecordingStream) -> None:
+def close_recording(rec: rr.RecordingStream) -> None:
+    """Flush ``rec`` and close its file (rerun writes the footer on disconnect)."""
     rec.flush()
     rec.disconnect()  # writes the footer and closes the file
 
@@ -700,14 +506,14 @@ def write_episodes(
     if blueprint is None:
         has_q = record.q_values is not None
         blueprint = episode_blueprint(record.num_episodes, has_q, env, env_params)
-    rec = _open(path, application_id, blueprint)
+    rec = open_recording(path, application_id, blueprint)
     try:
         _log_map(rec, env, env_params)
         hud = hud_labels(record, env, env_params)
         for i in range(record.num_episodes):
             _log_episode(rec, record, i, env, env_params, hud[i])
     finally:
-        _close(rec)
+        close_recording(rec)
 
 
 def record_episodes(
@@ -743,126 +549,3 @@ def record_episodes(
 
 
 # --- training curves --------------------------------------------------------------
-
-_REQUIRED_METRICS = ("episode", "episode_return", "length", "collision", "mean_loss", "epsilon")
-
-
-def running_mean(values: np.ndarray, window: int = COLLISION_RATE_WINDOW) -> np.ndarray:
-    """(N,) float64 mean of ``values[max(0, k - window + 1) : k + 1]`` for each k."""
-    values = np.asarray(values, np.float64)
-    total = np.concatenate([[0.0], np.cumsum(values)])
-    k = np.arange(len(values))
-    start = np.maximum(0, k - window + 1)
-    return (total[k + 1] - total[start]) / (k + 1 - start)
-
-
-def record_training(
-    path: str | Path,
-    metrics: Mapping[str, np.ndarray],
-    *,
-    application_id: str = "drqn_jax",
-) -> None:
-    """Save training curves as a rerun recording, one value per recorded episode.
-
-    Args:
-        path: the ``.rrd`` file to write (its directory is created).
-        metrics: per-episode arrays as ``drqn_jax.experiments.runner.recorded_metrics``
-            returns them: ``episode`` (N,) int (the timeline ``"episode"``),
-            ``episode_return``, ``length``, ``collision``, ``mean_loss``,
-            ``epsilon`` (N,), and optionally ``goal``, ``distance`` (m),
-            ``mean_speed`` (m/s).
-    Raises:
-        ValueError: a required metric is missing or the lengths differ.
-
-    Entities (module docstring): ``training/return``, ``training/length``,
-    ``training/loss``, ``training/epsilon``, ``training/collision_rate`` and
-    ``training/goal_rate`` (running means over the last 20 episodes),
-    ``training/distance``, ``training/mean_speed_kmh``.
-    """
-    missing = [name for name in _REQUIRED_METRICS if name not in metrics]
-    if missing:
-        raise ValueError(f"record_training: metrics lack {', '.join(missing)}")
-    m = {name: np.asarray(v) for name, v in metrics.items()}
-    episodes = m["episode"].astype(np.int64)
-    if any(v.shape != episodes.shape for v in m.values()):
-        raise ValueError("record_training: every metric must have one value per episode")
-    curves = {
-        "return": m["episode_return"],
-        "length": m["length"],
-        "loss": m["mean_loss"],
-        "epsilon": m["epsilon"],
-        "collision_rate": running_mean(m["collision"]),
-    }
-    if "goal" in m:
-        curves["goal_rate"] = running_mean(m["goal"])
-    if "distance" in m:
-        curves["distance"] = m["distance"]
-    if "mean_speed" in m:
-        curves["mean_speed_kmh"] = m["mean_speed"].astype(np.float64) * 3.6
-    blueprint = _series_blueprint({name: f"/training/{name}" for name in curves})
-    rec = _open(path, application_id, blueprint)
-    try:
-        for name, values in curves.items():
-            _send_series(rec, f"training/{name}", name, episodes, values)
-    finally:
-        _close(rec)
-
-
-def _series_blueprint(views: Mapping[str, str], timeline: str = EPISODE_TIMELINE) -> rrb.Blueprint:
-    """One time-series view per ``name → origin entity``, on ``timeline``."""
-    return rrb.Blueprint(
-        rrb.Grid(*[rrb.TimeSeriesView(name=name, origin=o) for name, o in views.items()]),
-        rrb.BlueprintPanel(state="collapsed"),
-        rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(state="collapsed", timeline=timeline),
-    )
-
-
-def _send_series(
-    rec: rr.RecordingStream,
-    entity: str,
-    name: str,
-    at: np.ndarray,
-    values: np.ndarray,
-    timeline: str = EPISODE_TIMELINE,
-) -> None:
-    """A line named ``name`` at ``entity``: ``values`` (E,) at the sequence ``at`` (E,)
-    of ``timeline``."""
-    rec.log(entity, rr.SeriesLines(names=name), static=True)
-    if len(at):
-        rec.send_columns(
-            entity,
-            indexes=[rr.TimeColumn(timeline, sequence=np.asarray(at, np.int64))],
-            columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
-        )
-
-
-def record_study_curves(
-    path: str | Path,
-    curves: Mapping[str, Mapping[str, Any]],
-    *,
-    application_id: str = "drqn_jax",
-) -> None:
-    """Save a study's training curves (:func:`drqn_jax.experiments.study.load_curves` per config).
-
-    Entities ``curves/<metric>/<config>/{mean,low,high}`` (the running mean's
-    mean and min–max over seeds) and ``curves/<metric>/<config>/seed<k>``
-    (each seed's raw values at the env steps its episodes ended), on the
-    ``env_steps`` timeline; one time-series view per metric (``episode_return``,
-    ``length``).
-    """
-    metrics = sorted({m for by_metric in curves.values() for m in by_metric})
-    views = {m: f"/curves/{m}" for m in metrics}
-    rec = _open(path, application_id, _series_blueprint(views, ENV_STEPS_TIMELINE))
-    try:
-        for name, by_metric in curves.items():
-            for metric, c in by_metric.items():
-                series = {part: (c.env_steps, getattr(c, part)) for part in ("mean", "low", "high")}
-                series |= {
-                    f"seed{k}": xy for k, xy in enumerate(zip(c.seed_steps, c.seeds, strict=True))
-                }
-                for part, (at, values) in series.items():
-                    entity = f"curves/{metric}/{name}/{part}"
-                    _send_series(rec, entity, f"{name} {part}", at, values, ENV_STEPS_TIMELINE)
-    finally:
-        _close(rec)

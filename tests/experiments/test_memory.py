@@ -15,7 +15,8 @@ from drqn_jax.experiments.memory import (
     runs_per_call,
 )
 from drqn_jax.experiments.sweep import load_sweep
-from drqn_jax.experiments.sweep_runner import call_inputs, call_programs, plan_calls
+from drqn_jax.experiments.sweep_plan import plan_calls
+from drqn_jax.experiments.sweep_runner import call_inputs, call_programs
 from drqn_jax.learners import make_train
 from tests.helpers import SMOKE_SWEEP
 

@@ -10,13 +10,12 @@ import pytest
 
 from drqn_jax import cli
 from drqn_jax.config import ConfigError
+from drqn_jax.experiments.curves import CURVES, load_curves
 from drqn_jax.experiments.report import study_table
 from drqn_jax.experiments.stats import t_interval
 from drqn_jax.experiments.study import (
-    CURVES,
     baseline_row,
     compare_paired,
-    load_curves,
     paper_rows,
     plan_study,
     study_row,

@@ -21,11 +21,9 @@ from drqn_jax.experiments.host_loop import StopRequest
 from drqn_jax.experiments.memory import USABLE_FRACTION, run_memory
 from drqn_jax.experiments.stats import interquartile_mean
 from drqn_jax.experiments.sweep import load_sweep, summarize_sweep
+from drqn_jax.experiments.sweep_plan import Call, call_size, plan_calls
 from drqn_jax.experiments.sweep_runner import (
-    Call,
     call_programs,
-    call_size,
-    plan_calls,
     run_sweep,
     train_call,
     train_runs,
@@ -403,7 +401,7 @@ def test_the_thread_pool_size_follows_pjrt_nproc_and_forced_devices(monkeypatch)
 
 
 def test_several_processes_need_all_three_settings(monkeypatch):
-    from drqn_jax.experiments.sweep_runner import Distributed, init_distributed
+    from drqn_jax.experiments.sweep_plan import Distributed, init_distributed
 
     for name in ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID"):
         monkeypatch.delenv(name, raising=False)

@@ -27,6 +27,7 @@ import drqn_jax
 from drqn_jax.env import viewer
 from drqn_jax.env.grid import GRID_HIGH, GRID_LOW
 from drqn_jax.interop import gymnasium_env as ge
+from drqn_jax.interop import gymnasium_vector as gv
 
 ID = "drqn_jax/UrbanPedestrians-v0"
 ID_REALISTIC = "drqn_jax/UrbanPedestriansRealistic-v0"
@@ -74,7 +75,9 @@ def test_registration_ids_entry_points_and_idempotence():
     for gym_id, env_id in ids:
         spec = gymnasium.spec(gym_id)
         assert spec.entry_point == "drqn_jax.interop.gymnasium_env:UrbanPedestriansGymEnv"
-        assert spec.vector_entry_point == "drqn_jax.interop.gymnasium_env:UrbanPedestriansVectorEnv"
+        assert (
+            spec.vector_entry_point == "drqn_jax.interop.gymnasium_vector:UrbanPedestriansVectorEnv"
+        )
         assert spec.kwargs == {"env_id": env_id}
     assert set(ge.gymnasium_ids()) == {gym_id for gym_id, _ in ids}
     with no_warnings():
@@ -249,7 +252,7 @@ def test_compiled_once_per_static_env():
 def test_vector_spaces_and_batch_shapes():
     n = N
     env = make_vec(n)
-    assert isinstance(env, ge.UrbanPedestriansVectorEnv)
+    assert isinstance(env, gv.UrbanPedestriansVectorEnv)
     assert env.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP
     single = gymnasium.make(ID, max_steps=SHORT)
     assert env.single_observation_space == single.observation_space
@@ -514,13 +517,13 @@ def test_the_vector_env_resets_exactly_the_envs_that_restart(restarting):
     each gets exactly the episode its own reset key gives, whichever path ran."""
     env, params = drqn_jax.make()
     n = 12
-    assert len(restarting) == 0 or len(restarting) <= ge.SPARSE_RESETS < n or len(restarting) == n
+    assert len(restarting) == 0 or len(restarting) <= gv.SPARSE_RESETS < n or len(restarting) == n
     mask = np.isin(np.arange(n), restarting)
     keys = jax.random.split(jax.random.key(7), 3 * n)
     states = jax.vmap(env.reset_state, (0, None))(keys[:n], params)
     held = jax.random.key_data(keys[n : 2 * n])
     reset_data = jax.random.key_data(keys[2 * n :])
-    restart = jax.jit(lambda *a: ge._restart_where(env, *a))
+    restart = jax.jit(lambda *a: gv._restart_where(env, *a))
     new_held, new_states = restart(mask, reset_data, held, states, params)
 
     def row(tree, i):
@@ -528,7 +531,7 @@ def test_the_vector_env_resets_exactly_the_envs_that_restart(restarting):
 
     for i in range(n):
         if mask[i]:
-            want_held, _, want_state = ge._single_reset(env, reset_data[i], params)
+            want_held, _, want_state = ge.single_reset(env, reset_data[i], params)
         else:
             want_held, want_state = held[i], row(states, i)
         np.testing.assert_array_equal(new_held[i], want_held)

@@ -25,7 +25,7 @@ from drqn_jax.env import viewer
 from drqn_jax.env.road_map import semantic_class
 from drqn_jax.env.state import ACTIONS, BEHAVIOURS
 from drqn_jax.evaluation import episode_keys, run_episodes
-from drqn_jax.interop import recording
+from drqn_jax.interop import episode_record, recording, training_recording
 from drqn_jax.networks import NetworkConfig, make_network
 from tests.helpers import assert_tree_equal
 
@@ -188,7 +188,7 @@ def recorded(request):
 def test_recorded_episodes_are_the_evaluated_ones(env_params, key):
     env, params = env_params
     agent = drqn_jax.rule_based_agent()
-    record = recording.collect_episodes(agent, key, NUM_EPISODES, env, params)
+    record = episode_record.collect_episodes(agent, key, NUM_EPISODES, env, params)
     evaluated = run_episodes(agent, episode_keys(key, NUM_EPISODES), env, params)
     np.testing.assert_array_equal(record.length, evaluated.length)
     np.testing.assert_array_equal(record.episode_return, evaluated.episode_return)
@@ -259,7 +259,7 @@ def test_a_pedestrian_striking_the_standing_car_is_a_warning(tmp_path, env_param
     """SPEC §5: struck while stopped is no collision and ends nothing, but the
     events say so at its step, as a warning."""
     env, params = env_params
-    record = recording.collect_episodes(drqn_jax.rule_based_agent(), key, 1, env, params)
+    record = episode_record.collect_episodes(drqn_jax.rule_based_agent(), key, 1, env, params)
     struck = np.zeros_like(np.asarray(record.struck_while_stopped))
     struck[0, 3] = True
     path = tmp_path / "struck.rrd"
@@ -299,7 +299,7 @@ def test_pedestrians_are_coloured_by_behaviour(recorded):
 def test_ttc_is_logged_where_finite(env_params, key, tmp_path):
     env, params = env_params
     agent = drqn_jax.rule_based_agent()
-    record = recording.collect_episodes(agent, key, NUM_EPISODES, env, params)
+    record = episode_record.collect_episodes(agent, key, NUM_EPISODES, env, params)
     ttc = np.full_like(record.ttc, np.inf)
     ttc[0, [3, 7, MAX_STEPS - 1]] = [1.5, 0.0, 2.0]  # the last one lies after the episode's end
     length = np.full(NUM_EPISODES, MAX_STEPS - 1, np.int32)
@@ -353,7 +353,7 @@ def test_drqn_episode_is_bit_identical_alone_or_in_a_batch(env_params, key):
     agent = drqn_jax.drqn_agent(network, weights)
 
     def first(n):
-        record = recording.collect_episodes(
+        record = episode_record.collect_episodes(
             agent, key, n, env, params, network=network, network_params=weights
         )
         return np.asarray(record.q_values)[0], np.asarray(record.action)[0]
@@ -400,7 +400,7 @@ def test_training_curves_hold_one_value_per_episode(tmp_path):
         "mean_loss": np.linspace(0.0, 1.0, n, dtype=np.float32),
     }
     path = tmp_path / "training.rrd"
-    recording.record_training(path, metrics)
+    training_recording.record_training(path, metrics)
     rrd = read_rrd(path)
     curves = {
         "return": metrics["episode_return"],
@@ -416,10 +416,12 @@ def test_training_curves_hold_one_value_per_episode(tmp_path):
         entity = rrd[f"/training/{name}"]
         np.testing.assert_array_equal(entity["episode"], episodes)
         np.testing.assert_allclose(scalars(entity), values, rtol=1e-6)
-    window = recording.running_mean(np.arange(30) % 2, window=20)
+    window = training_recording.running_mean(np.arange(30) % 2, window=20)
     assert window[19] == 0.5 and window[25] == np.mean(np.arange(6, 26) % 2)
     with pytest.raises(ValueError, match="epsilon"):
-        recording.record_training(path, {k: v for k, v in metrics.items() if k != "epsilon"})
+        training_recording.record_training(
+            path, {k: v for k, v in metrics.items() if k != "epsilon"}
+        )
 
 
 def test_cli_replay_writes_a_readable_recording(tmp_path, capsys):

@@ -1,0 +1,30 @@
+"""The ``drqn-jax`` commands, one module per thing they drive: :mod:`~drqn_jax.commands.runs`
+(train, evaluate, reproduce, replay: a run directory), :mod:`~drqn_jax.commands.sweep`,
+:mod:`~drqn_jax.commands.study` (study, report), :mod:`~drqn_jax.commands.frontier`
+and :mod:`~drqn_jax.commands.bench`. :mod:`drqn_jax.cli` parses the arguments and calls
+``cmd_<name>(args)``, which returns the exit status.
+"""
+
+from __future__ import annotations
+
+import datetime
+from pathlib import Path
+
+from drqn_jax.config import ConfigError
+from drqn_jax.experiments.report import check_section
+
+__all__ = ["check_section_option", "default_run_dir"]
+
+
+def default_run_dir(prefix: str, config_name: str) -> Path:
+    """``runs/<prefix>-<config>-<UTC time>``: where a command writes when not told."""
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%d-%H%M%S")
+    return Path("runs") / f"{prefix}-{Path(config_name).stem}-{stamp}"
+
+
+def check_section_option(section: str) -> None:
+    """A usage error (:class:`ConfigError`) for a --section name results files refuse."""
+    try:
+        check_section(section)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None

@@ -1,0 +1,74 @@
+"""``drqn-jax bench``: the benchmark suite of ``benchmarks/`` in a child process, or
+the quick figures of :mod:`drqn_jax.experiments.bench`."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from drqn_jax.config import ConfigError, load_config
+from drqn_jax.experiments.runner import EXIT_OK
+
+#: The suite's benchmarks, in the order ``drqn-jax bench all`` runs them.
+SUITE = (
+    "env_throughput",
+    "stages",
+    "peers",
+    "roofline",
+    "train_throughput",
+    "evaluation",
+    "sweep_throughput",
+    "gymnasium_throughput",
+)
+
+
+#: Benchmark tools run by name only (not by ``all``): the op-by-op profile, and the
+#: learners on outside benchmarks (gymnax; minutes of training, not a throughput figure).
+TOOLS = ("profile", "gymnax_validation")
+
+
+def _run_benchmark(name: str, args: Sequence[str]) -> int:
+    """``python -m benchmarks.NAME ARGS`` of the clone this package was installed from, in
+    a child process (this one's ``sys.path`` stays as it is); returns its exit status."""
+    root = Path(__file__).resolve().parents[2]  # the clone: drqn_jax/commands/..
+    if not (root / "benchmarks" / "__init__.py").is_file():
+        raise ConfigError(
+            f"bench {name}: the suite lives in benchmarks/ of a clone of the repository "
+            f"(not found beside {Path(__file__).parent}); install with pip install -e ."
+        )
+    path = os.pathsep.join(p for p in (str(root), os.environ.get("PYTHONPATH")) if p)
+    command = [sys.executable, "-m", f"benchmarks.{name}", *args]
+    return subprocess.run(command, env={**os.environ, "PYTHONPATH": path}).returncode
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    """``args.name``: ``quick`` (``args.options``: the quick parser's namespace), ``all``
+    (``args.options``: repeats, out, quick, passed to every benchmark of :data:`SUITE`)
+    or one benchmark of ``benchmarks/`` given ``args.args``."""
+    if args.name == "quick":
+        from drqn_jax.experiments.bench import bench_env, bench_train
+        from drqn_jax.experiments.machine import machine_info, machine_lines
+
+        quick = args.options
+        config = load_config(quick.config, quick.overrides)
+        if quick.num_envs < 1 or quick.steps < 1 or quick.iterations < 1:
+            raise ConfigError("--num-envs, --steps and --iterations must be >= 1")
+        print(bench_env(config, quick.num_envs, quick.steps))
+        print(bench_train(config, quick.iterations))
+        print("\n".join(machine_lines(machine_info())))
+        return EXIT_OK
+    if args.name != "all":
+        return _run_benchmark(args.name, args.args)
+    options = args.options
+    passed = ["--repeats", str(options.repeats)] if options.repeats else []
+    passed += ["--out", options.out] if options.out else []
+    passed += ["--quick"] if options.quick else []
+    status = EXIT_OK
+    for name in SUITE:
+        print(f"\n# drqn-jax bench {name} {' '.join(passed)}\n", flush=True)
+        status = max(status, _run_benchmark(name, passed))
+    return status

@@ -1,0 +1,261 @@
+"""``drqn-jax train``, ``evaluate``, ``reproduce`` and ``replay``: one run directory
+(:mod:`drqn_jax.experiments.runner`) and the agents it holds or names."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from drqn_jax.agents import drqn_agent
+from drqn_jax.commands import default_run_dir
+from drqn_jax.config import Config, ConfigError, load_config
+from drqn_jax.evaluation import metrics_table
+from drqn_jax.experiments.runner import (
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    builtin_agent,
+    evaluate_agents,
+    json_ready,
+    load_run,
+    load_trained_network,
+    recorded_metrics,
+    train_run,
+    write_evaluation,
+)
+from drqn_jax.learners.hyperparams import agent_name
+from drqn_jax.learners.selection import selection
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    if args.resume is not None:
+        if args.config != "default" or args.run_dir is not None:
+            raise ConfigError(
+                "--resume RUN_DIR continues with RUN_DIR's own config.toml and directory: "
+                "drop --config and --run-dir (use --set for non-training fields)"
+            )
+        config = load_run(args.resume, tuple(args.overrides))
+        run_dir = Path(args.resume)
+    else:
+        config = load_config(args.config, args.overrides)
+        run_dir = Path(args.run_dir or default_run_dir("train", args.config))
+    resume = args.resume is not None
+    return _train_and_evaluate(
+        config, run_dir, resume, args.quiet, start, reproduce=False, rrd=args.rrd
+    )
+
+
+def _train_and_evaluate(
+    config: Config,
+    run_dir: Path,
+    resume: bool,
+    quiet: bool,
+    start: float,
+    *,
+    reproduce: bool,
+    rrd: str | None = None,
+) -> int:
+    """Train, then evaluate the DRQN (and, to reproduce Table III, the rule-based agent).
+
+    With ``rrd`` the training curves of every recorded episode are written there
+    once training stops (finished, interrupted or diverged: the last good state).
+    """
+    if rrd is not None and Path(rrd).is_dir():
+        raise ConfigError(f"--rrd {rrd}: is a directory; give a file name such as training.rrd")
+    result = train_run(config, run_dir, resume=resume, quiet=quiet)
+    if rrd is not None:
+        from drqn_jax.interop.training_recording import record_training
+
+        try:
+            record_training(rrd, recorded_metrics(result.state))
+            print(f"training curves: {rrd} (view with: rerun {rrd})", file=sys.stderr)
+        except OSError as err:  # the run itself is saved: report and go on
+            print(f"error: --rrd {rrd}: {err}", file=sys.stderr)
+    if result.status != "finished":
+        print(("error: " if result.status == "diverged" else "") + result.message, file=sys.stderr)
+        return EXIT_FAILED if result.status == "diverged" else EXIT_INTERRUPTED
+    agents = [_trained(result)]
+    if reproduce:
+        agents.append(builtin_agent("rule-based", config))
+    if not quiet:
+        _say_evaluating(config, agents)
+    results = evaluate_agents(config, agents, quiet=quiet)
+    if reproduce:
+        from drqn_jax.experiments.baselines import config_frontier
+
+        if not quiet:
+            print("sweeping the rule-based frontier on the same episodes...", file=sys.stderr)
+        table = paper_comparison(results, config_frontier(config, planner=False))
+    else:
+        table = metrics_table(results)
+    wall = time.perf_counter() - start
+    write_evaluation(run_dir, results, {**_run_summary(result), "total_wall_time_s": wall}, table)
+    print(table)
+    print(
+        f"\nwall time {wall:.1f} s (training {result.wall_time_s:.1f} s over "
+        f"{int(result.state.recorded)} episodes, {int(result.state.grad_steps)} gradient steps)"
+        f"\nrun directory: {run_dir}"
+    )
+    return EXIT_OK
+
+
+def _say_evaluating(config: Config, agents: Sequence[Any]) -> None:
+    """The status line of an evaluation (stderr): agents, episodes, world and key."""
+    names = " and ".join(a.name for a in agents)
+    print(
+        f"evaluating {names} on {config['evaluate']['episodes']} episodes of "
+        f"{config['env']['id']} (evaluation key of seed {config['run']['seed']})...",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
+def _trained(result: Any) -> Any:
+    params = result.trainer.agent_params(result.state)
+    return drqn_agent(result.trainer.network, params, agent_name(result.trainer.config))
+
+
+def _run_summary(result: Any) -> dict[str, Any]:
+    state = result.state
+    return {
+        "run_dir": str(result.run_dir),
+        "train_wall_time_s": result.wall_time_s,
+        "compile_time_s": result.compile_time_s,
+        "episodes": int(state.recorded),
+        "env_steps": int(state.env_steps),
+        "grad_steps": int(state.grad_steps),
+        **selection(state.validation, state.hparams),
+    }
+
+
+def _chosen_agent(args: argparse.Namespace, overrides: list[str]) -> tuple[Config, Any, Any, Any]:
+    """``(config, agent, network, network_params)`` for ``[RUN_DIR] --agent``.
+
+    The trained agent (``--agent drqn``: the run's DRQN, DQN or PPO policy, named
+    by :func:`agent_name`) comes from the run's last checkpoint (trained with the run's own
+    config; ``overrides`` apply on top for the episodes); a built-in agent uses
+    the run's config, or ``--config``. ``network`` is None for a built-in agent.
+    """
+    chosen = args.agent or ("drqn" if args.run_dir else "rule-based")
+    if chosen != "drqn":
+        source = Path(args.run_dir) / "config.toml" if args.run_dir else args.config
+        config = load_config(source, overrides)
+        return config, builtin_agent(chosen, config), None, None
+    if args.run_dir is None:
+        raise ConfigError("--agent drqn needs a RUN_DIR (a trained run)")
+    network, params, meta = load_trained_network(load_run(args.run_dir, ()), args.run_dir)
+    if not meta.get("finished", False):
+        print(
+            f"note: {args.run_dir} has not finished training "
+            f"({meta.get('recorded')} episodes so far)",
+            file=sys.stderr,
+        )
+    config = load_run(args.run_dir, tuple(overrides))
+    name = agent_name(config.train_config())
+    return config, drqn_agent(network, params, name), network, params
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    overrides = list(args.overrides)
+    if args.episodes is not None:
+        overrides.append(f"evaluate.episodes={args.episodes}")
+    if args.seed is not None:
+        overrides.append(f"run.seed={args.seed}")
+    config, agent, _, _ = _chosen_agent(args, overrides)
+    start = time.perf_counter()
+    seed, world = config["run"]["seed"], config["env"]["id"]
+    if not args.quiet:
+        _say_evaluating(config, [agent])
+    (result,) = evaluate_agents(config, [agent], quiet=args.quiet)
+    wall = time.perf_counter() - start
+    # with --json - stdout carries only the JSON (pipe it to jq); the table goes to stderr
+    table_out = sys.stderr if args.json == "-" else sys.stdout
+    print(metrics_table([result]), file=table_out)
+    print(
+        f"\n{result['num_episodes']} episodes of {world}, evaluation key of seed {seed}, "
+        f"{wall:.1f} s",
+        file=table_out,
+    )
+    if args.json is not None:
+        text = json.dumps({**json_ready(result), "seed": seed}, indent=2) + "\n"
+        if args.json == "-":
+            sys.stdout.write(text)
+        else:
+            Path(args.json).write_text(text)
+    return EXIT_OK
+
+
+def paper_comparison(results: list[dict[str, Any]], frontier: dict[str, Any]) -> str:
+    """The paper's Table III rows (with the interval its 10 episodes allow) beside ours
+    (one trained DRQN, then the rule-based agent), each with its margin to the rule-based
+    frontier of ``frontier`` (:func:`~drqn_jax.experiments.frontier.world_frontier`), and
+    the verdict on the paper's claim."""
+    from drqn_jax.experiments.frontier import with_margin
+    from drqn_jax.experiments.report import claim_verdict, study_table
+    from drqn_jax.experiments.study import baseline_row, paper_rows
+
+    world = frontier["world"]
+    ours = [with_margin(baseline_row("drqn_jax", r, world=world), frontier) for r in results]
+    return "\n\n".join(
+        [
+            study_table(paper_rows() + ours),
+            claim_verdict(ours[0])
+            + " One training seed: its interval holds the episodes' variation, not the"
+            " training's (docs/results.md has five seeds).",
+        ]
+    )
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    config = load_config(args.config, args.overrides)
+    run_dir = Path(args.run_dir or default_run_dir("reproduce", args.config))
+    return _train_and_evaluate(
+        config, run_dir, False, args.quiet, start, reproduce=True, rrd=args.rrd
+    )
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from drqn_jax.interop.episode_record import collect_episodes
+    from drqn_jax.interop.recording import write_episodes
+
+    if args.episodes < 1:
+        raise ConfigError(f"--episodes = {args.episodes}: must be an integer >= 1")
+    overrides = list(args.overrides)
+    if args.seed is not None:
+        overrides.append(f"run.seed={args.seed}")
+    config, agent, network, network_params = _chosen_agent(args, overrides)
+    default_out = Path(args.run_dir) / "episodes.rrd" if args.run_dir else Path("episodes.rrd")
+    out = Path(args.out) if args.out else default_out
+    if out.is_dir():
+        raise ConfigError(f"--out {out}: is a directory; give a file name such as episodes.rrd")
+    env, env_params = config.make_env()
+    _, eval_key = config.keys()
+    record = collect_episodes(
+        agent,
+        eval_key,
+        args.episodes,
+        env,
+        env_params,
+        network=network,
+        network_params=network_params,
+    )
+    try:
+        write_episodes(out, record, env, env_params)
+    except OSError as err:
+        raise ConfigError(f"--out {out}: {err.strerror or err}") from None
+    for i in range(0 if args.quiet else record.num_episodes):
+        print(
+            f"episode {i}: {int(record.length[i])} steps, "
+            f"return {float(record.episode_return[i]):.2f}, {record.outcome(i)}"
+        )
+    seed, n = config["run"]["seed"], record.num_episodes
+    print(f"wrote {n} episode{'s' if n != 1 else ''} of {agent.name} (seed {seed}) to {out}")
+    print(f"view with: rerun {out}")
+    return EXIT_OK

@@ -1,0 +1,100 @@
+"""``drqn-jax study`` and ``drqn-jax report``: Table III over configs × seeds
+(:mod:`drqn_jax.experiments.study`) and the documents' results blocks
+(:mod:`drqn_jax.experiments.report`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from drqn_jax.commands import check_section_option
+from drqn_jax.config import ConfigError
+from drqn_jax.experiments.checkpoint import atomic_write_text
+from drqn_jax.experiments.runner import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
+
+
+def cmd_study(args: argparse.Namespace) -> int:
+    from drqn_jax.experiments.figures import require_matplotlib
+    from drqn_jax.experiments.study import plan_study, run_study
+
+    configs = [c.strip() for c in args.configs.split(",") if c.strip()]
+    if args.smooth < 1:
+        raise ConfigError(f"--smooth {args.smooth}: must be an integer >= 1")
+    eval_envs = [e.strip() for e in args.eval_envs.split(",") if e.strip()]
+    arms = plan_study(configs, args.seeds, args.episodes, args.overrides, eval_envs)
+    out = Path(args.out or Path("runs") / f"study-{'-'.join(a.name for a in arms)}")
+    if args.results:
+        check_section_option(args.section or out.name)
+    for arm in arms:
+        print(f"{arm.name}: {arm.sweep.describe()}", file=sys.stderr)
+    if not args.no_png:
+        require_matplotlib()  # before hours of training, not after
+    if args.dry_run:
+        return EXIT_OK
+    start = time.perf_counter()
+    outcome = run_study(
+        arms,
+        out,
+        smooth=args.smooth,
+        png=not args.no_png,
+        quiet=args.quiet,
+        train=not args.report_only,
+    )
+    if outcome.status == "interrupted":
+        print(
+            f"interrupted; checkpoints saved, continue with the same command (--out {out})",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
+    wall = time.perf_counter() - start
+    if args.results:
+        from drqn_jax.experiments.machine import machine_info
+        from drqn_jax.experiments.report import load_results, write_results
+
+        about = {
+            "command": args.command_line,
+            "wall_time_s": wall,
+            "continued": outcome.continued,
+            "machine": machine_info(),
+        }
+        section = args.section or out.name
+        earlier = load_results(args.results)["sections"].get(section)
+        if args.report_only and earlier:  # the runs' provenance stays the command that made them
+            about = {**earlier, "report_command": args.command_line}
+        about["frontiers"] = outcome.frontiers
+        write_results(args.results, section, outcome.rows, outcome.comparisons, about)
+        print(f"rows stored as section {section!r} of {args.results}", file=sys.stderr)
+        if not args.no_png and (out / "safety_speed.png").is_file():
+            figure = Path(args.results).parent / "figures" / f"{section}-safety-speed.png"
+            figure.parent.mkdir(parents=True, exist_ok=True)
+            figure.write_bytes((out / "safety_speed.png").read_bytes())
+            print(f"safety/speed figure: {figure}", file=sys.stderr)
+    print(outcome.table)
+    print(f"\nwall time {wall:.1f} s; study in {out}")
+    return EXIT_OK
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from drqn_jax.experiments.report import load_results, stale_documents, update_document
+
+    if not Path(args.results).is_file():
+        raise ConfigError(f"--results {args.results}: no such file (a study writes it)")
+    record = load_results(args.results)
+    missing = [d for d in args.documents if not Path(d).is_file()]
+    if missing:
+        raise ConfigError(f"{missing[0]}: no such document")
+    try:
+        stale = stale_documents(args.documents, record)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+    if args.check:
+        for doc in stale:
+            print(f"{doc}: its results blocks differ from {args.results}", file=sys.stderr)
+        return EXIT_FAILED if stale else EXIT_OK
+    for doc in stale:
+        atomic_write_text(Path(doc), update_document(Path(doc).read_text(), record))
+        if not args.quiet:
+            print(f"updated {doc}", file=sys.stderr)
+    return EXIT_OK

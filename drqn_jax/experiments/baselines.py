@@ -1,0 +1,176 @@
+"""What every arm of a study is judged against (SPEC §9), per world and cached in
+``OUT/baselines/``: the rule-based agent, its family's frontier and the privileged
+planner's (:mod:`drqn_jax.experiments.frontier`), and the trained agents replayed
+among another world's pedestrians.
+
+Worlds are told apart by digests of what each result reads: :func:`env_key` (the
+``[env]`` and ``[rule_based]`` sections and the evaluation episodes) and
+:func:`frontier_key` (the ``[env]`` section without its reward, ``[planner]`` and
+the episodes), so configs that differ elsewhere share one sweep.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from drqn_jax.config import Config
+from drqn_jax.experiments.checkpoint import CheckpointError, atomic_write_text
+from drqn_jax.experiments.frontier import world_frontier
+from drqn_jax.learners.hyperparams import agent_name
+
+__all__ = [
+    "config_frontier",
+    "cross_results",
+    "env_key",
+    "frontier_key",
+    "frontier_results",
+    "rule_based_results",
+]
+
+
+def _digest(config: Config, **sections: Any) -> str:
+    """A short digest of ``sections`` and ``config``'s evaluation episodes (count, seed)."""
+    record = {
+        **sections,
+        "episodes": config["evaluate"]["episodes"],
+        "seed": config["run"]["seed"],
+    }
+    text = json.dumps(record, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def env_key(config: Config) -> str:
+    """A short digest of a config's ``[env]`` and ``[rule_based]`` sections and its
+    evaluation (episodes, seed): configs that agree share the rule-based baseline."""
+    return _digest(config, env=config["env"], rule_based=config["rule_based"])
+
+
+def frontier_key(config: Config) -> str:
+    """A short digest of what a config's frontiers read: its ``[env]`` section but the
+    reward (``reward_*``: the rule-based family and the planner ignore it), its
+    ``[planner]`` and its evaluation: configs that agree share the frontiers, and
+    their arms are paired."""
+    env = {k: v for k, v in config["env"].items() if not k.startswith("reward_")}
+    return _digest(config, env=env, planner=config["planner"])
+
+
+def rule_based_results(
+    configs: Sequence[Config], out: Path
+) -> dict[str, tuple[Config, dict[str, Any]]]:
+    """The rule-based agent on each distinct environment of ``configs`` (the arms'
+    and those of their ``cross_envs``), on the study's episodes: ``{env_key: (the first
+    config of that key, result)}``, cached in ``OUT/baselines/``."""
+    from drqn_jax.experiments.runner import builtin_agent, evaluate_agents, json_ready
+
+    found: dict[str, tuple[Config, dict[str, Any]]] = {}
+    for config in configs:
+        key = env_key(config)
+        if key in found:
+            continue
+
+        def evaluated(config: Config = config) -> dict[str, Any]:
+            (result,) = evaluate_agents(config, [builtin_agent("rule-based", config)])
+            return json_ready(result)
+
+        result = _cached(out / "baselines" / f"rule-based-{key}.json", evaluated)
+        found[key] = (config, result)
+    return found
+
+
+def _cached(path: Path, compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """The JSON at ``path``, or ``compute()``'s result, then written there (atomically)."""
+    if path.is_file():
+        return json.loads(path.read_text())
+    result = compute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, json.dumps(result, indent=1) + "\n")
+    return result
+
+
+def cross_results(
+    arm: str, config: Config, runs: Sequence[Mapping[str, Any]], out: Path
+) -> list[dict[str, Any]]:
+    """Each of ``runs``' trained agents (``OUT/<arm>/agents/run-NNNN``, ``arm`` the
+    arm's name) evaluated with ``config`` (the arm's ``cross_config(env_id)``: among
+    ``env_id``'s pedestrians, on the study's episodes), cached in
+    ``OUT/<arm>/cross/<env_id>/run-NNNN.json``.
+
+    Raises:
+        CheckpointError: a run's agent is missing (a study run before sweeps kept
+            their agents: train it again in a new directory).
+    """
+    from drqn_jax.agents import drqn_agent
+    from drqn_jax.experiments.runner import (
+        evaluate_agents,
+        json_ready,
+        load_run,
+        load_trained_network,
+    )
+    from drqn_jax.experiments.sweep_runner import agent_dir
+
+    env_id = config["env"]["id"]
+
+    def evaluated(run: Mapping[str, Any]) -> dict[str, Any]:
+        directory = agent_dir(out / arm, run["index"])
+        if not (directory / "config.toml").is_file():
+            raise CheckpointError(
+                f"{directory}: no trained agent to evaluate on {env_id} (the run ended before "
+                "sweeps kept their agents); run the study in a new --out"
+            )
+        trained = load_run(directory)
+        network, params, _ = load_trained_network(trained, directory)
+        name = agent_name(trained.train_config())
+        (result,) = evaluate_agents(config, [drqn_agent(network, params, name)])
+        return {"index": run["index"], "values": run["values"], **json_ready(result)}
+
+    cache = out / arm / "cross" / env_id
+    return [
+        _cached(cache / f"run-{run['index']:04d}.json", lambda run=run: evaluated(run))
+        for run in runs
+    ]
+
+
+def frontier_results(
+    configs: Sequence[Config], out: Path, planner_keys: set[str], *, quiet: bool = True
+) -> dict[str, dict[str, Any]]:
+    """The rule-based frontier of each distinct environment of ``configs`` on the study's
+    episodes, and the planner's where its :func:`frontier_key` is in ``planner_keys``:
+    ``{frontier_key: world_frontier record}``, cached in ``OUT/baselines/``."""
+    found: dict[str, dict[str, Any]] = {}
+    for config in configs:
+        key = frontier_key(config)
+        if key in found:
+            continue
+        if not quiet:
+            print(f"the frontiers of {config['env']['id']}...", file=sys.stderr, flush=True)
+        planner = key in planner_keys
+        name = f"frontier-{key}{'-planner' if planner else ''}.json"
+        found[key] = _cached(
+            out / "baselines" / name,
+            lambda config=config, planner=planner: config_frontier(config, planner=planner),
+        )
+    return found
+
+
+def config_frontier(config: Config, *, planner: bool = True, **options: Any) -> dict[str, Any]:
+    """:func:`~drqn_jax.experiments.frontier.world_frontier` on ``config``'s world and evaluation
+    episodes (``evaluate.episodes`` of ``run.seed``'s evaluation key, as every agent of a
+    study plays), with its ``[planner]`` settings; ``options`` go on to it."""
+    env, params = config.make_env()
+    _, key = config.keys()
+    return world_frontier(
+        env,
+        params,
+        key,
+        config["evaluate"]["episodes"],
+        world=config["env"]["id"],
+        seed=config["run"]["seed"],
+        planner=config.planner_params() if planner else None,
+        batch_size=config["evaluate"]["batch_size"] or None,
+        **options,
+    )

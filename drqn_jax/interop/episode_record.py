@@ -1,0 +1,199 @@
+"""The episodes a recording shows (paper §V-E; SPEC §8): ``num_episodes`` greedy
+episodes of an agent played by one jitted, vmapped rollout, with every step's
+state, observation, action, reward, TTC and (for a network agent) Q-values:
+:class:`EpisodeRecord`, filled by :func:`collect_episodes`. Episode *i* uses
+``fold_in(key, i)`` exactly as :func:`drqn_jax.evaluation.evaluate` does, so
+recorded episode *i* is the evaluated episode *i* (same length, return,
+collision). :mod:`drqn_jax.interop.recording` writes them as rerun files.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from drqn_jax.agents.base import ActFn, Agent, InitFn
+from drqn_jax.env.collision import ego_box
+from drqn_jax.env.params import EnvParams
+from drqn_jax.env.state import ACTIONS, EnvState
+from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.evaluation import Decision, episode_keys, map_episodes, play_episode
+from drqn_jax.networks import Network
+from drqn_jax.programs import cached_program
+from drqn_jax.pytree import pytree_dataclass
+
+__all__ = ["EpisodeRecord", "collect_episodes", "with_q_values"]
+
+
+@pytree_dataclass
+class EpisodeRecord:
+    """N recorded episodes, everything the recording logs; T = ``max_steps``.
+
+    Index t of a per-state array is the state before the t-th decision (0 is
+    the reset state); index t of a per-step array is the step from state t to
+    state t + 1. Only ``[:L + 1]`` (states) and ``[:L]`` (steps) of episode i
+    are meaningful, L = ``length[i]``; the rollout runs all T steps
+    branch-free and what follows the end is never logged.
+
+    Attributes:
+        state: EnvState, leaves (N, T + 1, ...).
+        grid: (N, T + 1, rows, cols, 4) float32, observation grid of each state.
+        ego_centre: (N, T + 1, 2) float32, ego box centre (simulator frame, m).
+        ego_half: (N, 2) float32, ego box half extents (m).
+        action: (N, T) int32, the action taken in state t.
+        q_values: (N, T, 4) float32 Q-values of state t (DRQN only, else None).
+        reward: (N, T) float32; ttc: (N, T) float32 (s, inf: none), of the state
+            the step leads to; collision, struck_while_stopped, goal, truncated:
+            (N, T) bool (SPEC §5: a pedestrian striking the standing ego is no
+            collision and does not end the episode).
+        length: (N,) int32 steps until termination or truncation.
+        episode_return: (N,) float32, accumulated as ``rollout_episode`` does.
+    """
+
+    state: EnvState
+    grid: Any
+    ego_centre: Any
+    ego_half: Any
+    action: Any
+    q_values: Any
+    reward: Any
+    ttc: Any
+    collision: Any
+    struck_while_stopped: Any
+    goal: Any
+    truncated: Any
+    length: Any
+    episode_return: Any
+
+    @property
+    def num_episodes(self) -> int:
+        return int(np.shape(self.length)[0])
+
+    def outcome(self, i: int) -> str:
+        """How episode ``i`` ended: ``"collision"``, ``"goal"`` or ``"truncated"``."""
+        n = int(self.length[i])
+        if n and self.collision[i, n - 1]:
+            return "collision"
+        return "goal" if n and self.goal[i, n - 1] else "truncated"
+
+
+def _stack_last(seq: Any, last: Any) -> Any:
+    """Append ``last`` (leaves (...)) to a scanned sequence (leaves (T, ...)) → (T + 1, ...)."""
+    return jax.tree.map(lambda s, x: jnp.concatenate([s, x[None]], axis=0), seq, last)
+
+
+def with_q_values(agent: Agent, network: Network, network_params: Any) -> Agent:
+    """``agent``, with ``network`` stepping beside it on the same observations (its own
+    carry, zeros at reset): the carry becomes ``(agent's carry, network carry, Q)``, Q
+    (4,) float32 of the last observation. For ``drqn_agent(network, network_params)``
+    these are exactly the values whose argmax is the action."""
+    init, act = _q_values_beside(agent.init_fn, agent.act_fn, network)
+    return Agent(params=(agent.params, network_params), name=agent.name, init_fn=init, act_fn=act)
+
+
+@cached_program
+def _q_values_beside(init_fn: InitFn, act_fn: ActFn, network: Network) -> tuple[InitFn, ActFn]:
+    """:func:`with_q_values`'s functions, once per agent kind and network (one compile)."""
+
+    def init(params: Any, key: jax.Array) -> Any:
+        inner, _ = params
+        q = jnp.zeros((len(ACTIONS),), jnp.float32)
+        return init_fn(inner, key), network.initial_carry(()), q
+
+    def act(params: Any, key: jax.Array, obs: Any, carry: Any, *rest: Any) -> Any:
+        (inner, net), (inner_carry, q_carry, _) = params, carry
+        action, inner_carry = act_fn(inner, key, obs, inner_carry, *rest)
+        q, q_carry = network.step(net, obs, q_carry)
+        return action, (inner_carry, q_carry, q)
+
+    return init, act
+
+
+def _record_decision(with_q: bool) -> Any:
+    def trace(d: Decision) -> dict[str, Any]:
+        return {
+            "state": d.state,
+            "grid": d.obs.grid,
+            "action": d.action,
+            "q_values": d.carry[2] if with_q else None,
+            "reward": d.reward,
+            "ttc": d.info["ttc"],
+            "collision": d.info["collision"],
+            "struck_while_stopped": d.info["struck_while_stopped"],
+            "goal": d.info["goal"],
+            "truncated": d.truncated,
+        }
+
+    return trace
+
+
+@partial(jax.jit, static_argnames=("env", "with_q"))
+def _rollouts(
+    agent: Agent, keys: jax.Array, env: UrbanPedestrians, params: EnvParams, with_q: bool
+) -> EpisodeRecord:
+    """One episode per key: :func:`~drqn_jax.evaluation.play_episode`, traced."""
+
+    def one(key: jax.Array) -> EpisodeRecord:
+        metrics, out, obs, state = play_episode(agent, key, env, params, _record_decision(with_q))
+        states = _stack_last(out["state"], state)
+        centre, half = ego_box(states.ego.s, params)
+        return EpisodeRecord(
+            state=states,
+            grid=_stack_last(out["grid"], obs.grid),
+            ego_centre=centre,
+            ego_half=half,
+            action=out["action"],
+            q_values=out["q_values"],
+            reward=out["reward"],
+            ttc=out["ttc"],
+            collision=out["collision"],
+            struck_while_stopped=out["struck_while_stopped"],
+            goal=out["goal"],
+            truncated=out["truncated"],
+            length=metrics.length,
+            episode_return=metrics.episode_return,
+        )
+
+    return map_episodes(one, keys)
+
+
+def collect_episodes(
+    agent: Agent,
+    key: jax.Array,
+    num_episodes: int,
+    env: UrbanPedestrians,
+    env_params: EnvParams | None = None,
+    *,
+    network: Network | None = None,
+    network_params: Any = None,
+) -> EpisodeRecord:
+    """Play ``num_episodes`` episodes of ``agent`` in one jitted, vmapped rollout.
+
+    Episode i uses ``episode_keys(key, num_episodes)[i]`` = ``fold_in(key, i)``
+    and the same key schedule as :func:`drqn_jax.evaluation.rollout_episode`,
+    so it is the episode :func:`drqn_jax.evaluate` plays. With ``network`` and
+    ``network_params`` (the DRQN's), the network also steps on the same
+    observations with its own carry (zeros at reset) and its Q-values are
+    recorded: for ``drqn_agent(network, network_params)`` these are exactly
+    the values whose argmax is the action.
+
+    Memory: (T + 1) grids of 45 × 30 × 4 float32 per episode (21.6 MB at
+    T = 1000), all on the device at once.
+
+    Returns:
+        :class:`EpisodeRecord` with NumPy leaves.
+    """
+    if not isinstance(num_episodes, int) or num_episodes < 1:
+        raise ValueError(f"num_episodes = {num_episodes!r}, must be an integer >= 1")
+    if (network is None) != (network_params is None):
+        raise ValueError("network and network_params go together (both or neither)")
+    env_params = env.default_params if env_params is None else env.check_params(env_params)
+    keys = episode_keys(key, num_episodes)
+    if network is not None:
+        agent = with_q_values(agent, network, network_params)
+    record = _rollouts(agent, keys, env, env_params, network is not None)
+    return jax.tree.map(np.asarray, record)

@@ -1,0 +1,379 @@
+"""Gymnasium's native vector env over the JAX simulator (SPEC §1–5):
+:class:`UrbanPedestriansVectorEnv`, one jitted, ``vmap``-ed call per step for all
+sub-environments, with ``AutoresetMode.NEXT_STEP`` (default), ``SAME_STEP`` or
+``DISABLED``. Spaces, keys, ``info`` and rendering are the single env's
+(:mod:`drqn_jax.interop.gymnasium_env`, which documents them): sub-environment
+``i`` behaves exactly like ``gymnasium.make(id)`` reset with ``seed + i`` and
+driven by the same actions, whatever ``num_envs`` is.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, NamedTuple
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnasium import spaces
+from gymnasium.error import ResetNeeded
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from drqn_jax.env.params import EnvParams
+from drqn_jax.env.state import NUM_ACTIONS, EnvState
+from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.interop.gymnasium_env import (
+    UrbanPedestriansGymEnv,
+    draw_key_data,
+    gymnasium_observation_space,
+    invalid_action,
+    key_data_shape,
+    numpy_observation,
+    render_frame,
+    single_reset,
+    single_step,
+    space_contains,
+)
+from drqn_jax.programs import cached_program
+from drqn_jax.registry import make as make_jax_env
+
+__all__ = ["SPARSE_RESETS", "UrbanPedestriansVectorEnv"]
+
+#: Most sub-environments restarted sparsely in one vector step: up to this many, only
+#: theirs are reset; more at once (rare), every one is computed and selected.
+SPARSE_RESETS = 8
+
+
+class _VectorFns(NamedTuple):
+    reset: Any  # (key_data (N, w), params) -> (key_data, obs, states)
+    reset_masked: Any  # (key_data, held, states, mask, params) -> (key_data, obs, states)
+    step_next: Any  # NEXT_STEP / DISABLED step, see _vector_step
+    step_same: Any  # SAME_STEP step
+    render: Any  # (states, params) -> (N, H, W, 3) uint8
+
+
+def _restart_where(
+    env: UrbanPedestrians,
+    restart: jax.Array,
+    reset_key_data: jax.Array,
+    held: jax.Array,
+    states: EnvState,
+    params: EnvParams,
+) -> tuple[jax.Array, EnvState]:
+    """``held`` (N, w) key data and ``states`` (N, …) with the sub-environments where
+    ``restart`` (N,) bool starts a fresh episode from ``reset_key_data`` (N, w), split
+    as :func:`single_reset` splits it. Only the restarting envs' resets are
+    computed (none when none restarts; all when more than :data:`SPARSE_RESETS`
+    do); each env's fresh state depends on its own key alone, so the result is the
+    same whichever way it is computed."""
+    n = restart.shape[0]
+    k = min(n, SPARSE_RESETS)
+
+    def reset_one(key_data):  # single_reset's; jit drops the unused observation
+        fresh_held, _, fresh = single_reset(env, key_data, params)
+        return fresh_held, fresh
+
+    def none(_):
+        return held, states
+
+    def sparse(_):
+        index = jnp.nonzero(restart, size=k, fill_value=n)[0]  # (k,); n: no env, dropped
+        fresh_held, fresh = jax.vmap(reset_one)(reset_key_data[jnp.minimum(index, n - 1)])
+
+        def put(into: jax.Array, rows: jax.Array) -> jax.Array:
+            return into.at[index].set(rows, mode="drop")
+
+        return put(held, fresh_held), jax.tree.map(put, states, fresh)
+
+    def dense(_):
+        fresh_held, fresh = jax.vmap(reset_one)(reset_key_data)
+        select = functools.partial(jax.vmap(jnp.where), restart)
+        return select(fresh_held, held), jax.tree.map(select, fresh, states)
+
+    count = jnp.sum(restart)
+    branch = jnp.where(count == 0, 0, jnp.where(count <= k, 1, 2))
+    return jax.lax.switch(branch, (none, sparse, dense), None)
+
+
+def _vector_step(
+    env: UrbanPedestrians,
+    same_step: bool,
+    key_data: jax.Array,
+    reset_key_data: jax.Array,
+    states: EnvState,
+    actions: jax.Array,
+    autoreset: jax.Array,
+    params: EnvParams,
+):
+    """A batch of N sub-environments' steps with auto-reset (arrays (N, …)).
+
+    Every env steps (``step_env`` with a key split from its held one); the envs
+    that restart get a fresh episode (:func:`_restart_where`) and their
+    observation is rasterised from it. NEXT_STEP restarts where ``autoreset``
+    (the previous step ended the episode), with reward 0 and no termination;
+    SAME_STEP restarts where this step ends it and also returns the final
+    observation.
+    """
+    step = jax.vmap(functools.partial(single_step, env), in_axes=(0, 0, 0, None))
+    held, obs_final, stepped, reward, terminated, truncated, info = step(
+        key_data, states, actions, params
+    )
+    restart = (terminated | truncated) if same_step else autoreset
+    new_held, new_states = _restart_where(env, restart, reset_key_data, held, stepped, params)
+    obs = jax.vmap(env.observation, (0, None))(new_states, params)
+    if not same_step:
+        reward = jnp.where(restart, jnp.zeros_like(reward), reward)
+        terminated = terminated & ~restart
+        truncated = truncated & ~restart
+    return new_held, obs, new_states, reward, terminated, truncated, info, obs_final, restart
+
+
+@cached_program
+def _vector_fns(env: UrbanPedestrians) -> _VectorFns:
+    """Jitted, vmapped reset/step/render of a batch of one static env."""
+    reset = jax.vmap(functools.partial(single_reset, env), in_axes=(0, None))
+
+    def reset_masked(key_data, held, states, mask, params):
+        held, states = _restart_where(env, mask, key_data, held, states, params)
+        return held, jax.vmap(env.observation, (0, None))(states, params), states
+
+    def step(same_step: bool):
+        return jax.jit(functools.partial(_vector_step, env, same_step))
+
+    return _VectorFns(
+        reset=jax.jit(reset),
+        reset_masked=jax.jit(reset_masked),
+        step_next=step(False),
+        step_same=step(True),
+        render=jax.jit(jax.vmap(functools.partial(render_frame, env), in_axes=(0, None))),
+    )
+
+
+# --- the vector env ---------------------------------------------------------
+def _batched_info(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
+    """Gymnasium's vector info layout: ``key`` (N,) (zero where absent) and mask ``_key``."""
+    if not mask.any():
+        return {}
+    out: dict[str, np.ndarray] = {}
+    for name, value in values.items():
+        value = np.asarray(value)
+        out[name] = np.where(mask, value, np.zeros_like(value))
+        out[f"_{name}"] = mask.copy()
+    return out
+
+
+class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
+    """``num_envs`` copies of the env stepped by one jitted, vmapped call (SPEC §1–5).
+
+    Args:
+        num_envs: N, the number of sub-environments.
+        env_id: a :func:`drqn_jax.registered_envs` id.
+        autoreset_mode: ``AutoresetMode`` (or its value): ``NEXT_STEP`` (default;
+            the step after an episode ends resets that sub-environment: its
+            action is ignored, reward 0, flags False, no info),
+            ``SAME_STEP`` (the ending step returns the new episode's first
+            observation; the last one is ``info["final_obs"]``, its info
+            ``info["final_info"]``, as :class:`gymnasium.vector.SyncVectorEnv`),
+            or ``DISABLED`` (reset ended sub-environments with
+            ``reset(options={"reset_mask": mask})``).
+        render_mode: ``None`` or ``"rgb_array"`` (a tuple of N frames).
+        **overrides: any :func:`drqn_jax.make` override, e.g. ``max_steps=300``.
+
+    Batches: observations ``grid`` (N, 45, 30, 4) float32, ``speed`` (N, 1)
+    float32, ``last_action`` (N,) int64; rewards (N,) float64; flags (N,) bool;
+    actions (N,) integers in ``MultiDiscrete([4] * N)``.
+    """
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        env_id: str = "UrbanPedestrians-v0",
+        autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ) -> None:
+        if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
+            raise ValueError(f"num_envs = {num_envs!r}: must be an integer >= 1")
+        self.autoreset_mode = AutoresetMode(autoreset_mode)
+        if render_mode is not None and render_mode != "rgb_array":
+            raise ValueError(f"render_mode={render_mode!r} is not supported; use 'rgb_array'")
+        self.num_envs = num_envs
+        self.env_id = env_id
+        self.jax_env, params = make_jax_env(env_id, **overrides)
+        self.params = params
+        self._device_params = jax.device_put(params)
+        self.render_mode = render_mode
+        self.metadata = {
+            **UrbanPedestriansGymEnv.metadata,
+            "autoreset_mode": self.autoreset_mode,
+        }
+        self.single_observation_space = gymnasium_observation_space(self.jax_env, params)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.single_action_space = spaces.Discrete(NUM_ACTIONS)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._fns = _vector_fns(self.jax_env)
+        self._rngs: list[np.random.Generator | None] = [None] * num_envs
+        self._seeds: list[int | None] = [None] * num_envs
+        # Each sub-environment's next reset key, drawn ahead from its np_random.
+        self._next_key_data: np.ndarray | None = None
+        self._key_data: jax.Array | None = None  # (N, w) held keys
+        self._states: EnvState | None = None
+        self._ended = np.zeros(num_envs, bool)  # NEXT_STEP: reset on the next step
+
+    @property
+    def np_random(self) -> tuple[np.random.Generator | None, ...]:
+        """The sub-environments' generators (as :class:`SyncVectorEnv`'s ``np_random``)."""
+        return tuple(self._rngs)
+
+    @property
+    def np_random_seed(self) -> tuple[int | None, ...]:
+        """The seeds the sub-environments' generators were last made from."""
+        return tuple(self._seeds)
+
+    @property
+    def states(self) -> EnvState | None:
+        """The batched JAX ``EnvState`` (leading axis N; ``None`` before reset)."""
+        return self._states
+
+    def _take_reset_keys(self, seeds: list[int | None], which: np.ndarray) -> np.ndarray:
+        """(N, w) uint32: reset keys for the sub-environments in ``which``, drawn as
+        ``gymnasium.make(id).reset(seed=seeds[i])`` would draw them."""
+        if self._next_key_data is None:
+            self._next_key_data = np.zeros((self.num_envs, *key_data_shape()), np.uint32)
+        keys = np.zeros_like(self._next_key_data)
+        following = self._next_key_data.copy()
+        for i in np.flatnonzero(which):
+            if seeds[i] is not None or self._rngs[i] is None:
+                self._rngs[i], self._seeds[i] = seeding.np_random(seeds[i])
+                following[i] = draw_key_data(self._rngs[i])
+            keys[i] = following[i]
+            following[i] = draw_key_data(self._rngs[i])
+        self._next_key_data = following
+        return keys
+
+    def reset(
+        self,
+        *,
+        seed: int | list[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Reset all sub-environments, or those in ``options["reset_mask"]`` ((N,) bool).
+
+        Args:
+            seed: ``None`` (continue each sub-environment's stream), an int s
+                (sub-environment i gets s + i) or a list of N ints / ``None``.
+        Returns:
+            ``(observations, {})``; the observations of sub-environments not
+            reset are their current ones.
+        """
+        if seed is None:
+            seeds: list[int | None] = [None] * self.num_envs
+        elif isinstance(seed, int | np.integer):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(
+                    f"seed: a list of length num_envs={self.num_envs} was expected, "
+                    f"got length {len(seeds)}"
+                )
+        mask = None if options is None else options.get("reset_mask")
+        if mask is not None:
+            if not isinstance(mask, np.ndarray) or mask.dtype != np.bool_:
+                raise TypeError(f"options['reset_mask'] must be a NumPy bool array, got {mask!r}")
+            if mask.shape != (self.num_envs,) or not mask.any():
+                raise ValueError(
+                    f"options['reset_mask'] must have shape ({self.num_envs},) and at least one "
+                    f"True value, got {mask!r}"
+                )
+            if self._states is None:
+                raise ResetNeeded("the first reset must reset every sub-environment")
+        which = np.ones(self.num_envs, bool) if mask is None else mask
+        key_data = self._take_reset_keys(seeds, which)
+        if mask is None:
+            self._key_data, obs, self._states = self._fns.reset(key_data, self._device_params)
+        else:
+            self._key_data, obs, self._states = self._fns.reset_masked(
+                key_data, self._key_data, self._states, mask, self._device_params
+            )
+        self._ended = self._ended & ~which
+        return numpy_observation(jax.device_get(obs)), {}
+
+    def step(
+        self, actions: Any
+    ) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Step every sub-environment with ``actions`` ((N,) integers in 0–3).
+
+        Returns:
+            ``(observations, rewards, terminations, truncations, infos)`` with
+            Gymnasium's vector info layout (``key`` and mask ``_key``); see the
+            class docstring for the auto-reset modes.
+        Raises:
+            ValueError: ``actions`` is not in the action space.
+            ResetNeeded: called before ``reset``, or (``DISABLED``) with an
+                ended sub-environment not reset.
+        """
+        if isinstance(actions, jax.Array):
+            actions = np.asarray(actions)
+        if not space_contains(self.action_space, actions):
+            raise invalid_action(actions, self.action_space)
+        if self._states is None:
+            raise ResetNeeded("Cannot call UrbanPedestriansVectorEnv.step before reset")
+        same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
+        autoreset = self._ended & (self.autoreset_mode == AutoresetMode.NEXT_STEP)
+        if self.autoreset_mode == AutoresetMode.DISABLED and self._ended.any():
+            raise ResetNeeded(
+                f"sub-environments {np.flatnonzero(self._ended).tolist()} ended; with "
+                "AutoresetMode.DISABLED reset them with reset(options={'reset_mask': mask})"
+            )
+        step = self._fns.step_same if same_step else self._fns.step_next
+        out = step(
+            self._key_data,
+            self._next_key_data,
+            self._states,
+            np.asarray(actions, np.int32),
+            autoreset,
+            self._device_params,
+        )
+        self._key_data, obs, self._states = out[:3]
+        reward, terminated, truncated, info, restarted = jax.device_get(
+            (out[3], out[4], out[5], out[6], out[8])
+        )
+        observations = numpy_observation(jax.device_get(obs))
+        done = terminated | truncated
+        if same_step:
+            infos = _batched_info(info, ~done)
+            if done.any():
+                final = numpy_observation(jax.device_get(out[7]))
+                final_obs = np.full(self.num_envs, None, dtype=object)
+                for i in np.flatnonzero(done):
+                    final_obs[i] = {name: value[i] for name, value in final.items()}
+                infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
+                infos["final_info"], infos["_final_info"] = _batched_info(info, done), done.copy()
+        else:
+            infos = _batched_info(info, ~autoreset)
+        # The sub-environments that started an episode used their next reset key.
+        restarted = np.asarray(restarted, bool)
+        if restarted.any():
+            self._take_reset_keys([None] * self.num_envs, restarted)
+        self._ended = done
+        return (
+            observations,
+            np.asarray(reward, np.float64),
+            np.array(terminated, bool),
+            np.array(truncated, bool),
+            infos,
+        )
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """N (240, 480, 3) uint8 frames (:func:`render_frame`) for ``"rgb_array"``."""
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode")
+            return None
+        if self._states is None:
+            raise ResetNeeded("Cannot call UrbanPedestriansVectorEnv.render before reset")
+        frames = np.array(self._fns.render(self._states, self._device_params))
+        return tuple(frames)

@@ -1,0 +1,164 @@
+"""Rerun recordings of training curves (paper §V-E's training figure): one run's
+per-episode metrics (:func:`record_training`) and a study's curves over seeds
+(:func:`record_study_curves`), each one ``.rrd`` file.
+
+Entity layout of a training recording (timeline ``"episode"`` = the training
+episode's index): ``training/return``, ``training/length`` (steps),
+``training/loss`` (mean TD loss of the episode, 0 before learning starts),
+``training/epsilon``, ``training/collision_rate`` and ``training/goal_rate``
+(running means over the last :data:`COLLISION_RATE_WINDOW` = 20 recorded
+episodes, fewer at the start), ``training/distance`` (m) and
+``training/mean_speed_kmh`` when the metrics hold them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from drqn_jax.interop.recording import close_recording, open_recording
+
+__all__ = [
+    "COLLISION_RATE_WINDOW",
+    "ENV_STEPS_TIMELINE",
+    "EPISODE_TIMELINE",
+    "record_study_curves",
+    "record_training",
+    "running_mean",
+]
+
+
+_REQUIRED_METRICS = ("episode", "episode_return", "length", "collision", "mean_loss", "epsilon")
+EPISODE_TIMELINE = "episode"
+
+
+ENV_STEPS_TIMELINE = "env_steps"  # a study's curves (issue 41)
+
+
+COLLISION_RATE_WINDOW = 20  # episodes in the running collision/goal rates (as the progress bar)
+
+
+def running_mean(values: np.ndarray, window: int = COLLISION_RATE_WINDOW) -> np.ndarray:
+    """(N,) float64 mean of ``values[max(0, k - window + 1) : k + 1]`` for each k."""
+    values = np.asarray(values, np.float64)
+    total = np.concatenate([[0.0], np.cumsum(values)])
+    k = np.arange(len(values))
+    start = np.maximum(0, k - window + 1)
+    return (total[k + 1] - total[start]) / (k + 1 - start)
+
+
+def record_training(
+    path: str | Path,
+    metrics: Mapping[str, np.ndarray],
+    *,
+    application_id: str = "drqn_jax",
+) -> None:
+    """Save training curves as a rerun recording, one value per recorded episode.
+
+    Args:
+        path: the ``.rrd`` file to write (its directory is created).
+        metrics: per-episode arrays as ``drqn_jax.experiments.runner.recorded_metrics``
+            returns them: ``episode`` (N,) int (the timeline ``"episode"``),
+            ``episode_return``, ``length``, ``collision``, ``mean_loss``,
+            ``epsilon`` (N,), and optionally ``goal``, ``distance`` (m),
+            ``mean_speed`` (m/s).
+    Raises:
+        ValueError: a required metric is missing or the lengths differ.
+
+    Entities (module docstring): ``training/return``, ``training/length``,
+    ``training/loss``, ``training/epsilon``, ``training/collision_rate`` and
+    ``training/goal_rate`` (running means over the last 20 episodes),
+    ``training/distance``, ``training/mean_speed_kmh``.
+    """
+    missing = [name for name in _REQUIRED_METRICS if name not in metrics]
+    if missing:
+        raise ValueError(f"record_training: metrics lack {', '.join(missing)}")
+    m = {name: np.asarray(v) for name, v in metrics.items()}
+    episodes = m["episode"].astype(np.int64)
+    if any(v.shape != episodes.shape for v in m.values()):
+        raise ValueError("record_training: every metric must have one value per episode")
+    curves = {
+        "return": m["episode_return"],
+        "length": m["length"],
+        "loss": m["mean_loss"],
+        "epsilon": m["epsilon"],
+        "collision_rate": running_mean(m["collision"]),
+    }
+    if "goal" in m:
+        curves["goal_rate"] = running_mean(m["goal"])
+    if "distance" in m:
+        curves["distance"] = m["distance"]
+    if "mean_speed" in m:
+        curves["mean_speed_kmh"] = m["mean_speed"].astype(np.float64) * 3.6
+    blueprint = _series_blueprint({name: f"/training/{name}" for name in curves})
+    rec = open_recording(path, application_id, blueprint)
+    try:
+        for name, values in curves.items():
+            _send_series(rec, f"training/{name}", name, episodes, values)
+    finally:
+        close_recording(rec)
+
+
+def _series_blueprint(views: Mapping[str, str], timeline: str = EPISODE_TIMELINE) -> rrb.Blueprint:
+    """One time-series view per ``name → origin entity``, on ``timeline``."""
+    return rrb.Blueprint(
+        rrb.Grid(*[rrb.TimeSeriesView(name=name, origin=o) for name, o in views.items()]),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", timeline=timeline),
+    )
+
+
+def _send_series(
+    rec: rr.RecordingStream,
+    entity: str,
+    name: str,
+    at: np.ndarray,
+    values: np.ndarray,
+    timeline: str = EPISODE_TIMELINE,
+) -> None:
+    """A line named ``name`` at ``entity``: ``values`` (E,) at the sequence ``at`` (E,)
+    of ``timeline``."""
+    rec.log(entity, rr.SeriesLines(names=name), static=True)
+    if len(at):
+        rec.send_columns(
+            entity,
+            indexes=[rr.TimeColumn(timeline, sequence=np.asarray(at, np.int64))],
+            columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
+        )
+
+
+def record_study_curves(
+    path: str | Path,
+    curves: Mapping[str, Mapping[str, Any]],
+    *,
+    application_id: str = "drqn_jax",
+) -> None:
+    """Save a study's training curves (:func:`drqn_jax.experiments.curves.load_curves` per config).
+
+    Entities ``curves/<metric>/<config>/{mean,low,high}`` (the running mean's
+    mean and min–max over seeds) and ``curves/<metric>/<config>/seed<k>``
+    (each seed's raw values at the env steps its episodes ended), on the
+    ``env_steps`` timeline; one time-series view per metric (``episode_return``,
+    ``length``).
+    """
+    metrics = sorted({m for by_metric in curves.values() for m in by_metric})
+    views = {m: f"/curves/{m}" for m in metrics}
+    rec = open_recording(path, application_id, _series_blueprint(views, ENV_STEPS_TIMELINE))
+    try:
+        for name, by_metric in curves.items():
+            for metric, c in by_metric.items():
+                series = {part: (c.env_steps, getattr(c, part)) for part in ("mean", "low", "high")}
+                series |= {
+                    f"seed{k}": xy for k, xy in enumerate(zip(c.seed_steps, c.seeds, strict=True))
+                }
+                for part, (at, values) in series.items():
+                    entity = f"curves/{metric}/{name}/{part}"
+                    _send_series(rec, entity, f"{name} {part}", at, values, ENV_STEPS_TIMELINE)
+    finally:
+        close_recording(rec)
