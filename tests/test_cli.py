@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import re
 import signal
@@ -322,6 +323,21 @@ def test_bench_quick_prints_throughput(capsys):
     assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "env steps/s at 4 envs" in out and "JAX" in out
+    assert "gradient updates/s (DQN: 1 envs" in out
+
+
+def test_bench_quick_counts_ppos_iterations_in_env_steps_and_updates():
+    """Issue 51: a PPO iteration is a rollout and its epochs; bench counts them from the
+    state (the PPO config of the test above, with room for 2 more updates)."""
+    from drqn_jax.experiments.bench import bench_train, train_figures
+
+    overrides = [value for flag, value in itertools.pairwise(PPO) if flag == "--set"]
+    config = load_config("smoke", [*overrides, "train.num_env_steps=128"])
+    figures = train_figures(config, 2)
+    train = config["train"]
+    assert figures["env_steps"] == 2 * train["rollout_steps"] * train["num_envs"]
+    assert figures["grad_steps"] == 2 * train["update_epochs"] * train["num_minibatches"]
+    assert "gradient updates/s (PPO: a rollout of 8 steps × 2 envs" in bench_train(config, 2)
 
 
 def test_bench_runs_a_suite_benchmark_and_writes_json_and_markdown(tmp_path, capfd):

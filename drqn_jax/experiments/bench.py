@@ -3,8 +3,8 @@
 * :func:`bench_env`: env steps/s of the config's environment, ``num_envs``
   in parallel, random actions, one jitted ``lax.scan`` of ``steps`` steps;
 * :func:`bench_train`: training iterations/s, env steps/s and gradient
-  updates/s of the config's trainer over ``iterations`` iterations of
-  ``run`` after learning has started.
+  updates/s of the config's trainer (any learner) over ``iterations``
+  iterations of ``run`` after learning has started (:func:`train_figures`).
 
 Each figure is the best of 3 timed calls after a warm-up call; compile time
 (lower + compile) is reported separately.
@@ -22,7 +22,7 @@ from drqn_jax.config import Config
 from drqn_jax.experiments.runner import init_program
 from drqn_jax.learners import make_train
 
-__all__ = ["bench_env", "bench_train"]
+__all__ = ["bench_env", "bench_train", "train_figures"]
 
 
 def _best_of(fn: Callable[[], Any], repeats: int = 3) -> float:
@@ -66,25 +66,62 @@ def bench_env(config: Config, num_envs: int, steps: int) -> str:
     )
 
 
-def bench_train(config: Config, iterations: int) -> str:
-    """One line: training iterations/s (env steps, gradient updates) once learning runs."""
+def _learner_text(config: Config) -> str:
+    """What one training iteration of ``config``'s learner holds, in its own terms."""
+    train = config["train"]
+    if train["algorithm"] == "ppo":
+        return (
+            f"PPO: a rollout of {train['rollout_steps']} steps × {train['num_envs']} envs, "
+            f"{train['update_epochs']} epochs × {train['num_minibatches']} minibatches"
+        )
+    return (
+        f"DQN: {train['num_envs']} envs, {train['updates_per_step']} update(s) of batch "
+        f"{train['batch_size']}×{train['window']} per step"
+    )
+
+
+def train_figures(config: Config, iterations: int) -> dict[str, Any] | str:
+    """Training throughput once learning runs: ``iterations`` of ``run`` timed (best of
+    3), with the env steps and gradient updates they took counted from the state
+    (``env_steps``, ``grad_steps``), so that every learner's iteration is measured in
+    what it does (the DQN: one step of every env and its updates; PPO: a rollout and
+    its epochs). A string says why there is nothing to time."""
     trainer = make_train(config.train_config())
     train_key, _ = config.keys()
     state = init_program(trainer)(train_key)  # train's init program
     start = time.perf_counter()
     run = jax.jit(trainer.run, static_argnums=1).lower(state, iterations).compile()
     compile_s = time.perf_counter() - start
-    # fill the replay until learning has started (learning_starts whole episodes)
+    # fill the replay until learning has started (the DQN: learning_starts whole episodes)
     while int(state.grad_steps) == 0 and not bool(state.finished):
         state = run(state)
-    if bool(state.finished):
-        return "train: the run finished before learning started; raise train.num_episodes"
-    run_s = _best_of(lambda: run(state))
-    train = config["train"]
-    n_env, ups = train["num_envs"], train["updates_per_step"]
+    if int(state.grad_steps) == 0:
+        return "the run finished before learning started; raise train.num_episodes"
+    after = run(state)
+    if bool(after.finished):
+        return (
+            f"the run's budget ends within {iterations} iterations of learning; raise "
+            "train.num_episodes or train.num_env_steps, or lower --iterations"
+        )
+    return {
+        "iterations": iterations,
+        "env_steps": int(after.env_steps) - int(state.env_steps),
+        "grad_steps": int(after.grad_steps) - int(state.grad_steps),
+        "seconds": _best_of(lambda: run(state)),
+        "compile_s": compile_s,
+    }
+
+
+def bench_train(config: Config, iterations: int) -> str:
+    """One line: :func:`train_figures` as iterations/s, env steps/s and gradient
+    updates/s, with what an iteration of the config's learner holds."""
+    figures = train_figures(config, iterations)
+    if isinstance(figures, str):
+        return f"train: {figures}"
+    run_s = figures["seconds"]
     return (
         f"train ({config.origin}): {iterations / run_s:,.1f} iterations/s = "
-        f"{iterations * n_env / run_s:,.0f} env steps/s and {iterations * ups / run_s:,.1f} "
-        f"gradient updates/s (batch {train['batch_size']}×{train['window']}, {n_env} envs; "
-        f"compile {compile_s:.1f} s)"
+        f"{figures['env_steps'] / run_s:,.0f} env steps/s and "
+        f"{figures['grad_steps'] / run_s:,.1f} gradient updates/s "
+        f"({_learner_text(config)}; compile {figures['compile_s']:.1f} s)"
     )
