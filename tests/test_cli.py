@@ -323,7 +323,8 @@ def test_bench_quick_prints_throughput(capsys):
     assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "env steps/s at 4 envs" in out and "JAX" in out
-    assert "gradient updates/s (DQN: 1 envs" in out
+    envs = load_config("smoke")["train"]["num_envs"]
+    assert f"gradient updates/s (DQN: {envs} envs" in out
 
 
 def test_bench_quick_counts_ppos_iterations_in_env_steps_and_updates():
