@@ -90,7 +90,7 @@ def make_dqn(config: TrainConfig) -> Trainer:
     compiled). :func:`drqn_jax.learners.make_train` calls it."""
     if config.algorithm != "dqn":
         raise ValueError(f"make_dqn: TrainConfig.algorithm = {config.algorithm!r}; use 'dqn'")
-    return _make_train(config)
+    return _make_dqn(config)
 
 
 def _check_task(config: TrainConfig, task: Task) -> None:
@@ -110,7 +110,7 @@ def _check_task(config: TrainConfig, task: Task) -> None:
 
 
 @cached_program
-def _make_train(config: TrainConfig) -> Trainer:
+def _make_dqn(config: TrainConfig) -> Trainer:
     task = make_task(config.env_id, config.env_overrides)
     _check_task(config, task)
     network = make_network(task.network(config.network))
