@@ -25,15 +25,20 @@ and passing them (arguments) compile to the same arithmetic.
 XLA reads its flags when the CPU backend starts, so this only takes effect
 if no JAX computation ran before ``import drqn_jax``; otherwise a warning says so.
 
-Two things outside the program also fix the rounding of matrix products, and
-results are bit-identical only where they agree (measured, issue 6):
+Two more things fix the rounding of matrix products (measured, issues 6 and 51):
 
 * **XLA:CPU's thread pool.** It has ``max(PJRT_NPROC, forced host devices)``
   threads, ``PJRT_NPROC`` defaulting to the usable cores
-  (:func:`cpu_thread_pool_size`), and Eigen splits a product's sums by the
-  pool size. Sharding over D forced host devices changes nothing while D is
-  at most the core count; on a machine with fewer cores than D, compare with
-  a one-device run given the same pool (``PJRT_NPROC=D``).
+  (:func:`cpu_thread_pool_size`). XLA:CPU gives a product that contracts its
+  left operand's leading axis (``x.T @ g``: autodiff's weight gradients) to
+  Eigen, which splits its sums by the pool size, so 4 forced host devices on
+  2 cores (a pool of 4, not 2) trained other weights. Every other product goes
+  to YNNPACK, whose sums do not depend on the pool, so the network computes
+  its weight gradients from a materialised transpose
+  (:func:`drqn_jax.networks._rows_product`): results are the same whatever the
+  pool, hence whatever the device count, ``PJRT_NPROC`` or core count.
+  ``--xla_cpu_multi_thread_eigen=false`` does not help: XLA:CPU's runtime
+  hands Eigen the pool regardless (checked with jax 0.10.2).
 * **No batch of one.** A ``vmap`` over one element compiles unbatched
   products that round differently from the batched ones; the sweep runner
   never gives a device a single run and evaluation never runs a single

@@ -166,6 +166,23 @@ class Network(NamedTuple):
     unroll: Callable[[Params, Observation, Carry, jax.Array], tuple[jax.Array, Carry]]
 
 
+def _rows_product(x: jax.Array, g: jax.Array) -> jax.Array:
+    """``xᵀ g`` summed over every leading axis: (..., m), (..., n) -> (m, n), a weight's
+    gradient, with the same bits whatever XLA:CPU's thread pool.
+
+    XLA:CPU hands a product that contracts its left operand's leading axis (as
+    ``x.T @ g`` and autodiff's weight gradients do) to Eigen, which splits
+    its sums by the size of the process's thread pool: max(cores, forced host
+    devices), so 4 forced devices on 2 cores would round every gradient
+    differently from one device. A row-major ``(m, k) @ (k, n)`` goes to
+    YNNPACK, whose sums do not depend on the pool, batched (``vmap``) or not.
+    So ``xᵀ`` is materialised first: ``optimization_barrier`` keeps XLA from
+    folding the transpose back into the product (it costs one copy of ``x``).
+    """
+    rows = x.reshape(-1, x.shape[-1])
+    return jax.lax.optimization_barrier(rows.T) @ g.reshape(-1, g.shape[-1])
+
+
 @jax.custom_vjp
 def affine(x: jax.Array, w: jax.Array, b: jax.Array) -> jax.Array:
     """``x @ w + b``: (..., n_in) @ (n_in, n_out) + (n_out,), with a vmap-stable gradient.
@@ -173,7 +190,8 @@ def affine(x: jax.Array, w: jax.Array, b: jax.Array) -> jax.Array:
     The gradients of ``w`` and ``b`` are sums over every leading axis. A plain
     reduction for ``b`` is ordered differently by XLA:CPU once ``vmap`` adds a
     seed axis (a batched run would drift by an ulp from the same run alone),
-    so both come out of ONE matrix product, ``[x, 1]ᵀ g``, which XLA batches
+    so both come out of ONE matrix product, ``[x, 1]ᵀ g`` (:func:`_rows_product`,
+    which does not depend on the thread pool either), which XLA batches
     exactly. (A separate ones-vector product for ``b`` does the same, but
     XLA:CPU runs it slowly inside the backward pass: 36 ms against 21 ms for
     the first two conv layers of a 32 × 9 batch, issue 7.)
@@ -187,13 +205,31 @@ def _affine_fwd(x: jax.Array, w: jax.Array, b: jax.Array) -> tuple[jax.Array, tu
 
 def _affine_bwd(res: tuple, g: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     x, w = res
-    rows = x.reshape(-1, x.shape[-1])
-    rows = jnp.concatenate([rows, jnp.ones((rows.shape[0], 1), rows.dtype)], axis=1)
-    grad_wb = rows.T @ g.reshape(-1, g.shape[-1])  # (n_in + 1, n_out)
+    ones = jnp.ones((*x.shape[:-1], 1), x.dtype)
+    grad_wb = _rows_product(jnp.concatenate([x, ones], axis=-1), g)  # (n_in + 1, n_out)
     return g @ w.T, grad_wb[:-1], grad_wb[-1]
 
 
 affine.defvjp(_affine_fwd, _affine_bwd)
+
+
+@jax.custom_vjp
+def matmul(x: jax.Array, w: jax.Array) -> jax.Array:
+    """``x @ w``: (..., n_in) @ (n_in, n_out), its weight gradient by :func:`_rows_product`
+    (autodiff's ``xᵀ g`` would depend on XLA:CPU's thread pool)."""
+    return x @ w
+
+
+def _matmul_fwd(x: jax.Array, w: jax.Array) -> tuple[jax.Array, tuple]:
+    return x @ w, (x, w)
+
+
+def _matmul_bwd(res: tuple, g: jax.Array) -> tuple[jax.Array, jax.Array]:
+    x, w = res
+    return g @ w.T, _rows_product(x, g)
+
+
+matmul.defvjp(_matmul_fwd, _matmul_bwd)
 
 
 def _glorot(key: jax.Array, shape: tuple[int, ...], fan_in: int, fan_out: int) -> jax.Array:
@@ -253,13 +289,13 @@ def _lstm_layer(
     n_in = n_x
     if extra is not None:
         n_in += extra.shape[-1]
-        x_gates = x_gates + extra @ w[n_x:n_in]
+        x_gates = x_gates + matmul(extra, w[n_x:n_in])
     w_h = w[n_in:]
 
     def body(state, xs):
         gates, reset = xs
         h, c = jax.tree.map(lambda s: jnp.where(reset[..., None], 0.0, s), state)
-        h, state = _lstm_gates(gates + h @ w_h, c)
+        h, state = _lstm_gates(gates + matmul(h, w_h), c)
         return state, h
 
     state, h = jax.lax.scan(body, state, (x_gates, resets), unroll=min(x.shape[0], UNROLL))

@@ -105,74 +105,129 @@ def test_each_run_is_bit_identical_to_the_run_alone(trained):
     assert_tree_equal(alone, jax.tree.map(lambda x: x[3], (params, metrics)))
 
 
+def _other_thread_pool() -> str:
+    """A ``PJRT_NPROC`` that gives a subprocess a bigger XLA:CPU thread pool than
+    this process's, whatever the machine (at least twice as big, at least 4): the
+    pool has max(PJRT_NPROC, forced devices) threads, and Eigen splits a product's
+    sums by it (the network's products avoid Eigen,
+    :func:`drqn_jax.networks._rows_product`, so results must not depend on it).
+    On a 2-core machine that is the pool of 4 that 4 forced devices get anyway."""
+    from drqn_jax.determinism import cpu_thread_pool_size
+
+    return str(max(4, 2 * cpu_thread_pool_size()))
+
+
 def _train_on_forced_devices(
-    sweep_file: Path, devices: int, out: Path, jobs: dict[str, int], threads: int
+    sweep_file: Path, devices: int, out: Path, jobs: dict[str, int], sweep_args: list[str]
 ) -> dict[str, list[np.ndarray]]:
     """Leaves of the sweep's first runs trained in one process with ``devices`` forced
-    host devices and an XLA:CPU pool of ``threads``: per job ``{strategy: runs}``,
-    the first ``runs`` points as one sweep call sharded over all the devices
-    (``"map"`` or ``"vmap"``) or each alone (``"alone"``: ``jit(train)``)."""
+    host devices and a bigger XLA:CPU thread pool than this process's
+    (:func:`_other_thread_pool`): per job ``{strategy: runs}``, the first ``runs``
+    points as one sweep call sharded over all the devices (``"map"`` or
+    ``"vmap"``). The same process then runs ``drqn-jax sweep FILE *sweep_args
+    --out out/sweep`` (the command a user runs; it shares the map job's programs)."""
     script = textwrap.dedent(f"""
         import jax, numpy as np
         import drqn_jax
+        from drqn_jax import cli
         from drqn_jax.experiments.sweep import load_sweep
         from drqn_jax.experiments.sweep_runner import train_runs
-        from tests.helpers import train_alone
         assert len(jax.devices()) == {devices}, jax.devices()
         sweep = load_sweep({str(sweep_file)!r})
         for strategy, runs in {jobs!r}.items():
-            points = sweep.points[:runs]
-            if strategy == "alone":
-                results = [train_alone(p) for p in points]
-                params, metrics = jax.tree.map(lambda *x: np.stack(x), *results)
-            else:
-                _, params, metrics = train_runs(points, strategy=strategy)
+            _, params, metrics = train_runs(sweep.points[:runs], strategy=strategy)
             np.savez(f"{out}/{{strategy}}.npz", *jax.tree.leaves((params, metrics)))
+        args = ["sweep", {str(sweep_file)!r}, *{sweep_args!r}, "--out", {str(out / "sweep")!r}]
+        assert cli.main([*args, "--quiet"]) == 0
     """)
     env = {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
-    env["PJRT_NPROC"] = str(threads)
+    env.pop("NPROC", None)
+    env["PJRT_NPROC"] = _other_thread_pool()
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
     saved = {strategy: np.load(out / f"{strategy}.npz") for strategy in jobs}
     return {k: [v[f"arr_{i}"] for i in range(len(v.files))] for k, v in saved.items()}
 
 
-@pytest.fixture(scope="module")
-def alone_with_four_threads(sweep_file, tmp_path_factory):
-    out = tmp_path_factory.mktemp("alone")
-    return _train_on_forced_devices(sweep_file, 1, out, {"alone": 4}, threads=4)["alone"]
-
-
 #: Runs per strategy on 4 forced devices: ``map`` one per device, ``vmap`` 3 padded to 8.
 FOUR_DEVICE_JOBS = {"map": 4, "vmap": 3}
+
+#: The command-line sweeps' settings (``cli_sweep`` and the 4-device one).
+CLI_SWEEP_ARGS = ["--set", "evaluate.episodes=2"]
 
 
 @pytest.fixture(scope="module")
 def on_four_devices(sweep_file, tmp_path_factory):
-    """Both strategies of ``FOUR_DEVICE_JOBS`` in one process (one start-up)."""
+    """Both strategies of ``FOUR_DEVICE_JOBS`` and the command-line sweep, in one
+    process (one start-up, the map job's programs compiled once): ``(leaves per
+    strategy, the sweep's output directory)``."""
     out = tmp_path_factory.mktemp("four")
-    return _train_on_forced_devices(sweep_file, 4, out, FOUR_DEVICE_JOBS, threads=4)
+    leaves = _train_on_forced_devices(sweep_file, 4, out, FOUR_DEVICE_JOBS, CLI_SWEEP_ARGS)
+    return leaves, out / "sweep"
 
 
 @pytest.mark.parametrize(("strategy", "runs"), FOUR_DEVICE_JOBS.items())
-def test_four_forced_devices_reproduce_each_run_alone(
-    alone_with_four_threads, on_four_devices, strategy, runs
-):
+def test_four_forced_devices_reproduce_each_run_alone(trained, on_four_devices, strategy, runs):
     """The sweep's first ``runs`` points sharded over 4 forced host devices
     (``map``: one run per device; ``vmap``: 3 runs padded to 2 per device, 5 of
-    the 8 padding) ≡ each point trained alone on one device, bit for bit.
-
-    XLA:CPU's thread pool has max(cores, forced devices) threads, and Eigen's
-    matrix products split their sums by the pool size: on a machine with
-    fewer than 4 cores, 4 forced devices mean a bigger pool than one device
-    has. Both processes get the same pool (``PJRT_NPROC=4``), as two machines
-    with 4 cores would; see ``drqn_jax.determinism``.
-    """
-    four = on_four_devices[strategy]
-    assert len(four) == len(alone_with_four_threads)
-    for got, want in zip(four, alone_with_four_threads, strict=True):
+    the 8 padding) ≡ each point trained in a call of its own on one device in
+    this process (≡ alone, ``test_each_run_is_bit_identical_to_the_run_alone``),
+    bit for bit, although the two processes' XLA:CPU thread pools differ."""
+    _, params, metrics = trained
+    four = on_four_devices[0][strategy]
+    one = jax.tree.leaves((params, metrics))
+    assert len(four) == len(one)
+    for got, want in zip(four, one, strict=True):
         assert len(got) == runs
         np.testing.assert_array_equal(got, want[:runs], strict=True)
+
+
+def _merged_call_results(out: Path) -> list[dict]:
+    """Every call's ``runs.json`` of a sweep's output, in run order."""
+    paths = sorted(out.glob("calls/*/runs.json"))
+    runs = [run for path in paths for run in json.loads(path.read_text())]
+    return sorted(runs, key=lambda r: r["index"])
+
+
+def assert_same_sweep_outputs(got: Path, want: Path) -> None:
+    """Every file two sweeps of the same points wrote is the same, byte for byte:
+    the tables, ``runs.json``, each run's metrics CSV, config and agent (every array
+    of ``agent.npz`` compared by name first, for the message). ``calls/`` is named
+    after the plan's calls (the device and process counts group runs differently):
+    their results are compared merged; the plans by their points."""
+
+    def files(out: Path) -> dict[str, Path]:
+        skipped = ("calls/", "plan.")
+        return {
+            p.relative_to(out).as_posix(): p
+            for p in sorted(out.rglob("*"))
+            if p.is_file() and not p.relative_to(out).as_posix().startswith(skipped)
+        }
+
+    got_files, want_files = files(got), files(want)
+    assert sorted(got_files) == sorted(want_files)
+    assert any(name.startswith("metrics/") for name in want_files)
+    assert any(name.endswith("agent.npz") for name in want_files)
+    for name, path in want_files.items():
+        if name.endswith(".npz"):
+            with np.load(path) as a, np.load(got_files[name]) as b:
+                assert a.files == b.files, name
+                for array in a.files:
+                    if not array.endswith("manifest.json"):
+                        np.testing.assert_array_equal(b[array], a[array], f"{name}: {array}")
+        assert got_files[name].read_bytes() == path.read_bytes(), name
+    assert _merged_call_results(got) == _merged_call_results(want)
+    [plan] = want.glob("plan*.json")
+    for other in got.glob("plan*.json"):
+        assert json.loads(other.read_text())["points"] == json.loads(plan.read_text())["points"]
+
+
+def test_a_sweep_on_four_forced_devices_writes_the_same_files(on_four_devices, cli_sweep):
+    """``drqn-jax sweep`` under ``--xla_force_host_platform_device_count=4`` (one call
+    of 4 runs, one per device) writes every file as the one-device sweep does (4
+    calls of one run), although the two processes' XLA:CPU thread pools differ
+    (on this project's 2 cores: 4 threads against 2, as for a user who adds the flag)."""
+    assert_same_sweep_outputs(on_four_devices[1], cli_sweep)
 
 
 def test_a_shape_changing_axis_splits_the_programs(tmp_path):
@@ -260,16 +315,16 @@ def test_cli_sweep_writes_tables(sweep_file, cli_sweep, capsys):
 def cli_sweep(sweep_file, tmp_path_factory):
     """The 4-run sweep through the command line, one process: its output directory."""
     out = tmp_path_factory.mktemp("cli") / "out"
-    code = cli.main(
-        ["sweep", str(sweep_file), "--set", "evaluate.episodes=2", "--out", str(out), "--quiet"]
-    )
+    code = cli.main(["sweep", str(sweep_file), *CLI_SWEEP_ARGS, "--out", str(out), "--quiet"])
     assert code == 0
     return out
 
 
 def test_two_processes_on_localhost_match_one_process(sweep_file, cli_sweep, tmp_path):
-    """2 processes (jax.distributed on localhost), 2 runs each; process 0 gathers
-    the results: runs.json equal to the one-process sweep's."""
+    """2 processes (jax.distributed on localhost), 2 runs each, with a bigger XLA:CPU
+    thread pool than this process's; process 0 gathers the results: every file
+    equal to the one-process sweep's (each process keeps the agents and metrics it
+    trained)."""
     import socket
 
     with socket.socket() as s:
@@ -277,9 +332,10 @@ def test_two_processes_on_localhost_match_one_process(sweep_file, cli_sweep, tmp
         port = s.getsockname()[1]
     out = tmp_path / "out"
     command = [sys.executable, "-m", "drqn_jax.cli", "sweep", str(sweep_file), "--quiet"]
-    command += ["--set", "evaluate.episodes=2", "--out", str(out)]
+    command += [*CLI_SWEEP_ARGS, "--out", str(out)]
     command += ["--coordinator", f"localhost:{port}", "--num-processes", "2"]
-    env = {**os.environ, "XLA_FLAGS": ""}
+    env = {**os.environ, "XLA_FLAGS": "", "PJRT_NPROC": _other_thread_pool()}
+    env.pop("NPROC", None)
     procs = [
         subprocess.Popen(
             [*command, "--process-id", str(i)],
@@ -294,14 +350,8 @@ def test_two_processes_on_localhost_match_one_process(sweep_file, cli_sweep, tmp
         _, stderr = proc.communicate(timeout=600)
         assert proc.returncode == 0, f"process {i}: {stderr[-3000:]}"
     assert "process 1 of 2" in stderr  # the last one's plan
-    assert json.loads((out / "runs.json").read_text()) == json.loads(
-        (cli_sweep / "runs.json").read_text()
-    )
-    assert (out / "results.csv").read_text() == (cli_sweep / "results.csv").read_text()
     assert (out / "plan.process-0.json").is_file() and (out / "plan.process-1.json").is_file()
-    for index in range(4):  # each process keeps the agents it trained, byte for byte
-        agent = Path("agents", f"run-{index:04d}", "agent.npz")
-        assert (out / agent).read_bytes() == (cli_sweep / agent).read_bytes()
+    assert_same_sweep_outputs(out, cli_sweep)
 
 
 def test_an_interrupted_call_resumes_bit_identically(sweep_file, trained, tmp_path):
