@@ -178,9 +178,17 @@ def _rows_product(x: jax.Array, g: jax.Array) -> jax.Array:
     YNNPACK, whose sums do not depend on the pool, batched (``vmap``) or not.
     So ``xᵀ`` is materialised first: ``optimization_barrier`` keeps XLA from
     folding the transpose back into the product (it costs one copy of ``x``).
+    A vector-matrix product (the acting network on one environment) still goes
+    to Eigen, but Eigen does not split those by the pool.
     """
-    rows = x.reshape(-1, x.shape[-1])
-    return jax.lax.optimization_barrier(rows.T) @ g.reshape(-1, g.shape[-1])
+    rows = _rows(x)
+    return jax.lax.optimization_barrier(rows.T) @ _rows(g)
+
+
+def _rows(x: jax.Array) -> jax.Array:
+    """(..., m) -> (k, m), k the product of the leading axes (``-1`` cannot be
+    inferred when m is 0, as PPO's empty extra inputs)."""
+    return x.reshape(math.prod(x.shape[:-1]), x.shape[-1])
 
 
 @jax.custom_vjp
@@ -205,8 +213,11 @@ def _affine_fwd(x: jax.Array, w: jax.Array, b: jax.Array) -> tuple[jax.Array, tu
 
 def _affine_bwd(res: tuple, g: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     x, w = res
-    ones = jnp.ones((*x.shape[:-1], 1), x.dtype)
-    grad_wb = _rows_product(jnp.concatenate([x, ones], axis=-1), g)  # (n_in + 1, n_out)
+    # the ones join the 2-D rows: joined to x before the reshape, XLA allocates
+    # about a quarter more temporaries for the smoke config's update
+    rows = _rows(x)
+    rows = jnp.concatenate([rows, jnp.ones((rows.shape[0], 1), rows.dtype)], axis=1)
+    grad_wb = _rows_product(rows, g)  # (n_in + 1, n_out)
     return g @ w.T, grad_wb[:-1], grad_wb[-1]
 
 
