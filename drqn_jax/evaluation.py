@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from functools import partial
 from typing import Any, NamedTuple
 
 import jax
@@ -22,6 +21,7 @@ import numpy as np
 from drqn_jax.agents.base import Agent
 from drqn_jax.env.params import KMH, EnvParams
 from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.programs import jit_in_store
 from drqn_jax.pytree import pytree_dataclass
 
 __all__ = [
@@ -201,7 +201,7 @@ def rollout_episode(
     return play_episode(agent, key, env, params)[0]
 
 
-@partial(jax.jit, static_argnames=("env", "batch_size"))
+@jit_in_store("env", "batch_size")
 def run_episodes(
     agent: Agent,
     keys: jax.Array,

@@ -47,6 +47,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from drqn_jax.programs import jit_in_store
+
 __all__ = ["ContractReport", "EnvContractError", "check_env_contract", "same_key"]
 
 
@@ -212,7 +214,7 @@ def _rollout(
     return {"reset": first, "steps": steps}
 
 
-_jit_rollout = jax.jit(_rollout, static_argnums=(0, 1))
+_jit_rollout = jit_in_store("env", "reset_key")(_rollout)
 
 
 def _eager_rollout(env, params, reset_keys, action_keys, step_keys, num_steps):

@@ -9,15 +9,11 @@ and kept. A cache hit loads the very executable an earlier compile produced
 (the key holds the program, the XLA flags and the JAX version), so results
 are the same bits; only compile time is saved.
 
-Each worker also keeps its live compiled programs bounded: every XLA:CPU
-executable maps code and data into the process, and Linux ends a process that
-reaches ``vm.max_map_count`` (65,530 by default) with a crash inside XLA. After
-a test file, a worker holding more than :data:`MAP_BUDGET` memory maps drops its
-compiled programs (JAX's caches and :mod:`drqn_jax.programs`); the next file
-recompiles, mostly from the persistent cache.
+No test file needs to drop compiled programs to stay under Linux's
+``vm.max_map_count``: :mod:`drqn_jax.programs` bounds what it holds by memory
+maps, and the package keeps no jitted function with static arguments outside it.
 """
 
-import gc
 import os
 import shutil
 import tempfile
@@ -26,10 +22,6 @@ import jax
 import pytest
 
 import drqn_jax
-from drqn_jax.programs import clear_programs
-
-#: Memory maps a worker may hold after a test file before it drops its programs.
-MAP_BUDGET = 30_000
 
 _CACHE_VARIABLE = "JAX_COMPILATION_CACHE_DIR"
 _made_cache = pytest.StashKey[str]()
@@ -50,25 +42,6 @@ def pytest_unconfigure(config: pytest.Config) -> None:
     path = config.stash.get(_made_cache, None)
     if path is not None:
         shutil.rmtree(path, ignore_errors=True)
-
-
-def _memory_maps() -> int:
-    """This process's memory maps (Linux; 0 where /proc is not there)."""
-    try:
-        with open("/proc/self/maps") as maps:
-            return sum(1 for _ in maps)
-    except OSError:
-        return 0
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _bounded_compiled_programs():
-    """After each test file: drop the compiled programs if the maps near the limit."""
-    yield
-    if _memory_maps() > MAP_BUDGET:
-        clear_programs()
-        jax.clear_caches()
-        gc.collect()
 
 
 @pytest.fixture(scope="session")

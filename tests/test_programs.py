@@ -37,6 +37,43 @@ def test_a_builder_builds_once_per_arguments_and_evicts_the_least_recent(monkeyp
     assert built == [(2, 1)]
 
 
+def test_over_the_map_budget_the_least_recent_half_goes(monkeypatch):
+    @cached_program
+    def build(x):
+        return object()
+
+    clear_programs()
+    for x in range(6):
+        build(x)
+    # over a budget of 5 maps while more than 3 programs are held
+    monkeypatch.setattr(programs, "map_budget", lambda: 5)
+    monkeypatch.setattr(programs, "memory_maps", lambda: 10 if len(programs._STORE) > 3 else 0)
+    build(6)  # 6 held, over budget: 0, 1, 2 go, then 6 joins
+    assert [key[1][0][0] for key in programs._STORE] == [3, 4, 5, 6]
+    build(3)  # held: no check, nothing goes
+    assert len(programs._STORE) == 4
+    monkeypatch.undo()
+    assert programs.memory_maps() > 0 and programs.map_budget() > 1000
+
+
+def test_jit_in_store_jits_once_per_static_value_in_the_store():
+    traced = []
+
+    @programs.jit_in_store("power")
+    def raise_to(x, power=2):
+        traced.append(power)
+        return x**power
+
+    clear_programs()
+    x = jax.numpy.float32(3.0)
+    assert float(raise_to(x)) == 9.0 and float(raise_to(x, power=2)) == 9.0
+    assert float(raise_to(x, 3)) == 27.0 and float(raise_to(2 * x, 3)) == 216.0
+    assert traced == [2, 3]  # one trace per static value, the same program reused
+    assert program_counts() == {f"{__name__}.{raise_to.__qualname__}": 2}
+    clear_programs()
+    assert float(raise_to(x, 3)) == 27.0 and traced == [2, 3, 3]
+
+
 def test_the_same_network_config_gives_the_same_functions_and_agents():
     config = NetworkConfig(recurrent=8, hidden=8)
     net = make_network(config)
@@ -58,10 +95,14 @@ def test_cleared_programs_rebuild_with_identical_results():
 
 
 def test_the_package_caches_programs_only_there():
-    """No second cache: functools.cache / lru_cache and module-level dicts filled at
-    run time (``_NAME: dict[...] = {}``) are gone from every module but programs.py."""
+    """No second cache: functools.cache / lru_cache, module-level dicts filled at
+    run time (``_NAME: dict[...] = {}``) and module-level jits with static arguments
+    (an executable per static value for the life of the process: ``jit_in_store``
+    instead) are gone from every module but programs.py."""
     pattern = re.compile(
-        r"functools\.(lru_)?cache\b|@(lru_)?cache\b|^_[A-Z_]+: dict\[.*\] = \{\}", re.M
+        r"functools\.(lru_)?cache\b|@(lru_)?cache\b|^_[A-Z_]+: dict\[.*\] = \{\}"
+        r"|^@(functools\.)?partial\(jax\.jit, static|^\w+ = jax\.jit\(.*static",
+        re.M,
     )
     found = [
         str(path.relative_to(PACKAGE))

@@ -29,7 +29,6 @@ import itertools
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from functools import partial
 from typing import Any
 
 import jax
@@ -49,6 +48,7 @@ from drqn_jax.evaluation import (
     summarize_outcomes,
 )
 from drqn_jax.experiments.stats import t_interval
+from drqn_jax.programs import jit_in_store
 
 __all__ = [
     "PLANNER_CAPS_KMH",
@@ -152,7 +152,7 @@ def _rule_based_params(settings: Sequence[Mapping[str, float]]) -> RuleBasedPara
     return jax.tree.map(lambda *xs: jnp.stack(xs), *each)
 
 
-@partial(jax.jit, static_argnames=("make_agent", "env", "batch_size"))
+@jit_in_store("make_agent", "env", "batch_size")
 def sweep_family(
     make_agent: Callable[[Any], Agent],
     settings: Any,

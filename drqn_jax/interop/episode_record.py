@@ -9,7 +9,6 @@ collision). :mod:`drqn_jax.interop.recording` writes them as rerun files.
 
 from __future__ import annotations
 
-from functools import partial
 from typing import Any
 
 import jax
@@ -23,7 +22,7 @@ from drqn_jax.env.state import ACTIONS, EnvState
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.evaluation import Decision, episode_keys, map_episodes, play_episode
 from drqn_jax.networks import Network
-from drqn_jax.programs import cached_program
+from drqn_jax.programs import cached_program, jit_in_store
 from drqn_jax.pytree import pytree_dataclass
 
 __all__ = ["EpisodeRecord", "collect_episodes", "with_q_values"]
@@ -131,7 +130,7 @@ def _record_decision(with_q: bool) -> Any:
     return trace
 
 
-@partial(jax.jit, static_argnames=("env", "with_q"))
+@jit_in_store("env", "with_q")
 def _rollouts(
     agent: Agent, keys: jax.Array, env: UrbanPedestrians, params: EnvParams, with_q: bool
 ) -> EpisodeRecord:
