@@ -123,12 +123,12 @@ def test_chunked_run_ends_bit_identical_to_one_shot():
     trainer = make_train(config)
     key = jax.random.key(1)
     params, metrics = jax.jit(trainer.train)(key)
+    run = jax.jit(trainer.run, static_argnums=1)  # one program per chunk size
     for chunk in (1, 3):
         state = trainer.init(key)
-        run = jax.jit(trainer.run, static_argnums=1)
         while not bool(state.finished):
             state = run(state, chunk)
-        state = run(state, 2)  # past the end: nothing changes
+        state = run(state, chunk)  # past the end: nothing changes
         for a, b in zip(
             jax.tree.leaves((params, metrics)),
             jax.tree.leaves((state.online, state.metrics)),
