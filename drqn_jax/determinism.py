@@ -37,10 +37,8 @@ Two more things fix the rounding of matrix products (measured, issues 6 and 51):
   its weight gradients from a materialised transpose
   (:func:`drqn_jax.networks._rows_product`): results are the same whatever the
   pool, hence whatever the device count, ``PJRT_NPROC`` or core count. The
-  copy costs speed: the paper preset's gradient update ran at 17.9 against
-  22.8 updates/s, end to end 19.7 against 20.6 env steps/s (one run, 2-core
-  Xeon, jax 0.10.2, ``python -m benchmarks.train_throughput --runs 1
-  --fill-episodes 6 --repeats 3``).
+  copy costs some speed on the CPU (measured in ``benchmarks/RESULTS.md``,
+  "Device-invariant weight gradients").
   ``--xla_cpu_multi_thread_eigen=false`` does not help: XLA:CPU's runtime
   hands Eigen the pool regardless (checked with jax 0.10.2).
 * **No batch of one.** A ``vmap`` over one element compiles unbatched
