@@ -117,26 +117,39 @@ def test_stored_state_is_the_acting_lstms_state():
     replay = state.replay
     slot = int(np.flatnonzero(np.asarray(replay.complete))[0])
     n = int(replay.length[slot])
-    episode = jax.tree.map(lambda x: x[slot, : n + 1], replay.records)
-    prev = jnp.concatenate([jnp.array([-1]), replay.action[slot, :n]])
-    obs = observations(episode, prev, state.env_params, trainer.env.static)
-    net, carry = trainer.network, trainer.network.initial_carry(())
-    for t in range(n + 1):
-        stored = jax.tree.map(lambda x, t=t: x[slot, t], replay.carry)
-        for a, b in zip(jax.tree.leaves(stored), jax.tree.leaves(carry), strict=True):
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
-        _, carry = net.step(state.online, jax.tree.map(lambda x, t=t: x[t], obs), carry)
-    windows = sample_windows(
-        replay, jax.random.key(1), 4, 4, _observe(state, trainer.env.static), hp.window_start
-    )
-    first = jax.tree.map(lambda x: x[windows.slot, windows.start], replay.carry)
-    assert_tree_equal(windows.carry, first)
-    zero_start = sequence_loss(
-        state.online, state.target, windows.replace(carry=None), net, hp.gamma
-    )[0]
-    stored_start = sequence_loss(state.online, state.target, windows, net, hp.gamma)[0]
+    net, static = trainer.network, trainer.env.static
+
+    @jax.jit
+    def entered(state):  # the LSTM state each observation of the episode was entered with
+        episode = jax.tree.map(lambda x: x[slot, : n + 1], state.replay.records)
+        prev = jnp.concatenate([jnp.array([-1]), state.replay.action[slot, :n]])
+
+        def step(carry, o):
+            return net.step(state.online, o, carry)[1], carry
+
+        obs = observations(episode, prev, state.env_params, static)
+        return jax.lax.scan(step, net.initial_carry(()), obs)[1]
+
+    stored = jax.tree.map(lambda x: x[slot, : n + 1], replay.carry)
+    for a, b in zip(jax.tree.leaves(stored), jax.tree.leaves(entered(state)), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
+
+    @jax.jit
+    def windows_and_losses(state):
+        windows = sample_windows(
+            state.replay, jax.random.key(1), 4, 4, _observe(state, static), hp.window_start
+        )
+        first = jax.tree.map(lambda x: x[windows.slot, windows.start], state.replay.carry)
+        loss = [
+            sequence_loss(state.online, state.target, w, net, hp.gamma)[0]
+            for w in (windows.replace(carry=None), windows)
+        ]
+        return windows.carry, first, loss
+
+    carry, first, (zero_start, stored_start) = windows_and_losses(state)
+    assert_tree_equal(carry, first)
     assert float(zero_start) != float(stored_start)
-    assert make_train(TINY).init(jax.random.key(5)).replay.carry is None
+    assert jax.eval_shape(make_train(TINY).init, jax.random.key(5)).replay.carry is None
     with pytest.raises(ValueError, match="stored_state = 1: network kind 'dqn'"):
         dataclasses.replace(config, network=dataclasses.replace(config.network, kind="dqn"))
 
