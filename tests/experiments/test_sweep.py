@@ -117,6 +117,13 @@ def _other_thread_pool() -> str:
     return str(max(4, 2 * cpu_thread_pool_size()))
 
 
+def _bigger_pool_env(xla_flags: str) -> dict[str, str]:
+    """This process's environment with ``XLA_FLAGS`` and :func:`_other_thread_pool`."""
+    env = {**os.environ, "XLA_FLAGS": xla_flags, "PJRT_NPROC": _other_thread_pool()}
+    env.pop("NPROC", None)
+    return env
+
+
 def _train_on_forced_devices(
     sweep_file: Path, devices: int, out: Path, jobs: dict[str, int], sweep_args: list[str]
 ) -> dict[str, list[np.ndarray]]:
@@ -140,9 +147,7 @@ def _train_on_forced_devices(
         args = ["sweep", {str(sweep_file)!r}, *{sweep_args!r}, "--out", {str(out / "sweep")!r}]
         assert cli.main([*args, "--quiet"]) == 0
     """)
-    env = {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
-    env.pop("NPROC", None)
-    env["PJRT_NPROC"] = _other_thread_pool()
+    env = _bigger_pool_env(f"--xla_force_host_platform_device_count={devices}")
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
     saved = {strategy: np.load(out / f"{strategy}.npz") for strategy in jobs}
@@ -334,8 +339,7 @@ def test_two_processes_on_localhost_match_one_process(sweep_file, cli_sweep, tmp
     command = [sys.executable, "-m", "drqn_jax.cli", "sweep", str(sweep_file), "--quiet"]
     command += [*CLI_SWEEP_ARGS, "--out", str(out)]
     command += ["--coordinator", f"localhost:{port}", "--num-processes", "2"]
-    env = {**os.environ, "XLA_FLAGS": "", "PJRT_NPROC": _other_thread_pool()}
-    env.pop("NPROC", None)
+    env = _bigger_pool_env("")
     procs = [
         subprocess.Popen(
             [*command, "--process-id", str(i)],
