@@ -169,6 +169,39 @@ RECIPES = {
 }
 
 
+def pqn_config(num_env_steps: int = 500_000, num_episodes: int = 20_000) -> TrainConfig:
+    """Recurrent PQN (``algorithm = "pqn"``) on gymnax CartPole-v1 with purejaxql's
+    ``pqn_rnn_cartpole.yaml`` where the learner has the setting: 32 envs × 64
+    steps, 4 epochs of 16 minibatches, lr 1e-4 falling linearly to 0, γ 0.99,
+    λ 0.95, grad norm 10, ε from 1 to 0.2 over the first 20 % of the 500,000
+    env steps. Not theirs: Adam (theirs RAdam), no LayerNorm, no reward scale
+    (0.1) and no memory window; our core is two LSTMs of 64 after a 64-wide MLP
+    torso (theirs a GRU of 256 after two dense layers of 256)."""
+    hp = dict(
+        learning_rate=1e-4,
+        learning_rate_end=0.0,
+        gamma=0.99,
+        q_lambda=0.95,
+        max_grad_norm=10.0,
+        epsilon_start=1.0,
+        epsilon_end=0.2,
+        epsilon_fraction=0.2,
+    )
+    return TrainConfig(
+        env_id="gymnax:CartPole-v1",
+        network=NetworkConfig(kind="drqn", **SMALL),
+        algorithm="pqn",
+        num_envs=32,
+        num_episodes=num_episodes,
+        num_env_steps=num_env_steps,
+        rollout_steps=64,
+        update_epochs=4,
+        num_minibatches=16,
+        chunk_iterations=50,
+        hyperparams=Hyperparams(**hp),
+    )
+
+
 def run_recipe(config: TrainConfig, seeds: int, episodes: int, seed0: int = 0) -> dict[str, Any]:
     """Train ``seeds`` seeds of ``config`` (DQN/DRQN or PPO) at once, then play
     ``episodes`` greedy episodes each: per seed the mean greedy return and the

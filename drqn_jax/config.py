@@ -46,6 +46,7 @@ from drqn_jax.agents.rule_based import RuleBasedParams
 from drqn_jax.env.params import KMH, EnvParams, StaticEnvParams
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.learners import Hyperparams, TrainConfig
+from drqn_jax.learners.hyperparams import ON_POLICY
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.registry import make, preset, registered_envs
 
@@ -524,7 +525,7 @@ class Config:
             raise ConfigError(
                 f"planner.v_cap = {cap}: must be <= env.v_ref = {limit} (m/s; the speed limit)"
             )
-        if train["algorithm"] == "ppo":  # no replay: its sizes are unused
+        if train["algorithm"] in ON_POLICY:  # no replay: its sizes are unused
             return
         max_steps = env.static.max_steps
         if train["window"] > max_steps:

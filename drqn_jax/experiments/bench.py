@@ -21,6 +21,7 @@ import jax
 from drqn_jax.config import Config
 from drqn_jax.experiments.runner import init_program
 from drqn_jax.learners import make_train
+from drqn_jax.learners.hyperparams import ON_POLICY
 
 __all__ = ["bench_env", "bench_train", "train_figures"]
 
@@ -72,9 +73,10 @@ def bench_env(config: Config, num_envs: int, steps: int) -> str:
 def _learner_text(config: Config) -> str:
     """What one training iteration of ``config``'s learner holds, in its own terms."""
     train = config["train"]
-    if train["algorithm"] == "ppo":
+    if train["algorithm"] in ON_POLICY:
         return (
-            f"PPO: a rollout of {train['rollout_steps']} steps × {train['num_envs']} envs, "
+            f"{train['algorithm'].upper()}: a rollout of {train['rollout_steps']} steps × "
+            f"{train['num_envs']} envs, "
             f"{train['update_epochs']} epochs × {train['num_minibatches']} minibatches"
         )
     return (

@@ -29,6 +29,7 @@ import jax
 import numpy as np
 
 from drqn_jax.config import Config, ConfigError
+from drqn_jax.learners.hyperparams import ON_POLICY
 from drqn_jax.networks import NetworkConfig
 
 __all__ = [
@@ -125,7 +126,7 @@ def activation_bytes(config: Config) -> int:
     """Estimated temporaries of one gradient update (and of acting, which is smaller):
     the DQN's minibatch of windows, or PPO's rollout (whose minibatches are parts of it)."""
     train = config["train"]
-    if train["algorithm"] == "ppo":
+    if train["algorithm"] in ON_POLICY:
         samples = train["rollout_steps"] * train["num_envs"]
     else:
         samples = train["batch_size"] * (train["burn_in"] + train["window"] + 1)

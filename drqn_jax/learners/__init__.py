@@ -9,8 +9,9 @@ Shared: :mod:`~drqn_jax.learners.optim` (Adam by hand),
 :mod:`~drqn_jax.learners.trainer` (the ``Trainer`` every learner returns).
 
 Algorithms: :mod:`drqn_jax.learners.dqn` (the paper's replay DRQN and its DQN
-ablations: acting, update, loss, replay) and :mod:`drqn_jax.learners.ppo`
-(recurrent PPO). :func:`make_train` picks one by ``TrainConfig.algorithm``.
+ablations: acting, update, loss, replay), :mod:`drqn_jax.learners.ppo`
+(recurrent PPO) and :mod:`drqn_jax.learners.pqn` (recurrent PQN).
+:func:`make_train` picks one by ``TrainConfig.algorithm``.
 The networks themselves (Table I) are :mod:`drqn_jax.networks`, one level up:
 the agents run them too.
 """
@@ -21,6 +22,7 @@ from drqn_jax.learners.dqn.state import TrainState
 from drqn_jax.learners.dqn.train import make_dqn
 from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig
 from drqn_jax.learners.ppo import make_ppo
+from drqn_jax.learners.pqn import make_pqn
 from drqn_jax.learners.trainer import Trainer
 
 __all__ = ["Hyperparams", "TrainConfig", "TrainState", "Trainer", "make_train"]
@@ -29,7 +31,8 @@ __all__ = ["Hyperparams", "TrainConfig", "TrainState", "Trainer", "make_train"]
 def make_train(config: TrainConfig | None = None) -> Trainer:
     """The pure training functions of ``config`` (default: ``TrainConfig()``): the
     replay DQN's (:func:`~drqn_jax.learners.dqn.train.make_dqn`) or recurrent PPO's
-    (``algorithm = "ppo"``, :func:`~drqn_jax.learners.ppo.make_ppo`).
+    (``algorithm = "ppo"``, :func:`~drqn_jax.learners.ppo.make_ppo`) or recurrent
+    PQN's (``"pqn"``, :func:`~drqn_jax.learners.pqn.make_pqn`).
 
     Equal configurations get the same :class:`Trainer` (the same function
     objects), so ``jax.jit`` reuses what it compiled for them.
@@ -37,4 +40,6 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
     config = TrainConfig() if config is None else config
     if config.algorithm == "ppo":
         return make_ppo(config)
+    if config.algorithm == "pqn":
+        return make_pqn(config)
     return make_dqn(config)

@@ -47,8 +47,11 @@ IMITATION_ALL = IMITATION_STATES.index("all")
 #: How the run's agent is chosen among its candidates (``Hyperparams.select_by``).
 SELECT_BY = ("return", "safe")
 #: The learners (``TrainConfig.algorithm``): the paper's (D)RQN, trained by
-#: Double-DQN on an episode replay, or recurrent PPO (:mod:`drqn_jax.learners.ppo`).
-ALGORITHMS = ("dqn", "ppo")
+#: Double-DQN on an episode replay, recurrent PPO (:mod:`drqn_jax.learners.ppo`) or
+#: recurrent PQN (:mod:`drqn_jax.learners.pqn`).
+ALGORITHMS = ("dqn", "ppo", "pqn")
+#: The learners without a replay: each update learns from a rollout of every env.
+ON_POLICY = ("ppo", "pqn")
 
 
 @pytree_dataclass
@@ -161,6 +164,9 @@ class Hyperparams:
     gae_lambda: float = param(
         0.95, low=0.0, high=1.0, doc="ppo: λ of the generalised advantage estimates"
     )
+    q_lambda: float = param(
+        0.95, low=0.0, high=1.0, doc="pqn: λ of the Q(λ) targets (purejaxql: 0.95)"
+    )
     clip_eps: float = param(
         0.2, low=0.0, low_open=True, doc="ppo: clip range of the probability ratio and the value"
     )
@@ -170,7 +176,7 @@ class Hyperparams:
         0.5,
         low=0.0,
         low_open=True,
-        doc="ppo: gradients are scaled down to this global norm (PureJaxRL: 0.5)",
+        doc="ppo, pqn: gradients are scaled down to this global norm (PureJaxRL: 0.5)",
     )
 
     def __post_init__(self) -> None:
@@ -204,15 +210,16 @@ def teacher_label(hp: Hyperparams) -> str:
 
 
 #: Names of trained agents in results tables (:func:`agent_name`).
-LEARNED_AGENTS = ("drqn", "dqn", "ppo", "ppo-ff")
+LEARNED_AGENTS = ("drqn", "dqn", "ppo", "ppo-ff", "pqn", "pqn-ff")
 
 
 def agent_name(config: TrainConfig) -> str:
     """The name of the agent ``config`` trains, in results tables: the network kind
-    of the paper's learner (``"drqn"``, ``"dqn"``), or ``"ppo"`` (recurrent) /
-    ``"ppo-ff"`` (feed-forward, network kind ``"dqn"``)."""
-    if config.algorithm == "ppo":
-        return "ppo" if config.network.kind == "drqn" else "ppo-ff"
+    of the paper's learner (``"drqn"``, ``"dqn"``), or ``"ppo"`` / ``"pqn"``
+    (recurrent) and ``"ppo-ff"`` / ``"pqn-ff"`` (feed-forward, network kind ``"dqn"``)."""
+    if config.algorithm in ON_POLICY:
+        name = config.algorithm
+        return name if config.network.kind == "drqn" else f"{name}-ff"
     return config.network.kind
 
 
@@ -272,8 +279,10 @@ class TrainConfig:
         default="dqn",
         metadata={
             "choices": ALGORITHMS,
-            "doc": "the learner: 'dqn' (the paper: Double-DQN on an episode replay) or 'ppo' "
-            "(recurrent PPO, PureJaxRL's ppo_rnn; the replay and ε fields are unused)",
+            "doc": "the learner: 'dqn' (the paper: Double-DQN on an episode replay), 'ppo' "
+            "(recurrent PPO, PureJaxRL's ppo_rnn; the replay and ε fields are unused) or "
+            "'pqn' (recurrent PQN, purejaxql's pqn_rnn: ε-greedy rollouts, Q(λ) targets, "
+            "no replay and no target network)",
         },
     )
     num_envs: int = 1
@@ -325,14 +334,16 @@ class TrainConfig:
         metadata={"doc": "greedy episodes per candidate when snapshots > 0"},
     )
     rollout_steps: int = dataclasses.field(
-        default=128, metadata={"doc": "ppo: steps per env in each update's rollout"}
+        default=128, metadata={"doc": "ppo, pqn: steps per env in each update's rollout"}
     )
     update_epochs: int = dataclasses.field(
-        default=4, metadata={"doc": "ppo: passes over each rollout"}
+        default=4, metadata={"doc": "ppo, pqn: passes over each rollout"}
     )
     num_minibatches: int = dataclasses.field(
         default=4,
-        metadata={"doc": "ppo: minibatches per pass, of whole env sequences; divides num_envs"},
+        metadata={
+            "doc": "ppo, pqn: minibatches per pass, of whole env sequences; divides num_envs"
+        },
     )
     hyperparams: Hyperparams = dataclasses.field(default_factory=Hyperparams)
 
@@ -375,8 +386,8 @@ class TrainConfig:
                 f"(num_episodes // num_envs - 1): snapshots are taken at least num_envs "
                 "episodes apart, the most that end in one iteration"
             )
-        if self.algorithm == "ppo":
-            self._check_ppo()
+        if self.algorithm in ON_POLICY:
+            self._check_on_policy()
         else:
             self._check_dqn()
 
@@ -406,25 +417,27 @@ class TrainConfig:
                 f"{self.num_envs} environments write (learning would never start)"
             )
 
-    def _check_ppo(self) -> None:
-        """PPO's rules (algorithm ``"ppo"``): whole env sequences per minibatch, and
-        none of the replay learner's options that would change what it learns."""
+    def _check_on_policy(self) -> None:
+        """The rules of the learners without a replay (``ON_POLICY``): whole env
+        sequences per minibatch, and none of the replay learner's options that
+        would change what they learn."""
+        name = self.algorithm
         if self.num_envs % self.num_minibatches:
             raise ValueError(
                 f"TrainConfig.num_minibatches = {self.num_minibatches}: must divide num_envs "
                 f"({self.num_envs}); a minibatch holds whole env sequences"
             )
-        for name in ("stored_state", "burn_in", "snapshots"):
-            if getattr(self, name):
+        for field in ("stored_state", "burn_in", "snapshots"):
+            if getattr(self, field):
                 raise ValueError(
-                    f"TrainConfig.{name} = {getattr(self, name)}: algorithm 'ppo' has no "
+                    f"TrainConfig.{field} = {getattr(self, field)}: algorithm {name!r} has no "
                     "replay and no snapshot selection; use 0"
                 )
-        for name in ("explore_guide", "imitation_weight", "value_rescale"):
-            if float(getattr(self.hyperparams, name)) > 0.0:
+        for field in ("explore_guide", "imitation_weight", "value_rescale"):
+            if float(getattr(self.hyperparams, field)) > 0.0:
                 raise ValueError(
-                    f"Hyperparams.{name} = {float(getattr(self.hyperparams, name))}: "
-                    "algorithm 'ppo' learns from the reward alone, without it; use 0"
+                    f"Hyperparams.{field} = {float(getattr(self.hyperparams, field))}: "
+                    f"algorithm {name!r} learns from the reward alone, without it; use 0"
                 )
 
     def program_key(self) -> tuple:

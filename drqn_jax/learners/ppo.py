@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
@@ -53,9 +54,13 @@ __all__ = [
     "Transition",
     "actor_critic",
     "gae",
+    "init_on_policy_state",
     "make_ppo",
+    "minibatch_epochs",
     "policy_network",
     "ppo_loss",
+    "restarted",
+    "run_updates",
 ]
 
 
@@ -201,11 +206,11 @@ def _make_ppo(config: TrainConfig) -> Trainer:
     def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
         hp = config.hyperparams if hparams is None else hparams
         env_params = task.env_params if env_params is None else env_params
-        return _init_state(config, task, network, key, hp, env_params)
+        return init_on_policy_state(config, task, network, key, hp, env_params)
 
     def act(state: PPOState, key: jax.Array) -> tuple[jax.Array, Any]:
         """Actions (N,) sampled from the policy and the advanced carry."""
-        out, carry = network.step(state.online, state.obs, _restarted(network, state))
+        out, carry = network.step(state.online, state.obs, restarted(network, state))
         return jax.random.categorical(key, out[..., :n_act]).astype(jnp.int32), carry
 
     def update(state: PPOState) -> PPOState:
@@ -213,22 +218,34 @@ def _make_ppo(config: TrainConfig) -> Trainer:
         state, traj = _rollout(config, task, network, state)
         return _learn(config, network, n_act, state, traj, carry0)
 
-    def run(state: PPOState, num_iterations: int) -> PPOState:
-        """``num_iterations`` updates; those after the run finished change nothing."""
+    return make_trainer(config, task, policy, init, act, run_updates(update))
 
+
+def run_updates(update: Callable[[PPOState], PPOState]) -> Callable[[PPOState, int], PPOState]:
+    """The ``run`` of an on-policy learner (PPO's, PQN's) whose iteration is
+    ``update``: ``run(state, num_iterations)`` scans that many updates; those
+    after the run finished change nothing."""
+
+    def run(state: PPOState, num_iterations: int) -> PPOState:
         def body(state, _):
             return jax.lax.cond(state.finished, lambda s: s, update, state), None
 
         return jax.lax.scan(body, state, None, length=num_iterations)[0]
 
-    return make_trainer(config, task, policy, init, act, run)
+    return run
 
 
-def _init_state(
-    config: TrainConfig, task: Task, network: Network, key: jax.Array, hp: Hyperparams, env_params
+def init_on_policy_state(
+    config: TrainConfig,
+    task: Task,
+    network: Network,
+    key: jax.Array,
+    hp: Hyperparams,
+    env_params: Any,
+    extra_metrics: tuple[str, ...] = (),
 ) -> PPOState:
-    """The state before the first update: N envs reset, a fresh network and Adam,
-    empty metrics."""
+    """The state before the first update (PPO's and PQN's): N envs reset, a fresh
+    network and Adam, empty metrics (with the learner's ``extra_metrics``)."""
     n_env = config.num_envs
     key, k_net, k_env = jax.random.split(key, 3)
     params = network.init(k_net)
@@ -243,12 +260,12 @@ def _init_state(
         done=jnp.zeros((n_env,), bool),
         online=params,
         opt_state=adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps).init(params),
-        metrics=init_metrics(task, config.num_episodes),
+        metrics=init_metrics(task, config.num_episodes, extra_metrics),
         **init_counters(n_env, config.num_env_steps),
     )
 
 
-def _restarted(network: Network, state: PPOState) -> Any:
+def restarted(network: Network, state: PPOState) -> Any:
     """The carry (leaves (N, …)) the next step starts from: zeros where the last
     step ended an episode."""
     return tree_where(state.done, network.initial_carry(state.done.shape), state.carry)
@@ -265,7 +282,7 @@ def _rollout(
 
     def step(state, _):
         key, k_act, k_env = jax.random.split(state.key, 3)
-        out, carry = network.step(state.online, state.obs, _restarted(network, state))
+        out, carry = network.step(state.online, state.obs, restarted(network, state))
         logits, value = out[..., :n_act], out[..., n_act]
         action = jax.random.categorical(k_act, logits).astype(jnp.int32)
         log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[:, None], axis=-1)[:, 0]
@@ -294,22 +311,42 @@ def _learn(
     (global-norm clip, Adam at the annealed rate); the update's mean loss joins
     every running episode's."""
     hp = state.hparams
-    out, _ = network.step(state.online, state.obs, _restarted(network, state))
+    out, _ = network.step(state.online, state.obs, restarted(network, state))
     advantage, target = gae(traj.value, traj.reward, traj.done, out[..., n_act], hp)
     lr = annealed(
         hp, state.recorded, config.num_episodes, step_share(config, state.env_steps)
     ).learning_rate
-    opt = adam(lr, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+
+    def grads_of(params, envs):
+        take = functools.partial(jnp.take, indices=envs, axis=1)
+        batch = jax.tree.map(take, traj)
+        mb_carry = jax.tree.map(functools.partial(jnp.take, indices=envs, axis=0), carry0)
+        return jax.grad(_total_loss, has_aux=True)(
+            params, network, n_act, mb_carry, batch, take(advantage), take(target), hp
+        )
+
+    return minibatch_epochs(config, state, lr, grads_of)
+
+
+def minibatch_epochs(
+    config: TrainConfig,
+    state: Any,
+    learning_rate: jax.Array,
+    grads_of: Callable[[Any, jax.Array], tuple[Any, jax.Array]],
+) -> Any:
+    """``update_epochs`` passes over the N envs in ``num_minibatches`` random
+    minibatches of whole env sequences: ``grads_of(params, envs (N / M,))`` gives a
+    minibatch's gradients and loss; each step clips them to ``max_grad_norm`` and
+    takes an Adam step. The state with the new parameters and optimiser, its
+    key advanced, the gradient steps counted and the mean loss added to every
+    running episode's (PPO's and PQN's update)."""
+    hp = state.hparams
+    opt = adam(learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
     per_mb = config.num_envs // config.num_minibatches
 
     def minibatch(learner, envs):
         params, opt_state = learner
-        take = functools.partial(jnp.take, indices=envs, axis=1)
-        batch = jax.tree.map(take, traj)
-        mb_carry = jax.tree.map(functools.partial(jnp.take, indices=envs, axis=0), carry0)
-        grads, loss = jax.grad(_total_loss, has_aux=True)(
-            params, network, n_act, mb_carry, batch, take(advantage), take(target), hp
-        )
+        grads, loss = grads_of(params, envs)
         grads, _ = clip_by_global_norm(hp.max_grad_norm).update(grads, ())
         updates, opt_state = opt.update(grads, opt_state, params)
         return (apply_updates(params, updates), opt_state), loss
