@@ -11,6 +11,12 @@ README):
 * ``cartpole-ppo``: recurrent PPO (:mod:`drqn_jax.learners.ppo`) on ``CartPole-v1``
   with PureJaxRL's ppo_rnn recipe and its budget (5·10⁵ env steps) in
   episodes (:func:`ppo_config`). Target: mean greedy return ≥ 475, every seed.
+* ``cartpole-pqn``: recurrent PQN (:mod:`drqn_jax.learners.pqn`) on
+  ``CartPole-v1`` with purejaxql's ``pqn_rnn_cartpole.yaml`` and its budget
+  (5·10⁵ env steps; :func:`pqn_config`). Target: mean greedy return ≥ 475.
+* ``memory100-pqn``: recurrent PQN on MemoryChain with purejaxql's
+  ``pqn_rnn_memory_chain.yaml`` (memory length 100, 10⁵ env steps;
+  :func:`pqn_memory_config`). Target: ≥ 90 % success.
 * ``memory-drqn`` / ``memory-dqn``: bsuite's MemoryChain (gymnax defaults:
   memory length 5, one context bit): the first observation shows a bit that
   the last action must repeat (+1, else −1). The DRQN sees whole episodes in
@@ -42,7 +48,16 @@ from drqn_jax.learners import Hyperparams, TrainConfig, make_train
 from drqn_jax.learners.task import greedy_returns
 from drqn_jax.networks import NetworkConfig
 
-__all__ = ["RECIPES", "cartpole_config", "main", "memory_config", "ppo_config", "run_recipe"]
+__all__ = [
+    "RECIPES",
+    "cartpole_config",
+    "main",
+    "memory_config",
+    "ppo_config",
+    "pqn_config",
+    "pqn_memory_config",
+    "run_recipe",
+]
 
 #: Small dense networks for flat observations: MLP torso 64 → core 64 → FC 64.
 SMALL = {"recurrent": 64, "hidden": 64, "mlp": (64,)}
@@ -150,10 +165,81 @@ def ppo_config(num_env_steps: int = 976 * 4 * 128, num_episodes: int = 10_000) -
     )
 
 
+def pqn_config(num_env_steps: int = 500_000, num_episodes: int = 20_000) -> TrainConfig:
+    """Recurrent PQN (``algorithm = "pqn"``) on gymnax CartPole-v1 with purejaxql's
+    ``pqn_rnn_cartpole.yaml`` where the learner has the setting: 32 envs × 64
+    steps, 4 epochs of 16 minibatches, RAdam at lr 1e-4 falling linearly to 0,
+    γ 0.99, λ 0.95, rewards × 0.1, grad norm 10, LayerNorm, ε from 1 to 0.2 over
+    the first 20 % of the 500,000 env steps. Not theirs: no memory window; our
+    core is two LSTMs of 64 after a 64-wide MLP torso (theirs a GRU of 256
+    after two dense layers of 256)."""
+    hp = dict(
+        learning_rate=1e-4,
+        learning_rate_end=0.0,
+        gamma=0.99,
+        q_lambda=0.95,
+        max_grad_norm=10.0,
+        epsilon_start=1.0,
+        epsilon_end=0.2,
+        epsilon_fraction=0.2,
+        reward_scale=0.1,
+    )
+    return TrainConfig(
+        env_id="gymnax:CartPole-v1",
+        network=NetworkConfig(kind="drqn", layer_norm=True, **SMALL),
+        algorithm="pqn",
+        optimizer="radam",
+        num_envs=32,
+        num_episodes=num_episodes,
+        num_env_steps=num_env_steps,
+        rollout_steps=64,
+        update_epochs=4,
+        num_minibatches=16,
+        chunk_iterations=50,
+        hyperparams=Hyperparams(**hp),
+    )
+
+
+def pqn_memory_config(memory_length: int = 100, num_env_steps: int = 100_000) -> TrainConfig:
+    """Recurrent PQN on gymnax MemoryChain-bsuite with purejaxql's
+    ``pqn_rnn_memory_chain.yaml``: memory length 100 (episodes of 101 steps),
+    10⁵ env steps, 32 envs × 128 steps, 4 epochs of 16 minibatches, RAdam at a
+    constant lr 1e-3, γ 0.99, λ 0.95, grad norm 10, LayerNorm, ε from 1 to 0.01
+    over the first 10 %. Not theirs: no memory window (each minibatch unrolls
+    from the acting state at its rollout's start) and our narrower core."""
+    hp = dict(
+        learning_rate=1e-3,
+        gamma=0.99,
+        q_lambda=0.95,
+        max_grad_norm=10.0,
+        epsilon_start=1.0,
+        epsilon_end=0.01,
+        epsilon_fraction=0.1,
+        explore_bias_fraction=0.0,
+    )
+    return TrainConfig(
+        env_id="gymnax:MemoryChain-bsuite",
+        env_overrides=(("max_steps", memory_length + 1), ("memory_length", memory_length)),
+        network=NetworkConfig(kind="drqn", layer_norm=True, **SMALL),
+        algorithm="pqn",
+        optimizer="radam",
+        num_envs=32,
+        num_episodes=num_env_steps // (memory_length + 1) + 64,
+        num_env_steps=num_env_steps,
+        rollout_steps=128,
+        update_epochs=4,
+        num_minibatches=16,
+        chunk_iterations=50,
+        hyperparams=Hyperparams(**hp),
+    )
+
+
 #: name -> (config, success threshold on the mean greedy return, target text).
 RECIPES = {
     "cartpole-dqn": (cartpole_config, 475.0, "mean greedy return ≥ 475"),
     "cartpole-ppo": (ppo_config, 475.0, "mean greedy return ≥ 475"),
+    "cartpole-pqn": (pqn_config, 475.0, "mean greedy return ≥ 475"),
+    "memory100-pqn": (pqn_memory_config, None, "success ≥ 90 % (purejaxql's memory length 100)"),
     "memory-drqn": (lambda: memory_config("drqn"), None, "success ≥ 90 %"),
     "memory-dqn": (lambda: memory_config("dqn"), None, "success near 50 % (no memory)"),
     "memory12-drqn": (
@@ -167,39 +253,6 @@ RECIPES = {
         "success ≥ 90 % (windows start from the stored state)",
     ),
 }
-
-
-def pqn_config(num_env_steps: int = 500_000, num_episodes: int = 20_000) -> TrainConfig:
-    """Recurrent PQN (``algorithm = "pqn"``) on gymnax CartPole-v1 with purejaxql's
-    ``pqn_rnn_cartpole.yaml`` where the learner has the setting: 32 envs × 64
-    steps, 4 epochs of 16 minibatches, lr 1e-4 falling linearly to 0, γ 0.99,
-    λ 0.95, grad norm 10, ε from 1 to 0.2 over the first 20 % of the 500,000
-    env steps. Not theirs: Adam (theirs RAdam), no LayerNorm, no reward scale
-    (0.1) and no memory window; our core is two LSTMs of 64 after a 64-wide MLP
-    torso (theirs a GRU of 256 after two dense layers of 256)."""
-    hp = dict(
-        learning_rate=1e-4,
-        learning_rate_end=0.0,
-        gamma=0.99,
-        q_lambda=0.95,
-        max_grad_norm=10.0,
-        epsilon_start=1.0,
-        epsilon_end=0.2,
-        epsilon_fraction=0.2,
-    )
-    return TrainConfig(
-        env_id="gymnax:CartPole-v1",
-        network=NetworkConfig(kind="drqn", **SMALL),
-        algorithm="pqn",
-        num_envs=32,
-        num_episodes=num_episodes,
-        num_env_steps=num_env_steps,
-        rollout_steps=64,
-        update_epochs=4,
-        num_minibatches=16,
-        chunk_iterations=50,
-        hyperparams=Hyperparams(**hp),
-    )
 
 
 def run_recipe(config: TrainConfig, seeds: int, episodes: int, seed0: int = 0) -> dict[str, Any]:

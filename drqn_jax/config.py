@@ -161,7 +161,7 @@ class ConfigError(ValueError):
 @dataclasses.dataclass(frozen=True)
 class _Field:
     default: Any
-    kind: str  # "int" | "float" | "str" | "conv"
+    kind: str  # "int" | "float" | "bool" | "str" | "conv"
     choices: tuple[str, ...] | None = None
     doc: str = ""
 
@@ -177,7 +177,9 @@ def _fields_of(cls: type, skip: Sequence[str] = ()) -> dict[str, _Field]:
         if choices is not None:  # an index (a traced switch) or the name itself
             name = default if isinstance(default, str) else choices[default]
             out[f.name] = _Field(name, "str", choices, f.metadata.get("doc", ""))
-        elif isinstance(default, int) and not isinstance(default, bool):
+        elif isinstance(default, bool):
+            out[f.name] = _Field(default, "bool", doc=f.metadata.get("doc", ""))
+        elif isinstance(default, int):
             out[f.name] = _Field(default, "int", doc=f.metadata.get("doc", ""))
         elif isinstance(default, float):
             out[f.name] = _Field(default, "float", doc=f.metadata.get("doc", ""))
@@ -250,6 +252,8 @@ def _check_type(where: str, value: Any, field: _Field) -> Any:
         return value
     if field.kind == "float" and (is_int or isinstance(value, float)):
         return float(value)
+    if field.kind == "bool" and isinstance(value, bool):
+        return value
     if field.kind == "str" and isinstance(value, str):
         if field.choices is not None and value not in field.choices:
             allowed = ", ".join(map(repr, field.choices))
@@ -260,6 +264,7 @@ def _check_type(where: str, value: Any, field: _Field) -> Any:
     wanted = {
         "int": "an integer",
         "float": "a number",
+        "bool": "true or false",
         "str": "a string" + (f" (one of {', '.join(field.choices)})" if field.choices else ""),
         "conv": "a list of [kernel_h, kernel_w, stride, filters] integer lists",
     }[field.kind]
@@ -471,6 +476,7 @@ class Config:
             recurrent=net["recurrent"],
             hidden=net["hidden"],
             frames=net["frames"],
+            layer_norm=net["layer_norm"],
         )
 
     def hyperparams(self) -> Hyperparams:

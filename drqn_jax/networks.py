@@ -80,6 +80,9 @@ class NetworkConfig:
             chosen from the environment's observation by the trainer.
         mlp: widths of the MLP torso's dense ReLU layers.
         obs_size: length of the flat observation (``torso = "mlp"``).
+        layer_norm: LayerNorm (learned scale and bias) before the ReLU of every
+            dense layer of the MLP torso and of the FC layer (PQN's; False:
+            Table I, none).
     """
 
     kind: str = "drqn"
@@ -92,8 +95,13 @@ class NetworkConfig:
     torso: str = "conv"
     mlp: tuple[int, ...] = (64,)
     obs_size: int = 0
+    layer_norm: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.layer_norm, bool):
+            raise ValueError(
+                f"NetworkConfig.layer_norm = {self.layer_norm!r}: must be true or false"
+            )
         if self.kind not in NETWORK_KINDS:
             raise ValueError(f"NetworkConfig.kind = {self.kind!r}: must be one of {NETWORK_KINDS}")
         if self.torso not in TORSOS:
@@ -255,8 +263,24 @@ def _glorot(key: jax.Array, shape: tuple[int, ...], fan_in: int, fan_out: int) -
     return flat.reshape(shape)
 
 
-def _dense_init(key: jax.Array, n_in: int, n_out: int) -> Params:
-    return {"w": _glorot(key, (n_in, n_out), n_in, n_out), "b": jnp.zeros((n_out,), jnp.float32)}
+def _dense_init(key: jax.Array, n_in: int, n_out: int, norm: bool = False) -> Params:
+    """Glorot weights and zero bias; with ``norm``, a LayerNorm's scale (ones) and
+    bias (zeros) under ``"norm"``."""
+    layer = {"w": _glorot(key, (n_in, n_out), n_in, n_out), "b": jnp.zeros((n_out,), jnp.float32)}
+    if norm:
+        layer["norm"] = {"scale": jnp.ones((n_out,), jnp.float32), "bias": jnp.zeros((n_out,))}
+    return layer
+
+
+def dense_relu(layer: Params, x: jax.Array) -> jax.Array:
+    """ReLU of a dense layer (..., n_in) -> (..., n_out), through a LayerNorm
+    (Ba et al. 2016; ε 1e-6, as flax's) first when the layer has one."""
+    y = affine(x, layer["w"], layer["b"])
+    if "norm" in layer:
+        mean = jnp.mean(y, axis=-1, keepdims=True)
+        var = jnp.mean(jnp.square(y - mean), axis=-1, keepdims=True)
+        y = (y - mean) * jax.lax.rsqrt(var + 1e-6) * layer["norm"]["scale"] + layer["norm"]["bias"]
+    return jax.nn.relu(y)
 
 
 def _lstm_init(key: jax.Array, n_in: int, n_hidden: int) -> Params:
@@ -358,7 +382,7 @@ def mlp_torso(params: Params, obs: jax.Array) -> jax.Array:
     """Dense ReLU layers on flat observations of any leading shape: (..., n) -> (..., width)."""
     x = obs.astype(jnp.float32)
     for layer in params["torso"]:
-        x = jax.nn.relu(affine(x, layer["w"], layer["b"]))
+        x = dense_relu(layer, x)
     return x
 
 
@@ -415,7 +439,7 @@ def make_network(config: NetworkConfig | None = None) -> Network:
             widths = (config.obs_size, *config.mlp)
             return {
                 "torso": [
-                    _dense_init(k, n_in, n_out)
+                    _dense_init(k, n_in, n_out, config.layer_norm)
                     for k, n_in, n_out in zip(keys, widths[:-1], widths[1:], strict=False)
                 ]
             }
@@ -448,7 +472,7 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         return {
             **init_torso(keys[:n_torso]),
             **core,
-            "fc": _dense_init(k3, width, config.hidden),
+            "fc": _dense_init(k3, width, config.hidden, config.layer_norm),
             "q": _dense_init(k4, config.hidden, n_act),
         }
 
@@ -471,8 +495,7 @@ def make_network(config: NetworkConfig | None = None) -> Network:
 
     def head(params: Params, h2: jax.Array) -> jax.Array:
         """Q-values (..., A) of the core's outputs (..., H): FC + ReLU, then linear."""
-        hidden = jax.nn.relu(affine(h2, params["fc"]["w"], params["fc"]["b"]))
-        return affine(hidden, params["q"]["w"], params["q"]["b"])
+        return affine(dense_relu(params["fc"], h2), params["q"]["w"], params["q"]["b"])
 
     def core_step(params: Params, features: jax.Array, extra: jax.Array, carry: Carry):
         """The core and the head for one time step."""

@@ -285,6 +285,8 @@ def test_set_overrides_and_parsing():
         ("train.learning_starts=3", r"train\.learning_starts = 3: must be <= 2"),
         ("train.num_envs=2.5", r"train\.num_envs = 2\.5: must be an integer"),
         ("train.gamma=true", r"train\.gamma = True: must be a number"),
+        ("network.layer_norm=1", r"network\.layer_norm = 1: must be true or false"),
+        ("train.optimizer=sgd", r"train\.optimizer = 'sgd': must be one of 'adam', 'radam'"),
         ("train.clip=none", r"train\.clip = 'none': must be one of 'huber', 'grad'"),
         ("train.lr=1", r"unknown field train\.lr; \[train\] has: .*learning_rate"),
         ("trian.gamma=1", r"unknown section \[trian\]"),

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 from drqn_jax.env.params import KMH
 from drqn_jax.learners.dqn.loss import CLIP_MODES
 from drqn_jax.learners.dqn.replay import WINDOW_STARTS
+from drqn_jax.learners.optim import OPTIMIZERS
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.pytree import check_counts, check_sums_to_one, param, pytree_dataclass, validate
 
@@ -166,6 +167,13 @@ class Hyperparams:
     )
     q_lambda: float = param(
         0.95, low=0.0, high=1.0, doc="pqn: λ of the Q(λ) targets (purejaxql: 0.95)"
+    )
+    reward_scale: float = param(
+        1.0,
+        low=0.0,
+        low_open=True,
+        doc="pqn: rewards are multiplied by this in the Q(λ) targets (purejaxql's "
+        "REW_SCALE; the metrics keep the env's reward); 1 for the other learners",
     )
     clip_eps: float = param(
         0.2, low=0.0, low_open=True, doc="ppo: clip range of the probability ratio and the value"
@@ -345,6 +353,14 @@ class TrainConfig:
             "doc": "ppo, pqn: minibatches per pass, of whole env sequences; divides num_envs"
         },
     )
+    optimizer: str = dataclasses.field(
+        default="adam",
+        metadata={
+            "choices": OPTIMIZERS,
+            "doc": "'adam' (the paper's) or 'radam' (rectified Adam, purejaxql's PQN); "
+            "its settings are adam_b1, adam_b2, adam_eps",
+        },
+    )
     hyperparams: Hyperparams = dataclasses.field(default_factory=Hyperparams)
 
     def __post_init__(self) -> None:
@@ -371,6 +387,10 @@ class TrainConfig:
                 f"TrainConfig.snapshots = {self.snapshots}: snapshots are taken at shares of "
                 "num_episodes, which a run with num_env_steps > 0 may not reach; use 0"
             )
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(
+                f"TrainConfig.optimizer = {self.optimizer!r}: must be one of {OPTIMIZERS}"
+            )
         if self.algorithm not in ALGORITHMS:
             raise ValueError(
                 f"TrainConfig.algorithm = {self.algorithm!r}: must be one of {ALGORITHMS}"
@@ -385,6 +405,12 @@ class TrainConfig:
                 f"TrainConfig.snapshots = {self.snapshots}: must be in [0, {most}] "
                 f"(num_episodes // num_envs - 1): snapshots are taken at least num_envs "
                 "episodes apart, the most that end in one iteration"
+            )
+        scale = float(self.hyperparams.reward_scale)
+        if self.algorithm != "pqn" and scale != 1.0:
+            raise ValueError(
+                f"Hyperparams.reward_scale = {scale:g}: only algorithm 'pqn' scales its "
+                f"rewards (algorithm {self.algorithm!r}); use 1"
             )
         if self.algorithm in ON_POLICY:
             self._check_on_policy()

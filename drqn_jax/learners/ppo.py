@@ -42,7 +42,7 @@ import jax.numpy as jnp
 
 from drqn_jax.learners.episodes import budget_met, init_counters, init_metrics, record_episodes
 from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
-from drqn_jax.learners.optim import adam, apply_updates, clip_by_global_norm
+from drqn_jax.learners.optim import apply_updates, clip_by_global_norm, optimizer
 from drqn_jax.learners.task import Task, make_task
 from drqn_jax.learners.trainer import Trainer, make_trainer
 from drqn_jax.networks import Network, make_network
@@ -259,7 +259,9 @@ def init_on_policy_state(
         carry=network.initial_carry((n_env,)),
         done=jnp.zeros((n_env,), bool),
         online=params,
-        opt_state=adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps).init(params),
+        opt_state=optimizer(
+            config.optimizer, hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps
+        ).init(params),
         metrics=init_metrics(task, config.num_episodes, extra_metrics),
         **init_counters(n_env, config.num_env_steps),
     )
@@ -337,11 +339,12 @@ def minibatch_epochs(
     """``update_epochs`` passes over the N envs in ``num_minibatches`` random
     minibatches of whole env sequences: ``grads_of(params, envs (N / M,))`` gives a
     minibatch's gradients and loss; each step clips them to ``max_grad_norm`` and
-    takes an Adam step. The state with the new parameters and optimiser, its
-    key advanced, the gradient steps counted and the mean loss added to every
-    running episode's (PPO's and PQN's update)."""
+    takes a step of ``config.optimizer`` (Adam, or PQN's RAdam). The state with
+    the new parameters and optimiser, its key advanced, the gradient steps
+    counted and the mean loss added to every running episode's (PPO's and PQN's
+    update)."""
     hp = state.hparams
-    opt = adam(learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+    opt = optimizer(config.optimizer, learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
     per_mb = config.num_envs // config.num_minibatches
 
     def minibatch(learner, envs):

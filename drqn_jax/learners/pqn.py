@@ -22,8 +22,10 @@ bookkeeping and minibatch epochs (:mod:`drqn_jax.learners.ppo`).
 * Each minibatch's targets bootstrap from the Q-values of the observation
   after the rollout (unrolled with the rollout), so every one of the
   ``rollout_steps`` steps has a target; purejaxql drops the last step instead.
-* Not yet as purejaxql: its RAdam (ours: Adam), LayerNorm, reward scaling and
-  the "memory window" of steps before the rollout that warm the unroll.
+* purejaxql's RAdam, LayerNorm and reward scale are options
+  (``TrainConfig.optimizer = "radam"``, ``NetworkConfig.layer_norm``,
+  ``Hyperparams.reward_scale``); its "memory window" (steps before the
+  rollout that warm the unroll) is not.
 """
 
 from __future__ import annotations
@@ -102,7 +104,8 @@ def pqn_loss(
     resets = jnp.concatenate([batch.reset, last.reset[None]])
     q, _ = network.unroll(params, obs, carry, resets)  # (T + 1, B, A)
     q_max = jax.lax.stop_gradient(jnp.max(q[1:], axis=-1))
-    targets = q_lambda_targets(q_max, batch.reward, batch.done, hp.gamma, hp.q_lambda)
+    reward = batch.reward * hp.reward_scale
+    targets = q_lambda_targets(q_max, reward, batch.done, hp.gamma, hp.q_lambda)
     chosen = jnp.take_along_axis(q[:-1], batch.action[..., None], axis=-1)[..., 0]
     loss = 0.5 * jnp.mean(jnp.square(chosen - targets))
     return loss, loss

@@ -1,4 +1,4 @@
-"""The hand-written Adam against the textbook update and against optax (test extra)."""
+"""The hand-written Adam and RAdam against the textbook update and against optax (test extra)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,15 @@ import numpy as np
 import optax
 import pytest
 
-from drqn_jax.learners.optim import adam, apply_updates, chain, clip, clip_by_global_norm
+from drqn_jax.learners.optim import (
+    adam,
+    apply_updates,
+    chain,
+    clip,
+    clip_by_global_norm,
+    optimizer,
+    radam,
+)
 
 
 def _problem(seed=0):
@@ -43,10 +51,21 @@ def test_adam_matches_textbook_update():
     assert int(state.count) == 100
 
 
-@pytest.mark.parametrize("lr", [1e-3, 3e-2])
-def test_adam_matches_optax_over_100_steps(lr):
+@pytest.mark.parametrize(
+    ("lr", "ours", "theirs", "atol"),
+    [
+        (1e-3, adam, optax.adam, 1e-6),
+        (3e-2, adam, optax.adam, 1e-6),
+        (3e-2, radam, optax.radam, 5e-6),
+    ],
+)
+def test_adam_and_radam_match_optax_over_100_steps(lr, ours, theirs, atol):
+    """RAdam's first steps (ρₜ < 5) are momentum steps, its later ones rectified:
+    100 steps cross from one to the other. Each RAdam step equals optax's to
+    ~1e-9; its rectification r, steep near the threshold, lets the last bits
+    of the two orders of operations add up to ~2e-6 over the 100 steps."""
     params, grad = _problem(1)
-    ours, theirs = adam(lr), optax.adam(lr)
+    ours, theirs = ours(lr), theirs(lr)
     p_ours, p_theirs = params, params
     s_ours, s_theirs = ours.init(params), theirs.init(params)
     for _ in range(100):
@@ -55,7 +74,7 @@ def test_adam_matches_optax_over_100_steps(lr):
         u, s_theirs = theirs.update(grad(p_theirs), s_theirs, p_theirs)
         p_theirs = optax.apply_updates(p_theirs, u)
     for a, b in zip(jax.tree.leaves(p_ours), jax.tree.leaves(p_theirs), strict=True):
-        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-6, rtol=0)
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=atol, rtol=0)
     assert not np.allclose(np.asarray(p_ours["w"]), np.asarray(params["w"]))  # it moved
 
 
@@ -101,3 +120,14 @@ def test_adam_jits_and_vmaps_over_learning_rate():
         np.testing.assert_allclose(
             np.asarray(batched["w"][i]), np.asarray(single["w"]), rtol=1e-6, atol=1e-9
         )
+
+
+def test_optimizer_names_adam_and_radam_and_refuses_others():
+    assert optimizer("adam", 1e-3, 0.9, 0.999, 1e-8).update is not None
+    params = {"w": jnp.ones(3)}
+    grads = {"w": jnp.asarray([1.0, -2.0, 0.5])}
+    first, _ = optimizer("radam", 0.1, 0.9, 0.999, 1e-8).update(grads, radam(0.1).init(params))
+    # step 1 of RAdam is −lr · m̂ = −lr · g (no division by sqrt(v̂)); Adam's is −lr · sign(g)
+    np.testing.assert_allclose(np.asarray(first["w"]), [-0.1, 0.2, -0.05], rtol=1e-6)
+    with pytest.raises(ValueError, match="optimizer = 'sgd': must be one of"):
+        optimizer("sgd", 1e-3, 0.9, 0.999, 1e-8)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from benchmarks.gymnax_validation import SMALL, pqn_config
+from drqn_jax.config import load_config
 from drqn_jax.learners import Hyperparams, TrainConfig, make_train
 from drqn_jax.learners.hyperparams import agent_name
 from drqn_jax.learners.ppo import restarted
@@ -66,13 +67,14 @@ def test_update_unroll_restarts_the_recurrent_state_where_acting_did(rollout):
 
 def test_loss_is_half_the_squared_error_against_the_q_lambda_targets(rollout):
     """At the parameters that acted, the loss is ½·mean (Q(s, a) − G^λ)² with the
-    targets from the acted Q-values and the Q-values of the observation after
-    the rollout; its gradient flows through Q(s, a) alone."""
+    targets from the acted Q-values, the Q-values of the observation after the
+    rollout and the scaled rewards."""
     trainer, state, after, traj = rollout
     hp = state.hparams
     q_after, _ = trainer.network.step(state.online, after.obs, restarted(trainer.network, after))
     q_next = jnp.concatenate([traj.q[1:], q_after[None]]).max(axis=-1)
-    targets = q_lambda_targets(q_next, traj.reward, traj.done, hp.gamma, hp.q_lambda)
+    reward = traj.reward * hp.reward_scale  # purejaxql's 0.1 in pqn_config
+    targets = q_lambda_targets(q_next, reward, traj.done, hp.gamma, hp.q_lambda)
     chosen = jnp.take_along_axis(traj.q, traj.action[..., None], axis=-1)[..., 0]
     expected = 0.5 * float(jnp.mean((chosen - targets) ** 2))
     last = jax.tree.map(lambda x: x[0], traj)._replace(obs=after.obs, reset=after.done)
@@ -128,3 +130,35 @@ def test_config_rules_name_the_learner():
         dataclasses.replace(pqn_config(), hyperparams=Hyperparams(imitation_weight=1.0))
     with pytest.raises(ValueError, match="q_lambda"):
         Hyperparams(q_lambda=1.5)
+    with pytest.raises(ValueError, match=r"reward_scale = 0\.1: only algorithm 'pqn'"):
+        TrainConfig(algorithm="ppo", hyperparams=Hyperparams(reward_scale=0.1))
+    with pytest.raises(ValueError, match="optimizer = 'sgd'"):
+        dataclasses.replace(pqn_config(), optimizer="sgd")
+    with pytest.raises(ValueError, match="layer_norm"):
+        NetworkConfig(layer_norm=1)
+    options = ["train.algorithm=pqn", "train.num_minibatches=1", "network.layer_norm=true"]
+    config = load_config("smoke", [*options, "train.optimizer=radam", "train.reward_scale=0.1"])
+    train = config.train_config()
+    assert (train.algorithm, train.optimizer, train.network.layer_norm) == ("pqn", "radam", True)
+    assert float(train.hyperparams.reward_scale) == pytest.approx(0.1)
+
+
+def test_layer_norm_normalises_each_dense_layer_before_its_relu():
+    """With ``layer_norm``, the MLP torso's and the FC layer's pre-activations
+    have zero mean and unit variance over their units at initialisation (scale
+    1, bias 0); the parameters carry a scale and a bias for each."""
+    from drqn_jax.networks import dense_relu, make_network
+
+    config = NetworkConfig(kind="drqn", torso="mlp", obs_size=4, layer_norm=True, **SMALL)
+    params = make_network(config).init(jax.random.key(0))
+    for layer in (*params["torso"], params["fc"]):
+        assert set(layer["norm"]) == {"scale", "bias"}
+    x = jax.random.normal(jax.random.key(1), (8, 4)) * 5.0 + 3.0
+    layer = params["torso"][0]
+    y = x @ layer["w"] + layer["b"]
+    z = (y - y.mean(-1, keepdims=True)) / jnp.sqrt(y.var(-1, keepdims=True) + 1e-6)
+    np.testing.assert_allclose(
+        np.asarray(dense_relu(layer, x)), np.maximum(np.asarray(z), 0.0), rtol=1e-4, atol=1e-5
+    )
+    plain = make_network(dataclasses.replace(config, layer_norm=False)).init(jax.random.key(0))
+    assert "norm" not in plain["fc"]

@@ -61,7 +61,7 @@ from drqn_jax.learners.hyperparams import (
     annealed,
     step_share,
 )
-from drqn_jax.learners.optim import adam
+from drqn_jax.learners.optim import optimizer
 from drqn_jax.learners.selection import (
     SELECT_SAFE,
     take_snapshot,
@@ -154,7 +154,7 @@ def _init_state(
     n_env, n_episodes = config.num_envs, config.num_episodes
     key, k_net, k_env = jax.random.split(key, 3)
     online = network.init(k_net)
-    opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+    opt = optimizer(config.optimizer, hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
     obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
     stored = network.initial_carry(()) if config.stored_state else None
     replay = init_replay(config.replay_episodes, task.max_steps, n_env, task.record, stored)

@@ -22,7 +22,7 @@ from drqn_jax.env.state import BRAKE
 from drqn_jax.learners.dqn.loss import CLIP_GRAD, sequence_loss
 from drqn_jax.learners.dqn.replay import EpisodeReplay, sample_windows
 from drqn_jax.learners.hyperparams import IMITATION_ALL, Hyperparams, TrainConfig
-from drqn_jax.learners.optim import adam, apply_updates, clip
+from drqn_jax.learners.optim import apply_updates, clip, optimizer
 from drqn_jax.learners.task import Task
 from drqn_jax.networks import Network
 
@@ -60,7 +60,7 @@ def gradient_update(
     env_params: Any,
 ) -> tuple[Learner, jax.Array]:
     """One Double-DQN gradient step on ``learner``; the new learner and the () loss."""
-    opt = adam(hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+    opt = optimizer(config.optimizer, hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
     windows = sample_windows(
         replay,
         key,
