@@ -16,7 +16,8 @@ README):
   (5·10⁵ env steps; :func:`pqn_config`). Target: mean greedy return ≥ 475.
 * ``memory100-pqn``: recurrent PQN on MemoryChain with purejaxql's
   ``pqn_rnn_memory_chain.yaml`` (memory length 100, 10⁵ env steps;
-  :func:`pqn_memory_config`). Target: ≥ 90 % success.
+  :func:`pqn_memory_config`). Target: ≥ 90 % success. ``memory30-pqn``: the
+  same with memory length 30.
 * ``memory-drqn`` / ``memory-dqn``: bsuite's MemoryChain (gymnax defaults:
   memory length 5, one context bit): the first observation shows a bit that
   the last action must repeat (+1, else −1). The DRQN sees whole episodes in
@@ -240,6 +241,11 @@ RECIPES = {
     "cartpole-ppo": (ppo_config, 475.0, "mean greedy return ≥ 475"),
     "cartpole-pqn": (pqn_config, 475.0, "mean greedy return ≥ 475"),
     "memory100-pqn": (pqn_memory_config, None, "success ≥ 90 % (purejaxql's memory length 100)"),
+    "memory30-pqn": (
+        lambda: pqn_memory_config(memory_length=30),
+        None,
+        "success ≥ 90 % (memory length 30; episodes fit in a 128-step rollout)",
+    ),
     "memory-drqn": (lambda: memory_config("drqn"), None, "success ≥ 90 %"),
     "memory-dqn": (lambda: memory_config("dqn"), None, "success near 50 % (no memory)"),
     "memory12-drqn": (
