@@ -54,9 +54,9 @@ __all__ = [
     "Transition",
     "actor_critic",
     "gae",
-    "init_on_policy_state",
     "make_ppo",
     "minibatch_epochs",
+    "on_policy_init",
     "policy_network",
     "ppo_loss",
     "restarted",
@@ -203,10 +203,7 @@ def _make_ppo(config: TrainConfig) -> Trainer:
     network = actor_critic(config, task)
     policy = policy_network(network, n_act)
 
-    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
-        hp = config.hyperparams if hparams is None else hparams
-        env_params = task.env_params if env_params is None else env_params
-        return init_on_policy_state(config, task, network, key, hp, env_params)
+    init = on_policy_init(config, task, network)
 
     def act(state: PPOState, key: jax.Array) -> tuple[jax.Array, Any]:
         """Actions (N,) sampled from the policy and the advanced carry."""
@@ -235,7 +232,22 @@ def run_updates(update: Callable[[PPOState], PPOState]) -> Callable[[PPOState, i
     return run
 
 
-def init_on_policy_state(
+def on_policy_init(
+    config: TrainConfig, task: Task, network: Network, extra_metrics: tuple[str, ...] = ()
+) -> Callable[..., PPOState]:
+    """The ``init(key, hparams=None, env_params=None)`` of an on-policy learner
+    (PPO's, PQN's): :func:`_init_state` with the config's hyperparameters and
+    the task's env params as defaults."""
+
+    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
+        hp = config.hyperparams if hparams is None else hparams
+        env_params = task.env_params if env_params is None else env_params
+        return _init_state(config, task, network, key, hp, env_params, extra_metrics)
+
+    return init
+
+
+def _init_state(
     config: TrainConfig,
     task: Task,
     network: Network,

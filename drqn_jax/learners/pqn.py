@@ -41,8 +41,8 @@ from drqn_jax.learners.episodes import record_episodes
 from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
 from drqn_jax.learners.ppo import (
     PPOState,
-    init_on_policy_state,
     minibatch_epochs,
+    on_policy_init,
     restarted,
     run_updates,
 )
@@ -124,10 +124,7 @@ def _make_pqn(config: TrainConfig) -> Trainer:
     task = make_task(config.env_id, config.env_overrides)
     network = make_network(task.network(config.network))
 
-    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
-        hp = config.hyperparams if hparams is None else hparams
-        env_params = task.env_params if env_params is None else env_params
-        return init_on_policy_state(config, task, network, key, hp, env_params, ("epsilon",))
+    init = on_policy_init(config, task, network, ("epsilon",))
 
     def act(state: PPOState, key: jax.Array) -> tuple[jax.Array, Any]:
         """ε-greedy actions (N,) and the advanced carry."""
