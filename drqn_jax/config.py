@@ -104,6 +104,11 @@ ADDED_LATER = {
     ("train", "vf_coef"): 0.5,
     ("train", "max_grad_norm"): 0.5,
     ("network", "frames"): 1,
+    # recurrent PQN (2026-11-27)
+    ("train", "q_lambda"): 0.95,
+    ("train", "reward_scale"): 1.0,
+    ("train", "optimizer"): "adam",
+    ("network", "layer_norm"): False,
     # The 2026-11-25 revision (docs/spec.md, "The paper's world"): runs before it had
     # pedestrians yielding for ever (the timeout applies to them too: no standoffs in
     # any world), the contact collision test, and no authors' zone.

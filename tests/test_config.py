@@ -390,6 +390,15 @@ def test_training_hash_tracks_training_fields_only():
         assert load_config("smoke", [override]).training_hash() != base.training_hash(), override
 
 
+def test_training_hashes_of_existing_run_directories_stay_put():
+    """A run directory resumes only while its config hashes as it did when written.
+    This hash was smoke's at 8e816cf^ (before PQN's fields): a new training field
+    must enter ``ADDED_LATER`` at its default, or every run on disk stops resuming."""
+    assert load_config("smoke").training_hash() == (
+        "5e48885dee7fa0a58840fde4ac3253df03e13fa22cc134012a7b52e94a27a153"
+    )
+
+
 def test_fields_added_later_keep_older_runs_resumable():
     """A field added after run directories existed is hashed only away from the
     value those runs had, so their checkpoints still match. The fields the
