@@ -49,6 +49,16 @@ measured seconds per iteration (1 run, learning active) times 200 × 1000
 iterations (worst case: every episode truncated at max_steps) and times
 200 × the mean length of the filled episodes (mid case).
 
+**Every learner, side by side** (``--learners default pqn ppo``, issue 52): each
+config's own trainer timed by :func:`drqn_jax.experiments.bench.train_figures`
+once learning runs, in env steps per second of learning (env steps and gradient
+updates counted from the state, best of 3 calls): the replay DRQN over
+``--iterations`` iterations at its own number of envs, an on-policy learner (PQN,
+PPO) over ``--rollouts`` rollouts-and-updates at each of ``--envs`` (its own by
+default), each with ``--seeds`` S seeds ``jax.vmap``-ed in one program (1 by
+default). ``--set`` overrides every learner's config (a lighter network is a
+named row: ``--set network.recurrent=64``). Only this table is measured then.
+
 ``--quick`` swaps in a tiny network, 30-step episodes and tiny sizes: a smoke
 check of the script, not a measurement. ``--out DIR`` writes everything as
 ``DIR/train_throughput.json`` (and the Markdown as ``.md``).
@@ -72,10 +82,13 @@ import jax.extend.core as jex
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.harness import base_parser, compile_timed, report, time_calls
+from benchmarks.harness import base_parser, compile_timed, markdown_table, report, time_calls
+from drqn_jax.config import load_config
+from drqn_jax.experiments.bench import train_figures
 from drqn_jax.learners import Hyperparams, TrainConfig, Trainer, make_train
 from drqn_jax.learners.dqn.replay import replay_bytes
 from drqn_jax.learners.dqn.state import TrainState
+from drqn_jax.learners.hyperparams import ON_POLICY
 from drqn_jax.networks import NetworkConfig, param_count
 
 TARGET_UPDATES_PER_S = 20.0  # issue 3: gradient updates/s at batch 32 × 8, 2-core CPU
@@ -566,6 +579,92 @@ def report_lines(result: dict[str, Any]) -> list[str]:
     return out
 
 
+# --------------------------------------------------------------------------- every learner
+
+#: ``--quick``: each learner's algorithm on ``smoke``'s tiny world and network.
+QUICK_LEARNER = {
+    "dqn": [],
+    "ppo": ["train.rollout_steps=8", "train.num_minibatches=1"],
+    "pqn": ["train.rollout_steps=8", "train.num_minibatches=1", "network.layer_norm=true"],
+}
+
+LEARNER_COLUMNS = {
+    "learner": "config",
+    "algorithm": "learner",
+    "num_envs": "envs per seed",
+    "seeds": "seeds (vmap)",
+    "env_steps_per_s": "env steps/s of learning (all seeds)",
+    "grad_steps_per_s": "gradient updates/s",
+    "compile_s": "compile s",
+}
+
+
+def learner_config(name: str, overrides: Sequence[str], envs: int | None, calls: int, quick: bool):
+    """``name`` with ``overrides``; an on-policy learner at ``envs`` envs with a budget
+    that outlasts ``calls`` timed calls (``--quick``: its algorithm on ``smoke``)."""
+    base = load_config(name, overrides)
+    train = base["train"]
+    if quick:
+        extra = [f"train.algorithm={train['algorithm']}", *QUICK_LEARNER[train["algorithm"]]]
+        base = load_config("smoke", [*extra, *overrides])
+        name, overrides, train = "smoke", [*extra, *overrides], base["train"]
+    if train["algorithm"] not in ON_POLICY or envs is None:
+        envs = train["num_envs"]
+    steps = calls * train["rollout_steps"] * envs
+    sized = [f"train.num_envs={envs}", f"train.num_env_steps={steps}"]
+    sized += [f"train.num_episodes={max(train['num_episodes'], steps // 10)}"]
+    return load_config(name, [*overrides, *sized]) if train["algorithm"] in ON_POLICY else base
+
+
+def learner_rows(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """One row per learner × envs × seeds: :func:`train_figures` in rates."""
+    rows = []
+    for name in args.learners:
+        on_policy = load_config(name, args.set)["train"]["algorithm"] in ON_POLICY
+        for envs in (args.envs or [None]) if on_policy else [None]:
+            for seeds in args.seeds:
+                iterations = args.rollouts if on_policy else args.iterations
+                config = learner_config(name, args.set, envs, 6 * iterations, args.quick)
+                figures = train_figures(config, iterations, seeds)
+                if isinstance(figures, str):
+                    raise SystemExit(f"{name} at {envs} envs: {figures}")
+                seconds = figures["seconds"]
+                rows.append(
+                    {
+                        "learner": name,
+                        "algorithm": config["train"]["algorithm"],
+                        **figures,
+                        "env_steps_per_s": figures["env_steps"] / seconds,
+                        "grad_steps_per_s": figures["grad_steps"] / seconds,
+                        "overrides": args.set,
+                    }
+                )
+                print(rows[-1], file=sys.stderr, flush=True)
+    return rows
+
+
+def learners_main(args: argparse.Namespace, argv: Sequence[str] | None) -> dict[str, Any]:
+    """``--learners``: the side-by-side table of every learner's learning throughput."""
+    start = time.perf_counter()
+    rows = learner_rows(args)
+    fastest = max(rows, key=lambda r: r["env_steps_per_s"])
+    lines = [
+        "Env steps per second of learning (best of 3 calls once learning runs; env steps "
+        "and gradient updates counted from the training state). Replay DRQN: "
+        f"{args.iterations} iterations per call; PQN and PPO: {args.rollouts} "
+        "rollout(s) and their update epochs per call."
+        + (f" Overrides: {' '.join(args.set)}." if args.set else ""),
+        "",
+        *markdown_table(rows, LEARNER_COLUMNS),
+        "",
+        f"Fastest: `{fastest['learner']}` ({fastest['algorithm']}) at {fastest['num_envs']} "
+        f"envs × {fastest['seeds']} seed(s).",
+    ]
+    result = {"rows": rows, "wall_s": time.perf_counter() - start, "quick": args.quick}
+    title = "Learning throughput of every learner" + (" (QUICK: tiny sizes)" if args.quick else "")
+    return report("train_throughput", title, result, lines, args.out, argv)
+
+
 # --------------------------------------------------------------------------- main
 
 
@@ -599,6 +698,28 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
     parser.add_argument(
+        "--learners",
+        nargs="+",
+        metavar="CONFIG",
+        help="time these configs' learners side by side instead (e.g. default pqn ppo)",
+    )
+    parser.add_argument(
+        "--envs", type=int, nargs="+", metavar="N", help="--learners: on-policy envs per seed"
+    )
+    parser.add_argument(
+        "--seeds", type=int, nargs="+", default=[1], metavar="S", help="--learners: vmapped seeds"
+    )
+    parser.add_argument(
+        "--rollouts", type=int, default=1, metavar="R", help="--learners: on-policy per call"
+    )
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.FIELD=VALUE",
+        help="--learners: override every learner's config",
+    )
+    parser.add_argument(
         "--quick", action="store_true", help="tiny network and sizes: a smoke check only"
     )
     args = parser.parse_args(argv)
@@ -606,13 +727,19 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         args.updates, args.iterations, args.repeats = 3, 5, 1
         args.fill_episodes = min(args.fill_episodes, 6)
     values = (args.updates, args.iterations, args.repeats, args.fill_episodes, *args.runs)
+    values += (args.rollouts, *args.seeds, *(args.envs or ()))
     if min(values) < 1:
-        parser.error("--runs, --updates, --iterations, --repeats, --fill-episodes must be >= 1")
+        parser.error(
+            "--runs, --updates, --iterations, --repeats, --fill-episodes, --rollouts, --seeds, "
+            "--envs must be >= 1"
+        )
     return args
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args = parse_args(argv)
+    if args.learners:
+        return learners_main(args, argv)
     config = QUICK_CONFIG if args.quick else TrainConfig()
     if args.fill_episodes >= config.num_episodes:
         raise SystemExit("--fill-episodes must be below the preset's num_episodes")

@@ -26,9 +26,10 @@ SUITE = (
 )
 
 
-#: Benchmark tools run by name only (not by ``all``): the op-by-op profile, and the
-#: learners on outside benchmarks (gymnax; minutes of training, not a throughput figure).
-TOOLS = ("profile", "gymnax_validation")
+#: Benchmark tools run by name only (not by ``all``): the op-by-op profile, the
+#: learners on outside benchmarks (gymnax), and a learning curve on this world (minutes
+#: to hours of training, not a throughput figure).
+TOOLS = ("profile", "gymnax_validation", "learning_curve")
 
 
 def _run_benchmark(name: str, args: Sequence[str]) -> int:

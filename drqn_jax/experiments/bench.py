@@ -85,33 +85,46 @@ def _learner_text(config: Config) -> str:
     )
 
 
-def train_figures(config: Config, iterations: int) -> dict[str, Any] | str:
+def train_figures(config: Config, iterations: int, seeds: int = 1) -> dict[str, Any] | str:
     """Training throughput once learning runs: ``iterations`` of ``run`` timed (best of
     3), with the env steps and gradient updates they took counted from the state
-    (``env_steps``, ``grad_steps``), so that every learner's iteration is measured in
-    what it does (the DQN: one step of every env and its updates; PPO: a rollout and
-    its epochs). A string says why there is nothing to time."""
+    (``env_steps``, ``grad_steps``, summed over seeds), so that every learner's
+    iteration is measured in what it does (the DQN: one step of every env and its
+    updates; PPO and PQN: a rollout and its epochs). ``seeds`` > 1 runs that many
+    seeds ``jax.vmap``-ed in one program, as a sweep does. A string says why there is
+    nothing to time."""
     trainer = make_train(config.train_config())
     train_key, _ = config.keys()
-    state = init_program(trainer)(train_key)  # train's init program
+    init = init_program(trainer)  # train's init program
+
+    def step(state: Any) -> Any:
+        return trainer.run(state, iterations)
+
+    if seeds == 1:
+        state = init(train_key)
+    else:
+        state = jax.jit(jax.vmap(lambda k: init(k)))(jax.random.split(train_key, seeds))
+        step = jax.vmap(step)
     start = time.perf_counter()
-    run = jax.jit(trainer.run, static_argnums=1).lower(state, iterations).compile()
+    run = jax.jit(step).lower(state).compile()
     compile_s = time.perf_counter() - start
     # fill the replay until learning has started (the DQN: learning_starts whole episodes)
-    while int(state.grad_steps) == 0 and not bool(state.finished):
+    while int(state.grad_steps.min()) == 0 and not bool(state.finished.any()):
         state = run(state)
-    if int(state.grad_steps) == 0:
+    if int(state.grad_steps.min()) == 0:
         return "the run finished before learning started; raise train.num_episodes"
     after = run(state)
-    if bool(after.finished):
+    if bool(after.finished.any()):
         return (
             f"the run's budget ends within {iterations} iterations of learning; raise "
             "train.num_episodes or train.num_env_steps, or lower --iterations"
         )
     return {
         "iterations": iterations,
-        "env_steps": int(after.env_steps) - int(state.env_steps),
-        "grad_steps": int(after.grad_steps) - int(state.grad_steps),
+        "seeds": seeds,
+        "num_envs": config["train"]["num_envs"],
+        "env_steps": int(after.env_steps.sum()) - int(state.env_steps.sum()),
+        "grad_steps": int(after.grad_steps.sum()) - int(state.grad_steps.sum()),
         "seconds": _best_of(lambda: run(state), warm_up=False),  # ``after`` warmed it up
         "compile_s": compile_s,
     }

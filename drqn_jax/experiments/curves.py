@@ -1,20 +1,35 @@
-"""A study's training curves (the paper's "Training performance" figure, Fig. 4):
-each config's per-episode metrics over its seeds, against env steps, and their PNG.
+"""Learning curves.
+
+* :func:`load_curves`, :func:`plot_curves`: a study's training curves (the paper's
+  "Training performance" figure, Fig. 4): each config's per-episode metrics over
+  its seeds, against env steps, and their PNG;
+* :func:`greedy_curve`: one run's greedy agent evaluated at env-step marks while it
+  trains (collision-free rate and speed against env steps: how a budget is chosen).
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
-from collections.abc import Mapping, Sequence
+import time
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
+import jax
 import numpy as np
 
+from drqn_jax.agents import drqn_agent
+from drqn_jax.config import Config
+from drqn_jax.evaluation import evaluate
 from drqn_jax.experiments.figures import require_matplotlib
+from drqn_jax.experiments.host_loop import StopRequest, finite_training, run_chunks
+from drqn_jax.experiments.runner import init_program
 from drqn_jax.interop.training_recording import running_mean
+from drqn_jax.learners import make_train
+from drqn_jax.learners.hyperparams import agent_name
 
-__all__ = ["CURVES", "Curve", "load_curves", "plot_curves"]
+__all__ = ["CURVES", "GREEDY_KEYS", "Curve", "greedy_curve", "load_curves", "plot_curves"]
 
 #: The curves of the paper's "Training performance" figure: metrics.csv column, label.
 CURVES = (
@@ -119,3 +134,80 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+#: What a point of :func:`greedy_curve` keeps of its evaluation (SPEC §8 names).
+GREEDY_KEYS = (
+    "collision_free_rate",
+    "collision_free_ci",
+    "struck_while_stopped_rate",
+    "goal_rate",
+    "avg_speed_kmh",
+    "avg_return",
+)
+
+
+def greedy_curve(
+    config: Config,
+    points: int,
+    episodes: int,
+    on_point: Callable[[dict[str, Any]], None] | None = None,
+) -> tuple[str, list[dict[str, Any]]]:
+    """One run of ``config`` (seed ``run.seed``) trained to its budget and, each time
+    it passes one of ``points`` evenly spaced marks of ``train.num_env_steps``, its
+    greedy agent (``Trainer.agent_params``) evaluated on ``episodes`` episodes of the
+    evaluation key: the same episodes at every point.
+
+    A point is taken at the first chunk boundary at or past a mark (one point for
+    the marks a chunk passes together: ``train.chunk_iterations`` sets the grain).
+    Each holds ``env_steps``, ``train_s`` (training wall time so far, compile
+    included, evaluations not), ``eval_s`` and the :data:`GREEDY_KEYS` of the
+    evaluation. Returns the run's
+    status (:func:`~drqn_jax.experiments.host_loop.run_chunks`: a non-finite loss
+    ends it early) and the points; ``on_point`` sees each as it lands.
+    """
+    total = config["train"]["num_env_steps"]
+    if total < 1:
+        raise ValueError("greedy_curve: set train.num_env_steps (the curve's env-step axis)")
+    if points < 1 or episodes < 1:
+        raise ValueError(f"greedy_curve: points = {points}, episodes = {episodes}: must be >= 1")
+    trainer = make_train(config.train_config())
+    env, env_params = config.make_env()
+    train_key, eval_key = config.keys()
+    marks = [total * (i + 1) // points for i in range(points)]
+    found: list[dict[str, Any]] = []
+    clock = {"train": 0.0, "since": time.perf_counter(), "passed": 0}
+
+    def at_chunk(state: Any) -> None:
+        passed = sum(int(state.env_steps) >= m for m in marks)
+        if passed == clock["passed"]:
+            return
+        clock["passed"] = passed
+        clock["train"] += time.perf_counter() - clock["since"]
+        start = time.perf_counter()
+        agent = drqn_agent(trainer.network, trainer.agent_params(state), agent_name(trainer.config))
+        result = evaluate(agent, eval_key, episodes, env, env_params)
+        point = {
+            "env_steps": int(state.env_steps),
+            "train_s": clock["train"],
+            "eval_s": time.perf_counter() - start,
+            **{k: result[k] for k in GREEDY_KEYS},
+        }
+        found.append(point)
+        if on_point is not None:
+            on_point(point)
+        clock["since"] = time.perf_counter()
+
+    state = init_program(trainer)(train_key)
+    run = jax.jit(trainer.run, static_argnums=1)
+    status, _, _ = run_chunks(
+        lambda s: run(s, trainer.config.chunk_iterations),
+        state,
+        finished=lambda s: bool(s.finished),
+        stop=StopRequest(),
+        save=lambda s, n: None,
+        every_s=float("inf"),
+        healthy=lambda s: bool(finite_training(s)),
+        on_chunk=at_chunk,
+    )
+    return status, found

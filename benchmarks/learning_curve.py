@@ -1,0 +1,134 @@
+"""A learning curve: collision-free rate and speed against env steps, one run.
+
+Usage::
+
+    python -m benchmarks.learning_curve [--config pqn] [--set train.num_env_steps=2000000]
+        [--points 10] [--episodes 1000] [--out DIR]
+
+One run of the config (seed ``run.seed``) trains to ``train.num_env_steps`` and,
+each time it passes one of ``--points`` evenly spaced marks, its greedy agent is
+evaluated on ``--episodes`` episodes of the evaluation key, the same episodes at
+every point (:func:`drqn_jax.experiments.curves.greedy_curve`). Where
+``docs/results.json`` holds the rule-based frontier of the config's world on those
+episodes (``drqn-jax frontier``, or a study), each point also gets
+its margin over the frontier at its own speed (SPEC §9).
+
+This is how a preset's env-step budget is chosen (issue 52): train once to a
+large budget and read where the curve stops rising. A curve read at a mark of a
+longer run is not a run of that budget (the learning rate and ε anneal over the
+whole budget); it says where the gains end. With ``--out DIR`` every point is
+written to ``DIR/learning_curve.json`` as it lands.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from benchmarks.harness import base_parser, markdown_table, report, write_json
+from drqn_jax.config import Config, load_config
+from drqn_jax.experiments.baselines import env_key, frontier_key
+from drqn_jax.experiments.curves import greedy_curve
+from drqn_jax.experiments.frontier import with_margin
+
+RESULTS = Path(__file__).resolve().parent.parent / "docs" / "results.json"
+
+COLUMNS = {
+    "env_steps": "env steps",
+    "train_s": "training s",
+    "collision_free": "collision-free % (95 % CI)",
+    "avg_speed_kmh": "avg speed (km/h)",
+    "struck": "struck while stopped %",
+    "margin": "margin over the rule-based frontier (pts)",
+}
+
+
+def stored_frontier(config: Config, results: Path = RESULTS) -> dict[str, Any] | None:
+    """The rule-based frontier of ``config``'s world and evaluation episodes in any
+    section of ``results`` (``docs/results.json``), or None. Sections store it under
+    :func:`frontier_key`, those written before that key under :func:`env_key`."""
+    if not results.is_file():
+        return None
+    sections = json.loads(results.read_text(encoding="utf-8")).get("sections", {})
+    for key in (frontier_key(config), env_key(config)):
+        for section in sections.values():
+            record = section.get("frontiers", {}).get(key)
+            if record is not None:
+                return record
+    return None
+
+
+def _cells(point: dict[str, Any]) -> dict[str, Any]:
+    low, high = point["collision_free_ci"]
+    cells = {
+        **point,
+        "collision_free": f"{100 * point['collision_free_rate']:.1f} "
+        f"({100 * low:.1f}–{100 * high:.1f})",
+        "struck": 100 * point["struck_while_stopped_rate"],
+        "margin": "–",
+    }
+    if "frontier_margin" in point:
+        m_low, m_high = point["frontier_margin_ci"]
+        cells["margin"] = (
+            f"{100 * point['frontier_margin']:+.1f} ({100 * m_low:+.1f} to {100 * m_high:+.1f})"
+        )
+    return cells
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    parser = base_parser("learning_curve", __doc__)
+    parser.add_argument("--config", default="pqn", help="config name or TOML (default pqn)")
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override"
+    )
+    parser.add_argument("--points", type=int, default=10, help="evaluations (default 10)")
+    parser.add_argument(
+        "--episodes", type=int, default=1000, help="episodes per evaluation (default 1000)"
+    )
+    args = parser.parse_args(argv)
+    if args.points < 1 or args.episodes < 1:
+        parser.error("--points and --episodes must be >= 1")
+    config = load_config(args.config, [*args.set, f"evaluate.episodes={args.episodes}"])
+    frontier = stored_frontier(config)
+    out = None if args.out is None else Path(args.out)
+    partial = {"config": config.values, "points": []}
+    start = time.perf_counter()
+
+    def landed(point: dict[str, Any]) -> None:
+        if frontier is not None:
+            point.update(with_margin(point, frontier))  # a single policy: Wilson, shifted
+        partial["points"].append(point)
+        cells = _cells(point)
+        print(" | ".join(str(cells[k]) for k in COLUMNS), flush=True)
+        if out is not None:
+            out.mkdir(parents=True, exist_ok=True)
+            write_json(out / "learning_curve.json", partial)
+
+    status, points = greedy_curve(config, args.points, args.episodes, landed)
+    result = {
+        "config_name": args.config,
+        "overrides": args.set,
+        "status": status,
+        "frontier": "docs/results.json" if frontier is not None else None,
+        "points": points,
+        "wall_s": time.perf_counter() - start,
+        "config": config.values,
+    }
+    lines = [
+        f"`{args.config}` ({', '.join(args.set) or 'as shipped'}), seed "
+        f"{config['run']['seed']}: greedy agent on {args.episodes} evaluation episodes at "
+        f"{args.points} marks of {config['train']['num_env_steps']:,} env steps; run "
+        f"{status}, wall time {result['wall_s']:.0f} s (evaluations included).",
+        "",
+        *markdown_table([_cells(p) for p in points], COLUMNS),
+    ]
+    if frontier is None:
+        lines += ["", "No stored frontier for this world and these episodes: no margin."]
+    return report("learning_curve", "Learning curve", result, lines, args.out, argv)
+
+
+if __name__ == "__main__":
+    main()

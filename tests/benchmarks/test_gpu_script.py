@@ -1,0 +1,66 @@
+"""``benchmarks/gpu.sh`` at tiny sizes (``GPU_DRY_RUN=1``): every GPU figure's command
+runs on the CPU and writes its JSON, so a few minutes of GPU are not spent on a typo."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_gpu_script_dry_run_writes_the_throughput_and_the_curve(tmp_path):
+    env = {**os.environ, "GPU_DRY_RUN": "1", "PYTHON": sys.executable}
+    done = subprocess.run(
+        ["bash", str(ROOT / "benchmarks" / "gpu.sh"), str(tmp_path)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    throughput = json.loads((tmp_path / "train_throughput.json").read_text())
+    (row,) = throughput["rows"]
+    assert (row["algorithm"], row["seeds"]) == ("pqn", 2)
+    assert row["env_steps"] == 2 * row["num_envs"] * 8  # 2 seeds, one 8-step rollout each
+    assert row["env_steps_per_s"] > 0 and row["grad_steps"] > 0
+    assert throughput["machine"]["git_commit"]
+    curve = json.loads((tmp_path / "learning_curve.json").read_text())
+    assert curve["status"] == "finished"
+    assert [p["env_steps"] for p in curve["points"]] == [48, 96]  # 2 envs x 8 steps a chunk
+    for point in curve["points"]:
+        assert 0.0 <= point["collision_free_rate"] <= 1.0 and point["avg_speed_kmh"] >= 0.0
+    assert "learning curve:" in done.stdout
+
+
+def test_the_curve_reads_the_stored_frontier_of_the_presets_world():
+    """``pqn`` trains in ``default``'s world and is evaluated on its episodes, so its
+    curve's margins read the frontier that ``drqn-jax frontier`` stored for it."""
+    from benchmarks.learning_curve import stored_frontier
+    from drqn_jax.config import load_config
+    from drqn_jax.experiments.baselines import frontier_key
+
+    assert frontier_key(load_config("pqn")) == frontier_key(load_config("default"))
+    record = stored_frontier(load_config("pqn"))
+    assert record is not None and record["rule_based"]["points"]
+    assert record["episodes"] == 1000 and record["seed"] == 0
+    assert stored_frontier(load_config("smoke")) is None
+
+
+def test_every_learner_is_timed_past_its_warm_up_calls():
+    """An on-policy learner is sized to ``--envs`` with a step budget that outlasts the
+    timed calls; the replay DRQN keeps its own envs and budget."""
+    from benchmarks.train_throughput import learner_config
+
+    pqn = learner_config("pqn", [], 512, 6, quick=False)
+    assert pqn["train"]["num_envs"] == 512
+    assert pqn["train"]["num_env_steps"] == 6 * 512 * pqn["train"]["rollout_steps"]
+    assert pqn["train"]["num_episodes"] >= pqn["train"]["num_env_steps"] // 10
+    default = learner_config("default", [], 512, 6, quick=False)
+    assert default["train"]["num_envs"] == 32 and default["train"]["num_env_steps"] == 0
+    quick = learner_config("ppo", [], None, 6, quick=True)
+    assert (quick["train"]["algorithm"], quick["network"]["recurrent"]) == ("ppo", 16)
