@@ -413,14 +413,6 @@ def test_guided_exploration_takes_the_rule_based_action(tiny):
     assert len(np.unique(random)) == 4
 
 
-def test_vmap_over_seeds_equals_separate_runs(tiny):
-    trainer, train = tiny
-    keys = jax.random.split(jax.random.key(3), 4)
-    together = jax.jit(jax.vmap(trainer.train))(keys)
-    for i in range(4):
-        assert_tree_equal(take(together, i), train(keys[i]))
-
-
 def test_learning_rate_anneals_linearly_over_the_episodes():
     hp = Hyperparams(learning_rate=3e-3, learning_rate_end=0.1)
     rates = [float(annealed(hp, jnp.int32(e), 200).learning_rate) for e in (0, 100, 200, 300)]
@@ -453,11 +445,12 @@ def test_step_budget_ends_the_run_and_drives_the_schedules():
         tiny_train_config(num_env_steps=40, snapshots=1)
 
 
-def test_training_reads_its_hyperparameters_from_the_state_alone(tiny, tiny_run):
-    """``TrainConfig.hyperparams`` is only ``init``'s default: a trainer built with
-    other hyperparameters, given the tiny run's as ``init``'s argument, trains
-    bit for bit as the tiny run (what sweeps and resumes rely on)."""
-    trainer, _ = tiny
+def test_vmapped_seeds_read_their_hyperparameters_from_the_state_alone(tiny, tiny_run):
+    """Seeds under ``vmap`` train bit for bit as separate runs, and
+    ``TrainConfig.hyperparams`` is only ``init``'s default: a trainer built with other
+    hyperparameters, given the tiny run's as ``init``'s argument, trains as the tiny
+    run (what sweeps and resumes rely on). One compiled program checks both."""
+    trainer, train = tiny
     other = dataclasses.replace(
         trainer.config,
         hyperparams=Hyperparams(
@@ -465,8 +458,13 @@ def test_training_reads_its_hyperparameters_from_the_state_alone(tiny, tiny_run)
         ),
     )
     assert make_train(other) is not trainer
-    got = jax.jit(make_train(other).train)(jax.random.key(0), trainer.config.hyperparams)
-    assert_tree_equal(got, tiny_run)
+    keys = jnp.concatenate([jax.random.key(0)[None], jax.random.split(jax.random.key(3), 3)])
+    together = jax.jit(jax.vmap(make_train(other).train, (0, None)))(
+        keys, trainer.config.hyperparams
+    )
+    assert_tree_equal(take(together, 0), tiny_run)
+    for i in (1, 2, 3):
+        assert_tree_equal(take(together, i), train(keys[i]))
 
 
 def test_config_equality_and_hash():
