@@ -99,5 +99,5 @@ def machine_lines(info: dict[str, Any]) -> list[str]:
         f"- drqn_jax {info['drqn_jax_version']}, git commit {info['git_commit']}",
         f"- Python {info['python_version']}",
         f"- date (UTC): {info['date']}",
-        f"- load average (1 min) at start: {info['loadavg_1min_at_start']:.2f}",
+        f"- load average (1 min) when this block was written: {info['loadavg_1min_at_start']:.2f}",
     ]
