@@ -23,13 +23,15 @@ def test_gpu_script_dry_run_writes_the_throughput_and_the_curve(tmp_path):
         timeout=600,
     )
     assert done.returncode == 0, done.stderr[-3000:]
-    throughput = json.loads((tmp_path / "train_throughput.json").read_text())
-    (row,) = throughput["rows"]
+    (alone,) = json.loads((tmp_path / "throughput" / "train_throughput.json").read_text())["rows"]
+    seeds = json.loads((tmp_path / "seeds" / "train_throughput.json").read_text())
+    (row,) = seeds["rows"]
+    assert (alone["algorithm"], alone["seeds"]) == ("pqn", 1)
     assert (row["algorithm"], row["seeds"]) == ("pqn", 2)
-    assert row["env_steps"] == 2 * row["num_envs"] * 8  # 2 seeds, one 8-step rollout each
+    assert row["env_steps"] == 2 * alone["env_steps"] == 2 * row["num_envs"] * 8  # 8-step rollouts
     assert row["env_steps_per_s"] > 0 and row["grad_steps"] > 0
-    assert throughput["machine"]["git_commit"]
-    curve = json.loads((tmp_path / "learning_curve.json").read_text())
+    assert seeds["machine"]["git_commit"]
+    curve = json.loads((tmp_path / "curve" / "learning_curve.json").read_text())
     assert curve["status"] == "finished"
     assert [p["env_steps"] for p in curve["points"]] == [48, 96]  # 2 envs x 8 steps a chunk
     for point in curve["points"]:
