@@ -16,8 +16,8 @@ README):
   (5·10⁵ env steps; :func:`pqn_config`). Target: mean greedy return ≥ 475.
 * ``memory100-pqn``: recurrent PQN on MemoryChain with purejaxql's
   ``pqn_rnn_memory_chain.yaml`` (memory length 100, 10⁵ env steps;
-  :func:`pqn_memory_config`). Target: ≥ 90 % success. ``memory30-pqn``: the
-  same with memory length 30.
+  :func:`pqn_memory_config`). Target: ≥ 90 % success. ``memory100-pqn-wide``:
+  the same at purejaxql's width (256); ``memory30-pqn``: with memory length 30.
 * ``memory-drqn`` / ``memory-dqn``: bsuite's MemoryChain (gymnax defaults:
   memory length 5, one context bit): the first observation shows a bit that
   the last action must repeat (+1, else −1). The DRQN sees whole episodes in
@@ -201,13 +201,17 @@ def pqn_config(num_env_steps: int = 500_000, num_episodes: int = 20_000) -> Trai
     )
 
 
-def pqn_memory_config(memory_length: int = 100, num_env_steps: int = 100_000) -> TrainConfig:
+def pqn_memory_config(
+    memory_length: int = 100, num_env_steps: int = 100_000, width: int | None = None
+) -> TrainConfig:
     """Recurrent PQN on gymnax MemoryChain-bsuite with purejaxql's
     ``pqn_rnn_memory_chain.yaml``: memory length 100 (episodes of 101 steps),
     10⁵ env steps, 32 envs × 128 steps, 4 epochs of 16 minibatches, RAdam at a
     constant lr 1e-3, γ 0.99, λ 0.95, grad norm 10, LayerNorm, ε from 1 to 0.01
     over the first 10 %. Not theirs: no memory window (each minibatch unrolls
-    from the acting state at its rollout's start) and our narrower core."""
+    from the acting state at its rollout's start), LSTMs for their GRU, and our
+    narrower core unless ``width`` (theirs: 256, two dense layers and the
+    recurrent layer of that width)."""
     hp = dict(
         learning_rate=1e-3,
         gamma=0.99,
@@ -218,10 +222,11 @@ def pqn_memory_config(memory_length: int = 100, num_env_steps: int = 100_000) ->
         epsilon_fraction=0.1,
         explore_bias_fraction=0.0,
     )
+    core = SMALL if width is None else {"recurrent": width, "hidden": width, "mlp": (width,) * 2}
     return TrainConfig(
         env_id="gymnax:MemoryChain-bsuite",
         env_overrides=(("max_steps", memory_length + 1), ("memory_length", memory_length)),
-        network=NetworkConfig(kind="drqn", layer_norm=True, **SMALL),
+        network=NetworkConfig(kind="drqn", layer_norm=True, **core),
         algorithm="pqn",
         optimizer="radam",
         num_envs=32,
@@ -241,6 +246,11 @@ RECIPES = {
     "cartpole-ppo": (ppo_config, 475.0, "mean greedy return ≥ 475"),
     "cartpole-pqn": (pqn_config, 475.0, "mean greedy return ≥ 475"),
     "memory100-pqn": (pqn_memory_config, None, "success ≥ 90 % (purejaxql's memory length 100)"),
+    "memory100-pqn-wide": (
+        lambda: pqn_memory_config(width=256),
+        None,
+        "success ≥ 90 % (memory length 100, purejaxql's width 256)",
+    ),
     "memory30-pqn": (
         lambda: pqn_memory_config(memory_length=30),
         None,
