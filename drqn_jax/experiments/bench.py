@@ -103,7 +103,7 @@ def train_figures(config: Config, iterations: int, seeds: int = 1) -> dict[str, 
     if seeds == 1:
         state = init(train_key)
     else:
-        state = jax.jit(jax.vmap(lambda k: init(k)))(jax.random.split(train_key, seeds))
+        state = jax.jit(jax.vmap(init))(jax.random.split(train_key, seeds))
         step = jax.vmap(step)
     start = time.perf_counter()
     run = jax.jit(step).lower(state).compile()
