@@ -11,7 +11,8 @@ evaluated on ``--episodes`` episodes of the evaluation key, the same episodes at
 every point (:func:`drqn_jax.experiments.curves.greedy_curve`). Where
 ``docs/results.json`` holds the rule-based frontier of the config's world on those
 episodes (``drqn-jax frontier``, or a study), each point also gets
-its margin over the frontier at its own speed (SPEC §9).
+its margin over the frontier at its own speed (SPEC §9); none above the speed
+limit, where the rule-based family and the planner, capped at it, have no point.
 
 This is how a preset's env-step budget is chosen (issue 52): train once to a
 large budget and read where the curve stops rising. A curve read at a mark of a
@@ -30,6 +31,7 @@ from typing import Any
 
 from benchmarks.harness import base_parser, markdown_table, report, write_json
 from drqn_jax.config import Config, load_config
+from drqn_jax.env.params import KMH
 from drqn_jax.experiments.baselines import env_key, frontier_key
 from drqn_jax.experiments.curves import greedy_curve
 from drqn_jax.experiments.frontier import with_margin
@@ -68,7 +70,7 @@ def _cells(point: dict[str, Any]) -> dict[str, Any]:
         "collision_free": f"{100 * point['collision_free_rate']:.1f} "
         f"({100 * low:.1f}–{100 * high:.1f})",
         "struck": 100 * point["struck_while_stopped_rate"],
-        "margin": "–",
+        "margin": "– (above the speed limit)" if point.get("above_speed_limit") else "–",
     }
     if "frontier_margin" in point:
         m_low, m_high = point["frontier_margin_ci"]
@@ -93,12 +95,15 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         parser.error("--points and --episodes must be >= 1")
     config = load_config(args.config, [*args.set, f"evaluate.episodes={args.episodes}"])
     frontier = stored_frontier(config)
+    limit_kmh = float(config.make_env()[1].v_ref) / KMH
     out = None if args.out is None else Path(args.out)
     partial = {"config": config.values, "points": []}
     start = time.perf_counter()
 
     def landed(point: dict[str, Any]) -> None:
-        if frontier is not None:
+        if point["avg_speed_kmh"] > limit_kmh:  # the frontier's family keeps the limit
+            point["above_speed_limit"] = True
+        elif frontier is not None:
             point.update(with_margin(point, frontier))  # a single policy: Wilson, shifted
         partial["points"].append(point)
         cells = _cells(point)
