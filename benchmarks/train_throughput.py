@@ -83,7 +83,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from benchmarks.harness import base_parser, compile_timed, markdown_table, report, time_calls
-from drqn_jax.config import load_config
+from drqn_jax.config import Config, load_config
 from drqn_jax.experiments.bench import train_figures
 from drqn_jax.learners import Hyperparams, TrainConfig, Trainer, make_train
 from drqn_jax.learners.dqn.replay import replay_bytes
@@ -599,21 +599,26 @@ LEARNER_COLUMNS = {
 }
 
 
-def learner_config(name: str, overrides: Sequence[str], envs: int | None, calls: int, quick: bool):
-    """``name`` with ``overrides``; an on-policy learner at ``envs`` envs with a budget
-    that outlasts ``calls`` timed calls (``--quick``: its algorithm on ``smoke``)."""
-    base = load_config(name, overrides)
-    train = base["train"]
+def learner_config(
+    name: str, overrides: Sequence[str], envs: int | None, calls: int, quick: bool
+) -> Config:
+    """``name`` with ``overrides`` (``quick``: its algorithm on ``smoke``); an on-policy
+    learner at ``envs`` envs (None: its own) with a step budget that outlasts ``calls``
+    rollouts. The replay DRQN keeps its own envs and budget."""
+    config = load_config(name, overrides)
     if quick:
-        extra = [f"train.algorithm={train['algorithm']}", *QUICK_LEARNER[train["algorithm"]]]
-        base = load_config("smoke", [*extra, *overrides])
-        name, overrides, train = "smoke", [*extra, *overrides], base["train"]
-    if train["algorithm"] not in ON_POLICY or envs is None:
-        envs = train["num_envs"]
+        algorithm = config["train"]["algorithm"]
+        extra = [f"train.algorithm={algorithm}", *QUICK_LEARNER[algorithm]]
+        name, overrides = "smoke", [*extra, *overrides]
+        config = load_config(name, overrides)
+    train = config["train"]
+    if train["algorithm"] not in ON_POLICY:
+        return config
+    envs = train["num_envs"] if envs is None else envs
     steps = calls * train["rollout_steps"] * envs
     sized = [f"train.num_envs={envs}", f"train.num_env_steps={steps}"]
     sized += [f"train.num_episodes={max(train['num_episodes'], steps // 10)}"]
-    return load_config(name, [*overrides, *sized]) if train["algorithm"] in ON_POLICY else base
+    return load_config(name, [*overrides, *sized])
 
 
 def learner_rows(args: argparse.Namespace) -> list[dict[str, Any]]:
