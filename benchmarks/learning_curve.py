@@ -95,7 +95,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         parser.error("--points and --episodes must be >= 1")
     config = load_config(args.config, [*args.set, f"evaluate.episodes={args.episodes}"])
     frontier = stored_frontier(config)
-    limit_kmh = float(config.make_env()[1].v_ref) / KMH
+    limit_kmh = config["env"]["v_ref"] / KMH
     out = None if args.out is None else Path(args.out)
     partial = {"config": config.values, "points": []}
     start = time.perf_counter()

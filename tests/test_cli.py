@@ -89,7 +89,7 @@ def test_progress_bar_does_not_change_results(straight, tmp_path, capsys):
 
 def _interrupt_after(monkeypatch, chunks: int) -> None:
     """Send SIGINT to this process right after the ``chunks``-th chunk of training."""
-    compiled = runner._compiled_run
+    compiled = runner.compiled_run
     calls = {"n": 0}
 
     def wrapped(trainer, state):
@@ -104,7 +104,7 @@ def _interrupt_after(monkeypatch, chunks: int) -> None:
 
         return run_and_signal
 
-    monkeypatch.setattr(runner, "_compiled_run", wrapped)
+    monkeypatch.setattr(runner, "compiled_run", wrapped)
 
 
 def test_interrupt_then_resume_is_bit_identical(straight, tmp_path, monkeypatch, capsys):

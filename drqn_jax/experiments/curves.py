@@ -16,7 +16,6 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import jax
 import numpy as np
 
 from drqn_jax.agents import drqn_agent
@@ -24,7 +23,7 @@ from drqn_jax.config import Config
 from drqn_jax.evaluation import evaluate
 from drqn_jax.experiments.figures import require_matplotlib
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, run_chunks
-from drqn_jax.experiments.runner import init_program
+from drqn_jax.experiments.runner import compiled_run, init_program
 from drqn_jax.interop.training_recording import running_mean
 from drqn_jax.learners import make_train
 from drqn_jax.learners.hyperparams import agent_name
@@ -162,9 +161,9 @@ def greedy_curve(
     the marks a chunk passes together: ``train.chunk_iterations`` sets the grain).
     Each holds ``env_steps``, ``train_s`` (training wall time so far, compile
     included, evaluations not), ``eval_s`` and the :data:`GREEDY_KEYS` of the
-    evaluation. Returns the run's
-    status (:func:`~drqn_jax.experiments.host_loop.run_chunks`: a non-finite loss
-    ends it early) and the points; ``on_point`` sees each as it lands.
+    evaluation. Returns the run's status
+    (:func:`~drqn_jax.experiments.host_loop.run_chunks`: a non-finite loss ends it
+    early) and the points; ``on_point`` sees each as it lands.
     """
     total = config["train"]["num_env_steps"]
     if total < 1:
@@ -199,9 +198,8 @@ def greedy_curve(
         clock["since"] = time.perf_counter()
 
     state = init_program(trainer)(train_key)
-    run = jax.jit(trainer.run, static_argnums=1)
     status, _, _ = run_chunks(
-        lambda s: run(s, trainer.config.chunk_iterations),
+        compiled_run(trainer, state),  # train's chunk program
         state,
         finished=lambda s: bool(s.finished),
         stop=StopRequest(),

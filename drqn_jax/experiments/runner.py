@@ -69,6 +69,7 @@ METRIC_COLUMNS = (
 __all__ = [
     "RunResult",
     "builtin_agent",
+    "compiled_run",
     "evaluate_agents",
     "init_program",
     "json_ready",
@@ -115,7 +116,7 @@ def init_program(trainer: Trainer) -> Callable[[jax.Array], TrainState]:
     )
 
 
-def _compiled_run(trainer: Trainer, state: TrainState) -> Any:
+def compiled_run(trainer: Trainer, state: TrainState) -> Any:
     """``run(state, chunk_iterations)`` compiled once per program and process (the
     hyperparameters are in the state: :meth:`TrainConfig.program_key`)."""
 
@@ -238,7 +239,7 @@ def train_run(
         start = time.perf_counter()
         if not quiet:
             print("compiling the training program...", file=sys.stderr, flush=True)
-        run = _compiled_run(trainer, state)
+        run = compiled_run(trainer, state)
         compile_s = time.perf_counter() - start
         if not resume:
             _save(run_dir, config, state, 0.0, 0)  # resume works from here on
