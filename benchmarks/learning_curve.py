@@ -31,10 +31,10 @@ from typing import Any
 
 from benchmarks.harness import base_parser, markdown_table, report, write_json
 from drqn_jax.config import Config, load_config
-from drqn_jax.env.params import KMH
 from drqn_jax.experiments.baselines import env_key, frontier_key
 from drqn_jax.experiments.curves import greedy_curve
 from drqn_jax.experiments.frontier import with_margin
+from drqn_jax.experiments.report import margin_cell
 
 RESULTS = Path(__file__).resolve().parent.parent / "docs" / "results.json"
 
@@ -65,19 +65,13 @@ def stored_frontier(config: Config, results: Path = RESULTS) -> dict[str, Any] |
 
 def _cells(point: dict[str, Any]) -> dict[str, Any]:
     low, high = point["collision_free_ci"]
-    cells = {
+    return {
         **point,
         "collision_free": f"{100 * point['collision_free_rate']:.1f} "
         f"({100 * low:.1f}–{100 * high:.1f})",
         "struck": 100 * point["struck_while_stopped_rate"],
-        "margin": "– (above the speed limit)" if point.get("above_speed_limit") else "–",
+        "margin": margin_cell(point),
     }
-    if "frontier_margin" in point:
-        m_low, m_high = point["frontier_margin_ci"]
-        cells["margin"] = (
-            f"{100 * point['frontier_margin']:+.1f} ({100 * m_low:+.1f} to {100 * m_high:+.1f})"
-        )
-    return cells
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
@@ -95,16 +89,14 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         parser.error("--points and --episodes must be >= 1")
     config = load_config(args.config, [*args.set, f"evaluate.episodes={args.episodes}"])
     frontier = stored_frontier(config)
-    limit_kmh = config["env"]["v_ref"] / KMH
+    limit_kmh = config.speed_limit_kmh()
     out = None if args.out is None else Path(args.out)
     partial = {"config": config.values, "points": []}
     start = time.perf_counter()
 
     def landed(point: dict[str, Any]) -> None:
-        if point["avg_speed_kmh"] > limit_kmh:  # the frontier's family keeps the limit
-            point["above_speed_limit"] = True
-        elif frontier is not None:
-            point.update(with_margin(point, frontier))  # a single policy: Wilson, shifted
+        if frontier is not None:  # a single policy: Wilson, shifted; none above the limit
+            point.update(with_margin(point, frontier, limit_kmh))
         partial["points"].append(point)
         cells = _cells(point)
         print(" | ".join(str(cells[k]) for k in COLUMNS), flush=True)

@@ -472,6 +472,10 @@ class Config:
     def make_env(self) -> tuple[UrbanPedestrians, EnvParams]:
         return make(self["env"]["id"], **self.env_overrides())
 
+    def speed_limit_kmh(self) -> float:
+        """The world's speed limit ``env.v_ref`` in km/h (SPEC §4, §9)."""
+        return float(self["env"]["v_ref"]) / KMH
+
     def network_config(self) -> NetworkConfig:
         net = self["network"]
         conv = tuple(tuple(layer) for layer in net["conv"])

@@ -82,7 +82,7 @@ def _frontier_outputs(
     from drqn_jax.experiments.report import study_table
     from drqn_jax.experiments.study import frontier_rows, paper_rows
 
-    rows = paper_rows() + frontier_rows(record)
+    rows = paper_rows() + frontier_rows(record, record["speed_limit_kmh"])
     out = Path(args.out or default_run_dir("frontier", args.config))
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "frontier.json", json.dumps(record, indent=1) + "\n")

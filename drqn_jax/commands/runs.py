@@ -201,7 +201,10 @@ def paper_comparison(results: list[dict[str, Any]], frontier: dict[str, Any]) ->
     from drqn_jax.experiments.study import baseline_row, paper_rows
 
     world = frontier["world"]
-    ours = [with_margin(baseline_row("drqn_jax", r, world=world), frontier) for r in results]
+    limit_kmh = frontier["speed_limit_kmh"]
+    ours = [
+        with_margin(baseline_row("drqn_jax", r, world=world), frontier, limit_kmh) for r in results
+    ]
     return "\n\n".join(
         [
             study_table(paper_rows() + ours),

@@ -249,10 +249,14 @@ def frontier_rate(vertices: Sequence[Sequence[float]], speed_kmh: float | np.nda
 
 
 def frontier_margin(
-    row: Mapping[str, Any], vertices: Sequence[Sequence[float]]
-) -> tuple[float, tuple[float, float]]:
+    row: Mapping[str, Any], vertices: Sequence[Sequence[float]], limit_kmh: float
+) -> tuple[float, tuple[float, float]] | None:
     """``(margin, (low, high))``: a results row's collision-free rate minus the frontier
-    at its own average speed, with a 95 % interval (SPEC §9).
+    at its own average speed, with a 95 % interval (SPEC §9); None when the row (any of
+    its seeds) drives faster on average than the speed limit ``limit_kmh``: the
+    rule-based family and the planner keep the limit, so the frontier has no point
+    there and a car that breaks the limit is not safer "at equal speed" than one
+    that keeps it.
 
     A row with several seeds (``per_seed``: each seed's ``collision_free_rate`` and
     ``avg_speed_kmh``) gets the mean over seeds of each seed's margin at that seed's
@@ -260,10 +264,12 @@ def frontier_margin(
     (``collision_free_ci``) shifted by the frontier at its speed.
     """
     seeds = row.get("per_seed") or []
+    speeds = [s["avg_speed_kmh"] for s in seeds] if len(seeds) > 1 else [row["avg_speed_kmh"]]
+    if max(speeds) > limit_kmh * (1 + 1e-6):
+        return None
     if len(seeds) > 1:
         rates = np.array([s["collision_free_rate"] for s in seeds], np.float64)
-        speeds = np.array([s["avg_speed_kmh"] for s in seeds], np.float64)
-        margins = rates - frontier_rate(vertices, speeds)
+        margins = rates - frontier_rate(vertices, np.array(speeds, np.float64))
         return float(margins.mean()), t_interval(margins)
     at = float(frontier_rate(vertices, row["avg_speed_kmh"]))
     low, high = row["collision_free_ci"]
@@ -323,11 +329,19 @@ def planner_frontier(
     )
 
 
-def with_margin(row: Mapping[str, Any], record: Mapping[str, Any]) -> dict[str, Any]:
+def with_margin(
+    row: Mapping[str, Any], record: Mapping[str, Any], limit_kmh: float
+) -> dict[str, Any]:
     """``row`` with its ``frontier_margin`` and ``frontier_margin_ci`` against the
-    rule-based frontier of ``record`` (:func:`world_frontier`, the row's world)."""
+    rule-based frontier of ``record`` (:func:`world_frontier`, the row's world, whose
+    speed limit is ``limit_kmh``): both None and ``above_speed_limit`` True for a row
+    faster than the limit (:func:`frontier_margin`)."""
     vertices = frontier_vertices(record["rule_based"]["points"])
-    margin, interval = frontier_margin(row, vertices)
+    found = frontier_margin(row, vertices, limit_kmh)
+    if found is None:
+        none = {"frontier_margin": None, "frontier_margin_ci": None}
+        return {**row, **none, "above_speed_limit": True}
+    margin, interval = found
     return {**row, "frontier_margin": margin, "frontier_margin_ci": interval}
 
 
@@ -396,10 +410,10 @@ def world_frontier(
     """The frontiers of a world on episodes ``fold_in(key, i)``, i < N (a study's
     evaluation episodes: ``world`` and ``seed`` name them): JSON-ready.
 
-    Returns ``{"world", "episodes", "seed", "rule_based": {"points": the Pareto points,
-    "swept": settings evaluated, "wall_time_s"}}`` and, given ``planner`` (its horizon
-    and band; the caps replace its cap), ``"planner": {"points": one per cap,
-    "wall_time_s"}``. ``settings``: the rule-based settings (default
+    Returns ``{"world", "episodes", "seed", "speed_limit_kmh", "rule_based": {"points":
+    the Pareto points, "swept": settings evaluated, "wall_time_s"}}`` and, given
+    ``planner`` (its horizon and band; the caps replace its cap), ``"planner":
+    {"points": one per cap, "wall_time_s"}``. ``settings``: the rule-based settings (default
     :data:`RULE_BASED_SETTINGS`); a speed above the limit ``params.v_ref`` is refused
     (ValueError). With ``keep_all`` the rule-based record also holds
     ``"swept_points"``, every setting's.
@@ -425,7 +439,8 @@ def world_frontier(
     rule["wall_time_s"] = time.perf_counter() - start
     if keep_all:
         rule["swept_points"] = points
-    record = {"world": world, "episodes": num_episodes, "seed": seed, "rule_based": rule}
+    record = {"world": world, "episodes": num_episodes, "seed": seed}
+    record |= {"speed_limit_kmh": limit_kmh, "rule_based": rule}
     if planner is not None:
         start = time.perf_counter()
         found = planner_frontier(key, num_episodes, env, params, caps_kmh, planner, batch_size)

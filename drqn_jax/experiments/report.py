@@ -173,7 +173,10 @@ def _cell(value: float | None, spec: str, scale: float = 1.0) -> str:
 
 def margin_cell(row: Mapping[str, Any]) -> str:
     """``+5.2 (+1.0 to +9.4)``: the row's frontier margin in points with its interval
-    (– for a row without one: the paper's, measured in another world)."""
+    (– for a row without one: the paper's, measured in another world; "– (above the
+    speed limit)" for a row faster than its world's limit, SPEC §9)."""
+    if row.get("above_speed_limit"):
+        return "– (above the speed limit)"
     margin, interval = row.get("frontier_margin"), row.get("frontier_margin_ci")
     if margin is None or not math.isfinite(margin) or interval is None:
         return "–"
@@ -232,6 +235,12 @@ def _side(low: float, high: float) -> str:
 
 def frontier_comparison(row: Mapping[str, Any]) -> str:
     """A row against the rule-based frontier at its own speed, as a sentence."""
+    if row.get("above_speed_limit"):
+        return (
+            f"{row['label']} ({row['agent']}) at {row['avg_speed_kmh']:.2f} km/h: faster than "
+            "the speed limit (in some seed), where the rule-based frontier has no point: "
+            "no margin (SPEC §9)"
+        )
     low, high = row["frontier_margin_ci"]
     return (
         f"{row['label']} ({row['agent']}) at {row['avg_speed_kmh']:.2f} km/h: "
@@ -246,11 +255,17 @@ def claim_verdict(drqn: Mapping[str, Any]) -> str:
     the rule-based frontier lies above 0 (safer than the rule-based family at its own
     speed) *and* it drives at least as fast as the paper's DRQN
     (:data:`PAPER_DRQN_SPEED_KMH`): a car that barely drives avoids nearly every
-    collision the authors' test counts."""
-    low, high = drqn["frontier_margin_ci"]
+    collision the authors' test counts; a DRQN faster than the speed limit has no margin
+    (:func:`~drqn_jax.experiments.frontier.frontier_margin`)."""
     speed = drqn["avg_speed_kmh"]
+    low, high = drqn["frontier_margin_ci"] or (math.nan, math.nan)
     fast = speed >= PAPER_DRQN_SPEED_KMH
-    if low > 0.0 and fast:
+    if drqn.get("above_speed_limit"):
+        verdict = (
+            "not shown: the DRQN drives faster than the speed limit, where the rule-based "
+            "family, which keeps the limit, has no point to compare it with"
+        )
+    elif low > 0.0 and fast:
         verdict = (
             "supported: the DRQN is above the rule-based frontier at its own speed, "
             "at least as fast as the paper's DRQN"

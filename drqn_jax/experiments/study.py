@@ -248,10 +248,11 @@ def _setting_text(params: Mapping[str, float]) -> str:
     return ", ".join(f"{names.get(k, k)} {v:g}{units.get(k, '')}" for k, v in params.items())
 
 
-def frontier_rows(record: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """A :func:`~drqn_jax.experiments.frontier.world_frontier` record as table rows, each with its
-    ``params`` and its margin: the rule-based frontier's points (margin 0 by
-    definition) and the privileged planner's, labelled as privileged."""
+def frontier_rows(record: Mapping[str, Any], limit_kmh: float) -> list[dict[str, Any]]:
+    """A :func:`~drqn_jax.experiments.frontier.world_frontier` record (of a world whose
+    speed limit is ``limit_kmh``) as table rows, each with its ``params`` and its
+    margin: the rule-based frontier's points (margin 0 by definition) and the
+    privileged planner's, labelled as privileged."""
     world = record["world"]
     kinds = [("rule_based", "rule-based frontier", "rule-based")]
     kinds += [("planner", "privileged planner (true state + simulator)", "planner")]
@@ -260,7 +261,7 @@ def frontier_rows(record: Mapping[str, Any]) -> list[dict[str, Any]]:
         for point in record.get(kind, {}).get("points", []):
             result = {**point, "agent": agent, "teacher": NOT_LEARNED}
             row = baseline_row(f"{label}: {_setting_text(point['params'])}", result, world=world)
-            rows.append({**with_margin(row, record), "params": point["params"]})
+            rows.append({**with_margin(row, record, limit_kmh), "params": point["params"]})
     return rows
 
 
@@ -329,15 +330,24 @@ def compare_paired(
     other: str,
     others: Sequence[Mapping[str, Any]],
     vertices: Sequence[Sequence[float]],
+    limit_kmh: float,
 ) -> str | None:
     """``name``'s margin to the rule-based frontier (``vertices``, SPEC §9) against
     ``other``'s, paired over the seeds both trained (seed i against seed i, on the same
     evaluation episodes, each at its own speed): the mean difference in percentage
-    points with its 95 % Student-t interval; None with fewer than 2 common seeds."""
+    points with its 95 % Student-t interval; None with fewer than 2 common seeds.
+    A seed faster than the speed limit ``limit_kmh`` has no margin: then the
+    sentence says so instead."""
     mine, theirs = _by_seed(runs), _by_seed(others)
     common = sorted(set(mine) & set(theirs))
     if len(common) < 2:
         return None
+    for label, own in ((name, mine), (other, theirs)):
+        if max(own[k]["avg_speed_kmh"] for k in common) > limit_kmh * (1 + 1e-6):
+            return (
+                f"{name} − {other}, margin to the rule-based frontier: none, {label} drives "
+                f"faster than the {limit_kmh:g} km/h limit in some seed (SPEC §9)"
+            )
 
     def margin(run: Mapping[str, Any]) -> float:
         return run["collision_free_rate"] - float(frontier_rate(vertices, run["avg_speed_kmh"]))
@@ -381,7 +391,7 @@ def _comparisons(
     vertices = frontier_vertices(frontiers[key]["rule_based"]["points"])
     own = {row["label"].removeprefix("drqn_jax: "): frontier_key(c) for row, c in trained}
     paired = [
-        compare_paired(first, runs[first], name, runs[name], vertices)
+        compare_paired(first, runs[first], name, runs[name], vertices, config.speed_limit_kmh())
         for name in names[1:]
         if own[name] == key
     ]
@@ -438,6 +448,7 @@ def run_study(
         key: with_margin(
             baseline_row(f"drqn_jax: {c['env']['id']}", r, world=c["env"]["id"]),
             frontiers[frontier_key(c)],
+            c.speed_limit_kmh(),
         )
         for key, (c, r) in rule_based_results(configs, out).items()
     }
@@ -451,7 +462,8 @@ def run_study(
         ]
         for name, config, results in evaluated:
             row = study_row(f"drqn_jax: {name}", agent, results, world=config["env"]["id"])
-            trained.append((with_margin(row, frontiers[frontier_key(config)]), config))
+            margin = with_margin(row, frontiers[frontier_key(config)], config.speed_limit_kmh())
+            trained.append((margin, config))
     # configs that differ only in what the rule-based agent ignores (the reward) share its row
     shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines.values()}
     rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]

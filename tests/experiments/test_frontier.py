@@ -25,6 +25,7 @@ from drqn_jax.experiments.frontier import (
     random_settings,
     reviewer_check,
     rule_based_frontier,
+    with_margin,
 )
 from drqn_jax.experiments.report import load_results
 from drqn_jax.experiments.stats import t_interval
@@ -45,6 +46,9 @@ FAMILY = [
     _point(8.0, 0.2),
     _point(8.0, 0.1),  # as fast as (8, .2), less safe
 ]
+
+#: km/h: the hand-made world's speed limit, past the family's fastest point.
+LIMIT = 15.0
 
 
 def test_pareto_points_drop_the_dominated_ones():
@@ -80,7 +84,7 @@ def test_margin_of_single_policies_on_above_and_below_the_frontier():
     for free, speed, sign in [(450, 6.0, 0), (600, 6.0, 1), (200, 6.0, -1)]:
         ci = wilson_interval(free, 1000)
         row = {"avg_speed_kmh": speed, "collision_free_rate": free / 1000, "collision_free_ci": ci}
-        margin, (low, high) = frontier_margin(row, v)
+        margin, (low, high) = frontier_margin(row, v, LIMIT)
         assert margin == pytest.approx(free / 1000 - 0.45)
         assert (low, high) == pytest.approx((ci[0] - 0.45, ci[1] - 0.45))
         above, below = low > 0.0, high < 0.0
@@ -100,10 +104,28 @@ def test_margin_of_a_trained_config_is_over_seeds_each_at_its_own_speed():
         "collision_free_rate": float(np.mean([s["collision_free_rate"] for s in seeds])),
         "collision_free_ci": (0.0, 1.0),
     }
-    margin, interval = frontier_margin(row, v)
+    margin, interval = frontier_margin(row, v, LIMIT)
     diffs = np.array([0.02, 0.05, -0.1])
     assert margin == pytest.approx(diffs.mean())
     assert interval == pytest.approx(t_interval(diffs))
+
+
+def test_no_margin_above_the_speed_limit():
+    """The family keeps the limit, so the frontier has no point past it: a policy (or
+    any one seed of a trained config) faster than the limit has no margin, however
+    safe; at the limit it has one (the fastest point's rate, SPEC §9)."""
+    v = frontier_vertices(FAMILY)
+    one = {"avg_speed_kmh": 15.5, "collision_free_rate": 0.9, "collision_free_ci": (0.88, 0.92)}
+    assert frontier_margin(one, v, LIMIT) is None
+    at_limit = frontier_margin({**one, "avg_speed_kmh": LIMIT}, v, LIMIT)
+    assert at_limit[0] == pytest.approx(0.9 - 0.2)
+    seeds = [{"collision_free_rate": 0.9, "avg_speed_kmh": s} for s in (6.0, 16.0)]
+    assert frontier_margin({**one, "avg_speed_kmh": 11.0, "per_seed": seeds}, v, LIMIT) is None
+    record = {"rule_based": {"points": FAMILY}}
+    row = with_margin(one, record, LIMIT)
+    assert row["above_speed_limit"] and row["frontier_margin"] is None
+    assert row["frontier_margin_ci"] is None
+    assert "above_speed_limit" not in with_margin({**one, "avg_speed_kmh": 6.0}, record, LIMIT)
 
 
 def test_the_reviewer_check_counts_settings_above_the_frontier():

@@ -109,7 +109,7 @@ FRONTIER = {
 
 
 def _judged(free: float, speed: float) -> dict:
-    return with_margin(baseline_row("d", _run(free, speed=speed), world="W"), FRONTIER)
+    return with_margin(baseline_row("d", _run(free, speed=speed), world="W"), FRONTIER, 15.0)
 
 
 def test_the_verdict_follows_the_margin_and_the_speed():
@@ -135,6 +135,17 @@ def test_the_table_shows_the_margin_beside_struck_while_stopped():
     )
     assert "| 60.0 (57.0–63.0) | +10.0 (+7.0 to +13.0) |" in table
     assert "| 70.0 (39.7–89.2) | – |" in table  # the paper's rows: another world
+
+
+def test_a_row_above_the_speed_limit_has_no_margin_and_no_verdict_of_safety():
+    """A DRQN faster than the limit: "–" with the reason in the table, and the claim
+    not shown whatever its collision-free rate (SPEC §9)."""
+    fast = _judged(0.99, 30.0)
+    assert fast["frontier_margin"] is None and fast["above_speed_limit"]
+    assert "| 99.0 (96.0–102.0) | – (above the speed limit) |" in study_table([fast])
+    verdict = claim_verdict(fast)
+    assert "not shown: the DRQN drives faster than the speed limit" in verdict
+    assert "faster than the speed limit" in frontier_comparison(fast)
 
 
 def test_the_documents_quote_the_results_file():

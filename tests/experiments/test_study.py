@@ -107,21 +107,25 @@ def test_paired_comparison_is_of_margins_over_the_seeds_both_arms_trained():
 
     a = runs({0: 0.9, 1: 0.8, 2: 0.85, 3: 0.5})
     b = runs({0: 0.5, 1: 0.45, 2: 0.5})  # seed 3 untrained: left out of the pairs
-    line = compare_paired("drqn", a, "dqn", b, flat)
+    line = compare_paired("drqn", a, "dqn", b, flat, 15.0)
     assert line.startswith(
         "drqn − dqn, margin to the rule-based frontier, paired over 3 seeds: +36.7 points"
     )
     assert line.endswith("drqn above")
     close = runs({0: 0.5, 1: 0.6, 2: 0.4})
-    assert compare_paired("drqn", close, "dqn", runs({0: 0.55, 1: 0.5, 2: 0.42}), flat).endswith(
-        "drqn not distinguishable"
-    )
-    assert compare_paired("drqn", a[:1], "dqn", b, flat) is None
+    near = compare_paired("drqn", close, "dqn", runs({0: 0.55, 1: 0.5, 2: 0.42}), flat, 15.0)
+    assert near.endswith("drqn not distinguishable")
+    assert compare_paired("drqn", a[:1], "dqn", b, flat, 15.0) is None
     # on a falling frontier (100 % standing, 0 % at 10 km/h) the same rates at a lower
     # speed are a smaller margin: 0.9 - 0.9 at 1 km/h against 0.5 - 0.5 at 5 km/h
     falling = [(0.0, 1.0), (10.0, 0.0)]
     slow = runs({0: 0.9, 1: 0.9}, speed=1.0)
-    assert "+0.0 points" in compare_paired("a", slow, "b", runs({0: 0.5, 1: 0.5}), falling)
+    assert "+0.0 points" in compare_paired("a", slow, "b", runs({0: 0.5, 1: 0.5}), falling, 15.0)
+    # a seed past the limit has no margin, so the pair has none either (SPEC §9)
+    fast = runs({0: 0.9, 1: 0.9, 2: 0.9}, speed=16.0)
+    assert compare_paired("drqn", fast, "dqn", b, flat, 15.0).endswith(
+        "none, drqn drives faster than the 15 km/h limit in some seed (SPEC §9)"
+    )
 
 
 def test_a_report_only_run_keeps_the_provenance_of_the_runs(study):
