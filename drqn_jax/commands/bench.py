@@ -27,9 +27,10 @@ SUITE = (
 
 
 #: Benchmark tools run by name only (not by ``all``): the op-by-op profile, the
-#: learners on outside benchmarks (gymnax), and a learning curve on this world (minutes
-#: to hours of training, not a throughput figure).
-TOOLS = ("profile", "gymnax_validation", "learning_curve")
+#: learners on outside benchmarks (gymnax), a learning curve on this world (minutes
+#: to hours of training, not a throughput figure), and the summary of a test-suite
+#: run profiled with ``-p benchmarks.suite_profile``.
+TOOLS = ("profile", "gymnax_validation", "learning_curve", "suite_profile")
 
 
 def _run_benchmark(name: str, args: Sequence[str]) -> int:
