@@ -17,7 +17,9 @@ README):
 * ``memory100-pqn``: recurrent PQN on MemoryChain with purejaxql's
   ``pqn_rnn_memory_chain.yaml`` (memory length 100, 10⁵ env steps;
   :func:`pqn_memory_config`). Target: ≥ 90 % success. ``memory100-pqn-wide``:
-  the same at purejaxql's width (256); ``memory30-pqn``: with memory length 30.
+  the same at purejaxql's width (256); ``memory100-pqn-gru``: and with GRUs
+  (``network.cell = "gru"``), purejaxql's cell; ``memory30-pqn``: with memory
+  length 30.
 * ``memory-drqn`` / ``memory-dqn``: bsuite's MemoryChain (gymnax defaults:
   memory length 5, one context bit): the first observation shows a bit that
   the last action must repeat (+1, else −1). The DRQN sees whole episodes in
@@ -202,15 +204,19 @@ def pqn_config(num_env_steps: int = 500_000, num_episodes: int = 20_000) -> Trai
 
 
 def pqn_memory_config(
-    memory_length: int = 100, num_env_steps: int = 100_000, width: int | None = None
+    memory_length: int = 100,
+    num_env_steps: int = 100_000,
+    width: int | None = None,
+    cell: str = "lstm",
 ) -> TrainConfig:
     """Recurrent PQN on gymnax MemoryChain-bsuite with purejaxql's
     ``pqn_rnn_memory_chain.yaml``: memory length 100 (episodes of 101 steps),
     10⁵ env steps, 32 envs × 128 steps, 4 epochs of 16 minibatches, RAdam at a
     constant lr 1e-3, γ 0.99, λ 0.95, grad norm 10, LayerNorm, ε from 1 to 0.01
     over the first 10 %. Not theirs: no memory window (each minibatch unrolls
-    from the acting state at its rollout's start), LSTMs for their GRU, and our
-    narrower core unless ``width`` (theirs: 256, two dense layers and the
+    from the acting state at its rollout's start), LSTMs for their GRU unless
+    ``cell = "gru"``, two recurrent layers and an FC layer for their one GRU, and
+    our narrower core unless ``width`` (theirs: 256, two dense layers and the
     recurrent layer of that width)."""
     hp = dict(
         learning_rate=1e-3,
@@ -226,7 +232,7 @@ def pqn_memory_config(
     return TrainConfig(
         env_id="gymnax:MemoryChain-bsuite",
         env_overrides=(("max_steps", memory_length + 1), ("memory_length", memory_length)),
-        network=NetworkConfig(kind="drqn", layer_norm=True, **core),
+        network=NetworkConfig(kind="drqn", layer_norm=True, cell=cell, **core),
         algorithm="pqn",
         optimizer="radam",
         num_envs=32,
@@ -250,6 +256,11 @@ RECIPES = {
         lambda: pqn_memory_config(width=256),
         None,
         "success ≥ 90 % (memory length 100, purejaxql's width 256)",
+    ),
+    "memory100-pqn-gru": (
+        lambda: pqn_memory_config(width=256, cell="gru"),
+        None,
+        "success ≥ 90 % (memory length 100, purejaxql's width 256 and GRU)",
     ),
     "memory30-pqn": (
         lambda: pqn_memory_config(memory_length=30),

@@ -188,8 +188,9 @@ def analytic_forward_macs(net: NetworkConfig) -> dict[str, int]:
         c = filters
     width, n_extra = net.recurrent, 1 + net.num_actions
     if net.kind == "drqn":
-        macs["lstm1"] = (net.features + width) * 4 * width
-        macs["lstm2"] = (width + n_extra + width) * 4 * width
+        gates = 4 if net.cell == "lstm" else 3
+        macs[f"{net.cell}1"] = (net.features + width) * gates * width
+        macs[f"{net.cell}2"] = (width + n_extra + width) * gates * width
     else:
         macs["dense1"] = net.features * width
         macs["dense2"] = (width + n_extra) * width

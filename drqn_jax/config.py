@@ -47,7 +47,7 @@ from drqn_jax.env.params import KMH, EnvParams, StaticEnvParams
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.learners import Hyperparams, TrainConfig
 from drqn_jax.learners.hyperparams import ON_POLICY
-from drqn_jax.networks import NetworkConfig
+from drqn_jax.networks import CELLS, NETWORK_KINDS, NetworkConfig
 from drqn_jax.registry import make, preset, registered_envs
 
 __all__ = [
@@ -109,6 +109,7 @@ ADDED_LATER = {
     ("train", "reward_scale"): 1.0,
     ("train", "optimizer"): "adam",
     ("network", "layer_norm"): False,
+    ("network", "cell"): "lstm",
     # The 2026-11-25 revision (docs/spec.md, "The paper's world"): runs before it had
     # pedestrians yielding for ever (the timeout applies to them too: no standoffs in
     # any world), the contact collision test, and no authors' zone.
@@ -199,7 +200,8 @@ def _schema() -> dict[str, dict[str, _Field]]:
     network = _fields_of(
         NetworkConfig, skip=("grid_shape", "num_actions", "torso", "mlp", "obs_size")
     )
-    network["kind"] = dataclasses.replace(network["kind"], choices=("drqn", "dqn"))
+    network["kind"] = dataclasses.replace(network["kind"], choices=NETWORK_KINDS)
+    network["cell"] = dataclasses.replace(network["cell"], choices=CELLS)
     train_sizes = _fields_of(TrainConfig)
     return {
         "run": {
@@ -486,6 +488,7 @@ class Config:
             hidden=net["hidden"],
             frames=net["frames"],
             layer_norm=net["layer_norm"],
+            cell=net["cell"],
         )
 
     def hyperparams(self) -> Hyperparams:

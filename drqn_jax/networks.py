@@ -46,10 +46,13 @@ LSTMState = tuple[jax.Array, jax.Array]  # (h, c)
 Carry = Any
 
 NETWORK_KINDS = ("drqn", "dqn")
+#: The recurrent cells of kind ``drqn``: the paper's LSTM (Table I) and a GRU.
+CELLS = ("lstm", "gru")
 #: What reads the observation: Table I's conv stack (grids) or an MLP (flat vectors).
 TORSOS = ("conv", "mlp")
 
 __all__ = [
+    "CELLS",
     "NETWORK_KINDS",
     "TORSOS",
     "Network",
@@ -83,6 +86,8 @@ class NetworkConfig:
         layer_norm: LayerNorm (learned scale and bias) before the ReLU of every
             dense layer of the MLP torso and of the FC layer (PQN's; False:
             Table I, none).
+        cell: the recurrent cell of kind ``drqn``: ``"lstm"`` (Table I) or
+            ``"gru"`` (purejaxql's recurrent PQN; :func:`gru_cell`).
     """
 
     kind: str = "drqn"
@@ -96,6 +101,7 @@ class NetworkConfig:
     mlp: tuple[int, ...] = (64,)
     obs_size: int = 0
     layer_norm: bool = False
+    cell: str = "lstm"
 
     def __post_init__(self) -> None:
         if not isinstance(self.layer_norm, bool):
@@ -104,6 +110,13 @@ class NetworkConfig:
             )
         if self.kind not in NETWORK_KINDS:
             raise ValueError(f"NetworkConfig.kind = {self.kind!r}: must be one of {NETWORK_KINDS}")
+        if self.cell not in CELLS:
+            raise ValueError(f"NetworkConfig.cell = {self.cell!r}: must be one of {CELLS}")
+        if self.cell != "lstm" and self.kind != "drqn":
+            raise ValueError(
+                f"NetworkConfig.cell = {self.cell!r}: a cell is for kind 'drqn' (kind "
+                f"{self.kind!r} has none); use 'lstm'"
+            )
         if self.torso not in TORSOS:
             raise ValueError(f"NetworkConfig.torso = {self.torso!r}: must be one of {TORSOS}")
         if self.torso == "mlp":
@@ -309,13 +322,14 @@ UNROLL = 9
 
 
 def _lstm_layer(
-    p: Params, x: jax.Array, extra: jax.Array | None, state: LSTMState, resets: jax.Array
-) -> tuple[jax.Array, LSTMState]:
-    """One LSTM over a time-major sequence: outputs (T, B..., H) and the last state.
+    p: Params, x: jax.Array, extra: jax.Array | None, state: Any, resets: jax.Array
+) -> tuple[jax.Array, Any]:
+    """One recurrent layer (an LSTM, or a GRU for params of :func:`_gru_init`) over a
+    time-major sequence: outputs (T, B..., H) and the last state.
 
-    The same function as :func:`lstm_cell` step by step on ``[x, extra]``
-    (``extra`` (T, B..., E) or None), with the state zeroed where ``resets``
-    (T, B...) is true; the input projection of every step is one matrix
+    The same function as :func:`lstm_cell` (:func:`gru_cell`) step by step on
+    ``[x, extra]`` (``extra`` (T, B..., E) or None), with the state zeroed where
+    ``resets`` (T, B...) is true; the input projection of every step is one matrix
     product before the ``lax.scan``, which multiplies only the recurrent state.
     """
     n_x = x.shape[-1]
@@ -329,8 +343,11 @@ def _lstm_layer(
 
     def body(state, xs):
         gates, reset = xs
-        h, c = jax.tree.map(lambda s: jnp.where(reset[..., None], 0.0, s), state)
-        h, state = _lstm_gates(gates + matmul(h, w_h), c)
+        state = jax.tree.map(lambda s: jnp.where(reset[..., None], 0.0, s), state)
+        if "b_hn" in p:
+            h, state = _gru_gates(gates, state[0], w_h, p["b_hn"])
+        else:
+            h, state = _lstm_gates(gates + matmul(state[0], w_h), state[1])
         return state, h
 
     state, h = jax.lax.scan(body, state, (x_gates, resets), unroll=min(x.shape[0], UNROLL))
@@ -343,6 +360,41 @@ def _lstm_gates(gates: jax.Array, c: jax.Array) -> tuple[jax.Array, LSTMState]:
     c = jax.nn.sigmoid(f) * c + jax.nn.sigmoid(i) * jnp.tanh(g)
     h = jax.nn.sigmoid(o) * jnp.tanh(c)
     return h, (h, c)
+
+
+def _gru_init(key: jax.Array, n_in: int, n_hidden: int) -> Params:
+    """Weights of [x, h] -> 3 gates (r, z, n), their biases and the bias of h's part
+    of n (flax's ``GRUCell`` layout); biases 0."""
+    w = _glorot(key, (n_in + n_hidden, 3 * n_hidden), n_in + n_hidden, n_hidden)
+    b, b_hn = jnp.zeros((3 * n_hidden,), jnp.float32), jnp.zeros((n_hidden,), jnp.float32)
+    return {"w": w, "b": b, "b_hn": b_hn}
+
+
+def _gru_gates(
+    x_gates: jax.Array, h: jax.Array, w_h: jax.Array, b_hn: jax.Array
+) -> tuple[jax.Array, tuple[jax.Array]]:
+    """h' and (h',) from the input's pre-activations (..., 3H) and the state h (..., H):
+    r, z = σ(x_r + W_r h), σ(x_z + W_z h); n = tanh(x_n + r ⊙ (W_n h + b_hn));
+    h' = (1 − z) ⊙ n + z ⊙ h (Cho et al. 2014, as flax's ``GRUCell``)."""
+    x_r, x_z, x_n = jnp.split(x_gates, 3, axis=-1)
+    h_r, h_z, h_n = jnp.split(matmul(h, w_h), 3, axis=-1)
+    r, z = jax.nn.sigmoid(x_r + h_r), jax.nn.sigmoid(x_z + h_z)
+    n = jnp.tanh(x_n + r * (h_n + b_hn))
+    h = (1.0 - z) * n + z * h
+    return h, (h,)
+
+
+def gru_cell(p: Params, x: jax.Array, state: tuple[jax.Array]) -> tuple[jax.Array, tuple]:
+    """One GRU step (the ``"gru"`` cell of :class:`NetworkConfig`).
+
+    Args:
+        p: ``{"w": (n_in + H, 3H), "b": (3H,), "b_hn": (H,)}``; x: (..., n_in);
+            state: ((..., H),).
+    Returns:
+        h' (..., H) and the new state (h',).
+    """
+    n_in = x.shape[-1]
+    return _gru_gates(affine(x, p["w"][:n_in], p["b"]), state[0], p["w"][n_in:], p["b_hn"])
 
 
 def conv_torso(params: Params, grid: jax.Array, config: NetworkConfig) -> jax.Array:
@@ -433,6 +485,10 @@ def make_network(config: NetworkConfig | None = None) -> Network:
     conv = config.torso == "conv"
 
     frames = config.frames
+    # the recurrent layers' parameter names and step function (the paper's LSTMs keep
+    # the names of every checkpoint written before the GRU)
+    layers = ("lstm1", "lstm2") if config.cell == "lstm" else ("gru1", "gru2")
+    cell = lstm_cell if config.cell == "lstm" else gru_cell
 
     def init_torso(keys: jax.Array) -> Params:
         if not conv:
@@ -460,9 +516,10 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         keys = jax.random.split(key, n_torso + 4)
         k1, k2, k3, k4 = keys[n_torso:]
         if config.kind == "drqn":
+            cell_init = _lstm_init if config.cell == "lstm" else _gru_init
             core = {
-                "lstm1": _lstm_init(k1, config.features, width),
-                "lstm2": _lstm_init(k2, width + n_extra, width),
+                layers[0]: cell_init(k1, config.features, width),
+                layers[1]: cell_init(k2, width + n_extra, width),
             }
         else:
             core = {
@@ -480,14 +537,16 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         if config.kind == "dqn":
             return () if frames == 1 else jnp.zeros((*batch_shape, frames - 1, *config.grid_shape))
         zeros = jnp.zeros((*batch_shape, width), jnp.float32)
+        if config.cell == "gru":
+            return ((zeros,), (zeros,))
         return ((zeros, zeros), (zeros, zeros))
 
     def core(params: Params, features: jax.Array, extra: jax.Array, carry: Carry):
         """The recurrent (or dense) part for one time step: LSTM2's (or dense2's)
         output (..., H) and the new carry."""
         if config.kind == "drqn":
-            h1, s1 = lstm_cell(params["lstm1"], features, carry[0])
-            h2, s2 = lstm_cell(params["lstm2"], jnp.concatenate([h1, extra], -1), carry[1])
+            h1, s1 = cell(params[layers[0]], features, carry[0])
+            h2, s2 = cell(params[layers[1]], jnp.concatenate([h1, extra], -1), carry[1])
             return h2, (s1, s2)
         h1 = jax.nn.relu(affine(features, params["dense1"]["w"], params["dense1"]["b"]))
         x2 = jnp.concatenate([h1, extra], -1)
@@ -540,8 +599,8 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         if config.kind == "dqn":  # no carry: every step at once
             return core_step(params, features, extra, carry)
         first, second = carry
-        h1, first = _lstm_layer(params["lstm1"], features, None, first, resets)
-        h2, second = _lstm_layer(params["lstm2"], h1, extra, second, resets)
+        h1, first = _lstm_layer(params[layers[0]], features, None, first, resets)
+        h2, second = _lstm_layer(params[layers[1]], h1, extra, second, resets)
         return head(params, h2), (first, second)
 
     return Network(config=config, init=init, initial_carry=initial_carry, step=step, unroll=unroll)

@@ -11,6 +11,7 @@ from drqn_jax.env.state import Observation
 from drqn_jax.networks import (
     NetworkConfig,
     conv_torso,
+    gru_cell,
     lstm_cell,
     make_network,
     param_count,
@@ -130,15 +131,57 @@ def test_memory_matters_for_drqn_not_dqn():
         assert net.initial_carry((1,)) == () if kind == "dqn" else True
 
 
+def test_gru_cell_is_flaxs_gru_cell():
+    """The "gru" cell: our weights laid out as flax's ``GRUCell`` (purejaxql's cell)
+    give its outputs; the network names its layers gru1 and gru2 and its carry is
+    one state per layer."""
+    import flax.linen as nn
+
+    n_in, width, batch = 3, 5, 4
+    p = make_network(
+        NetworkConfig(torso="mlp", obs_size=n_in, mlp=(n_in,), recurrent=width, cell="gru")
+    ).init(jax.random.key(0))
+    assert {"gru1", "gru2"} <= set(p) and "lstm1" not in p
+    cell = p["gru1"]
+    cell = {**cell, "b": jax.random.normal(jax.random.key(1), cell["b"].shape)}
+    cell["b_hn"] = jax.random.normal(jax.random.key(2), cell["b_hn"].shape)
+    x = jax.random.normal(jax.random.key(3), (batch, n_in))
+    h = jax.random.normal(jax.random.key(4), (batch, width))
+    w_x, w_h = cell["w"][:n_in], cell["w"][n_in:]
+    b_r, b_z, b_n = jnp.split(cell["b"], 3)
+    wx_r, wx_z, wx_n = jnp.split(w_x, 3, axis=-1)
+    wh_r, wh_z, wh_n = jnp.split(w_h, 3, axis=-1)
+    flax_params = {
+        "ir": {"kernel": wx_r, "bias": b_r},
+        "iz": {"kernel": wx_z, "bias": b_z},
+        "in": {"kernel": wx_n, "bias": b_n},
+        "hr": {"kernel": wh_r},
+        "hz": {"kernel": wh_z},
+        "hn": {"kernel": wh_n, "bias": cell["b_hn"]},
+    }
+    want, _ = nn.GRUCell(width).apply({"params": flax_params}, h, x)
+    got, (state,) = gru_cell(cell, x, (h,))
+    np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-5, atol=1e-6)
+    assert np.array_equal(np.asarray(state), np.asarray(got))
+
+
 def test_mlp_torso_for_flat_observations():
     """torso = "mlp" (a gymnax env's flat vector): the torso's dense layers feed the
     same core and head, with no speed or last-action inputs; the DRQN's unroll is
-    its steps with resets, and its LSTM remembers what the DQN's dense core forgets."""
+    its steps with resets, and its LSTMs (or GRUs) remember what the DQN's dense
+    core forgets."""
     obs = jax.random.normal(jax.random.key(4), (5, 2, 3))
     resets = jnp.zeros((5, 2), bool).at[2, 0].set(True)
-    for kind in ("drqn", "dqn"):
+    for kind, cell in (("drqn", "lstm"), ("drqn", "gru"), ("dqn", "lstm")):
         config = NetworkConfig(
-            kind=kind, torso="mlp", obs_size=3, mlp=(16, 8), recurrent=8, hidden=8, num_actions=2
+            kind=kind,
+            torso="mlp",
+            obs_size=3,
+            mlp=(16, 8),
+            recurrent=8,
+            hidden=8,
+            num_actions=2,
+            cell=cell,
         )
         net = make_network(config)
         params = net.init(jax.random.key(0))
@@ -156,6 +199,10 @@ def test_mlp_torso_for_flat_observations():
         assert (not np.allclose(q_other[1], q_same[1])) == (kind == "drqn"), kind
     with pytest.raises(ValueError, match="obs_size"):
         NetworkConfig(torso="mlp", obs_size=0)
+    with pytest.raises(ValueError, match="cell = 'rnn': must be one of"):
+        NetworkConfig(cell="rnn")
+    with pytest.raises(ValueError, match="a cell is for kind 'drqn'"):
+        NetworkConfig(kind="dqn", cell="gru")
     with pytest.raises(ValueError, match="torso"):
         NetworkConfig(torso="transformer")
 

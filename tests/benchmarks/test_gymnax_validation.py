@@ -33,10 +33,14 @@ def test_drqn_remembers_where_the_dqn_cannot():
 def test_memory_recipes_differ_only_where_they_say():
     """The MemoryChain recipes of the benchmark: the DQN differs from the DRQN in
     its kind alone; the stored-state DRQN from the zero-start one in stored_state
-    alone (a dropped field once made the two rows the same run)."""
+    alone (a dropped field once made the two rows the same run); the GRU PQN from
+    the wide one in its cell alone."""
     configs = {name: make() for name, (make, _, _) in RECIPES.items()}
     drqn, dqn = configs["memory-drqn"], configs["memory-dqn"]
     assert dataclasses.replace(dqn, network=drqn.network) == drqn
     zero, stored = configs["memory12-drqn"], configs["memory12-drqn-stored"]
     assert (zero.stored_state, stored.stored_state) == (0, 1)
     assert dataclasses.replace(stored, stored_state=0) == zero
+    wide, gru = configs["memory100-pqn-wide"], configs["memory100-pqn-gru"]
+    assert (wide.network.cell, gru.network.cell) == ("lstm", "gru")
+    assert dataclasses.replace(gru, network=wide.network) == wide
