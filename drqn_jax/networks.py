@@ -321,7 +321,7 @@ def lstm_cell(p: Params, x: jax.Array, state: LSTMState) -> tuple[jax.Array, LST
 UNROLL = 9
 
 
-def _lstm_layer(
+def _recurrent_layer(
     p: Params, x: jax.Array, extra: jax.Array | None, state: Any, resets: jax.Array
 ) -> tuple[jax.Array, Any]:
     """One recurrent layer (an LSTM, or a GRU for params of :func:`_gru_init`) over a
@@ -584,10 +584,10 @@ def make_network(config: NetworkConfig | None = None) -> Network:
     ) -> tuple[jax.Array, Carry]:
         """Q-values (T, B..., A) over a time-major sequence.
 
-        The torso, each LSTM's input projection and the head run on all T·B
-        steps at once; each LSTM is a ``lax.scan`` over T of its recurrent
-        product alone (:func:`_lstm_layer`), its state zeroed where ``resets``
-        (T, B...) is true. The same function as :meth:`step` step by step (sums
+        The torso, each recurrent layer's input projection and the head run on
+        all T·B steps at once; each recurrent layer is a ``lax.scan`` over T of
+        its recurrent product alone (:func:`_recurrent_layer`), its state zeroed
+        where ``resets`` (T, B...) is true. The same function as :meth:`step` step by step (sums
         in another order: equal to float32 rounding).
         """
         if frames > 1:  # the stacking does the resets; the dense core has no carry
@@ -599,8 +599,8 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         if config.kind == "dqn":  # no carry: every step at once
             return core_step(params, features, extra, carry)
         first, second = carry
-        h1, first = _lstm_layer(params[layers[0]], features, None, first, resets)
-        h2, second = _lstm_layer(params[layers[1]], h1, extra, second, resets)
+        h1, first = _recurrent_layer(params[layers[0]], features, None, first, resets)
+        h2, second = _recurrent_layer(params[layers[1]], h1, extra, second, resets)
         return head(params, h2), (first, second)
 
     return Network(config=config, init=init, initial_carry=initial_carry, step=step, unroll=unroll)

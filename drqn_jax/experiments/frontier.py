@@ -55,6 +55,7 @@ __all__ = [
     "REVIEWER_RANGES",
     "RULE_BASED_SETTINGS",
     "WIDE_GRID",
+    "above_speed_limit",
     "family_points",
     "frontier_margin",
     "frontier_rate",
@@ -248,6 +249,12 @@ def frontier_rate(vertices: Sequence[Sequence[float]], speed_kmh: float | np.nda
     return np.interp(speed_kmh, v[:, 0], v[:, 1])
 
 
+def above_speed_limit(speeds_kmh: Sequence[float], limit_kmh: float) -> bool:
+    """Whether any of the average speeds exceeds the limit (float32 rounding aside),
+    where the frontier has no point (SPEC §9)."""
+    return max(speeds_kmh) > limit_kmh * (1 + 1e-6)
+
+
 def frontier_margin(
     row: Mapping[str, Any], vertices: Sequence[Sequence[float]], limit_kmh: float
 ) -> tuple[float, tuple[float, float]] | None:
@@ -265,7 +272,7 @@ def frontier_margin(
     """
     seeds = row.get("per_seed") or []
     speeds = [s["avg_speed_kmh"] for s in seeds] if len(seeds) > 1 else [row["avg_speed_kmh"]]
-    if max(speeds) > limit_kmh * (1 + 1e-6):
+    if above_speed_limit(speeds, limit_kmh):
         return None
     if len(seeds) > 1:
         rates = np.array([s["collision_free_rate"] for s in seeds], np.float64)

@@ -56,6 +56,7 @@ from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.curves import load_curves, plot_curves
 from drqn_jax.experiments.figures import plot_safety_speed
 from drqn_jax.experiments.frontier import (
+    above_speed_limit,
     frontier_rate,
     frontier_vertices,
     with_margin,
@@ -343,7 +344,7 @@ def compare_paired(
     if len(common) < 2:
         return None
     for label, own in ((name, mine), (other, theirs)):
-        if max(own[k]["avg_speed_kmh"] for k in common) > limit_kmh * (1 + 1e-6):
+        if above_speed_limit([own[k]["avg_speed_kmh"] for k in common], limit_kmh):
             return (
                 f"{name} − {other}, margin to the rule-based frontier: none, {label} drives "
                 f"faster than the {limit_kmh:g} km/h limit in some seed (SPEC §9)"
