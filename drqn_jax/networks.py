@@ -322,10 +322,15 @@ UNROLL = 9
 
 
 def _recurrent_layer(
-    p: Params, x: jax.Array, extra: jax.Array | None, state: Any, resets: jax.Array
+    p: Params,
+    x: jax.Array,
+    extra: jax.Array | None,
+    state: Any,
+    resets: jax.Array,
+    cell: str = "lstm",
 ) -> tuple[jax.Array, Any]:
-    """One recurrent layer (an LSTM, or a GRU for params of :func:`_gru_init`) over a
-    time-major sequence: outputs (T, B..., H) and the last state.
+    """One recurrent layer of ``cell`` (:data:`CELLS`) over a time-major sequence:
+    outputs (T, B..., H) and the last state.
 
     The same function as :func:`lstm_cell` (:func:`gru_cell`) step by step on
     ``[x, extra]`` (``extra`` (T, B..., E) or None), with the state zeroed where
@@ -344,7 +349,7 @@ def _recurrent_layer(
     def body(state, xs):
         gates, reset = xs
         state = jax.tree.map(lambda s: jnp.where(reset[..., None], 0.0, s), state)
-        if "b_hn" in p:
+        if cell == "gru":
             h, state = _gru_gates(gates, state[0], w_h, p["b_hn"])
         else:
             h, state = _lstm_gates(gates + matmul(state[0], w_h), state[1])
@@ -599,8 +604,8 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         if config.kind == "dqn":  # no carry: every step at once
             return core_step(params, features, extra, carry)
         first, second = carry
-        h1, first = _recurrent_layer(params[layers[0]], features, None, first, resets)
-        h2, second = _recurrent_layer(params[layers[1]], h1, extra, second, resets)
+        h1, first = _recurrent_layer(params[layers[0]], features, None, first, resets, config.cell)
+        h2, second = _recurrent_layer(params[layers[1]], h1, extra, second, resets, config.cell)
         return head(params, h2), (first, second)
 
     return Network(config=config, init=init, initial_carry=initial_carry, step=step, unroll=unroll)

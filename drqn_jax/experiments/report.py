@@ -258,7 +258,7 @@ def claim_verdict(drqn: Mapping[str, Any]) -> str:
     collision the authors' test counts; a DRQN faster than the speed limit has no margin
     (:func:`~drqn_jax.experiments.frontier.frontier_margin`)."""
     speed = drqn["avg_speed_kmh"]
-    low, high = drqn["frontier_margin_ci"] or (math.nan, math.nan)
+    low, high = drqn["frontier_margin_ci"] or (math.nan, math.nan)  # none above the limit
     fast = speed >= PAPER_DRQN_SPEED_KMH
     if drqn.get("above_speed_limit"):
         verdict = (
