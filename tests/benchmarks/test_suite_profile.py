@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import textwrap
 
-from benchmarks.suite_profile import FIELDS, main, read_rows, summary
+from benchmarks.suite_profile import (
+    FIELDS,
+    main,
+    program_tables,
+    read_programs,
+    read_rows,
+    summary,
+)
 
 pytest_plugins = ["pytester"]
 
@@ -17,19 +24,34 @@ def test_the_plugin_records_each_tests_wall_time_and_compiles(pytester, monkeypa
         test_two=textwrap.dedent("""
             import jax, jax.numpy as jnp
 
+            def tripled_sine(x):
+                return jnp.sin(x) * 3.0
+
             def test_compiles():
-                jax.jit(lambda x: jnp.sin(x) * 3.0)(jnp.arange(7.0)).block_until_ready()
+                jax.jit(tripled_sine)(jnp.arange(7.0)).block_until_ready()
 
             def test_nothing():
                 pass
+
+            def test_compiles_it_again():
+                jax.clear_caches()  # too quick for the persistent cache: compiled again
+                jax.jit(tripled_sine)(jnp.arange(7.0)).block_until_ready()
         """)
     )
-    pytester.runpytest_inprocess("-p", "benchmarks.suite_profile").assert_outcomes(passed=2)
+    pytester.runpytest_inprocess("-p", "benchmarks.suite_profile").assert_outcomes(passed=3)
     rows = {r["test"]: r for r in read_rows(out.glob("suite-*.tsv"))}
-    assert set(rows) == {"test_two.py::test_compiles", "test_two.py::test_nothing"}
     compiled, idle = rows["test_two.py::test_compiles"], rows["test_two.py::test_nothing"]
+    assert len(rows) == 3
     assert compiled["compile_s_n"] >= 1 and compiled["compile_s"] > 0.0
     assert idle["compile_s_n"] == 0 and idle["wall_s"] >= 0.0
+    programs = read_programs(out.glob("compiles-*.tsv"))
+    sines = [p for p in programs if p["program"] == "jit_tripled_sine"]
+    assert [p["test"].split("::")[1] for p in sines] == ["test_compiles", "test_compiles_it_again"]
+    assert sines[0]["key"] == sines[1]["key"] and sines[0]["outcome"] == "miss"
+    assert all(p["compile_s"] > 0.0 for p in sines)
+    repeated = {g["program"]: g for g in program_tables(programs, top=5)["repeated"]}
+    sine = repeated["jit_tripled_sine"]
+    assert (sine["compiles"], sine["keys"], sine["files"]) == (2, 1, "test_two.py")
 
 
 def test_the_summary_adds_up_per_file_and_per_worker(tmp_path, capsys):
@@ -51,6 +73,19 @@ def test_the_summary_adds_up_per_file_and_per_worker(tmp_path, capsys):
     assert (first["compile_s"], first["compile_s_n"], first["cache_hit_s_n"]) == (10.0, 5, 2)
     assert (second["file"], second["wall_s"]) == ("tests/b.py", 2.0)
     assert result["total"]["trace_s"] == 1.5
+    (tmp_path / "compiles-1.tsv").write_text(
+        "tests/a.py::t1\tjit_train\tk1\tmiss\t4.0\n"
+        "tests/b.py::t\tjit_train\tk1\tmiss\t3.0\n"
+        "tests/b.py::t\tjit_train\tk2\tmiss\t1.0\n"
+        "tests/a.py::t1\tjit_step\tk3\thit\t0.0\n"
+    )
     printed = main([str(tmp_path)])
     assert printed["total"]["compile_s_n"] == 6
+    assert printed["repeated"] == [
+        {"program": "jit_train", "compiles": 2, "hits": 0, "compile_s": 7.0, "keys": 1,
+         "files": "tests/a.py, tests/b.py"}
+    ]  # fmt: skip
+    names = {g["program"]: g for g in printed["names"]}
+    assert (names["jit_train"]["compiles"], names["jit_train"]["keys"]) == (3, 2)
+    assert (names["jit_step"]["compiles"], names["jit_step"]["hits"]) == (0, 1)
     assert "| tests/a.py | 2 | 15 | 10 | 5 |" in capsys.readouterr().out
