@@ -7,7 +7,13 @@ between them: a directory made for the session (removed at its end) unless
 ``JAX_COMPILATION_CACHE_DIR`` is already set, in which case that one is used
 and kept. A cache hit loads the very executable an earlier compile produced
 (the key holds the program, the XLA flags and the JAX version), so results
-are the same bits; only compile time is saved.
+are the same bits; only compile time is saved. Every compile is kept, however
+short (``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0``, JAX's default keeps
+those over a second): the suite's eager calls compile the same small programs
+again and again (an eager ``lax.cond`` is traced afresh at each call, so JAX's
+in-memory cache misses it; one of them was compiled 80 times in a profile,
+``benchmarks/suite_profile.py``), and both workers and the subprocesses compile
+the same op-by-op programs; from the persistent cache each is compiled once.
 
 No test file needs to drop compiled programs to stay under Linux's
 ``vm.max_map_count``: :mod:`drqn_jax.programs` bounds what it holds by memory
@@ -24,6 +30,7 @@ import pytest
 import drqn_jax
 
 _CACHE_VARIABLE = "JAX_COMPILATION_CACHE_DIR"
+_MIN_TIME_VARIABLE = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
 _made_cache = pytest.StashKey[str]()
 
 
@@ -34,8 +41,12 @@ def pytest_configure(config: pytest.Config) -> None:
         path = tempfile.mkdtemp(prefix="drqn-jax-test-xla-cache-")
         os.environ[_CACHE_VARIABLE] = path
         config.stash[_made_cache] = path
-    # jax was imported (by drqn_jax) before the variable was set in this process.
+    os.environ.setdefault(_MIN_TIME_VARIABLE, "0")
+    # jax was imported (by drqn_jax) before the variables were set in this process.
     jax.config.update("jax_compilation_cache_dir", os.environ[_CACHE_VARIABLE])
+    jax.config.update(
+        "jax_persistent_cache_min_compile_time_secs", float(os.environ[_MIN_TIME_VARIABLE])
+    )
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
