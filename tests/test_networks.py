@@ -37,14 +37,18 @@ def _obs(key, lead):
 def test_conv_stack_reaches_1x1x64(drqn):
     net, params = drqn
     assert net.config.conv_output_shape == (1, 1, 64)
-    grid = jnp.zeros((3, 45, 30, 4))
-    assert conv_torso(params, grid, net.config).shape == (3, 64)
+    grid = jax.ShapeDtypeStruct((3, 45, 30, 4), jnp.float32)  # shapes alone: not compiled
+    assert jax.eval_shape(lambda g: conv_torso(params, g, net.config), grid).shape == (3, 64)
     # 45×30 → 10×7 → 3×2 → 1×1, layer by layer
     x = grid
     shapes = []
     for layer, (_, _, stride, _) in zip(params["conv"], net.config.conv, strict=True):
-        x = jax.lax.conv_general_dilated(
-            x, layer["w"], (stride, stride), "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC")
+        x = jax.eval_shape(
+            lambda x, w, s=stride: jax.lax.conv_general_dilated(
+                x, w, (s, s), "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC")
+            ),
+            x,
+            layer["w"],
         )
         shapes.append(x.shape[1:])
     assert shapes == [(10, 7, 32), (3, 2, 64), (1, 1, 64)]
@@ -88,10 +92,11 @@ def test_lstm_cell_matches_numpy():
 
 
 def test_step_shapes_single_and_batched(drqn):
-    net, params = drqn
-    q, carry = net.step(params, _obs(jax.random.key(1), ()), net.initial_carry())
+    net, params = drqn  # shapes alone: traced, not compiled
+    q, carry = jax.eval_shape(net.step, params, _obs(jax.random.key(1), ()), net.initial_carry())
     assert q.shape == (4,) and carry[1][0].shape == (256,)
-    q, carry = net.step(params, _obs(jax.random.key(1), (7,)), net.initial_carry((7,)))
+    batched = (_obs(jax.random.key(1), (7,)), net.initial_carry((7,)))
+    q, carry = jax.eval_shape(net.step, params, *batched)
     assert q.shape == (7, 4) and carry[0][1].shape == (7, 256)
 
 
