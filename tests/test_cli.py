@@ -133,7 +133,7 @@ PPO = [
     *SMOKE,
     *("--set", "train.algorithm=ppo", "--set", "train.num_minibatches=2"),
     *("--set", "train.rollout_steps=8", "--set", "train.num_env_steps=64"),
-    *("--set", "train.chunk_iterations=2"),
+    *("--set", "train.chunk_iterations=1"),
 ]
 
 
@@ -144,7 +144,7 @@ def test_ppo_trains_resumes_bit_identical_and_evaluates(tmp_path, monkeypatch, c
     straight, interrupted = tmp_path / "straight", tmp_path / "interrupted"
     assert cli.main(["train", *PPO, "--run-dir", str(straight)]) == 0
     meta = json.loads((straight / CHECKPOINT_JSON).read_text())
-    assert meta["finished"] and meta["env_steps"] == 64 and meta["chunks"] == 2
+    assert meta["finished"] and meta["env_steps"] == 64 and meta["chunks"] == 4
     header = (straight / "metrics.csv").read_text().splitlines()[0].split(",")
     assert "epsilon" not in header and "mean_loss" in header
     (agent,) = json.loads((straight / "evaluation.json").read_text())["agents"]
@@ -329,16 +329,16 @@ def test_bench_quick_prints_throughput(capsys):
 
 def test_bench_quick_counts_ppos_iterations_in_env_steps_and_updates():
     """Issue 51: a PPO iteration is a rollout and its epochs; bench counts them from the
-    state (the PPO config of the test above, with room for 2 more updates)."""
+    state (the PPO config of the test above: its chunk program, one iteration a call)."""
     from drqn_jax.experiments.bench import bench_train, train_figures
 
     overrides = [value for flag, value in itertools.pairwise(PPO) if flag == "--set"]
-    config = load_config("smoke", [*overrides, "train.num_env_steps=128"])
-    figures = train_figures(config, 2)
+    config = load_config("smoke", overrides)
+    figures = train_figures(config, 1)
     train = config["train"]
-    assert figures["env_steps"] == 2 * train["rollout_steps"] * train["num_envs"]
-    assert figures["grad_steps"] == 2 * train["update_epochs"] * train["num_minibatches"]
-    assert "gradient updates/s (PPO: a rollout of 8 steps × 2 envs" in bench_train(config, 2)
+    assert figures["env_steps"] == train["rollout_steps"] * train["num_envs"]
+    assert figures["grad_steps"] == train["update_epochs"] * train["num_minibatches"]
+    assert "gradient updates/s (PPO: a rollout of 8 steps × 2 envs" in bench_train(config, 1)
 
 
 def test_bench_runs_a_suite_benchmark_and_writes_json_and_markdown(tmp_path, capfd):

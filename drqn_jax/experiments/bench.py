@@ -91,22 +91,20 @@ def train_figures(config: Config, iterations: int, seeds: int = 1) -> dict[str, 
     (``env_steps``, ``grad_steps``, summed over seeds), so that every learner's
     iteration is measured in what it does (the DQN: one step of every env and its
     updates; PPO and PQN: a rollout and its epochs). ``seeds`` > 1 runs that many
-    seeds ``jax.vmap``-ed in one program, as a sweep does. A string says why there is
-    nothing to time."""
+    seeds ``jax.vmap``-ed in one program, as a sweep does; one seed runs the program
+    ``drqn-jax train`` compiles for chunks of ``iterations``. A string says why
+    there is nothing to time."""
     trainer = make_train(config.train_config())
     train_key, _ = config.keys()
     init = init_program(trainer)  # train's init program
-
-    def step(state: Any) -> Any:
-        return trainer.run(state, iterations)
-
-    if seeds == 1:
+    start = time.perf_counter()
+    if seeds == 1:  # train's chunk program, ``iterations`` a chunk
         state = init(train_key)
+        run = jax.jit(trainer.run, static_argnums=1).lower(state, iterations).compile()
     else:
         state = jax.jit(jax.vmap(init))(jax.random.split(train_key, seeds))
-        step = jax.vmap(step)
-    start = time.perf_counter()
-    run = jax.jit(step).lower(state).compile()
+        step = jax.vmap(lambda state: trainer.run(state, iterations))
+        run = jax.jit(step).lower(state).compile()
     compile_s = time.perf_counter() - start
     # fill the replay until learning has started (the DQN: learning_starts whole episodes)
     while int(state.grad_steps.min()) == 0 and not bool(state.finished.any()):
