@@ -79,12 +79,18 @@ def test_same_key_bit_identical(tiny, tiny_run):
     )
 
 
-def test_acting_lstm_restarts_at_every_episode(tiny):
+#: ``TINY`` with a budget of 200 env steps (100 iterations), 50 episodes to go when it
+#: ends: run one iteration a call by the acting-carry and the step-budget tests.
+STEPPED = tiny_train_config(num_env_steps=200, num_episodes=50, chunk_iterations=7)
+
+
+def test_acting_lstm_restarts_at_every_episode():
     """The acting carry is the network's initial carry at each episode's first step
     and only there (the bug class of purejaxrl issue 23, JaxMARL issue 119: a
     carry leaking across an auto-reset). Over 80 iterations of 30-step episodes
-    each env starts several episodes; a carry kept across the reset fails."""
-    trainer, _ = tiny
+    each env starts several episodes; a carry kept across the reset fails. (The
+    programs of ``STEPPED``, which the step-budget test runs too.)"""
+    trainer = make_train(STEPPED)
     step = jax.jit(trainer.run, static_argnums=1)
     state = jax.jit(trainer.init)(jax.random.key(0))
     initial = trainer.network.initial_carry((TINY.num_envs,))
@@ -426,18 +432,18 @@ def test_step_budget_ends_the_run_and_drives_the_schedules():
     """``num_env_steps`` ends a run at that many env steps, even with episodes to go;
     ε and the learning rate follow the larger share of the two budgets; a run in
     chunks of 1 ends bit-identical to ``train``."""
-    config = tiny_train_config(num_env_steps=40, num_episodes=50, chunk_iterations=7)
+    config = STEPPED
     trainer = make_train(config)
     key = jax.random.key(5)
     params, metrics = jax.jit(trainer.train)(key)
-    state = trainer.init(key)
+    state = jax.jit(trainer.init)(key)
     run = jax.jit(trainer.run, static_argnums=1)
     while not bool(state.finished):
         state = run(state, 1)
-    assert int(state.env_steps) == 40 and int(state.recorded) < 50
+    assert int(state.env_steps) == 200 and int(state.recorded) < 50
     assert_tree_equal((params, metrics), (state.online, state.metrics))
     hp = config.hyperparams  # ε of an episode: at least the share of steps taken
-    late = epsilon_of(jnp.int32(1), hp, 50, step_share(config, jnp.int32(30)))
+    late = epsilon_of(jnp.int32(1), hp, 50, step_share(config, jnp.int32(150)))
     np.testing.assert_allclose(float(late), 1.0 - 0.9 * 0.75, rtol=1e-6)
     lr = annealed(hp.replace(learning_rate_end=0.0), jnp.int32(1), 50, jnp.float32(0.5))
     np.testing.assert_allclose(float(lr.learning_rate), 0.5 * float(hp.learning_rate), rtol=1e-6)
