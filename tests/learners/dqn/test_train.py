@@ -79,8 +79,9 @@ def test_same_key_bit_identical(tiny, tiny_run):
     )
 
 
-#: ``TINY`` with a budget of 200 env steps (100 iterations), 50 episodes to go when it
-#: ends: run one iteration a call by the acting-carry and the step-budget tests.
+#: ``TINY`` with a budget of 200 env steps (100 iterations) that ends the run long
+#: before its 50 episodes: run one iteration a call by the acting-carry and the
+#: step-budget tests (one program for both).
 STEPPED = tiny_train_config(num_env_steps=200, num_episodes=50, chunk_iterations=7)
 
 
