@@ -7,7 +7,7 @@
 #      (OUT/seeds/; PPO's 128-step rollouts of 5 x 4,096 envs would hold 56 GB of
 #      observations);
 #   2. PQN's learning curve (benchmarks/learning_curve.py): one seed of the `pqn`
-#      preset trained to 24M env steps, its greedy agent evaluated on 1,000 episodes
+#      preset (GRU cells) trained to 24M env steps, its greedy agent evaluated on 1,000 episodes
 #      at 12 marks: collision-free rate, speed and margin against env steps.
 # Each writes its JSON and Markdown under OUT (default runs/gpu): throughput/,
 # seeds/ and curve/.
