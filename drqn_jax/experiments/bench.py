@@ -19,7 +19,7 @@ from typing import Any
 import jax
 
 from drqn_jax.config import Config
-from drqn_jax.experiments.runner import init_program
+from drqn_jax.experiments.runner import compiled_run, init_program
 from drqn_jax.learners import make_train
 from drqn_jax.learners.hyperparams import ON_POLICY
 
@@ -100,7 +100,7 @@ def train_figures(config: Config, iterations: int, seeds: int = 1) -> dict[str, 
     start = time.perf_counter()
     if seeds == 1:  # train's chunk program, ``iterations`` a chunk
         state = init(train_key)
-        run = jax.jit(trainer.run, static_argnums=1).lower(state, iterations).compile()
+        run = compiled_run(trainer, state, iterations)
     else:
         state = jax.jit(jax.vmap(init))(jax.random.split(train_key, seeds))
         step = jax.vmap(lambda state: trainer.run(state, iterations))

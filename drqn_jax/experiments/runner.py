@@ -116,15 +116,16 @@ def init_program(trainer: Trainer) -> Callable[[jax.Array], TrainState]:
     )
 
 
-def compiled_run(trainer: Trainer, state: TrainState) -> Any:
-    """``run(state, chunk_iterations)`` compiled once per program and process (the
-    hyperparameters are in the state: :meth:`TrainConfig.program_key`)."""
+def compiled_run(trainer: Trainer, state: TrainState, iterations: int | None = None) -> Any:
+    """``run(state, iterations)`` (default ``train.chunk_iterations``) compiled once per
+    program, chunk size and process (the hyperparameters are in the state:
+    :meth:`TrainConfig.program_key`)."""
+    chunk = trainer.config.chunk_iterations if iterations is None else iterations
 
     def build() -> Any:
-        run = jax.jit(trainer.run, static_argnums=1)
-        return run.lower(state, trainer.config.chunk_iterations).compile()
+        return jax.jit(trainer.run, static_argnums=1).lower(state, chunk).compile()
 
-    return cached("runner.run", trainer.config.program_key(), build)
+    return cached("runner.run", (trainer.config.program_key(), chunk), build)
 
 
 def recorded_metrics(state: TrainState | Mapping[str, Any]) -> dict[str, np.ndarray]:
