@@ -429,7 +429,9 @@ speed, distance, goal %, collisions per km), OUT/study.json, and the training cu
 and OUT/curves.rrd. Each run's trained agent is OUT/<config>/agents/run-NNNN; --eval-envs
 evaluates them among other pedestrians too (one more row per env). Ctrl-C saves checkpoints
 (status 130); running the same command again continues the study, and with a larger
---seeds adds the new seeds to it; --eval-envs on a finished study only evaluates."""
+--seeds adds the new seeds to it; --eval-envs on a finished study only evaluates. With
+--results, an interrupted study keeps its finished runs in its section of that file, and
+the same command in a fresh --out (a new clone) trains only the others."""
 _FRONTIER_DOC = """Sweep the rule-based agent over its parameters (v_max from 1 km/h to the
 speed limit, lookahead, horizon, corridor margin) on the config's evaluation episodes, as
 one compiled program, and keep its Pareto-efficient points (collision-free rate against

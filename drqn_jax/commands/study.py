@@ -34,6 +34,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     if args.dry_run:
         return EXIT_OK
     start = time.perf_counter()
+    section = args.section or out.name
     outcome = run_study(
         arms,
         out,
@@ -41,12 +42,23 @@ def cmd_study(args: argparse.Namespace) -> int:
         png=not args.no_png,
         quiet=args.quiet,
         train=not args.report_only,
+        carried=_carried(args.results, section) if args.results else None,
     )
     if outcome.status == "interrupted":
         print(
             f"interrupted; checkpoints saved, continue with the same command (--out {out})",
             file=sys.stderr,
         )
+        if args.results and outcome.finished_runs:
+            from drqn_jax.experiments.report import store_finished_runs
+
+            store_finished_runs(args.results, section, outcome.finished_runs, args.command_line)
+            count = sum(len(r) for r in outcome.finished_runs.values())
+            print(
+                f"{count} finished run(s) kept in section {section!r} of {args.results}: "
+                "the same command continues from them in a fresh --out",
+                file=sys.stderr,
+            )
         return EXIT_INTERRUPTED
     wall = time.perf_counter() - start
     if args.results:
@@ -59,7 +71,6 @@ def cmd_study(args: argparse.Namespace) -> int:
             "continued": outcome.continued,
             "machine": machine_info(),
         }
-        section = args.section or out.name
         earlier = load_results(args.results)["sections"].get(section)
         if args.report_only and earlier:  # the runs' provenance stays the command that made them
             about = {**earlier, "report_command": args.command_line}
@@ -74,6 +85,13 @@ def cmd_study(args: argparse.Namespace) -> int:
     print(outcome.table)
     print(f"\nwall time {wall:.1f} s; study in {out}")
     return EXIT_OK
+
+
+def _carried(results: str, section: str) -> dict[str, list[dict]]:
+    """The finished runs an interrupted study kept in ``section`` of ``results``."""
+    from drqn_jax.experiments.report import load_results
+
+    return load_results(results)["sections"].get(section, {}).get("finished_runs", {})
 
 
 def cmd_report(args: argparse.Namespace) -> int:

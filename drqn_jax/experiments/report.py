@@ -39,6 +39,7 @@ __all__ = [
     "margin_cell",
     "render_section",
     "stale_documents",
+    "store_finished_runs",
     "strict_json",
     "study_table",
     "update_document",
@@ -102,6 +103,20 @@ def write_results(
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(Path(path), json.dumps(record, indent=1) + "\n")
     return record
+
+
+def store_finished_runs(
+    path: str | Path, section: str, finished: Mapping[str, Any], command: str
+) -> None:
+    """Keep an interrupted study's finished runs as ``sections[section]["finished_runs"]``
+    of the results file at ``path`` (:mod:`drqn_jax.experiments.portable`); the section's
+    rows and the rest of it stay (a new section gets ``command``)."""
+    check_section(section)
+    record = load_results(path)
+    about = record["sections"].setdefault(section, {"command": command})
+    about["finished_runs"] = dict(finished)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(Path(path), json.dumps(strict_json(record), indent=1) + "\n")
 
 
 def _nan(row: Mapping[str, Any]) -> dict[str, Any]:

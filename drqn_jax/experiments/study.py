@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -87,7 +88,6 @@ __all__ = [
     "StudyOutcome",
     "baseline_row",
     "compare_paired",
-    "finished_results",
     "frontier_rows",
     "paper_rows",
     "plan_study",
@@ -310,7 +310,9 @@ class StudyOutcome:
     record, by :func:`~drqn_jax.experiments.baselines.frontier_key`) or ``interrupted``
     (checkpoints saved; the same command continues). ``continued``: some runs were
     trained, wholly or in part, by an earlier invocation (or not at all here: a report
-    only), so this one's wall time does not cover them."""
+    only), so this one's wall time does not cover them. ``finished_runs``: on
+    interruption, each arm's finished runs as the results file carries them
+    (:func:`~drqn_jax.experiments.portable.portable_runs`)."""
 
     status: str
     rows: list[dict[str, Any]] = dataclasses.field(default_factory=list)
@@ -319,6 +321,7 @@ class StudyOutcome:
     comparisons: list[str] = dataclasses.field(default_factory=list)
     continued: bool = False
     frontiers: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    finished_runs: dict[str, list[dict[str, Any]]] = dataclasses.field(default_factory=dict)
 
 
 def _by_seed(runs: Sequence[Mapping[str, Any]]) -> dict[Any, Mapping[str, Any]]:
@@ -363,14 +366,6 @@ def compare_paired(
     )
 
 
-def finished_results(directory: Path) -> list[dict[str, Any]]:
-    """The runs of a config's sweep whose call has ended (``calls/*/runs.json``), by index."""
-    results: dict[int, dict[str, Any]] = {}  # by index: a grown plan may regroup its calls
-    for path in sorted((directory / "calls").glob("*/runs.json")):
-        results.update((r["index"], r) for r in json.loads(path.read_text()))
-    return [results[i] for i in sorted(results)]
-
-
 def _comparisons(
     trained: Sequence[tuple[dict[str, Any], Config]],
     names: Sequence[str],
@@ -407,15 +402,21 @@ def run_study(
     png: bool = True,
     quiet: bool = False,
     train: bool = True,
+    carried: Mapping[str, Sequence[Mapping[str, Any]]] | None = None,
 ) -> StudyOutcome:
     """Train and evaluate every arm (continuing a study already in ``out``), evaluate
     the rule-based agent, and write the table and the curves (module docstring).
 
     With ``train=False`` nothing trains: the report covers the runs that have
     finished so far (a config with none is left out), e.g. of a long study
-    interrupted to go on later.
+    interrupted to go on later. ``carried``: arm name → finished runs an interrupted
+    study stored in its results file, written back into an arm's directory that holds
+    no sweep yet (:func:`~drqn_jax.experiments.portable.restore_runs`), so that only
+    the other runs train.
     """
-    from drqn_jax.experiments.sweep_runner import metrics_path, run_sweep
+    from drqn_jax.experiments.machine import git_commit
+    from drqn_jax.experiments.portable import portable_runs, restore_runs
+    from drqn_jax.experiments.sweep_runner import finished_results, metrics_path, run_sweep
     from drqn_jax.interop.training_recording import record_study_curves
 
     out = Path(out)
@@ -423,13 +424,19 @@ def run_study(
     continued = not train
     for arm in arms:
         directory = out / arm.name
+        restored = restore_runs(directory, arm.sweep, (carried or {}).get(arm.name, ()))
+        if restored and not quiet:
+            print(f"{arm.name}: {restored} finished run(s) from the results file", file=sys.stderr)
         if not train:
             runs[arm.name] = finished_results(directory)
             continue
         resume = (directory / "plan.json").is_file()
         outcome = run_sweep(arm.sweep, directory, resume=resume, quiet=quiet)
         if outcome.status == "interrupted":
-            return StudyOutcome("interrupted")
+            commit = git_commit()
+            finished = {a.name: portable_runs(out / a.name, a.sweep, commit) for a in arms}
+            finished = {name: found for name, found in finished.items() if found}
+            return StudyOutcome("interrupted", finished_runs=finished)
         runs[arm.name] = outcome.results
         continued = continued or outcome.continued > 0
     done = [arm for arm in arms if runs[arm.name]]

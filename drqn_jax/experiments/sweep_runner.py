@@ -82,7 +82,9 @@ __all__ = [
     "call_inputs",
     "call_programs",
     "evaluate_runs",
+    "finished_results",
     "metrics_path",
+    "plan_record",
     "run_sweep",
     "train_call",
 ]
@@ -391,7 +393,8 @@ class SweepOutcome:
     continued: int = 0
 
 
-def _plan_record(sweep: Sweep, dist: Distributed) -> dict[str, Any]:
+def plan_record(sweep: Sweep, dist: Distributed = Distributed()) -> dict[str, Any]:
+    """``OUT/plan.json``'s record: the sweep's points (values, training hash) and processes."""
     return {
         "base": sweep.base,
         "axes": sweep.axes,
@@ -455,7 +458,7 @@ def run_sweep(
     devices = jax.local_devices()
     if calls is None:
         calls = plan_calls(sweep, len(devices), dist)
-    record, plan = _plan_record(sweep, dist), _plan_path(out, dist)
+    record, plan = plan_record(sweep, dist), _plan_path(out, dist)
     if resume:
         write_plan = _check_plan(plan, record)  # grown (more seeds): the new points are added
     else:
@@ -515,6 +518,14 @@ def run_sweep(
         results = _gather(results, dist)
     results = sorted(results, key=lambda r: r["index"])
     return SweepOutcome("finished", results, list(calls), continued)
+
+
+def finished_results(directory: Path) -> list[dict[str, Any]]:
+    """The runs of a config's sweep whose call has ended (``calls/*/runs.json``), by index."""
+    results: dict[int, dict[str, Any]] = {}  # by index: a grown plan may regroup its calls
+    for path in sorted((directory / "calls").glob("*/runs.json")):
+        results.update((r["index"], r) for r in json.loads(path.read_text()))
+    return [results[i] for i in sorted(results)]
 
 
 def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, Any]]:

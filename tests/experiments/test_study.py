@@ -341,6 +341,50 @@ def test_a_report_covers_the_runs_that_have_finished(study, tmp_path, monkeypatc
     assert row in (partial / "study.md").read_text()
 
 
+def test_an_interrupted_study_keeps_its_finished_runs_in_the_results_file(
+    study, tmp_path, monkeypatch
+):
+    """The study's directory may be lost (a fresh clone): interrupted with --results, it
+    keeps each finished run in its section of the results file, and the same command in
+    a fresh --out trains only the other runs, to the same rows bit for bit."""
+    import shutil
+
+    import drqn_jax.experiments.sweep_runner as sweep_runner
+
+    partial = tmp_path / "partial"
+    shutil.copytree(study, partial)
+    (call,) = [p for p in (partial / "smoke" / "calls").iterdir() if "0001" in p.name]
+    shutil.rmtree(call)  # on the CPU each call holds one run: run 1 has not finished
+    real, trained = sweep_runner.train_call, []
+    monkeypatch.setattr(
+        sweep_runner, "train_call", lambda *a, **k: sweep_runner.CallOutcome("interrupted", *a)
+    )
+    results = tmp_path / "results.json"
+    argv = ["study", *STUDY, "--no-png", "--results", str(results), "--section", "s"]
+    assert cli.main([*argv, "--out", str(partial)]) == 130
+    kept = json.loads(results.read_text())["sections"]["s"]["finished_runs"]["smoke"]
+    assert [r["index"] for r in kept] == [0]
+    assert kept[0]["metrics_csv"] == metrics_path(study / "smoke", 0).read_text()
+
+    def counting(call, devices, **kwargs):
+        trained.append([p.index for p in call.points])
+        return real(call, devices, **kwargs)
+
+    monkeypatch.setattr(sweep_runner, "train_call", counting)
+    assert cli.main([*argv, "--out", str(tmp_path / "fresh")]) == 0
+    assert trained == [[1]]  # run 0 came from the results file
+    rows = json.loads((tmp_path / "fresh" / "study.json").read_text())["rows"]
+    assert rows == json.loads((study / "study.json").read_text())["rows"]
+    assert "finished_runs" not in json.loads(results.read_text())["sections"]["s"]  # finished
+    stale = {**kept[0], "training_hash": "another config"}  # restored only to its own config
+    results.write_text(
+        json.dumps({"rows": [], "sections": {"s": {"finished_runs": {"smoke": [stale]}}}})
+    )
+    trained.clear()
+    assert cli.main([*argv, "--out", str(tmp_path / "other")]) == 0
+    assert trained == [[0], [1]]
+
+
 def test_eval_envs_evaluate_the_trained_agents_among_other_pedestrians(
     study, tmp_path, monkeypatch, capsys
 ):

@@ -1,0 +1,93 @@
+"""A study's finished runs in its results file, so that a study outlives its directory.
+
+A study of the paper's protocol trains for hours on a CPU; stopped, it continues
+from ``OUT`` (its checkpoints and finished calls). When ``OUT`` is lost (a fresh
+clone, another machine), the finished runs need not be: with ``--results``, an
+interrupted study stores each arm's finished runs in its section of the results
+file (``sections[section]["finished_runs"][arm]``): each run's evaluation record as
+the sweep saved it, the training hash of its config, the commit that first stored
+it, and its training metrics (``metrics.csv``). The same command in a directory
+that holds no such arm writes them back (:func:`restore_runs`) and trains only the
+other runs; the table is then the same, bit for bit, as if nothing had stopped
+(each run is independent of the others, ``tests/experiments/test_sweep.py``).
+A restored run has no trained agent on disk (its parameters are not stored), so
+``--eval-envs`` cannot evaluate it. A finished study drops ``finished_runs``: its
+rows hold the results.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from drqn_jax.experiments.checkpoint import atomic_write_text
+from drqn_jax.experiments.sweep import Sweep
+from drqn_jax.experiments.sweep_plan import plan_calls
+from drqn_jax.experiments.sweep_runner import finished_results, metrics_path, plan_record
+
+__all__ = ["portable_runs", "restore_runs"]
+
+
+def portable_runs(directory: Path, sweep: Sweep, commit: str) -> list[dict[str, Any]]:
+    """The finished runs of ``sweep`` in ``directory`` (``OUT/<arm>``), by index, each
+    with its training hash, ``commit`` (unless it was restored with one already) and its
+    ``metrics.csv`` text; runs whose metrics are missing are left out."""
+    hashes = {p.index: p.config.training_hash() for p in sweep.points}
+    runs = []
+    for record in finished_results(directory):
+        metrics = metrics_path(directory, record["index"])
+        if record["index"] not in hashes or not metrics.is_file():
+            continue
+        runs.append(
+            {
+                **record,
+                "training_hash": hashes[record["index"]],
+                "commit": record.get("commit", commit),
+                "metrics_csv": metrics.read_text(),
+            }
+        )
+    return runs
+
+
+def restore_runs(directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, Any]]) -> int:
+    """Write ``stored`` runs (:func:`portable_runs`) back into ``directory`` as the
+    finished calls of ``sweep``'s plan, if ``directory`` holds no sweep yet; returns
+    how many runs were restored.
+
+    A run is restored when its index is one of the sweep's points with the same
+    training hash and evaluation episode count; a planned call is restored only
+    when all its runs are (on a CPU each call holds one run), the others train.
+    """
+    if (directory / "plan.json").exists() or not stored:
+        return 0
+    points = {p.index: p for p in sweep.points}
+    usable = {}
+    for run in stored:
+        point = points.get(run.get("index"))
+        if point is None or run.get("training_hash") != point.config.training_hash():
+            continue
+        if run.get("num_episodes") != point.config["evaluate"]["episodes"]:
+            continue
+        usable[run["index"]] = run
+    calls = plan_calls(sweep, len(jax.local_devices()))
+    restored = [c for c in calls if all(p.index in usable for p in c.points)]
+    if not restored:
+        return 0
+    directory.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(directory / "plan.json", json.dumps(plan_record(sweep), indent=1) + "\n")
+    for call in restored:
+        runs = [usable[p.index] for p in call.points]
+        for run in runs:
+            path = metrics_path(directory, run["index"])
+            path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(path, run["metrics_csv"])
+        saved = [{k: v for k, v in run.items() if k != "metrics_csv"} for run in runs]
+        (directory / "calls" / call.name).mkdir(parents=True, exist_ok=True)
+        atomic_write_text(
+            directory / "calls" / call.name / "runs.json", json.dumps(saved, indent=1) + "\n"
+        )
+    return sum(len(c.points) for c in restored)
