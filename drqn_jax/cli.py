@@ -266,6 +266,12 @@ def _study_parser(sub: Any) -> None:
         "--dry-run", action="store_true", help="validate and describe the study; run nothing"
     )
     study.add_argument(
+        "--estimate",
+        action="store_true",
+        help="time one training chunk of every config on this device and print the "
+        "study's training wall time; train nothing",
+    )
+    study.add_argument(
         "--report-only",
         action="store_true",
         help="train nothing: the table and curves of the runs that have finished so far",

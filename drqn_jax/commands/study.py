@@ -31,6 +31,9 @@ def cmd_study(args: argparse.Namespace) -> int:
         print(f"{arm.name}: {arm.sweep.describe()}", file=sys.stderr)
     if not args.no_png:
         require_matplotlib()  # before hours of training, not after
+    if args.estimate:
+        print(_estimate(arms))
+        return EXIT_OK
     if args.dry_run:
         return EXIT_OK
     start = time.perf_counter()
@@ -85,6 +88,46 @@ def cmd_study(args: argparse.Namespace) -> int:
     print(outcome.table)
     print(f"\nwall time {wall:.1f} s; study in {out}")
     return EXIT_OK
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    minutes = round(seconds / 60)
+    return f"{minutes // 60} h {minutes % 60:02d} min" if minutes >= 60 else f"{minutes} min"
+
+
+def _estimate(arms) -> str:
+    """Lines of the study's training wall time on this device, per arm and in all
+    (:func:`~drqn_jax.experiments.bench.training_estimate`)."""
+    import jax
+
+    from drqn_jax.experiments.bench import training_estimate
+    from drqn_jax.experiments.sweep_plan import resolve_strategy
+
+    lines, total, bounded = [], 0.0, False
+    for arm in arms:
+        strategy = resolve_strategy(arm.sweep.strategy, jax.local_devices())
+        runs = len(arm.sweep.points)
+        figures = training_estimate(arm.config, runs, batched=strategy == "vmap")
+        if isinstance(figures, str):
+            lines.append(f"{arm.name}: no estimate: {figures}")
+            continue
+        total += figures["seconds"]
+        bounded |= figures["upper_bound"]
+        most = "at most " if figures["upper_bound"] else ""
+        lines.append(
+            f"{arm.name}: {runs} runs ({strategy}) × {most}{figures['env_steps_per_run']:,} env "
+            f"steps at {figures['env_steps_per_s']:,.0f} env steps/s: "
+            f"{most}{_duration(figures['seconds'])}"
+        )
+    most = "at most " if bounded else ""
+    device = jax.devices()[0].device_kind
+    lines.append(
+        f"training in all, on this {device}: {most}{_duration(total)} (one chunk of each "
+        "config timed once learning runs; evaluation and compiles not included)"
+    )
+    return "\n".join(lines)
 
 
 def _carried(results: str, section: str) -> dict[str, list[dict]]:

@@ -4,7 +4,9 @@
   in parallel, random actions, one jitted ``lax.scan`` of ``steps`` steps;
 * :func:`bench_train`: training iterations/s, env steps/s and gradient
   updates/s of the config's trainer (any learner) over ``iterations``
-  iterations of ``run`` after learning has started (:func:`train_figures`).
+  iterations of ``run`` after learning has started (:func:`train_figures`);
+* :func:`training_estimate`: the wall time of training a config's runs on this
+  device, from the same timing (``drqn-jax study --estimate``).
 
 Each figure is the best of 3 timed calls after a warm-up call; compile time
 (lower + compile) is reported separately.
@@ -23,7 +25,7 @@ from drqn_jax.experiments.runner import compiled_run, init_program
 from drqn_jax.learners import make_train
 from drqn_jax.learners.hyperparams import ON_POLICY
 
-__all__ = ["bench_env", "bench_train", "train_figures"]
+__all__ = ["bench_env", "bench_train", "train_figures", "training_estimate"]
 
 
 def _best_of(fn: Callable[[], Any], repeats: int = 3, *, warm_up: bool = True) -> float:
@@ -141,3 +143,30 @@ def bench_train(config: Config, iterations: int) -> str:
         f"{figures['grad_steps'] / run_s:,.1f} gradient updates/s "
         f"({_learner_text(config)}; compile {figures['compile_s']:.1f} s)"
     )
+
+
+def training_estimate(config: Config, runs: int, batched: bool = False) -> dict[str, Any] | str:
+    """Seconds to train ``runs`` runs of ``config`` on this device: the env steps of the
+    runs over the env steps per second of train's chunk program once learning runs
+    (:func:`train_figures`, a chunk of ``train.chunk_iterations``; with ``batched`` the
+    runs ``vmap``-ed in one program, as a sweep's ``vmap`` strategy trains them, else one
+    run, as ``map`` trains them one after another).
+
+    A run's env steps are ``train.num_env_steps``, or with an episode budget alone at most
+    ``num_episodes × env.max_steps`` (then ``upper_bound``: episodes that end early make
+    the run shorter). Evaluation and compile time are not in ``seconds``. A string
+    says why there is nothing to time."""
+    train = config["train"]
+    figures = train_figures(config, train["chunk_iterations"], runs if batched else 1)
+    if isinstance(figures, str):
+        return figures
+    steps_per_s = figures["env_steps"] / figures["seconds"]
+    steps = train["num_env_steps"] or train["num_episodes"] * config["env"]["max_steps"]
+    return {
+        "runs": runs,
+        "env_steps_per_run": steps,
+        "upper_bound": not train["num_env_steps"],
+        "env_steps_per_s": steps_per_s,
+        "compile_s": figures["compile_s"],
+        "seconds": runs * steps / steps_per_s,
+    }

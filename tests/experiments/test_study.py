@@ -385,6 +385,62 @@ def test_an_interrupted_study_keeps_its_finished_runs_in_the_results_file(
     assert trained == [[0], [1]]
 
 
+def test_the_estimate_is_the_runs_env_steps_over_the_timed_rate(monkeypatch):
+    """Issue 53: a study's training wall time, printed before it trains: each run's env
+    steps (its step budget, or at most episodes × max_steps) over the env steps per
+    second of one timed chunk, times the runs."""
+    from drqn_jax.config import load_config
+    from drqn_jax.experiments import bench
+
+    timed = []
+
+    def figures(config, iterations, seeds=1):
+        timed.append((iterations, seeds))
+        return {"env_steps": 1000 * seeds, "seconds": 2.0, "compile_s": 9.0}
+
+    monkeypatch.setattr(bench, "train_figures", figures)
+    pqn = load_config("pqn", ["train.num_env_steps=6000000"])
+    estimate = bench.training_estimate(pqn, 5)
+    assert estimate["seconds"] == 5 * 6_000_000 / 500 and not estimate["upper_bound"]
+    assert timed == [(pqn["train"]["chunk_iterations"], 1)]
+    batched = bench.training_estimate(pqn, 5, batched=True)  # 5 runs in one program
+    assert batched["seconds"] == 5 * 6_000_000 / 2500 and timed[-1][1] == 5
+    paper = bench.training_estimate(load_config("paper"), 2)
+    assert paper["upper_bound"] and paper["env_steps_per_run"] == 200 * 1000
+
+
+def test_the_study_prints_its_estimate_and_trains_nothing(tmp_path, monkeypatch, capsys):
+    from drqn_jax.experiments import bench
+
+    def estimate(config, runs, batched=False):
+        if config["train"]["algorithm"] == "ppo":
+            return "the run finished before learning started; raise train.num_episodes"
+        seconds = 3 * 3600.0 + 25 * 60.0
+        return {
+            "runs": runs,
+            "env_steps_per_run": 180,
+            "upper_bound": True,
+            "env_steps_per_s": 2.5,
+            "compile_s": 1.0,
+            "seconds": seconds,
+        }
+
+    monkeypatch.setattr(bench, "training_estimate", estimate)
+    ppo = tmp_path / "smoke-ppo.toml"
+    ppo.write_text('extends = "smoke"\n[train]\nalgorithm = "ppo"\nnum_minibatches = 2\n')
+    out = tmp_path / "out"
+    argv = ["study", "--configs", f"smoke,{ppo}", "--seeds", "3", "--estimate", "--out", str(out)]
+    assert cli.main(argv) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert (
+        lines[0]
+        == "smoke: 3 runs (map) × at most 180 env steps at 2 env steps/s: at most 3 h 25 min"
+    )
+    assert lines[1].startswith("smoke-ppo: no estimate: the run finished before learning")
+    assert lines[2].startswith("training in all, on this cpu: at most 3 h 25 min")
+    assert not out.exists()
+
+
 def test_eval_envs_evaluate_the_trained_agents_among_other_pedestrians(
     study, tmp_path, monkeypatch, capsys
 ):
