@@ -20,9 +20,16 @@ from collections.abc import Sequence
 from typing import Any
 
 from drqn_jax import __version__
+from drqn_jax.agents.shipped import shipped_agents
 from drqn_jax.commands.bench import SUITE, TOOLS, cmd_bench
 from drqn_jax.commands.frontier import cmd_frontier
-from drqn_jax.commands.runs import cmd_evaluate, cmd_replay, cmd_reproduce, cmd_train
+from drqn_jax.commands.runs import (
+    cmd_evaluate,
+    cmd_export,
+    cmd_replay,
+    cmd_reproduce,
+    cmd_train,
+)
 from drqn_jax.commands.study import cmd_report, cmd_study
 from drqn_jax.commands.sweep import cmd_sweep
 from drqn_jax.config import ConfigError, config_names
@@ -85,14 +92,16 @@ def _agent_options(parser: argparse.ArgumentParser, verb: str) -> None:
         default=None,
         help="a run directory (its DRQN agent), or a sweep's trained agent: OUT/agents/run-NNNN",
     )
+    shipped = shipped_agents()
     parser.add_argument(
         "--agent",
-        choices=_AGENTS,
+        choices=_AGENTS + shipped,
         default=None,
         help=f"agent to {verb}; drqn: the run's trained agent, whatever its learner; planner: "
         "the privileged planner, which sees the true state and plays the simulator forward "
-        "(a ceiling, not a learner; [planner] of the config) "
-        "(default: drqn with RUN_DIR, rule-based without)",
+        "(a ceiling, not a learner; [planner] of the config)"
+        + (f"; {', '.join(shipped)}: a trained agent shipped with drqn_jax " if shipped else " ")
+        + "(default: drqn with RUN_DIR, rule-based without)",
     )
 
 
@@ -156,6 +165,24 @@ def _reproduce_parser(sub: Any) -> None:
     _run_dir_option(rep, "reproduce")
     _rrd_option(rep)
     _quiet_option(rep)
+
+
+def _export_parser(sub: Any) -> None:
+    export = _command(
+        sub,
+        "export",
+        "write a finished run's trained agent alone (a few MB) to a directory",
+        _EXPORT_DOC,
+    )
+    export.add_argument("run_dir", help="a finished run directory (drqn-jax train)")
+    export.add_argument("out", help="the directory to write")
+    export.add_argument(
+        "--command",
+        required=True,
+        dest="training_command",
+        metavar="TEXT",
+        help="the command that trained the run, kept in OUT/provenance.json",
+    )
 
 
 def _replay_parser(sub: Any) -> None:
@@ -390,6 +417,7 @@ def build_parser() -> argparse.ArgumentParser:
         _evaluate_parser,
         _reproduce_parser,
         _replay_parser,
+        _export_parser,
         _sweep_parser,
         _study_parser,
         _frontier_parser,
@@ -446,6 +474,12 @@ privileged planner (it sees the true state and plays the simulator forward: a ce
 never a learner's competitor) at each speed cap. Prints both, with the wall time of each;
 writes OUT/frontier.json (every swept point) and OUT/frontier.png, and with --results the
 points as a section of the results file."""
+_EXPORT_DOC = """Write the agent of a finished run directory as OUT/config.toml and
+OUT/agent.npz (its parameters alone, no training state: a few MB, with the config's
+training hash) and OUT/provenance.json (the training command, episodes, env steps,
+gradient steps and wall time, and this machine and commit: export where the run
+trained). evaluate and replay read OUT like a run directory; a directory under
+drqn_jax/agents/trained/NAME is shipped with the package as --agent NAME."""
 _BENCH_DOC = """Run the benchmark suite of benchmarks/ (a clone of the repository is
 needed): each benchmark prints a Markdown table with the machine it ran on, and
 --out DIR writes DIR/NAME.json and DIR/NAME.md. 'all' runs every benchmark with
@@ -486,6 +520,7 @@ COMMANDS = {
     "evaluate": cmd_evaluate,
     "reproduce": cmd_reproduce,
     "replay": cmd_replay,
+    "export": cmd_export,
     "sweep": cmd_sweep,
     "study": cmd_study,
     "frontier": cmd_frontier,

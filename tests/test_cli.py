@@ -270,6 +270,36 @@ def test_evaluate_builtin_and_trained(straight, capsys):
     assert "| drqn | none (reward alone) | 3 |" in capsys.readouterr().out
 
 
+def test_an_exported_agent_is_shipped_and_evaluates_as_its_run(
+    straight, tmp_path, monkeypatch, capsys
+):
+    """Issue 53: ``export`` writes a finished run's agent alone with its provenance; under
+    drqn_jax/agents/trained/NAME it is ``--agent NAME``, the same policy as the run."""
+    from drqn_jax.agents import shipped
+
+    out = tmp_path / "trained" / "tiny"
+    command = "drqn-jax train --config smoke"
+    assert cli.main(["export", str(straight), str(out), "--command", command]) == 0
+    files = {p.name for p in out.iterdir()}
+    assert files == {"config.toml", "agent.npz", "agent.json", "provenance.json"}
+    provenance = json.loads((out / "provenance.json").read_text())
+    meta = json.loads((straight / CHECKPOINT_JSON).read_text())
+    assert provenance["command"] == command and provenance["env_steps"] == meta["env_steps"]
+    assert provenance["wall_time_s"] == meta["wall_time_s"] and provenance["machine"]["git_commit"]
+    assert (out / "agent.npz").stat().st_size < (straight / CHECKPOINT_NPZ).stat().st_size
+
+    monkeypatch.setattr(shipped, "TRAINED_DIR", tmp_path / "trained")
+    assert shipped.shipped_agents() == ("tiny",)
+    run, ours = tmp_path / "run.json", tmp_path / "shipped.json"
+    assert cli.main(["evaluate", str(straight), "--episodes", "3", "--json", str(run)]) == 0
+    assert cli.main(["evaluate", "--agent", "tiny", "--episodes", "3", "--json", str(ours)]) == 0
+    assert json.loads(ours.read_text()) == json.loads(run.read_text())
+    capsys.readouterr()
+    assert cli.main(["evaluate", str(straight), "--agent", "tiny"]) == 2  # one or the other
+    assert "--agent tiny is a shipped agent: give no RUN_DIR" in capsys.readouterr().err
+    assert cli.main(["export", str(tmp_path), str(tmp_path / "x"), "--command", "c"]) == 2
+
+
 def _rrd_rows(path: Path) -> dict[str, int]:
     """Temporal rows per entity of a rerun recording."""
     from rerun.chunk import RrdReader

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from drqn_jax.agents import drqn_agent
+from drqn_jax.agents.shipped import shipped_agent_dir, shipped_agents
 from drqn_jax.commands import default_run_dir
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import metrics_table
@@ -139,24 +140,28 @@ def _chosen_agent(args: argparse.Namespace, overrides: list[str]) -> tuple[Confi
 
     The trained agent (``--agent drqn``: the run's DRQN, DQN or PPO policy, named
     by :func:`agent_name`) comes from the run's last checkpoint (trained with the run's own
-    config; ``overrides`` apply on top for the episodes); a built-in agent uses
+    config; ``overrides`` apply on top for the episodes); a shipped agent
+    (:mod:`drqn_jax.agents.shipped`) likewise from its directory; a built-in agent uses
     the run's config, or ``--config``. ``network`` is None for a built-in agent.
     """
-    chosen = args.agent or ("drqn" if args.run_dir else "rule-based")
+    run_dir, chosen = args.run_dir, args.agent or ("drqn" if args.run_dir else "rule-based")
+    if chosen in shipped_agents():
+        if run_dir is not None:
+            raise ConfigError(f"--agent {chosen} is a shipped agent: give no RUN_DIR")
+        run_dir, chosen = str(shipped_agent_dir(chosen)), "drqn"
     if chosen != "drqn":
-        source = Path(args.run_dir) / "config.toml" if args.run_dir else args.config
+        source = Path(run_dir) / "config.toml" if run_dir else args.config
         config = load_config(source, overrides)
         return config, builtin_agent(chosen, config), None, None
-    if args.run_dir is None:
+    if run_dir is None:
         raise ConfigError("--agent drqn needs a RUN_DIR (a trained run)")
-    network, params, meta = load_trained_network(load_run(args.run_dir, ()), args.run_dir)
+    network, params, meta = load_trained_network(load_run(run_dir, ()), run_dir)
     if not meta.get("finished", False):
         print(
-            f"note: {args.run_dir} has not finished training "
-            f"({meta.get('recorded')} episodes so far)",
+            f"note: {run_dir} has not finished training ({meta.get('recorded')} episodes so far)",
             file=sys.stderr,
         )
-    config = load_run(args.run_dir, tuple(overrides))
+    config = load_run(run_dir, tuple(overrides))
     name = agent_name(config.train_config())
     return config, drqn_agent(network, params, name), network, params
 
@@ -261,4 +266,16 @@ def cmd_replay(args: argparse.Namespace) -> int:
     seed, n = config["run"]["seed"], record.num_episodes
     print(f"wrote {n} episode{'s' if n != 1 else ''} of {agent.name} (seed {seed}) to {out}")
     print(f"view with: rerun {out}")
+    return EXIT_OK
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from drqn_jax.experiments.runner import export_agent
+
+    provenance = export_agent(args.run_dir, args.out, args.training_command)
+    print(
+        f"{args.out}: the agent of {args.run_dir} ({provenance.get('env_steps', 0):,} env "
+        f"steps), with provenance.json",
+        file=sys.stderr,
+    )
     return EXIT_OK

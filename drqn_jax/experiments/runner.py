@@ -71,12 +71,14 @@ __all__ = [
     "builtin_agent",
     "compiled_run",
     "evaluate_agents",
+    "export_agent",
     "init_program",
     "json_ready",
     "load_run",
     "load_trained_network",
     "metrics_csv",
     "recorded_metrics",
+    "save_agent",
     "train_run",
     "validated",
     "write_evaluation",
@@ -348,6 +350,43 @@ def load_trained_network(
     fill = added_leaves(trainer.config.hyperparams, trainer.env_params)
     state, meta = load_checkpoint(run_dir, template, expected, fill, renamed=RENAMED_LEAVES)
     return trainer.network, trainer.agent_params(state), meta
+
+
+def save_agent(directory: str | Path, config: Config, params: Any, meta: Mapping[str, Any]) -> None:
+    """A trained agent as a directory that ``drqn-jax evaluate`` and ``replay`` read like
+    a run's: the resolved ``config.toml`` and ``agent.npz`` (+ ``.json``): ``params``
+    (``Trainer.agent_params``, no training state) with the config's training identity,
+    which loading checks, and ``meta``."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(directory / "config.toml", config.to_toml())
+    save_checkpoint(directory, params, {**config.training_identity(), **meta}, name=AGENT)
+
+
+#: What an exported agent keeps of its run's checkpoint metadata.
+_TRAINING_COUNTS = ("recorded", "grad_steps", "env_steps", "wall_time_s")
+
+
+def export_agent(run_dir: str | Path, out: str | Path, command: str) -> dict[str, Any]:
+    """Write a finished run's agent to ``out`` (:func:`save_agent`, a few MB) with
+    ``provenance.json``: ``command`` (the one that trained it), the run's episodes, env
+    steps, gradient steps and training wall time, and this machine and commit
+    (export where the run trained). Returns the provenance.
+
+    Raises:
+        CheckpointError: not a run directory, or its training has not finished.
+    """
+    from drqn_jax.experiments.machine import machine_info
+
+    config = load_run(run_dir)
+    _, params, meta = load_trained_network(config, run_dir)
+    if not meta.get("finished", False):
+        raise CheckpointError(f"{run_dir}: training has not finished; export a finished run")
+    counts = {k: meta[k] for k in _TRAINING_COUNTS if k in meta}
+    save_agent(out, config, params, {"finished": True, **counts})
+    provenance = {"command": command, **counts, "machine": machine_info()}
+    atomic_write_text(Path(out) / "provenance.json", json.dumps(provenance, indent=1) + "\n")
+    return provenance
 
 
 def builtin_agent(name: str, config: Config) -> Agent:

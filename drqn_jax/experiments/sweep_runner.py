@@ -53,7 +53,6 @@ from drqn_jax.agents import drqn_agent
 from drqn_jax.config import RENAMED_LEAVES, added_leaves
 from drqn_jax.evaluation import evaluate
 from drqn_jax.experiments.checkpoint import (
-    AGENT,
     CHECKPOINT_JSON,
     CHECKPOINT_NPZ,
     CheckpointError,
@@ -62,7 +61,7 @@ from drqn_jax.experiments.checkpoint import (
     save_checkpoint,
 )
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
-from drqn_jax.experiments.runner import json_ready, metrics_csv
+from drqn_jax.experiments.runner import json_ready, metrics_csv, save_agent
 from drqn_jax.experiments.sweep import Sweep, SweepPoint
 from drqn_jax.experiments.sweep_plan import (
     Call,
@@ -356,18 +355,13 @@ def agent_dir(out: str | Path, index: int) -> Path:
 
 
 def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
-    """Each run's resolved ``config.toml`` and trained agent (``params``:
-    :func:`real_agent_params`; the final or the validated parameters, as
-    evaluated) as ``agent.npz`` at :func:`agent_dir`, with the training hash that
-    ``drqn-jax evaluate`` checks against the config."""
+    """Each run's trained agent (``params``: :func:`real_agent_params`; the final or the
+    validated parameters, as evaluated) at :func:`agent_dir`
+    (:func:`~drqn_jax.experiments.runner.save_agent`)."""
     counts = jax.tree.map(np.asarray, (state.recorded, state.grad_steps, state.env_steps))
     for i, point in enumerate(call.points):
-        directory = agent_dir(out, point.index)
-        directory.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(directory / "config.toml", point.config.to_toml())
         recorded, grad_steps, env_steps = (int(c[i]) for c in counts)
         meta = {
-            **point.config.training_identity(),
             "values": point.values,
             "finished": True,
             "recorded": recorded,
@@ -375,7 +369,7 @@ def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
             "env_steps": env_steps,
         }
         run_params = jax.tree.map(lambda x, i=i: x[i], params)
-        save_checkpoint(directory, run_params, meta, name=AGENT)
+        save_agent(agent_dir(out, point.index), point.config, run_params, meta)
 
 
 # ------------------------------------------------------------------------------ the sweep

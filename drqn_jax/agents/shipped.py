@@ -1,0 +1,39 @@
+"""Trained agents shipped with the package (issue 53), so that a result can be tried
+without training: ``drqn-jax evaluate --agent NAME`` and ``replay --agent NAME``.
+
+Each is a directory ``trained/<NAME>/`` beside this module, as ``drqn-jax export``
+writes it from a run directory: ``config.toml`` (the resolved config it trained
+with), ``agent.npz`` and ``agent.json`` (its agent's parameters alone, no training
+state, with the config's training hash) and ``provenance.json`` (the commit,
+command, machine, env steps and wall time of the training). It reads like a
+sweep's trained agent (``OUT/agents/run-NNNN``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["TRAINED_DIR", "shipped_agent_dir", "shipped_agents"]
+
+#: Where the shipped agents live (package data).
+TRAINED_DIR = Path(__file__).resolve().parent / "trained"
+
+
+def shipped_agents() -> tuple[str, ...]:
+    """The names of the shipped agents, sorted (directories of :data:`TRAINED_DIR`
+    holding ``agent.npz``)."""
+    if not TRAINED_DIR.is_dir():
+        return ()
+    return tuple(sorted(p.parent.name for p in TRAINED_DIR.glob("*/agent.npz")))
+
+
+def shipped_agent_dir(name: str) -> Path:
+    """The directory of the shipped agent ``name``.
+
+    Raises:
+        ValueError: no such agent (the message names those there are).
+    """
+    if name not in shipped_agents():
+        there = ", ".join(shipped_agents()) or "none"
+        raise ValueError(f"no shipped agent {name!r} (shipped: {there})")
+    return TRAINED_DIR / name
