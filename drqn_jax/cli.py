@@ -161,7 +161,19 @@ def _reproduce_parser(sub: Any) -> None:
         "train, evaluate and print the paper's Table III beside ours",
         _REPRODUCE_DOC,
     )
-    _config_options(rep, "default")
+    rep.add_argument(
+        "--train",
+        action="store_true",
+        help="train the agent again first (the shipped agent's config, or --config), "
+        "with an estimate of how long on this device",
+    )
+    rep.add_argument(
+        "--config",
+        default=None,
+        help="with --train: a TOML file or a name in configs/ to train instead of the "
+        "shipped agent's config",
+    )
+    _set_option(rep, "override one field (repeatable), e.g. --set evaluate.episodes=100")
     _run_dir_option(rep, "reproduce")
     _rrd_option(rep)
     _quiet_option(rep)
@@ -439,9 +451,14 @@ _EVALUATE_DOC = """Evaluate a run directory's DRQN (or a sweep's or study's trai
 OUT/agents/run-NNNN) or a built-in agent greedily on the evaluation key and print the SPEC §8
 metrics. --set changes the episodes, not the agent: e.g. --set env.id=... evaluates it among
 other pedestrians, --seed 0 on a study's episodes."""
-_REPRODUCE_DOC = """Train the DRQN with the config (default.toml), evaluate it and the
-rule-based agent on evaluate.episodes episodes each, and print the paper's Table III beside
-ours with the wall time."""
+_REPRODUCE_DOC = """Evaluate the trained agent shipped with drqn_jax (--agent headline, its
+provenance printed) and the paper's rule-based agent on evaluate.episodes episodes each
+(1000), sweep the rule-based family's frontier on the same episodes, and print the paper's
+Table III beside ours with each agent's margin to the frontier, the verdict on the paper's
+claim, the safety/speed figure's path and the wall time; no training. --train trains the
+agent again first (its config, or --config; an estimate of the training time on this
+device comes first) and evaluates that one. Writes evaluation.json, results.md and
+safety_speed.png (the plots extra) to the run directory."""
 _REPLAY_DOC = """Record episodes of a run directory's greedy DRQN (with its four Q-values per
 step) or of a built-in agent as a rerun recording: the map, the ego, the pedestrians coloured by
 behaviour, the four grid channels, speed, action, reward and TTC on the timeline "step". Episode

@@ -330,8 +330,10 @@ def test_train_rrd_and_replay_of_the_trained_drqn(straight, capsys):
 
 def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
     run_dir = tmp_path / "rep"
-    assert cli.main(["reproduce", *SMOKE, "--run-dir", str(run_dir)]) == 0
+    assert cli.main(["reproduce", "--train", *SMOKE, "--run-dir", str(run_dir)]) == 0
     out = capsys.readouterr().out
+    assert f"safety/speed figure: {run_dir / 'safety_speed.png'}" in out
+    assert (run_dir / "safety_speed.png").read_bytes()[:4] == b"\x89PNG"
     paper_row = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | 40.0 (16.8–68.7) | – |"
     assert paper_row + " – | 7.79 | – | 82.6 |" in out
     assert "| paper (CARLA) | DRQN | none (reward alone) | 1 × 10 |" in out
@@ -344,6 +346,37 @@ def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
     assert any(word in verdict[0] for word in ("supported:", "reversed:", "not shown:"))
     agents = json.loads((run_dir / "evaluation.json").read_text())["agents"]
     assert [a["agent"] for a in agents] == ["drqn", "rule-based"]
+
+
+def test_reproduce_evaluates_the_shipped_agent_without_training(
+    straight, tmp_path, monkeypatch, capsys
+):
+    """Issue 53: ``reproduce`` alone evaluates the shipped headline agent (here the smoke
+    run, exported) beside the paper and the frontier; it trains nothing."""
+    import drqn_jax.experiments.runner as runner
+    from drqn_jax.agents import shipped
+
+    monkeypatch.setattr(shipped, "TRAINED_DIR", tmp_path / "trained")
+    assert cli.main(["reproduce", "--run-dir", str(tmp_path / "none")]) == 2
+    assert "no shipped agent 'headline' (shipped: none)" in capsys.readouterr().err
+    command = "drqn-jax train --config smoke"
+    assert (
+        cli.main(
+            ["export", str(straight), str(tmp_path / "trained" / "headline"), "--command", command]
+        )
+        == 0
+    )
+    monkeypatch.setattr(runner, "train_run", None)  # must not be called
+    run_dir = tmp_path / "rep"
+    assert cli.main(["reproduce", "--run-dir", str(run_dir)]) == 0
+    captured = capsys.readouterr()
+    assert "the shipped agent 'headline': " in captured.err and f"`{command}`" in captured.err
+    assert "| drqn_jax | drqn | none (reward alone) | 1 × 8 |" in captured.out
+    assert "\nThe paper's claim" in captured.out
+    evaluated = json.loads((run_dir / "evaluation.json").read_text())["agents"][0]
+    trained = json.loads((straight / "evaluation.json").read_text())["agents"][0]
+    assert evaluated == trained  # the shipped agent is the run's, on the same episodes
+    assert cli.main(["reproduce", "--config", "smoke"]) == 2  # --config needs --train
 
 
 def test_bench_quick_prints_throughput(capsys):

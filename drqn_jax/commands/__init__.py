@@ -13,13 +13,21 @@ from pathlib import Path
 from drqn_jax.config import ConfigError
 from drqn_jax.experiments.report import check_section
 
-__all__ = ["check_section_option", "default_run_dir"]
+__all__ = ["check_section_option", "default_run_dir", "duration_text"]
 
 
 def default_run_dir(prefix: str, config_name: str) -> Path:
     """``runs/<prefix>-<config>-<UTC time>``: where a command writes when not told."""
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%d-%H%M%S")
     return Path("runs") / f"{prefix}-{Path(config_name).stem}-{stamp}"
+
+
+def duration_text(seconds: float) -> str:
+    """``42 s``, ``17 min`` or ``3 h 05 min``: a wall time as a person reads it."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    minutes = round(seconds / 60)
+    return f"{minutes // 60} h {minutes % 60:02d} min" if minutes >= 60 else f"{minutes} min"
 
 
 def check_section_option(section: str) -> None:

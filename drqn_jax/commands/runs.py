@@ -13,7 +13,7 @@ from typing import Any
 
 from drqn_jax.agents import drqn_agent
 from drqn_jax.agents.shipped import shipped_agent_dir, shipped_agents
-from drqn_jax.commands import default_run_dir
+from drqn_jax.commands import default_run_dir, duration_text
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import metrics_table
 from drqn_jax.experiments.runner import (
@@ -81,29 +81,66 @@ def _train_and_evaluate(
     if result.status != "finished":
         print(("error: " if result.status == "diverged" else "") + result.message, file=sys.stderr)
         return EXIT_FAILED if result.status == "diverged" else EXIT_INTERRUPTED
-    agents = [_trained(result)]
+    summary = _run_summary(result)
+    trained = (
+        f"training {result.wall_time_s:.1f} s over {int(result.state.recorded)} episodes, "
+        f"{int(result.state.grad_steps)} gradient steps"
+    )
     if reproduce:
-        agents.append(builtin_agent("rule-based", config))
+        return _beside_the_paper(config, _trained(result), run_dir, quiet, start, summary, trained)
+    agents = [_trained(result)]
     if not quiet:
         _say_evaluating(config, agents)
     results = evaluate_agents(config, agents, quiet=quiet)
-    if reproduce:
-        from drqn_jax.experiments.baselines import config_frontier
-
-        if not quiet:
-            print("sweeping the rule-based frontier on the same episodes...", file=sys.stderr)
-        table = paper_comparison(results, config_frontier(config, planner=False))
-    else:
-        table = metrics_table(results)
+    table = metrics_table(results)
     wall = time.perf_counter() - start
-    write_evaluation(run_dir, results, {**_run_summary(result), "total_wall_time_s": wall}, table)
+    write_evaluation(run_dir, results, {**summary, "total_wall_time_s": wall}, table)
     print(table)
-    print(
-        f"\nwall time {wall:.1f} s (training {result.wall_time_s:.1f} s over "
-        f"{int(result.state.recorded)} episodes, {int(result.state.grad_steps)} gradient steps)"
-        f"\nrun directory: {run_dir}"
-    )
+    print(f"\nwall time {wall:.1f} s ({trained})\nrun directory: {run_dir}")
     return EXIT_OK
+
+
+def _beside_the_paper(
+    config: Config,
+    agent: Any,
+    run_dir: Path,
+    quiet: bool,
+    start: float,
+    summary: dict[str, Any],
+    about: str,
+) -> int:
+    """Evaluate ``agent`` and the paper's rule-based agent on ``config``'s evaluation
+    episodes, sweep the rule-based frontier on them, and print and write Table III
+    beside the paper's (:func:`paper_comparison`) with the safety/speed figure."""
+    from drqn_jax.experiments.baselines import config_frontier
+
+    agents = [agent, builtin_agent("rule-based", config)]
+    if not quiet:
+        _say_evaluating(config, agents)
+    results = evaluate_agents(config, agents, quiet=quiet)
+    if not quiet:
+        print("sweeping the rule-based frontier on the same episodes...", file=sys.stderr)
+    frontier = config_frontier(config, planner=False)
+    rows, table = paper_comparison(results, frontier)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    figure = _safety_speed_figure(rows, frontier, run_dir / "safety_speed.png")
+    wall = time.perf_counter() - start
+    write_evaluation(run_dir, results, {**summary, "total_wall_time_s": wall}, table)
+    print(table)
+    print(f"\nsafety/speed figure: {figure}")
+    print(f"wall time {wall:.1f} s ({about})\nrun directory: {run_dir}")
+    return EXIT_OK
+
+
+def _safety_speed_figure(rows: list[dict[str, Any]], frontier: dict[str, Any], path: Path) -> str:
+    """Draw the figure at ``path`` and return its path, or why there is none."""
+    from drqn_jax.experiments.figures import plot_safety_speed
+
+    try:
+        plot_safety_speed(rows, frontier, path)
+    except ConfigError as err:  # matplotlib is an extra
+        return f"none ({err})"
+    return str(path)
 
 
 def _say_evaluating(config: Config, agents: Sequence[Any]) -> None:
@@ -196,11 +233,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def paper_comparison(results: list[dict[str, Any]], frontier: dict[str, Any]) -> str:
+def paper_comparison(
+    results: list[dict[str, Any]], frontier: dict[str, Any]
+) -> tuple[list[dict[str, Any]], str]:
     """The paper's Table III rows (with the interval its 10 episodes allow) beside ours
-    (one trained DRQN, then the rule-based agent), each with its margin to the rule-based
+    (one trained agent, then the rule-based agent), each with its margin to the rule-based
     frontier of ``frontier`` (:func:`~drqn_jax.experiments.frontier.world_frontier`), and
-    the verdict on the paper's claim."""
+    the verdict on the paper's claim: the rows and the text."""
     from drqn_jax.experiments.frontier import with_margin
     from drqn_jax.experiments.report import claim_verdict, study_table
     from drqn_jax.experiments.study import baseline_row, paper_rows
@@ -210,22 +249,75 @@ def paper_comparison(results: list[dict[str, Any]], frontier: dict[str, Any]) ->
     ours = [
         with_margin(baseline_row("drqn_jax", r, world=world), frontier, limit_kmh) for r in results
     ]
-    return "\n\n".join(
+    rows = paper_rows() + ours
+    text = "\n\n".join(
         [
-            study_table(paper_rows() + ours),
+            study_table(rows),
             claim_verdict(ours[0])
             + " One training seed: its interval holds the episodes' variation, not the"
             " training's (docs/results.md has five seeds).",
         ]
     )
+    return rows, text
+
+
+#: The shipped agent ``drqn-jax reproduce`` evaluates (:mod:`drqn_jax.agents.shipped`).
+HEADLINE = "headline"
+
+
+def _headline_dir() -> Path:
+    try:
+        return shipped_agent_dir(HEADLINE)
+    except ValueError as err:
+        raise ConfigError(f"{err}; train one with: drqn-jax reproduce --train") from None
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     start = time.perf_counter()
-    config = load_config(args.config, args.overrides)
-    run_dir = Path(args.run_dir or default_run_dir("reproduce", args.config))
-    return _train_and_evaluate(
-        config, run_dir, False, args.quiet, start, reproduce=True, rrd=args.rrd
+    if args.train:
+        source = args.config or _headline_dir() / "config.toml"
+        config = load_config(source, args.overrides)
+        name = Path(str(args.config)).stem if args.config else HEADLINE
+        run_dir = Path(args.run_dir or default_run_dir("reproduce", name))
+        if not args.quiet:
+            print(_training_estimate(config), file=sys.stderr, flush=True)
+        return _train_and_evaluate(
+            config, run_dir, False, args.quiet, start, reproduce=True, rrd=args.rrd
+        )
+    if args.config is not None or args.rrd is not None:
+        raise ConfigError("--config and --rrd are for --train: reproduce alone trains nothing")
+    directory = _headline_dir()
+    config = load_run(directory, tuple(args.overrides))
+    network, params, _ = load_trained_network(load_run(directory), directory)
+    agent = drqn_agent(network, params, agent_name(config.train_config()))
+    provenance = json.loads((directory / "provenance.json").read_text())
+    machine = provenance.get("machine", {})
+    about = (
+        f"the shipped agent {HEADLINE!r}: {provenance.get('env_steps', 0):,} env steps, "
+        f"trained by `{provenance.get('command')}` at commit {machine.get('git_commit')} "
+        f"on {machine.get('cpu_model') or machine.get('platform')}"
+    )
+    if not args.quiet:
+        print(about, file=sys.stderr)
+    run_dir = Path(args.run_dir or default_run_dir("reproduce", HEADLINE))
+    summary = {"agent_dir": str(directory), "provenance": provenance}
+    return _beside_the_paper(config, agent, run_dir, args.quiet, start, summary, about)
+
+
+def _training_estimate(config: Config) -> str:
+    """One line: how long training ``config`` takes on this device (one chunk timed)."""
+    import jax
+
+    from drqn_jax.experiments.bench import training_estimate
+
+    figures = training_estimate(config, 1)
+    if isinstance(figures, str):
+        return f"training: no estimate ({figures})"
+    most = "at most " if figures["upper_bound"] else "about "
+    return (
+        f"training: {most}{duration_text(figures['seconds'])} on this "
+        f"{jax.devices()[0].device_kind} ({most}{figures['env_steps_per_run']:,} env steps "
+        f"at {figures['env_steps_per_s']:,.0f} env steps/s, one chunk timed)"
     )
 
 

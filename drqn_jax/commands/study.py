@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from drqn_jax.commands import check_section_option
+from drqn_jax.commands import check_section_option, duration_text
 from drqn_jax.config import ConfigError
 from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.runner import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
@@ -90,13 +90,6 @@ def cmd_study(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _duration(seconds: float) -> str:
-    if seconds < 90:
-        return f"{seconds:.0f} s"
-    minutes = round(seconds / 60)
-    return f"{minutes // 60} h {minutes % 60:02d} min" if minutes >= 60 else f"{minutes} min"
-
-
 def _estimate(arms) -> str:
     """Lines of the study's training wall time on this device, per arm and in all
     (:func:`~drqn_jax.experiments.bench.training_estimate`)."""
@@ -119,12 +112,12 @@ def _estimate(arms) -> str:
         lines.append(
             f"{arm.name}: {runs} runs ({strategy}) × {most}{figures['env_steps_per_run']:,} env "
             f"steps at {figures['env_steps_per_s']:,.0f} env steps/s: "
-            f"{most}{_duration(figures['seconds'])}"
+            f"{most}{duration_text(figures['seconds'])}"
         )
     most = "at most " if bounded else ""
     device = jax.devices()[0].device_kind
     lines.append(
-        f"training in all, on this {device}: {most}{_duration(total)} (one chunk of each "
+        f"training in all, on this {device}: {most}{duration_text(total)} (one chunk of each "
         "config timed once learning runs; evaluation and compiles not included)"
     )
     return "\n".join(lines)
