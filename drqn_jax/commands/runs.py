@@ -269,7 +269,10 @@ def _headline_dir() -> Path:
     try:
         return shipped_agent_dir(HEADLINE)
     except ValueError as err:
-        raise ConfigError(f"{err}; train one with: drqn-jax reproduce --train") from None
+        raise ConfigError(
+            f"{err}; train one (drqn-jax train --config NAME) and export it to "
+            f"drqn_jax/agents/trained/{HEADLINE} (drqn-jax export)"
+        ) from None
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
