@@ -84,9 +84,16 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument(
         "--episodes", type=int, default=1000, help="episodes per evaluation (default 1000)"
     )
+    parser.add_argument(
+        "--first",
+        type=int,
+        default=None,
+        metavar="N",
+        help="stop after the first N marks (the start of a curve, e.g. on another machine)",
+    )
     args = parser.parse_args(argv)
-    if args.points < 1 or args.episodes < 1:
-        parser.error("--points and --episodes must be >= 1")
+    if args.points < 1 or args.episodes < 1 or (args.first is not None and args.first < 1):
+        parser.error("--points, --episodes and --first must be >= 1")
     config = load_config(args.config, [*args.set, f"evaluate.episodes={args.episodes}"])
     frontier = stored_frontier(config)
     limit_kmh = config.speed_limit_kmh()
@@ -104,7 +111,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
             out.mkdir(parents=True, exist_ok=True)
             write_json(out / "learning_curve.json", partial)
 
-    status, points = greedy_curve(config, args.points, args.episodes, landed)
+    status, points = greedy_curve(config, args.points, args.episodes, landed, args.first)
     result = {
         "config_name": args.config,
         "overrides": args.set,

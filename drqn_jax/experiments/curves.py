@@ -151,6 +151,7 @@ def greedy_curve(
     points: int,
     episodes: int,
     on_point: Callable[[dict[str, Any]], None] | None = None,
+    first: int | None = None,
 ) -> tuple[str, list[dict[str, Any]]]:
     """One run of ``config`` (seed ``run.seed``) trained to its budget and, each time
     it passes one of ``points`` evenly spaced marks of ``train.num_env_steps``, its
@@ -163,7 +164,9 @@ def greedy_curve(
     included, evaluations not), ``eval_s`` and the :data:`GREEDY_KEYS` of the
     evaluation. Returns the run's status
     (:func:`~drqn_jax.experiments.host_loop.run_chunks`: a non-finite loss ends it
-    early) and the points; ``on_point`` sees each as it lands.
+    early) and the points; ``on_point`` sees each as it lands. With ``first``, training
+    stops after the first ``first`` points (status ``first N of M marks``): e.g. to
+    compare the start of one run across machines.
     """
     total = config["train"]["num_env_steps"]
     if total < 1:
@@ -195,17 +198,22 @@ def greedy_curve(
         found.append(point)
         if on_point is not None:
             on_point(point)
+        if first is not None and len(found) >= first:
+            stop.request()
         clock["since"] = time.perf_counter()
 
+    stop = StopRequest()
     state = init_program(trainer)(train_key)
     status, _, _ = run_chunks(
         compiled_run(trainer, state),  # train's chunk program
         state,
         finished=lambda s: bool(s.finished),
-        stop=StopRequest(),
+        stop=stop,
         save=lambda s, n: None,
         every_s=float("inf"),
         healthy=lambda s: bool(finite_training(s)),
         on_chunk=at_chunk,
     )
+    if stop.signal == 0:
+        status = f"first {len(found)} of {points} marks"
     return status, found

@@ -43,6 +43,10 @@ class StopRequest:
             flush=True,
         )
 
+    def request(self) -> None:
+        """Stop after this chunk, as a signal would, without a message (signal 0)."""
+        self.signal = 0
+
     @contextlib.contextmanager
     def installed(self) -> Iterator[StopRequest]:
         """Catch SIGINT and SIGTERM while the block runs; the old handlers return after."""

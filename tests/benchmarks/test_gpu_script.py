@@ -66,3 +66,17 @@ def test_every_learner_is_timed_past_its_warm_up_calls():
     assert default["train"]["num_envs"] == 32 and default["train"]["num_env_steps"] == 0
     quick = learner_config("ppo", [], None, 6, quick=True)
     assert (quick["train"]["algorithm"], quick["network"]["recurrent"]) == ("ppo", 16)
+
+
+def test_a_curve_can_stop_after_its_first_marks(capsys):
+    """``--first N`` trains to the N-th mark only (the start of a curve, to set beside the
+    same run's start on another machine); the point is the full curve's first point
+    (the dry run's curve, whose first mark is 48 env steps)."""
+    from benchmarks.learning_curve import main
+
+    argv = ["--config", "smoke", "--set", "train.algorithm=pqn", "--set", "train.rollout_steps=8"]
+    argv += ["--set", "train.num_minibatches=1", "--set", "train.chunk_iterations=1"]
+    argv += ["--set", "train.num_env_steps=96", "--set", "train.num_episodes=64"]
+    result = main([*argv, "--points", "2", "--episodes", "4", "--first", "1"])
+    assert result["status"] == "first 1 of 2 marks"
+    assert [p["env_steps"] for p in result["points"]] == [48]
