@@ -255,7 +255,7 @@ def paper_comparison(
             study_table(rows),
             claim_verdict(ours[0])
             + " One training seed: its interval holds the episodes' variation, not the"
-            " training's (docs/results.md has five seeds).",
+            " training's (drqn-jax study trains several).",
         ]
     )
     return rows, text
@@ -290,9 +290,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     if args.config is not None or args.rrd is not None:
         raise ConfigError("--config and --rrd are for --train: reproduce alone trains nothing")
     directory = _headline_dir()
-    config = load_run(directory, tuple(args.overrides))
-    network, params, _ = load_trained_network(load_run(directory), directory)
-    agent = drqn_agent(network, params, agent_name(config.train_config()))
+    shipped = argparse.Namespace(run_dir=None, agent=HEADLINE, config=None)
+    config, agent, _, _ = _chosen_agent(shipped, list(args.overrides))
     provenance = json.loads((directory / "provenance.json").read_text())
     machine = provenance.get("machine", {})
     about = (
