@@ -195,6 +195,7 @@ def _export_parser(sub: Any) -> None:
         metavar="TEXT",
         help="the command that trained the run, kept in OUT/provenance.json",
     )
+    export.add_argument("--quiet", action="store_true", help="no status message")
 
 
 def _replay_parser(sub: Any) -> None:

@@ -367,9 +367,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     from drqn_jax.experiments.runner import export_agent
 
     provenance = export_agent(args.run_dir, args.out, args.training_command)
-    print(
-        f"{args.out}: the agent of {args.run_dir} ({provenance.get('env_steps', 0):,} env "
-        f"steps), with provenance.json",
-        file=sys.stderr,
-    )
+    if not args.quiet:
+        print(
+            f"{args.out}: the agent of {args.run_dir} ({provenance.get('env_steps', 0):,} env "
+            f"steps), with provenance.json",
+            file=sys.stderr,
+        )
     return EXIT_OK
