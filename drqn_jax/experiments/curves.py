@@ -214,6 +214,6 @@ def greedy_curve(
         healthy=lambda s: bool(finite_training(s)),
         on_chunk=at_chunk,
     )
-    if stop.signal == 0:
+    if first is not None and len(found) >= first:
         status = f"first {len(found)} of {points} marks"
     return status, found

@@ -99,6 +99,11 @@ def write_results(
     kept = [r for r in record["rows"] if r.get("section") != section]
     record["rows"] = kept + [{"section": section, **r} for r in rows]
     record["sections"][section] = {**about, "comparisons": list(comparisons)}
+    return _save_record(path, record)
+
+
+def _save_record(path: str | Path, record: dict[str, Any]) -> dict[str, Any]:
+    """Write the results file's ``record`` (NaN as null) at ``path``; returns what it wrote."""
     record = strict_json(record)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(Path(path), json.dumps(record, indent=1) + "\n")
@@ -115,8 +120,7 @@ def store_finished_runs(
     record = load_results(path)
     about = record["sections"].setdefault(section, {"command": command})
     about["finished_runs"] = dict(finished)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(Path(path), json.dumps(strict_json(record), indent=1) + "\n")
+    _save_record(path, record)
 
 
 def _nan(row: Mapping[str, Any]) -> dict[str, Any]:
