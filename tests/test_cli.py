@@ -155,8 +155,9 @@ def test_ppo_trains_resumes_bit_identical_and_evaluates(tmp_path, monkeypatch, c
     assert cli.main(["train", "--resume", str(interrupted), "--quiet"]) == 0
     _assert_same_checkpoint(straight, interrupted)
     capsys.readouterr()
-    assert cli.main(["evaluate", str(straight), "--episodes", "4"]) == 0
-    assert "| ppo | none (reward alone) | 4 |" in capsys.readouterr().out
+    # smoke's 8 episodes: the program the run's own evaluation compiled
+    assert cli.main(["evaluate", str(straight), "--episodes", "8"]) == 0
+    assert "| ppo | none (reward alone) | 8 |" in capsys.readouterr().out
 
 
 def test_sigterm_in_a_subprocess_saves_and_exits_130(tmp_path):
