@@ -134,6 +134,8 @@ def render_section(record: Mapping[str, Any], section: str) -> str:
         known = ", ".join(record["sections"]) or "none"
         raise ValueError(f"results section {section!r}: not in the results file (has: {known})")
     about = record["sections"][section]
+    if "wall_time_s" not in about:  # interrupted before its table: what has finished
+        return _in_progress(about)
     rows = [_nan(r) for r in record["rows"] if r.get("section") == section]
     lines = [study_table(rows), ""]
     lines += [f"* {c}" for c in about.get("comparisons", [])]
@@ -148,6 +150,23 @@ def render_section(record: Mapping[str, Any], section: str) -> str:
         f"Command (wall time {about['wall_time_s'] / 60:.0f} min on {machine.get('usable_cores')} "
         f"cores of {machine.get('cpu_model')}, JAX {machine.get('jax_version')}, "
         f"commit {machine.get('git_commit')}{went_on}):",
+        "",
+        "```bash",
+        about["command"],
+        "```",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _in_progress(about: Mapping[str, Any]) -> str:
+    """Markdown of an interrupted study's section (no table yet): its finished runs per
+    arm and the command that continues it."""
+    finished = about.get("finished_runs", {})
+    counts = ", ".join(f"`{arm}` {len(runs)}" for arm, runs in finished.items()) or "none"
+    lines = [
+        f"**In progress**: no table until every run has finished. Runs finished so far: "
+        f"{counts}. The same command continues it, in a fresh clone too (the finished "
+        "runs are kept in this section of the results file):",
         "",
         "```bash",
         about["command"],

@@ -83,6 +83,22 @@ def test_blocks_regenerate_from_the_file_and_drift_is_caught(tmp_path):
         render_section(record, "nope")
 
 
+def test_an_interrupted_study_renders_its_progress_not_a_table(tmp_path):
+    """A section an interrupted study left (its finished runs and its command, no rows
+    yet, issue 53's multi-session CPU table) renders which runs have finished and the
+    command that continues it; once the study finishes, its table."""
+    path = tmp_path / "results.json"
+    finished = {"pqn": [{"index": 0}, {"index": 1}], "ppo": [{"index": 0}]}
+    interrupted = {"command": "drqn-jax study --configs pqn,ppo", "finished_runs": finished}
+    path.write_text(json.dumps({"rows": [], "sections": {"t": interrupted}}))
+    text = render_section(load_results(path), "t")
+    assert text.startswith("**In progress**: no table until every run has finished.")
+    assert "Runs finished so far: `pqn` 2, `ppo` 1." in text
+    assert "drqn-jax study --configs pqn,ppo" in text and "| source |" not in text
+    record = write_results(path, "t", [baseline_row("ours", _run(0.5), world="W")], [], ABOUT)
+    assert render_section(record, "t").startswith("| source |")
+
+
 def test_the_report_command_fills_and_checks(tmp_path, capsys):
     path = tmp_path / "results.json"
     write_results(path, "t", [baseline_row("ours", _run(0.5), world="W")], [], ABOUT)
