@@ -39,6 +39,27 @@ def test_gpu_script_dry_run_writes_the_throughput_and_the_curve(tmp_path):
     assert "learning curve:" in done.stdout
 
 
+def test_the_table_script_describes_the_whole_table_without_training(tmp_path):
+    """``benchmarks/table3.sh`` with ``TABLE3_DRY_RUN=1``: the command that trains Table III
+    at scale validates every arm's config at its real size and describes its 5 seeds,
+    on this device's budget (6M env steps per seed on a CPU), and trains nothing."""
+    env = {**os.environ, "TABLE3_DRY_RUN": "1", "PYTHON": sys.executable}
+    out = tmp_path / "table3"
+    done = subprocess.run(
+        ["bash", str(ROOT / "benchmarks" / "table3.sh"), str(out)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert f"Table III at scale on cpu: 6000000 env steps per seed, into {out}" in done.stdout
+    for arm in ("pqn", "pqn-dqn", "pqn-stack", "ppo"):
+        assert f"{arm}: sweep over 5 runs from '{arm}': run.seed (5)" in done.stderr
+    assert not out.exists()
+
+
 def test_the_curve_reads_the_stored_frontier_of_the_presets_world():
     """``pqn`` trains in ``default``'s world and is evaluated on its episodes, so its
     curve's margins read the frontier that ``drqn-jax frontier`` stored for it."""
