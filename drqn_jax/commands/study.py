@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 from pathlib import Path
@@ -38,6 +39,14 @@ def cmd_study(args: argparse.Namespace) -> int:
         return EXIT_OK
     start = time.perf_counter()
     section = args.section or out.name
+    keep = None
+    if args.results:  # each finished run outlives --out, even if the machine goes away
+        from drqn_jax.experiments.report import store_finished_runs
+
+        keep = functools.partial(
+            store_finished_runs, args.results, section, command=args.command_line
+        )
+
     outcome = run_study(
         arms,
         out,
@@ -46,16 +55,15 @@ def cmd_study(args: argparse.Namespace) -> int:
         quiet=args.quiet,
         train=not args.report_only,
         carried=_carried(args.results, section) if args.results else None,
+        keep=keep,
     )
     if outcome.status == "interrupted":
         print(
             f"interrupted; checkpoints saved, continue with the same command (--out {out})",
             file=sys.stderr,
         )
-        if args.results and outcome.finished_runs:
-            from drqn_jax.experiments.report import store_finished_runs
-
-            store_finished_runs(args.results, section, outcome.finished_runs, args.command_line)
+        if keep is not None and outcome.finished_runs:
+            keep(outcome.finished_runs)
             count = sum(len(r) for r in outcome.finished_runs.values())
             print(
                 f"{count} finished run(s) kept in section {section!r} of {args.results}: "

@@ -39,7 +39,7 @@ import dataclasses
 import json
 import math
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -403,6 +403,7 @@ def run_study(
     quiet: bool = False,
     train: bool = True,
     carried: Mapping[str, Sequence[Mapping[str, Any]]] | None = None,
+    keep: Callable[[dict[str, list[dict[str, Any]]]], None] | None = None,
 ) -> StudyOutcome:
     """Train and evaluate every arm (continuing a study already in ``out``), evaluate
     the rule-based agent, and write the table and the curves (module docstring).
@@ -412,7 +413,10 @@ def run_study(
     interrupted to go on later. ``carried``: arm name → finished runs an interrupted
     study stored in its results file, written back into an arm's directory that holds
     no sweep yet (:func:`~drqn_jax.experiments.portable.restore_runs`), so that only
-    the other runs train.
+    the other runs train. ``keep``: called with every arm's finished runs (as
+    ``finished_runs`` of :class:`StudyOutcome`) each time one more run has finished, so
+    that a study whose machine is shut down without warning loses at most the run in
+    progress.
     """
     from drqn_jax.experiments.machine import git_commit
     from drqn_jax.experiments.portable import portable_runs, restore_runs
@@ -422,6 +426,12 @@ def run_study(
     out = Path(out)
     runs: dict[str, list[dict[str, Any]]] = {}
     continued = not train
+
+    def finished_runs() -> dict[str, list[dict[str, Any]]]:
+        commit = git_commit()
+        found = {a.name: portable_runs(out / a.name, a.sweep, commit) for a in arms}
+        return {name: runs for name, runs in found.items() if runs}
+
     for arm in arms:
         directory = out / arm.name
         restored = restore_runs(directory, arm.sweep, (carried or {}).get(arm.name, ()))
@@ -431,12 +441,15 @@ def run_study(
             runs[arm.name] = finished_results(directory)
             continue
         resume = (directory / "plan.json").is_file()
-        outcome = run_sweep(arm.sweep, directory, resume=resume, quiet=quiet)
+        outcome = run_sweep(
+            arm.sweep,
+            directory,
+            resume=resume,
+            quiet=quiet,
+            on_call_finished=None if keep is None else lambda: keep(finished_runs()),
+        )
         if outcome.status == "interrupted":
-            commit = git_commit()
-            finished = {a.name: portable_runs(out / a.name, a.sweep, commit) for a in arms}
-            finished = {name: found for name, found in finished.items() if found}
-            return StudyOutcome("interrupted", finished_runs=finished)
+            return StudyOutcome("interrupted", finished_runs=finished_runs())
         runs[arm.name] = outcome.results
         continued = continued or outcome.continued > 0
     done = [arm for arm in arms if runs[arm.name]]

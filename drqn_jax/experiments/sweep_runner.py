@@ -437,6 +437,7 @@ def run_sweep(
     resume: bool = False,
     quiet: bool = False,
     keep_agents: bool = True,
+    on_call_finished: Callable[[], None] | None = None,
 ) -> SweepOutcome:
     """Train and evaluate this process's runs call by call; gather on process 0.
 
@@ -447,6 +448,8 @@ def run_sweep(
             when the plan has the same call (always with one run per call, as on CPU);
             a grown batched plan may regroup runs, which then train again.
         keep_agents: write each run's trained agent (:func:`write_agents`).
+        on_call_finished: called each time one more call's results are on disk (found
+            on resume or trained here), e.g. to keep them beyond ``out``.
     """
     out = Path(out)
     devices = jax.local_devices()
@@ -482,6 +485,8 @@ def run_sweep(
                 results += json.loads(saved.read_text())
                 done_before += call.episodes
                 bar.update(done_before - bar.n)
+                if on_call_finished is not None:
+                    on_call_finished()
                 continue
 
             def progress(state: TrainState, before: int = done_before, n: int = len(call.points)):
@@ -508,6 +513,8 @@ def run_sweep(
                 (directory / name).unlink(missing_ok=True)
             results += call_result
             done_before += call.episodes
+            if on_call_finished is not None:
+                on_call_finished()
     if dist.processes > 1:
         results = _gather(results, dist)
     results = sorted(results, key=lambda r: r["index"])

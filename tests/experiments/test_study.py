@@ -385,6 +385,30 @@ def test_an_interrupted_study_keeps_its_finished_runs_in_the_results_file(
     assert trained == [[0], [1]]
 
 
+def test_a_study_keeps_each_finished_run_before_the_next_one_trains(study, tmp_path, monkeypatch):
+    """A machine shut down without warning (no SIGTERM, no interruption) still leaves
+    every run that had finished in the results file: they are kept as each one ends."""
+    import shutil
+
+    import drqn_jax.experiments.sweep_runner as sweep_runner
+
+    partial = tmp_path / "partial"
+    shutil.copytree(study, partial)
+    (call,) = [p for p in (partial / "smoke" / "calls").iterdir() if "0001" in p.name]
+    shutil.rmtree(call)  # run 0 has finished, run 1 is training when the machine goes
+
+    def shut_down(*args, **kwargs):
+        raise SystemExit("the machine was shut down")
+
+    monkeypatch.setattr(sweep_runner, "train_call", shut_down)
+    results = tmp_path / "results.json"
+    argv = ["study", *STUDY, "--no-png", "--results", str(results), "--section", "s"]
+    with pytest.raises(SystemExit, match="shut down"):
+        cli.main([*argv, "--out", str(partial)])
+    kept = json.loads(results.read_text())["sections"]["s"]["finished_runs"]["smoke"]
+    assert [r["index"] for r in kept] == [0]
+
+
 def test_the_estimate_is_the_runs_env_steps_over_the_timed_rate(monkeypatch):
     """Issue 53: a study's training wall time, printed before it trains: each run's env
     steps (its step budget, or at most episodes × max_steps) over the env steps per
