@@ -17,6 +17,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from drqn_jax.env.params import KMH
 from drqn_jax.learners.dqn.loss import CLIP_MODES
@@ -481,7 +482,9 @@ class TrainConfig:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, TrainConfig):
             return NotImplemented
+        # on the host, in numpy: a store lookup may compare configs inside a trace,
+        # where a jnp comparison would be staged out and have no truth value
         mine, theirs = jax.tree.leaves(self.hyperparams), jax.tree.leaves(other.hyperparams)
         return self.program_key() == other.program_key() and all(
-            bool(jnp.array_equal(a, b)) for a, b in zip(mine, theirs, strict=True)
+            np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(mine, theirs, strict=True)
         )

@@ -480,6 +480,21 @@ def test_config_equality_and_hash():
     assert TrainConfig() != TrainConfig(num_envs=2)
 
 
+def test_configs_compare_inside_a_trace():
+    """The program store looks configs up while a training program traces (a hash
+    collision, or dropping programs over the map budget, compares keys): equality
+    is a host comparison there too, not a traced one without a truth value."""
+    same, other = TrainConfig(), TrainConfig(hyperparams=Hyperparams(gamma=0.5))
+    seen = []
+
+    def traced(x):
+        seen.append((TrainConfig() == same, TrainConfig() == other))
+        return x
+
+    jax.jit(traced)(1.0)
+    assert seen == [(True, False)]
+
+
 def test_config_validation():
     with pytest.raises(ValueError, match="replay_episodes"):
         TrainConfig(num_envs=4, replay_episodes=6)
