@@ -335,11 +335,12 @@ def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
     out = capsys.readouterr().out
     assert f"safety/speed figure: {run_dir / 'safety_speed.png'}" in out
     assert (run_dir / "safety_speed.png").read_bytes()[:4] == b"\x89PNG"
-    paper_row = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | 40.0 (16.8–68.7) | – |"
-    assert paper_row + " – | 7.79 | – | 82.6 |" in out
-    assert "| paper (CARLA) | DRQN | none (reward alone) | 1 × 10 |" in out
-    assert "| drqn_jax | drqn | none (reward alone) | 1 × 8 |" in out
-    assert "| drqn_jax | rule-based | – (not learned) | 1 × 8 |" in out
+    paper_row = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | – | 40.0 (16.8–68.7) |"
+    assert paper_row + " – | – | 7.79 | – | 82.6 |" in out
+    assert "| paper (CARLA) | DRQN | none (reward alone) | 1 × 10 | – |" in out
+    steps = runner.load_trained_network(runner.load_run(run_dir), run_dir)[2]["env_steps"]
+    assert f"| drqn_jax | drqn | none (reward alone) | 1 × 8 | {steps / 1e6:.2f}M |" in out
+    assert "| drqn_jax | rule-based | – (not learned) | 1 × 8 | – |" in out
     assert "wall time" in out
     verdict = [line for line in out.splitlines() if line.startswith("The paper's claim")]
     assert len(verdict) == 1 and "One training seed" in verdict[0], out
@@ -372,7 +373,9 @@ def test_reproduce_evaluates_the_shipped_agent_without_training(
     assert cli.main(["reproduce", "--run-dir", str(run_dir)]) == 0
     captured = capsys.readouterr()
     assert "the shipped agent 'headline': " in captured.err and f"`{command}`" in captured.err
-    assert "| drqn_jax | drqn | none (reward alone) | 1 × 8 |" in captured.out
+    steps = json.loads((tmp_path / "trained" / "headline" / "provenance.json").read_text())
+    row = f"| drqn_jax | drqn | none (reward alone) | 1 × 8 | {steps['env_steps'] / 1e6:.2f}M |"
+    assert row in captured.out
     assert "\nThe paper's claim" in captured.out
     evaluated = json.loads((run_dir / "evaluation.json").read_text())["agents"][0]
     trained = json.loads((straight / "evaluation.json").read_text())["agents"][0]

@@ -87,7 +87,9 @@ def _train_and_evaluate(
         f"{int(result.state.grad_steps)} gradient steps"
     )
     if reproduce:
-        return _beside_the_paper(config, _trained(result), run_dir, quiet, start, summary, trained)
+        steps = int(result.state.env_steps)
+        agent = _trained(result)
+        return _beside_the_paper(config, agent, run_dir, quiet, start, summary, trained, steps)
     agents = [_trained(result)]
     if not quiet:
         _say_evaluating(config, agents)
@@ -108,10 +110,12 @@ def _beside_the_paper(
     start: float,
     summary: dict[str, Any],
     about: str,
+    env_steps: int,
 ) -> int:
-    """Evaluate ``agent`` and the paper's rule-based agent on ``config``'s evaluation
-    episodes, sweep the rule-based frontier on them, and print and write Table III
-    beside the paper's (:func:`paper_comparison`) with the safety/speed figure."""
+    """Evaluate ``agent`` (trained on ``env_steps``) and the paper's rule-based agent on
+    ``config``'s evaluation episodes, sweep the rule-based frontier on them, and print and
+    write Table III beside the paper's (:func:`paper_comparison`) with the safety/speed
+    figure."""
     from drqn_jax.experiments.baselines import config_frontier
 
     agents = [agent, builtin_agent("rule-based", config)]
@@ -121,7 +125,7 @@ def _beside_the_paper(
     if not quiet:
         print("sweeping the rule-based frontier on the same episodes...", file=sys.stderr)
     frontier = config_frontier(config, planner=False)
-    rows, table = paper_comparison(results, frontier)
+    rows, table = paper_comparison([{**results[0], "env_steps": env_steps}, results[1]], frontier)
     run_dir.mkdir(parents=True, exist_ok=True)
     figure = _safety_speed_figure(rows, frontier, run_dir / "safety_speed.png")
     wall = time.perf_counter() - start
@@ -295,7 +299,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     provenance = json.loads((directory / "provenance.json").read_text())
     machine = provenance.get("machine", {})
     about = (
-        f"the shipped agent {HEADLINE!r}: {provenance.get('env_steps', 0):,} env steps, "
+        f"the shipped agent {HEADLINE!r}: {provenance['env_steps']:,} env steps, "
         f"trained by `{provenance.get('command')}` at commit {machine.get('git_commit')} "
         f"on {machine.get('cpu_model') or machine.get('platform')}"
     )
@@ -303,7 +307,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         print(about, file=sys.stderr)
     run_dir = Path(args.run_dir or default_run_dir("reproduce", HEADLINE))
     summary = {"agent_dir": str(directory), "provenance": provenance}
-    return _beside_the_paper(config, agent, run_dir, args.quiet, start, summary, about)
+    steps = int(provenance["env_steps"])
+    return _beside_the_paper(config, agent, run_dir, args.quiet, start, summary, about, steps)
 
 
 def _training_estimate(config: Config) -> str:

@@ -209,6 +209,11 @@ def _cell(value: float | None, spec: str, scale: float = 1.0) -> str:
     return "–" if value is None or not math.isfinite(value) else format(scale * value, spec)
 
 
+def _steps_cell(steps: float | None) -> str:
+    """``6.00M``: env steps in millions; – where there are none."""
+    return "–" if steps is None or not math.isfinite(steps) else f"{steps / 1e6:.2f}M"
+
+
 def margin_cell(row: Mapping[str, Any]) -> str:
     """``+5.2 (+1.0 to +9.4)``: the row's frontier margin in points with its interval
     (– for a row without one: the paper's, measured in another world; "– (above the
@@ -225,14 +230,16 @@ def margin_cell(row: Mapping[str, Any]) -> str:
 def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
     """Markdown: one row per agent; ``± std`` is across seeds."""
     header = (
-        "| source | agent | teacher | seeds × episodes | collision-free % (95 % interval) "
+        "| source | agent | teacher | seeds × episodes | env steps / seed "
+        "| collision-free % (95 % interval) "
         "| margin to the rule-based frontier, points (95 %) | struck while stopped % "
         "| avg speed (km/h) | authors' speed (km/h) | distance (m) "
         "| distance, collision-free (m) | goal % | collisions / km |"
     )
     lines = [
         header,
-        "| --- | --- | --- | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| --- | --- | --- | ---: | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: "
+        "| ---: |",
     ]
     for r in rows:
         low, high = r["collision_free_ci"]
@@ -244,6 +251,7 @@ def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
             seeds += f" ({r['diverged']} diverged)"
         lines.append(
             f"| {r['label']} | {r['agent']} | {r.get('learned', '–')} | {seeds} "
+            f"| {_steps_cell(r.get('env_steps_per_seed'))} "
             f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
             f"| {margin_cell(r)} "
             f"| {_cell(r.get('struck_while_stopped_rate'), '.1f', 100.0)} "
@@ -262,7 +270,9 @@ def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
         "Wilson interval shifted for one policy); – where the world has no frontier here "
         "(the paper's CARLA). ± is the standard deviation across seeds. The authors' speed is "
         "the mean over the steps faster than 0.5 km/h (carla-gym tester.py); a pedestrian "
-        "striking the standing car is not a collision (struck while stopped).",
+        "striking the standing car is not a collision (struck while stopped). Env steps / "
+        "seed: the mean of what each seed trained on, in millions; – for a policy not "
+        "learned here and in tables computed before they were counted.",
     ]
     return "\n".join(lines)
 

@@ -188,6 +188,8 @@ def study_row(
     pooled: all collisions over all distance. ``per_seed`` keeps each run's seed,
     collision-free rate and average speed (the frontier margin reads each seed at its
     own speed, :func:`drqn_jax.experiments.frontier.frontier_margin`).
+    ``env_steps_per_seed``: the mean of the runs' training env steps (over the runs
+    that counted them; NaN for a policy that was not trained).
     """
     if not runs:
         raise ValueError(f"study_row {label!r}: no runs")
@@ -226,6 +228,7 @@ def study_row(
             else math.nan
         ),
         "goal_rate": _mean(runs, "goal_rate"),
+        "env_steps_per_seed": _mean(runs, "env_steps"),
         "collisions_per_km": collisions / km if km > 0 else math.nan,
         "per_seed": [
             {

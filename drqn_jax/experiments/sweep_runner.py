@@ -307,14 +307,15 @@ def call_results(
 ) -> list[dict[str, Any]]:
     """Per run: its index and axis values, the evaluation of its agent (``params``:
     :func:`real_agent_params`), the final training return (mean of the last 10 % of
-    episodes) and whether it diverged."""
+    episodes), the env steps it trained on and whether it diverged."""
     n = len(call.points)
     returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
+    env_steps = np.asarray(outcome.state.env_steps)[:n]
     finite = np.asarray(jax.vmap(finite_training)(outcome.state))[:n]
     evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key)
     results = []
-    rows = zip(call.points, evaluations, returns, finite, strict=True)
-    for i, (point, evaluation, ret, ok) in enumerate(rows):
+    rows = zip(call.points, evaluations, returns, finite, env_steps, strict=True)
+    for i, (point, evaluation, ret, ok, steps) in enumerate(rows):
         val, hp = jax.tree.map(
             lambda x, i=i: np.asarray(x)[i], (outcome.state.validation, outcome.state.hparams)
         )
@@ -324,6 +325,7 @@ def call_results(
                 "index": point.index,
                 "values": point.values,
                 "final_train_return": float(np.mean(ret[-tail:])),
+                "env_steps": int(steps),
                 "diverged": not bool(ok),
                 **selection(val, hp),
                 **json_ready(evaluation),

@@ -20,7 +20,7 @@ from drqn_jax.experiments.study import (
     plan_study,
     study_row,
 )
-from drqn_jax.experiments.sweep_runner import metrics_path
+from drqn_jax.experiments.sweep_runner import agent_dir, metrics_path
 from tests.helpers import SMOKE_SWEEP_SET
 
 
@@ -52,8 +52,11 @@ def test_paper_rows_show_the_interval_of_ten_episodes():
 def test_a_row_pools_seeds():
     runs = [_run(0.9, distance=100.0, free_distance=110.0), _run(0.8, distance=110.0)]
     runs.append(_run(0.7, distance=120.0, free_distance=130.0))
+    runs = [{**run, "env_steps": steps} for run, steps in zip(runs, (1e6, 2e6, 4.5e6), strict=True)]
     row = study_row("drqn_jax: x", "drqn", runs, world="W")
     assert row["seeds"] == 3 and row["episodes"] == 100
+    assert row["env_steps_per_seed"] == pytest.approx(2.5e6)
+    assert "| drqn_jax: x | drqn | imitation | 3 × 100 | 2.50M |" in study_table([row])
     assert row["collision_free_rate"] == pytest.approx(0.8)
     low, high = t_interval(np.array([0.9, 0.8, 0.7]))
     assert high > 1.0  # three seeds: a wide interval, cut at 100 %
@@ -73,10 +76,10 @@ def test_a_single_policy_keeps_its_wilson_interval():
     assert row["collision_free_ci"] == pytest.approx((0.9, 1.0))
     assert row["interval"] == "Wilson over episodes" and math.isnan(row["avg_speed_kmh_std"])
     table = study_table([*paper_rows(), row])
-    paper = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | 40.0 (16.8–68.7) | – | – |"
-    assert paper + " 7.79 | – |" in table
-    ours = "| drqn_jax: env | drqn | imitation | 1 × 100 | 95.0 (90.0–100.0) | – | 5.0 | 9.50 |"
-    assert ours + " 11.40 |" in table
+    paper = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | – | 40.0 (16.8–68.7) | – |"
+    assert paper + " – | 7.79 | – |" in table
+    ours = "| drqn_jax: env | drqn | imitation | 1 × 100 | – | 95.0 (90.0–100.0) | – | 5.0 |"
+    assert ours + " 9.50 | 11.40 |" in table
     # a run evaluated before the struck-while-stopped rate and the authors' speed existed
     old = {k: v for k, v in _run(0.95).items() if k not in ("struck_while_stopped_rate",)}
     assert "| 95.0 (90.0–100.0) | – | – | 9.50 | 11.40 |" in study_table(
@@ -236,7 +239,11 @@ def test_the_study_writes_the_table_and_the_curves(study):
     baseline = json.loads(next((study / "baselines").glob("rule-based-*.json")).read_text())
     assert baseline["num_episodes"] == EPISODES == record["rows"][3]["episodes"]
     table = (study / "study.md").read_text()
-    assert f"| drqn_jax: smoke | drqn | none (reward alone) | 2 × {EPISODES} |" in table
+    steps = [json.loads((agent_dir(study / "smoke", i) / "agent.json").read_text()) for i in (0, 1)]
+    assert [r["env_steps"] for r in runs] == [s["env_steps"] for s in steps]  # each run's own
+    assert drqn["env_steps_per_seed"] == pytest.approx(np.mean([r["env_steps"] for r in runs]))
+    steps_cell = f"| 2 × {EPISODES} | {drqn['env_steps_per_seed'] / 1e6:.2f}M |"
+    assert f"| drqn_jax: smoke | drqn | none (reward alone) {steps_cell}" in table
     assert "* drqn_jax: smoke (drqn) at " in table
     assert record["comparisons"] == [line[2:] for line in table.splitlines() if line[:2] == "* "]
     assert record["comparisons"][0].startswith("The paper's claim (a DRQN safer than")  # headline
