@@ -30,6 +30,26 @@ def cpu_model() -> str:
     return platform.processor() or "(unknown)"
 
 
+def cpu_identity() -> str:
+    """``family 25 model 1 stepping 1; avx avx2 fma``: the CPU beyond its model name
+    (one "AMD EPYC" may be several generations), with its vector extensions, from
+    /proc/cpuinfo; results are bit-identical only on one such CPU (docs/guide.md).
+    "(unknown)" where /proc/cpuinfo is not there."""
+    fields: dict[str, str] = {}
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if not line.strip():
+                    break  # the first processor is enough
+                key, _, value = line.partition(":")
+                fields[key.strip().lower()] = value.strip()
+    except OSError:
+        return "(unknown)"
+    ident = " ".join(f"{k} {fields[k]}" for k in ("cpu family", "model", "stepping") if k in fields)
+    vector = sorted(f for f in fields.get("flags", "").split() if f.startswith("avx") or f == "fma")
+    return f"{ident.replace('cpu family', 'family')}; {' '.join(vector) or 'no avx'}"
+
+
 def git_commit() -> str:
     """``HEAD``'s short hash of this checkout, ``+dirty`` if ``drqn_jax/`` has edits."""
     root = Path(__file__).resolve().parents[2]  # the checkout: drqn_jax/experiments/..
@@ -59,6 +79,7 @@ def machine_info() -> dict[str, Any]:
     devices = jax.devices()
     return {
         "cpu_model": cpu_model(),
+        "cpu_identity": cpu_identity(),
         "logical_cores": os.cpu_count(),
         "usable_cores": usable,
         "jax_version": jax.__version__,
@@ -84,7 +105,7 @@ def machine_info() -> dict[str, Any]:
 def machine_lines(info: dict[str, Any]) -> list[str]:
     """The machine block as Markdown bullet lines."""
     return [
-        f"- CPU: {info['cpu_model']}",
+        f"- CPU: {info['cpu_model']} ({info.get('cpu_identity', 'identity not recorded')})",
         f"- logical cores (os.cpu_count()): {info['logical_cores']}"
         f" (usable by this process: {info['usable_cores']})",
         f"- JAX {info['jax_version']}, jaxlib {info['jaxlib_version']}",
