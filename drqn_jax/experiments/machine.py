@@ -50,6 +50,15 @@ def cpu_identity() -> str:
     return f"{ident.replace('cpu family', 'family')}; {' '.join(vector) or 'no avx'}"
 
 
+def device_identity() -> str:
+    """The device that computes: on a CPU its model name and :func:`cpu_identity`, else
+    the accelerator's kind (e.g. ``NVIDIA H100 80GB HBM3``)."""
+    device = jax.devices()[0]
+    if device.platform == "cpu":
+        return f"{cpu_model()} ({cpu_identity()})"
+    return device.device_kind
+
+
 def git_commit() -> str:
     """``HEAD``'s short hash of this checkout, ``+dirty`` if ``drqn_jax/`` has edits."""
     root = Path(__file__).resolve().parents[2]  # the checkout: drqn_jax/experiments/..

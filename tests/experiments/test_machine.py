@@ -39,3 +39,10 @@ def test_a_machine_without_proc_cpuinfo_says_so(monkeypatch):
 
     monkeypatch.setattr(machine, "open", missing, raising=False)
     assert machine.cpu_identity() == "(unknown)"
+
+
+def test_a_cpu_device_is_named_by_its_cpu(monkeypatch):
+    monkeypatch.setattr(machine, "open", lambda *a, **k: io.StringIO(CPUINFO), raising=False)
+    assert machine.device_identity() == (
+        "AMD EPYC (family 25 model 1 stepping 1; avx avx2 avx512f fma)"
+    )
