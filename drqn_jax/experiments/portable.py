@@ -34,8 +34,9 @@ __all__ = ["portable_runs", "restore_runs"]
 
 def portable_runs(directory: Path, sweep: Sweep, commit: str) -> list[dict[str, Any]]:
     """The finished runs of ``sweep`` in ``directory`` (``OUT/<arm>``), by index, each
-    with its training hash, ``commit`` (unless it was restored with one already) and its
-    ``metrics.csv`` text; runs whose metrics are missing are left out."""
+    with its training hash, ``commit`` (unless its record has the commit that trained it,
+    as every run's has since it was counted) and its ``metrics.csv`` text; runs whose
+    metrics are missing are left out."""
     hashes = {p.index: p.config.training_hash() for p in sweep.points}
     runs = []
     for record in finished_results(directory):

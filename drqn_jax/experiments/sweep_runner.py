@@ -61,7 +61,7 @@ from drqn_jax.experiments.checkpoint import (
     save_checkpoint,
 )
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
-from drqn_jax.experiments.machine import device_identity
+from drqn_jax.experiments.machine import device_identity, git_commit
 from drqn_jax.experiments.runner import json_ready, metrics_csv, save_agent
 from drqn_jax.experiments.sweep import Sweep, SweepPoint
 from drqn_jax.experiments.sweep_plan import (
@@ -310,7 +310,7 @@ def call_results(
     :func:`real_agent_params`), the final training return (mean of the last 10 % of
     episodes), the env steps it trained on, the device it trained on
     (:func:`~drqn_jax.experiments.machine.device_identity`: runs of one study may come
-    from several machines) and whether it diverged."""
+    from several machines), the commit that trained it and whether it diverged."""
     n = len(call.points)
     returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
     env_steps = np.asarray(outcome.state.env_steps)[:n]
@@ -318,7 +318,7 @@ def call_results(
     evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key)
     results = []
     rows = zip(call.points, evaluations, returns, finite, env_steps, strict=True)
-    device = device_identity()
+    device, commit = device_identity(), git_commit()
     for i, (point, evaluation, ret, ok, steps) in enumerate(rows):
         val, hp = jax.tree.map(
             lambda x, i=i: np.asarray(x)[i], (outcome.state.validation, outcome.state.hparams)
@@ -331,6 +331,7 @@ def call_results(
                 "final_train_return": float(np.mean(ret[-tail:])),
                 "env_steps": int(steps),
                 "trained_on": device,
+                "commit": commit,
                 "diverged": not bool(ok),
                 **selection(val, hp),
                 **json_ready(evaluation),

@@ -11,7 +11,7 @@ import pytest
 from drqn_jax import cli
 from drqn_jax.config import ConfigError
 from drqn_jax.experiments.curves import CURVES, load_curves
-from drqn_jax.experiments.machine import device_identity
+from drqn_jax.experiments.machine import device_identity, git_commit
 from drqn_jax.experiments.report import study_table
 from drqn_jax.experiments.stats import t_interval
 from drqn_jax.experiments.study import (
@@ -243,6 +243,7 @@ def test_the_study_writes_the_table_and_the_curves(study):
     steps = [json.loads((agent_dir(study / "smoke", i) / "agent.json").read_text()) for i in (0, 1)]
     assert [r["env_steps"] for r in runs] == [s["env_steps"] for s in steps]  # each run's own
     assert {r["trained_on"] for r in runs} == {device_identity()}  # runs may span machines
+    assert {r["commit"] for r in runs} == {git_commit()}
     assert drqn["env_steps_per_seed"] == pytest.approx(np.mean([r["env_steps"] for r in runs]))
     steps_cell = f"| 2 × {EPISODES} | {drqn['env_steps_per_seed'] / 1e6:.2f}M |"
     assert f"| drqn_jax: smoke | drqn | none (reward alone) {steps_cell}" in table
