@@ -18,23 +18,9 @@ from drqn_jax.determinism import cpu_thread_pool_size, fma_disabled
 __all__ = ["machine_info", "machine_lines"]
 
 
-def cpu_model() -> str:
-    """The CPU's "model name" from /proc/cpuinfo, else ``platform.processor()``."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "(unknown)"
-
-
-def cpu_identity() -> str:
-    """``family 25 model 1 stepping 1; avx avx2 fma``: the CPU beyond its model name
-    (one "AMD EPYC" may be several generations), with its vector extensions, from
-    /proc/cpuinfo; results are bit-identical only on one such CPU (docs/guide.md).
-    "(unknown)" where /proc/cpuinfo is not there."""
+def _first_processor() -> dict[str, str] | None:
+    """The first processor's fields of /proc/cpuinfo (lower-case keys); None where the
+    file is not there."""
     fields: dict[str, str] = {}
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as f:
@@ -44,10 +30,28 @@ def cpu_identity() -> str:
                 key, _, value = line.partition(":")
                 fields[key.strip().lower()] = value.strip()
     except OSError:
+        return None
+    return fields
+
+
+def cpu_model() -> str:
+    """The CPU's "model name" from /proc/cpuinfo, else ``platform.processor()``."""
+    fields = _first_processor() or {}
+    return fields.get("model name") or platform.processor() or "(unknown)"
+
+
+def cpu_identity() -> str:
+    """``family 25 model 1 stepping 1; avx avx2 fma``: the CPU beyond its model name
+    (one "AMD EPYC" may be several generations), with its vector extensions, from
+    /proc/cpuinfo; results are bit-identical only on one such CPU (docs/guide.md).
+    "(unknown)" where /proc/cpuinfo is not there."""
+    fields = _first_processor()
+    if fields is None:
         return "(unknown)"
-    ident = " ".join(f"{k} {fields[k]}" for k in ("cpu family", "model", "stepping") if k in fields)
+    names = {"cpu family": "family", "model": "model", "stepping": "stepping"}
+    ident = " ".join(f"{name} {fields[k]}" for k, name in names.items() if k in fields)
     vector = sorted(f for f in fields.get("flags", "").split() if f.startswith("avx") or f == "fma")
-    return f"{ident.replace('cpu family', 'family')}; {' '.join(vector) or 'no avx'}"
+    return f"{ident}; {' '.join(vector) or 'no avx'}"
 
 
 def device_identity() -> str:

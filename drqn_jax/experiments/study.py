@@ -433,7 +433,7 @@ def run_study(
     def finished_runs() -> dict[str, list[dict[str, Any]]]:
         commit = git_commit()
         found = {a.name: portable_runs(out / a.name, a.sweep, commit) for a in arms}
-        return {name: runs for name, runs in found.items() if runs}
+        return {name: kept for name, kept in found.items() if kept}
 
     for arm in arms:
         directory = out / arm.name

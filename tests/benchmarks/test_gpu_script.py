@@ -12,16 +12,20 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_gpu_script_dry_run_writes_the_throughput_and_the_curve(tmp_path):
-    env = {**os.environ, "GPU_DRY_RUN": "1", "PYTHON": sys.executable}
-    done = subprocess.run(
-        ["bash", str(ROOT / "benchmarks" / "gpu.sh"), str(tmp_path)],
+def _dry_run(script: str, out: Path, variable: str, timeout: int):
+    """``benchmarks/<script> OUT`` with ``variable=1`` (its dry run), this interpreter."""
+    return subprocess.run(
+        ["bash", str(ROOT / "benchmarks" / script), str(out)],
         cwd=ROOT,
-        env=env,
+        env={**os.environ, variable: "1", "PYTHON": sys.executable},
         capture_output=True,
         text=True,
-        timeout=600,
+        timeout=timeout,
     )
+
+
+def test_gpu_script_dry_run_writes_the_throughput_and_the_curve(tmp_path):
+    done = _dry_run("gpu.sh", tmp_path, "GPU_DRY_RUN", 600)
     assert done.returncode == 0, done.stderr[-3000:]
     (alone,) = json.loads((tmp_path / "throughput" / "train_throughput.json").read_text())["rows"]
     seeds = json.loads((tmp_path / "seeds" / "train_throughput.json").read_text())
@@ -43,16 +47,8 @@ def test_the_table_script_describes_the_whole_table_without_training(tmp_path):
     """``benchmarks/table3.sh`` with ``TABLE3_DRY_RUN=1``: the command that trains Table III
     at scale validates every arm's config at its real size and describes its 5 seeds,
     on this device's budget (6M env steps per seed on a CPU), and trains nothing."""
-    env = {**os.environ, "TABLE3_DRY_RUN": "1", "PYTHON": sys.executable}
     out = tmp_path / "table3"
-    done = subprocess.run(
-        ["bash", str(ROOT / "benchmarks" / "table3.sh"), str(out)],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    done = _dry_run("table3.sh", out, "TABLE3_DRY_RUN", 300)
     assert done.returncode == 0, done.stderr[-3000:]
     assert f"Table III at scale on cpu: 6000000 env steps per seed, into {out}" in done.stdout
     for arm in ("pqn", "pqn-dqn", "pqn-stack", "ppo"):
