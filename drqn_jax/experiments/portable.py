@@ -29,14 +29,18 @@ from drqn_jax.experiments.sweep import Sweep
 from drqn_jax.experiments.sweep_plan import plan_calls
 from drqn_jax.experiments.sweep_runner import finished_results, metrics_path, plan_record
 
-__all__ = ["portable_runs", "restore_runs"]
+__all__ = ["COMMIT_NOT_RECORDED", "portable_runs", "restore_runs"]
 
 
-def portable_runs(directory: Path, sweep: Sweep, commit: str) -> list[dict[str, Any]]:
+#: The ``commit`` of a run whose record predates keeping the commit that trained it.
+COMMIT_NOT_RECORDED = "(not recorded)"
+
+
+def portable_runs(directory: Path, sweep: Sweep) -> list[dict[str, Any]]:
     """The finished runs of ``sweep`` in ``directory`` (``OUT/<arm>``), by index, each
-    with its training hash, ``commit`` (unless its record has the commit that trained it,
-    as every run's has since it was counted) and its ``metrics.csv`` text; runs whose
-    metrics are missing are left out."""
+    with its training hash, the commit that trained it (:data:`COMMIT_NOT_RECORDED`
+    for a run finished before records kept it: never the commit that stores it) and
+    its ``metrics.csv`` text; runs whose metrics are missing are left out."""
     hashes = {p.index: p.config.training_hash() for p in sweep.points}
     runs = []
     for record in finished_results(directory):
@@ -47,7 +51,7 @@ def portable_runs(directory: Path, sweep: Sweep, commit: str) -> list[dict[str, 
             {
                 **record,
                 "training_hash": hashes[record["index"]],
-                "commit": record.get("commit", commit),
+                "commit": record.get("commit", COMMIT_NOT_RECORDED),
                 "metrics_csv": metrics.read_text(),
             }
         )

@@ -421,7 +421,6 @@ def run_study(
     that a study whose machine is shut down without warning loses at most the run in
     progress.
     """
-    from drqn_jax.experiments.machine import git_commit
     from drqn_jax.experiments.portable import portable_runs, restore_runs
     from drqn_jax.experiments.sweep_runner import finished_results, metrics_path, run_sweep
     from drqn_jax.interop.training_recording import record_study_curves
@@ -431,8 +430,7 @@ def run_study(
     continued = not train
 
     def finished_runs() -> dict[str, list[dict[str, Any]]]:
-        commit = git_commit()
-        found = {a.name: portable_runs(out / a.name, a.sweep, commit) for a in arms}
+        found = {a.name: portable_runs(out / a.name, a.sweep) for a in arms}
         return {name: kept for name, kept in found.items() if kept}
 
     for arm in arms:

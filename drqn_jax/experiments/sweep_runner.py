@@ -304,13 +304,14 @@ def real_agent_params(call: Call, outcome: CallOutcome) -> Any:
 
 
 def call_results(
-    call: Call, outcome: CallOutcome, eval_key: jax.Array, params: Any
+    call: Call, outcome: CallOutcome, eval_key: jax.Array, params: Any, commit: str
 ) -> list[dict[str, Any]]:
     """Per run: its index and axis values, the evaluation of its agent (``params``:
     :func:`real_agent_params`), the final training return (mean of the last 10 % of
     episodes), the env steps it trained on, the device it trained on
     (:func:`~drqn_jax.experiments.machine.device_identity`: runs of one study may come
-    from several machines), the commit that trained it and whether it diverged."""
+    from several machines), ``commit`` (the checkout's when the sweep started: the code
+    this process runs, not ``HEAD`` by the time it finishes) and whether it diverged."""
     n = len(call.points)
     returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
     env_steps = np.asarray(outcome.state.env_steps)[:n]
@@ -318,7 +319,7 @@ def call_results(
     evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key)
     results = []
     rows = zip(call.points, evaluations, returns, finite, env_steps, strict=True)
-    device, commit = device_identity(), git_commit()
+    device = device_identity()
     for i, (point, evaluation, ret, ok, steps) in enumerate(rows):
         val, hp = jax.tree.map(
             lambda x, i=i: np.asarray(x)[i], (outcome.state.validation, outcome.state.hparams)
@@ -460,7 +461,7 @@ def run_sweep(
             on resume or trained here), e.g. to keep them beyond ``out``.
     """
     out = Path(out)
-    devices = jax.local_devices()
+    devices, commit = jax.local_devices(), git_commit()  # HEAD may move while runs train
     if calls is None:
         calls = plan_calls(sweep, len(devices), dist)
     record, plan = plan_record(sweep, dist), _plan_path(out, dist)
@@ -511,7 +512,7 @@ def run_sweep(
             if outcome.status == "interrupted":
                 return SweepOutcome("interrupted", results, list(calls), continued)
             params = real_agent_params(call, outcome)
-            call_result = call_results(call, outcome, eval_key, params)
+            call_result = call_results(call, outcome, eval_key, params, commit)
             directory.mkdir(parents=True, exist_ok=True)
             write_training_metrics(out, call, outcome.state)
             if keep_agents:

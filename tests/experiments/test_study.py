@@ -200,9 +200,17 @@ STUDY += [arg for setting in SMOKE_SWEEP_SET for arg in ("--set", setting)]
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
+    """The smoke study, 2 seeds; ``HEAD`` "moves" after the sweep first reads it (a
+    checkout edited while a long study trains): each run records the commit it started
+    at."""
+    import drqn_jax.experiments.sweep_runner as sweep_runner
+
     out = tmp_path_factory.mktemp("study") / "out"
     results = ["--results", str(out.parent / "results.json"), "--section", "table"]
-    assert cli.main(["study", *STUDY, "--out", str(out), *results]) == 0
+    heads = iter([git_commit()])
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sweep_runner, "git_commit", lambda: next(heads, "HEAD moved"))
+        assert cli.main(["study", *STUDY, "--out", str(out), *results]) == 0
     return out
 
 
@@ -395,17 +403,20 @@ def test_an_interrupted_study_keeps_its_finished_runs_in_the_results_file(
     assert trained == [[0], [1]]
 
 
-def test_a_study_keeps_each_finished_run_before_the_next_one_trains(study, tmp_path, monkeypatch):
-    """A machine shut down without warning (no SIGTERM, no interruption) still leaves
-    every run that had finished in the results file: they are kept as each one ends."""
+def _kept_when_shut_down_in_run_1(study, tmp_path, monkeypatch, edit_run_0=None):
+    """The study's runs kept in a results file when the machine goes while run 1 trains
+    (no SIGTERM, no interruption); ``edit_run_0`` may rewrite run 0's record first."""
     import shutil
 
     import drqn_jax.experiments.sweep_runner as sweep_runner
 
     partial = tmp_path / "partial"
     shutil.copytree(study, partial)
-    (call,) = [p for p in (partial / "smoke" / "calls").iterdir() if "0001" in p.name]
-    shutil.rmtree(call)  # run 0 has finished, run 1 is training when the machine goes
+    calls = sorted((partial / "smoke" / "calls").iterdir())
+    shutil.rmtree(calls[1])  # run 0 has finished, run 1 is training when the machine goes
+    if edit_run_0 is not None:
+        saved = calls[0] / "runs.json"
+        saved.write_text(json.dumps([edit_run_0(r) for r in json.loads(saved.read_text())]))
 
     def shut_down(*args, **kwargs):
         raise SystemExit("the machine was shut down")
@@ -415,8 +426,29 @@ def test_a_study_keeps_each_finished_run_before_the_next_one_trains(study, tmp_p
     argv = ["study", *STUDY, "--no-png", "--results", str(results), "--section", "s"]
     with pytest.raises(SystemExit, match="shut down"):
         cli.main([*argv, "--out", str(partial)])
-    kept = json.loads(results.read_text())["sections"]["s"]["finished_runs"]["smoke"]
+    return json.loads(results.read_text())["sections"]["s"]["finished_runs"]["smoke"]
+
+
+def test_a_study_keeps_each_finished_run_before_the_next_one_trains(study, tmp_path, monkeypatch):
+    """A machine shut down without warning still leaves every run that had finished in
+    the results file: they are kept as each one ends."""
+    kept = _kept_when_shut_down_in_run_1(study, tmp_path, monkeypatch)
     assert [r["index"] for r in kept] == [0]
+    assert kept[0]["commit"] == git_commit()
+
+
+def test_a_run_finished_before_commits_were_kept_is_not_given_the_storing_one(
+    study, tmp_path, monkeypatch
+):
+    """A run whose record has no commit (it finished before records kept one) is stored
+    as :data:`COMMIT_NOT_RECORDED`, never as the commit of the checkout that stores it."""
+    from drqn_jax.experiments.portable import COMMIT_NOT_RECORDED
+
+    def older(record):
+        return {k: v for k, v in record.items() if k != "commit"}
+
+    kept = _kept_when_shut_down_in_run_1(study, tmp_path, monkeypatch, older)
+    assert [r["commit"] for r in kept] == [COMMIT_NOT_RECORDED]
 
 
 def test_the_estimate_is_the_runs_env_steps_over_the_timed_rate(monkeypatch):
