@@ -21,6 +21,7 @@ from drqn_jax.config import load_config
 from drqn_jax.env.state import ACTIONS
 from drqn_jax.experiments import runner
 from drqn_jax.experiments.checkpoint import CHECKPOINT_JSON, CHECKPOINT_NPZ, load_checkpoint
+from drqn_jax.experiments.machine import device_identity
 from tests.helpers import SMOKE_CHUNK
 
 SMOKE = ["--config", "smoke", "--quiet"]
@@ -335,12 +336,14 @@ def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
     out = capsys.readouterr().out
     assert f"safety/speed figure: {run_dir / 'safety_speed.png'}" in out
     assert (run_dir / "safety_speed.png").read_bytes()[:4] == b"\x89PNG"
-    paper_row = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | – | 40.0 (16.8–68.7) |"
-    assert paper_row + " – | – | 7.79 | – | 82.6 |" in out
+    paper_row = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | – | – | – |"
+    assert paper_row + " 40.0 (16.8–68.7) | – | – | 7.79 | – | 82.6 |" in out
     assert "| paper (CARLA) | DRQN | none (reward alone) | 1 × 10 | – |" in out
-    steps = runner.load_trained_network(runner.load_run(run_dir), run_dir)[2]["env_steps"]
-    assert f"| drqn_jax | drqn | none (reward alone) | 1 × 8 | {steps / 1e6:.2f}M |" in out
-    assert "| drqn_jax | rule-based | – (not learned) | 1 × 8 | – |" in out
+    trained = runner.load_trained_network(runner.load_run(run_dir), run_dir)[2]
+    how = f"{trained['env_steps'] / 1e6:.2f}M | {trained['wall_time_s'] / 60:.1f} | [1] ×1 |"
+    assert f"| drqn_jax | drqn | none (reward alone) | 1 × 8 | {how}" in out
+    assert "| drqn_jax | rule-based | – (not learned) | 1 × 8 | – | – | – |" in out
+    assert f"Devices: [1] {device_identity()}." in out
     assert "wall time" in out
     verdict = [line for line in out.splitlines() if line.startswith("The paper's claim")]
     assert len(verdict) == 1 and "One training seed" in verdict[0], out
@@ -373,9 +376,10 @@ def test_reproduce_evaluates_the_shipped_agent_without_training(
     assert cli.main(["reproduce", "--run-dir", str(run_dir)]) == 0
     captured = capsys.readouterr()
     assert "the shipped agent 'headline': " in captured.err and f"`{command}`" in captured.err
-    steps = json.loads((tmp_path / "trained" / "headline" / "provenance.json").read_text())
-    row = f"| drqn_jax | drqn | none (reward alone) | 1 × 8 | {steps['env_steps'] / 1e6:.2f}M |"
-    assert row in captured.out
+    shipped = json.loads((tmp_path / "trained" / "headline" / "provenance.json").read_text())
+    how = f"{shipped['env_steps'] / 1e6:.2f}M | {shipped['wall_time_s'] / 60:.1f} | [1] ×1 |"
+    assert f"| drqn_jax | drqn | none (reward alone) | 1 × 8 | {how}" in captured.out
+    assert f"Devices: [1] {device_identity()}." in captured.out  # its machine block's
     assert "\nThe paper's claim" in captured.out
     evaluated = json.loads((run_dir / "evaluation.json").read_text())["agents"][0]
     trained = json.loads((straight / "evaluation.json").read_text())["agents"][0]

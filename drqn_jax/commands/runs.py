@@ -16,6 +16,7 @@ from drqn_jax.agents.shipped import shipped_agent_dir, shipped_agents
 from drqn_jax.commands import default_run_dir, duration_text
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import metrics_table
+from drqn_jax.experiments.machine import device_identity, recorded_device
 from drqn_jax.experiments.runner import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
@@ -87,9 +88,13 @@ def _train_and_evaluate(
         f"{int(result.state.grad_steps)} gradient steps"
     )
     if reproduce:
-        steps = int(result.state.env_steps)
+        training = {
+            "env_steps": int(result.state.env_steps),
+            "trained_on": device_identity(),
+            "train_wall_s": result.wall_time_s,
+        }
         agent = _trained(result)
-        return _beside_the_paper(config, agent, run_dir, quiet, start, summary, trained, steps)
+        return _beside_the_paper(config, agent, run_dir, quiet, start, summary, trained, training)
     agents = [_trained(result)]
     if not quiet:
         _say_evaluating(config, agents)
@@ -110,12 +115,13 @@ def _beside_the_paper(
     start: float,
     summary: dict[str, Any],
     about: str,
-    env_steps: int,
+    training: dict[str, Any],
 ) -> int:
-    """Evaluate ``agent`` (trained on ``env_steps``) and the paper's rule-based agent on
-    ``config``'s evaluation episodes, sweep the rule-based frontier on them, and print and
-    write Table III beside the paper's (:func:`paper_comparison`) with the safety/speed
-    figure."""
+    """Evaluate ``agent`` and the paper's rule-based agent on ``config``'s evaluation
+    episodes, sweep the rule-based frontier on them, and print and write Table III
+    beside the paper's (:func:`paper_comparison`) with the safety/speed figure.
+    ``training``: the agent's ``env_steps``, ``trained_on`` and ``train_wall_s``, as a
+    sweep run's record has them."""
     from drqn_jax.experiments.baselines import config_frontier
 
     agents = [agent, builtin_agent("rule-based", config)]
@@ -125,7 +131,7 @@ def _beside_the_paper(
     if not quiet:
         print("sweeping the rule-based frontier on the same episodes...", file=sys.stderr)
     frontier = config_frontier(config, planner=False)
-    rows, table = paper_comparison([{**results[0], "env_steps": env_steps}, results[1]], frontier)
+    rows, table = paper_comparison([{**results[0], **training}, results[1]], frontier)
     run_dir.mkdir(parents=True, exist_ok=True)
     figure = _safety_speed_figure(rows, frontier, run_dir / "safety_speed.png")
     wall = time.perf_counter() - start
@@ -307,8 +313,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         print(about, file=sys.stderr)
     run_dir = Path(args.run_dir or default_run_dir("reproduce", HEADLINE))
     summary = {"agent_dir": str(directory), "provenance": provenance}
-    steps = int(provenance["env_steps"])
-    return _beside_the_paper(config, agent, run_dir, args.quiet, start, summary, about, steps)
+    training = {
+        "env_steps": int(provenance["env_steps"]),
+        "trained_on": recorded_device(machine),
+        "train_wall_s": provenance.get("wall_time_s"),
+    }
+    return _beside_the_paper(config, agent, run_dir, args.quiet, start, summary, about, training)
 
 
 def _training_estimate(config: Config) -> str:

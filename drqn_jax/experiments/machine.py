@@ -6,6 +6,7 @@ import datetime
 import os
 import platform
 import subprocess
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +64,22 @@ def device_identity() -> str:
     return device.device_kind
 
 
+def recorded_device(machine: Mapping[str, Any]) -> str:
+    """The :func:`device_identity` a :func:`machine_info` block names (blocks written
+    before it kept one: the CPU model, with its identity where kept, or the platform)."""
+    if "device" in machine:
+        return machine["device"]
+    if machine.get("platform") != "cpu":
+        return machine.get("platform") or NOT_RECORDED
+    identity = machine.get("cpu_identity")
+    return machine.get("cpu_model", NOT_RECORDED) + (f" ({identity})" if identity else "")
+
+
+#: What a run's record says of the device or commit that trained it where the record
+#: predates keeping them (never the storing machine's or checkout's).
+NOT_RECORDED = "(not recorded)"
+
+
 def git_commit() -> str:
     """``HEAD``'s short hash of this checkout, ``+dirty`` if ``drqn_jax/`` has edits."""
     root = Path(__file__).resolve().parents[2]  # the checkout: drqn_jax/experiments/..
@@ -99,6 +116,7 @@ def machine_info() -> dict[str, Any]:
         "jaxlib_version": jaxlib.__version__,
         "platform": devices[0].platform,
         "devices": [str(d) for d in devices],
+        "device": device_identity(),
         # As in effect: ``import drqn_jax`` appends --xla_cpu_max_isa=AVX (no FMA, for
         # batch-independent results) unless DRQN_JAX_ALLOW_FMA=1 or the user set an ISA.
         "xla_flags": os.environ.get("XLA_FLAGS", "(unset)"),

@@ -25,23 +25,28 @@ from typing import Any
 import jax
 
 from drqn_jax.experiments.checkpoint import atomic_write_text
+from drqn_jax.experiments.machine import NOT_RECORDED
 from drqn_jax.experiments.sweep import Sweep
 from drqn_jax.experiments.sweep_plan import plan_calls
-from drqn_jax.experiments.sweep_runner import finished_results, metrics_path, plan_record
+from drqn_jax.experiments.sweep_runner import (
+    finished_results,
+    metrics_path,
+    plan_record,
+    run_timings,
+    write_timing,
+)
 
-__all__ = ["COMMIT_NOT_RECORDED", "portable_runs", "restore_runs"]
-
-
-#: The ``commit`` of a run whose record predates keeping the commit that trained it.
-COMMIT_NOT_RECORDED = "(not recorded)"
+__all__ = ["portable_runs", "restore_runs"]
 
 
 def portable_runs(directory: Path, sweep: Sweep) -> list[dict[str, Any]]:
     """The finished runs of ``sweep`` in ``directory`` (``OUT/<arm>``), by index, each
-    with its training hash, the commit that trained it (:data:`COMMIT_NOT_RECORDED`
-    for a run finished before records kept it: never the commit that stores it) and
-    its ``metrics.csv`` text; runs whose metrics are missing are left out."""
+    with its training hash, the commit that trained it (:data:`NOT_RECORDED` for a run
+    finished before records kept it: never the commit that stores it), its training
+    wall time (``train_wall_s``, :func:`run_timings`; None where not counted) and its
+    ``metrics.csv`` text; runs whose metrics are missing are left out."""
     hashes = {p.index: p.config.training_hash() for p in sweep.points}
+    timings = run_timings(directory)
     runs = []
     for record in finished_results(directory):
         metrics = metrics_path(directory, record["index"])
@@ -51,7 +56,8 @@ def portable_runs(directory: Path, sweep: Sweep) -> list[dict[str, Any]]:
             {
                 **record,
                 "training_hash": hashes[record["index"]],
-                "commit": record.get("commit", COMMIT_NOT_RECORDED),
+                "commit": record.get("commit", NOT_RECORDED),
+                "train_wall_s": timings.get(record["index"]),
                 "metrics_csv": metrics.read_text(),
             }
         )
@@ -90,9 +96,11 @@ def restore_runs(directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, An
             path = metrics_path(directory, run["index"])
             path.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_text(path, run["metrics_csv"])
-        saved = [{k: v for k, v in run.items() if k != "metrics_csv"} for run in runs]
-        (directory / "calls" / call.name).mkdir(parents=True, exist_ok=True)
-        atomic_write_text(
-            directory / "calls" / call.name / "runs.json", json.dumps(saved, indent=1) + "\n"
-        )
+        apart = ("metrics_csv", "train_wall_s")
+        saved = [{k: v for k, v in run.items() if k not in apart} for run in runs]
+        call_dir = directory / "calls" / call.name
+        call_dir.mkdir(parents=True, exist_ok=True)
+        walls = [run.get("train_wall_s") for run in runs]
+        write_timing(call_dir, call, None if None in walls else sum(walls))
+        atomic_write_text(call_dir / "runs.json", json.dumps(saved, indent=1) + "\n")
     return sum(len(c.points) for c in restored)

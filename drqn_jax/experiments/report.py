@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from drqn_jax.experiments.checkpoint import atomic_write_text
+from drqn_jax.experiments.machine import NOT_RECORDED
 
 __all__ = [
     "PAPER_DRQN_SPEED_KMH",
@@ -214,6 +215,20 @@ def _steps_cell(steps: float | None) -> str:
     return "–" if steps is None or not math.isfinite(steps) else f"{steps / 1e6:.2f}M"
 
 
+def _device_legend(rows: Sequence[Mapping[str, Any]]) -> dict[str, str]:
+    """Each device the rows' runs trained on → ``[k]``, numbered in the order first seen
+    (the table cell names the number; the legend under the table the device)."""
+    names = dict.fromkeys(d for r in rows for d in r.get("devices") or {} if d != NOT_RECORDED)
+    return {d: f"[{k}]" for k, d in enumerate(names, 1)}
+
+
+def _device_cell(devices: Mapping[str, int] | None, legend: Mapping[str, str]) -> str:
+    """``[1] ×3, [2] ×2``: how many seeds trained on each device; – for none."""
+    if not devices:
+        return "–"
+    return ", ".join(f"{legend.get(d, '?')} ×{n}" for d, n in devices.items())
+
+
 def margin_cell(row: Mapping[str, Any]) -> str:
     """``+5.2 (+1.0 to +9.4)``: the row's frontier margin in points with its interval
     (– for a row without one: the paper's, measured in another world; "– (above the
@@ -229,17 +244,18 @@ def margin_cell(row: Mapping[str, Any]) -> str:
 
 def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
     """Markdown: one row per agent; ``± std`` is across seeds."""
+    legend = _device_legend(rows)
     header = (
         "| source | agent | teacher | seeds × episodes | env steps / seed "
-        "| collision-free % (95 % interval) "
+        "| train wall / seed (min) | device | collision-free % (95 % interval) "
         "| margin to the rule-based frontier, points (95 %) | struck while stopped % "
         "| avg speed (km/h) | authors' speed (km/h) | distance (m) "
         "| distance, collision-free (m) | goal % | collisions / km |"
     )
     lines = [
         header,
-        "| --- | --- | --- | ---: | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: "
-        "| ---: |",
+        "| --- | --- | --- | ---: | ---: | ---: | --- | --- | --- | ---: | ---: | ---: | ---: "
+        "| ---: | ---: | ---: |",
     ]
     for r in rows:
         low, high = r["collision_free_ci"]
@@ -252,6 +268,8 @@ def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
         lines.append(
             f"| {r['label']} | {r['agent']} | {r.get('learned', '–')} | {seeds} "
             f"| {_steps_cell(r.get('env_steps_per_seed'))} "
+            f"| {_cell(r.get('train_wall_s_per_seed'), '.1f', 1 / 60)} "
+            f"| {_device_cell(r.get('devices'), legend)} "
             f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
             f"| {margin_cell(r)} "
             f"| {_cell(r.get('struck_while_stopped_rate'), '.1f', 100.0)} "
@@ -272,8 +290,13 @@ def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
         "the mean over the steps faster than 0.5 km/h (carla-gym tester.py); a pedestrian "
         "striking the standing car is not a collision (struck while stopped). Env steps / "
         "seed: the mean of what each seed trained on, in millions; – for a policy not "
-        "learned here and in tables computed before they were counted.",
+        "learned here and in tables computed before they were counted. Train wall / seed: "
+        "the mean training wall time of a seed, compile and checkpoints included (seeds "
+        "trained together share their call's); device: how many seeds trained on which "
+        "device (? for runs from before devices were kept).",
     ]
+    if legend:
+        lines += ["", "Devices: " + "; ".join(f"{k} {d}" for d, k in legend.items()) + "."]
     return "\n".join(lines)
 
 

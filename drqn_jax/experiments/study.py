@@ -39,6 +39,7 @@ import dataclasses
 import json
 import math
 import sys
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -62,6 +63,7 @@ from drqn_jax.experiments.frontier import (
     frontier_vertices,
     with_margin,
 )
+from drqn_jax.experiments.machine import NOT_RECORDED
 from drqn_jax.experiments.report import (
     PAPER_EPISODES,
     PAPER_TABLE_III,
@@ -175,6 +177,37 @@ def _std(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
     return float(np.std(values, ddof=1)) if len(values) > 1 else math.nan
 
 
+def _devices(runs: Sequence[Mapping[str, Any]]) -> dict[str, int]:
+    """How many runs trained on each device, in the order first seen (a policy not
+    trained here has none; a run from before devices were kept counts as not recorded)."""
+    trained = [r for r in runs if "env_steps" in r or "trained_on" in r]
+    return dict(Counter(r.get("trained_on", NOT_RECORDED) for r in trained))
+
+
+def _mean_of_every(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
+    """The mean of ``metric`` over the runs, NaN unless every run has it."""
+    values = [r.get(metric) for r in runs]
+    return math.nan if any(v is None for v in values) else float(np.mean(values))
+
+
+_TRAINING_FACTS = ("env_steps", "trained_on")
+
+
+def _training_facts(
+    runs: Sequence[Mapping[str, Any]], timings: Mapping[int, float | None]
+) -> dict[int, dict[str, Any]]:
+    """By run index: how each run trained (env steps, device: from its record; its wall
+    time: kept apart from the records, :func:`~drqn_jax.experiments.sweep_runner.run_timings`),
+    for its rows in every world it is evaluated in."""
+    return {
+        r["index"]: {
+            **{k: r[k] for k in _TRAINING_FACTS if k in r},
+            "train_wall_s": timings.get(r["index"]),
+        }
+        for r in runs
+    }
+
+
 def study_row(
     label: str, agent: str, runs: Sequence[Mapping[str, Any]], *, world: str
 ) -> dict[str, Any]:
@@ -189,7 +222,10 @@ def study_row(
     collision-free rate and average speed (the frontier margin reads each seed at its
     own speed, :func:`drqn_jax.experiments.frontier.frontier_margin`).
     ``env_steps_per_seed``: the mean of the runs' training env steps (over the runs
-    that counted them; NaN for a policy that was not trained).
+    that counted them; NaN for a policy that was not trained). ``devices``: how many
+    runs trained on each device (runs of one study may come from several machines);
+    ``train_wall_s_per_seed``: the mean of the runs' training wall times (NaN unless
+    every run counted its own).
     """
     if not runs:
         raise ValueError(f"study_row {label!r}: no runs")
@@ -229,6 +265,8 @@ def study_row(
         ),
         "goal_rate": _mean(runs, "goal_rate"),
         "env_steps_per_seed": _mean(runs, "env_steps"),
+        "devices": _devices(runs),
+        "train_wall_s_per_seed": _mean_of_every(runs, "train_wall_s"),
         "collisions_per_km": collisions / km if km > 0 else math.nan,
         "per_seed": [
             {
@@ -422,7 +460,12 @@ def run_study(
     progress.
     """
     from drqn_jax.experiments.portable import portable_runs, restore_runs
-    from drqn_jax.experiments.sweep_runner import finished_results, metrics_path, run_sweep
+    from drqn_jax.experiments.sweep_runner import (
+        finished_results,
+        metrics_path,
+        run_sweep,
+        run_timings,
+    )
     from drqn_jax.interop.training_recording import record_study_curves
 
     out = Path(out)
@@ -482,8 +525,10 @@ def run_study(
             (f"{arm.name} on {env}", cross_configs[arm.name][env], results)
             for env, results in cross[arm.name].items()
         ]
-        for name, config, results in evaluated:
-            row = study_row(f"drqn_jax: {name}", agent, results, world=config["env"]["id"])
+        training = _training_facts(runs[arm.name], run_timings(out / arm.name))
+        for name, config, results in evaluated:  # a cross row evaluates the arm's agents
+            trained_runs = [{**r, **training[r["index"]]} for r in results]
+            row = study_row(f"drqn_jax: {name}", agent, trained_runs, world=config["env"]["id"])
             margin = with_margin(row, frontiers[frontier_key(config)], config.speed_limit_kmh())
             trained.append((margin, config))
     # configs that differ only in what the rule-based agent ignores (the reward) share its row

@@ -40,6 +40,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -220,6 +221,9 @@ class CallOutcome:
     status: str
     trainer: Trainer
     state: TrainState  # batched, padding included
+    #: s: the call's training wall time over every invocation, compile and validation
+    #: included; None when a checkpoint from before it was counted continued it.
+    wall_time_s: float | None = None
 
     def agent_params(self) -> Any:
         """Every run's agent (``Trainer.agent_params``), padding included."""
@@ -239,8 +243,10 @@ def train_call(
 
     With ``directory``: continue from its checkpoint if there is one, save one
     every ``checkpoint_every_s`` and when ``stop`` is set (then the outcome is
-    ``interrupted``).
+    ``interrupted``). The checkpoint keeps the wall time so far, which the outcome's
+    ``wall_time_s`` continues.
     """
+    start = time.perf_counter()
     trainer = make_train(call.points[0].config.train_config())
     init, run = call_programs(trainer, call.size, devices, call.strategy)
     args, real = call_inputs(call, devices)
@@ -250,32 +256,37 @@ def train_call(
         _, hparams, env_params = args
         expected = {"config_hash": call.fingerprint()}
         fill = added_leaves(hparams, env_params)
-        state, _ = load_checkpoint(directory, template, expected, fill, renamed=RENAMED_LEAVES)
+        state, meta = load_checkpoint(directory, template, expected, fill, renamed=RENAMED_LEAVES)
         state = jax.device_put(state, _sharding(devices))
+        before = meta.get("wall_time_s")
     else:
-        state = init(*args)
+        state, before = init(*args), 0.0
+
+    def wall() -> float | None:
+        return None if before is None else before + time.perf_counter() - start
+
     status, state, _ = run_chunks(
         lambda state: run(state, real),
         state,
         finished=lambda state: bool(jnp.all(state.finished)),
         stop=StopRequest() if stop is None else stop,
-        save=lambda state, _: _save_call(directory, call, state),
+        save=lambda state, _: _save_call(directory, call, state, wall()),
         every_s=checkpoint_every_s if directory is not None else math.inf,
         on_chunk=on_chunk,
     )
     if status == "interrupted":
-        _save_call(directory, call, state)
-        return CallOutcome("interrupted", trainer, state)
+        _save_call(directory, call, state, wall())
+        return CallOutcome("interrupted", trainer, state, wall())
     if trainer.config.snapshots:
         validate = validation_program(trainer, call.size, devices, call.strategy)
         state = state.replace(validation=validate(state, real))
-    return CallOutcome("finished", trainer, state)
+    return CallOutcome("finished", trainer, state, wall())
 
 
-def _save_call(directory: Path | None, call: Call, state: TrainState) -> None:
+def _save_call(directory: Path | None, call: Call, state: TrainState, wall: float | None) -> None:
     if directory is not None:
         meta = {"config_hash": call.fingerprint(), "runs": [p.index for p in call.points]}
-        save_checkpoint(directory, state, meta)
+        save_checkpoint(directory, state, {**meta, "wall_time_s": wall})
 
 
 def evaluate_runs(
@@ -311,7 +322,9 @@ def call_results(
     episodes), the env steps it trained on, the device it trained on
     (:func:`~drqn_jax.experiments.machine.device_identity`: runs of one study may come
     from several machines), ``commit`` (the checkout's when the sweep started: the code
-    this process runs, not ``HEAD`` by the time it finishes) and whether it diverged."""
+    this process runs, not ``HEAD`` by the time it finishes) and whether it diverged.
+    Nothing that differs between two trainings of the same runs: the wall time is
+    apart (:func:`run_timings`)."""
     n = len(call.points)
     returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
     env_steps = np.asarray(outcome.state.env_steps)[:n]
@@ -515,6 +528,7 @@ def run_sweep(
             call_result = call_results(call, outcome, eval_key, params, commit)
             directory.mkdir(parents=True, exist_ok=True)
             write_training_metrics(out, call, outcome.state)
+            write_timing(directory, call, outcome.wall_time_s)
             if keep_agents:
                 write_agents(out, call, outcome.state, params)
             atomic_write_text(saved, json.dumps(call_result, indent=1) + "\n")
@@ -528,6 +542,29 @@ def run_sweep(
         results = _gather(results, dist)
     results = sorted(results, key=lambda r: r["index"])
     return SweepOutcome("finished", results, list(calls), continued)
+
+
+#: A finished call's training wall time, beside its ``runs.json`` (which holds results
+#: only: the same bits on every device count, resume or chunking).
+TIMING_JSON = "timing.json"
+
+
+def write_timing(call_dir: Path, call: Call, wall_time_s: float | None) -> None:
+    """``calls/<call>/timing.json``: the call's training wall time (None where a
+    checkpoint from before it was counted continued the call) and its runs."""
+    record = {"train_wall_s": wall_time_s, "runs": [p.index for p in call.points]}
+    atomic_write_text(call_dir / TIMING_JSON, json.dumps(record, indent=1) + "\n")
+
+
+def run_timings(directory: Path) -> dict[int, float | None]:
+    """Each run's training wall time (s): its share of its call's (the call's runs train
+    together), by index; None where not counted, absent where no call of it has one."""
+    timings: dict[int, float | None] = {}
+    for path in sorted((directory / "calls").glob(f"*/{TIMING_JSON}")):
+        record = json.loads(path.read_text())
+        wall, indices = record["train_wall_s"], record["runs"]
+        timings.update((i, None if wall is None else wall / len(indices)) for i in indices)
+    return timings
 
 
 def finished_results(directory: Path) -> list[dict[str, Any]]:

@@ -69,7 +69,7 @@ def test_blocks_regenerate_from_the_file_and_drift_is_caught(tmp_path):
     assert stale_documents([doc], record) == [str(doc)]
     text = update_document(doc.read_text(), record)
     assert text.startswith("intro\n<!-- results:t -->\n| source |") and text.endswith("end\n")
-    assert "| ours | drqn | none (reward alone) | 1 × 1000 | – | 50.0 (47.0–53.0) |" in text
+    assert "| ours | drqn | none (reward alone) | 1 × 1000 | – | – | – | 50.0 (47.0–53.0) |" in text
     assert "drqn-jax study --configs x" in text and "wall time 10 min on" in text
     went_on = {**record, "sections": {"t": {**record["sections"]["t"], "continued": True}}}
     assert "earlier invocations trained its runs, the wall time is the last one's):" in (

@@ -11,7 +11,7 @@ import pytest
 from drqn_jax import cli
 from drqn_jax.config import ConfigError
 from drqn_jax.experiments.curves import CURVES, load_curves
-from drqn_jax.experiments.machine import device_identity, git_commit
+from drqn_jax.experiments.machine import NOT_RECORDED, device_identity, git_commit
 from drqn_jax.experiments.report import study_table
 from drqn_jax.experiments.stats import t_interval
 from drqn_jax.experiments.study import (
@@ -77,9 +77,11 @@ def test_a_single_policy_keeps_its_wilson_interval():
     assert row["collision_free_ci"] == pytest.approx((0.9, 1.0))
     assert row["interval"] == "Wilson over episodes" and math.isnan(row["avg_speed_kmh_std"])
     table = study_table([*paper_rows(), row])
-    paper = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | – | 40.0 (16.8–68.7) | – |"
+    paper = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | – | – | – |"
+    paper += " 40.0 (16.8–68.7) | – |"
     assert paper + " – | 7.79 | – |" in table
-    ours = "| drqn_jax: env | drqn | imitation | 1 × 100 | – | 95.0 (90.0–100.0) | – | 5.0 |"
+    ours = "| drqn_jax: env | drqn | imitation | 1 × 100 | – | – | – |"
+    ours += " 95.0 (90.0–100.0) | – | 5.0 |"
     assert ours + " 9.50 | 11.40 |" in table
     # a run evaluated before the struck-while-stopped rate and the authors' speed existed
     old = {k: v for k, v in _run(0.95).items() if k not in ("struck_while_stopped_rate",)}
@@ -253,8 +255,19 @@ def test_the_study_writes_the_table_and_the_curves(study):
     assert {r["trained_on"] for r in runs} == {device_identity()}  # runs may span machines
     assert {r["commit"] for r in runs} == {git_commit()}
     assert drqn["env_steps_per_seed"] == pytest.approx(np.mean([r["env_steps"] for r in runs]))
-    steps_cell = f"| 2 × {EPISODES} | {drqn['env_steps_per_seed'] / 1e6:.2f}M |"
+    walls = [json.loads(p.read_text()) for p in sorted(study.glob("smoke/calls/*/timing.json"))]
+    assert [w["runs"] for w in walls] == [[0], [1]] and all(w["train_wall_s"] > 0 for w in walls)
+    assert drqn["train_wall_s_per_seed"] == pytest.approx(
+        np.mean([w["train_wall_s"] for w in walls])
+    )
+    assert not any("train_wall_s" in r for r in runs)  # results only: timings differ per training
+    assert drqn["devices"] == {device_identity(): 2} and record["rows"][3]["devices"] == {}
+    steps_cell = (
+        f"| 2 × {EPISODES} | {drqn['env_steps_per_seed'] / 1e6:.2f}M "
+        f"| {drqn['train_wall_s_per_seed'] / 60:.1f} | [1] ×2 |"
+    )
     assert f"| drqn_jax: smoke | drqn | none (reward alone) {steps_cell}" in table
+    assert f"Devices: [1] {device_identity()}." in table
     assert "* drqn_jax: smoke (drqn) at " in table
     assert record["comparisons"] == [line[2:] for line in table.splitlines() if line[:2] == "* "]
     assert record["comparisons"][0].startswith("The paper's claim (a DRQN safer than")  # headline
@@ -391,8 +404,23 @@ def test_an_interrupted_study_keeps_its_finished_runs_in_the_results_file(
     monkeypatch.setattr(sweep_runner, "train_call", counting)
     assert cli.main([*argv, "--out", str(tmp_path / "fresh")]) == 0
     assert trained == [[1]]  # run 0 came from the results file
-    rows = json.loads((tmp_path / "fresh" / "study.json").read_text())["rows"]
-    assert rows == json.loads((study / "study.json").read_text())["rows"]
+    assert (
+        kept[0]["train_wall_s"]
+        == json.loads(next(partial.glob("smoke/calls/*0000/timing.json")).read_text())[
+            "train_wall_s"
+        ]
+    )
+
+    def results_of(out):  # rows less the training wall time: it differs per training
+        rows = json.loads((out / "study.json").read_text())["rows"]
+        return [{k: v for k, v in r.items() if k != "train_wall_s_per_seed"} for r in rows]
+
+    assert results_of(tmp_path / "fresh") == results_of(study)
+    restored = next((tmp_path / "fresh").glob("smoke/calls/*0000/timing.json"))
+    assert json.loads(restored.read_text()) == {
+        "train_wall_s": kept[0]["train_wall_s"],
+        "runs": [0],
+    }
     assert "finished_runs" not in json.loads(results.read_text())["sections"]["s"]  # finished
     stale = {**kept[0], "training_hash": "another config"}  # restored only to its own config
     results.write_text(
@@ -441,14 +469,13 @@ def test_a_run_finished_before_commits_were_kept_is_not_given_the_storing_one(
     study, tmp_path, monkeypatch
 ):
     """A run whose record has no commit (it finished before records kept one) is stored
-    as :data:`COMMIT_NOT_RECORDED`, never as the commit of the checkout that stores it."""
-    from drqn_jax.experiments.portable import COMMIT_NOT_RECORDED
+    as :data:`NOT_RECORDED`, never as the commit of the checkout that stores it."""
 
     def older(record):
         return {k: v for k, v in record.items() if k != "commit"}
 
     kept = _kept_when_shut_down_in_run_1(study, tmp_path, monkeypatch, older)
-    assert [r["commit"] for r in kept] == [COMMIT_NOT_RECORDED]
+    assert [r["commit"] for r in kept] == [NOT_RECORDED]
 
 
 def test_the_estimate_is_the_runs_env_steps_over_the_timed_rate(monkeypatch):

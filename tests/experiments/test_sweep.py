@@ -371,6 +371,7 @@ def test_an_interrupted_call_resumes_bit_identically(sweep_file, trained, tmp_pa
     assert not bool(jax.numpy.all(first.state.finished))
     resumed = train_call(call, jax.devices(), directory=tmp_path)
     assert resumed.status == "finished"
+    assert 0 < first.wall_time_s < resumed.wall_time_s  # the checkpoint carries it on
     chosen = jax.vmap(resumed.trainer.agent_params)(resumed.state)  # the sweep keeps a snapshot
     assert_tree_equal((chosen, resumed.state.metrics), (params, metrics))
 
