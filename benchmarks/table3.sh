@@ -6,7 +6,8 @@
 # and its family's frontier (docs/spec.md §9). First the estimate (one timed training
 # chunk per arm: the study's training wall time on this device), then the study. Its rows
 # go into docs/results.json, section table3-<backend> (table3-gpu, table3-cpu), and
-# `drqn-jax report README.md docs/results.md` quotes them. Running it again continues an
+# `drqn-jax report README.md docs/results.md` quotes them; its learning curves and
+# safety/speed figure go into docs/figures/table3-<backend>-*.png. Running it again continues an
 # interrupted study; in a fresh clone too, from the finished runs the results file keeps.
 #
 # Budget per seed: TABLE3_STEPS env steps. The default is 24,000,000 on an accelerator
@@ -41,3 +42,11 @@ if [ "${TABLE3_ESTIMATE:-1}" = 1 ]; then
   "${study[@]}" --estimate
 fi
 "${study[@]}" --results docs/results.json --section "table3-$backend"
+# The report's figures: the learning curves against env steps to the full budget and the
+# safety/speed figure (the study draws both into OUT when every run has finished).
+for figure in curves safety_speed; do
+  if [ -f "$out/$figure.png" ]; then
+    cp "$out/$figure.png" "docs/figures/table3-$backend-${figure//_/-}.png"
+    echo "docs/figures/table3-$backend-${figure//_/-}.png"
+  fi
+done
