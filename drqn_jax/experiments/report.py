@@ -215,6 +215,16 @@ def _steps_cell(steps: float | None) -> str:
     return "–" if steps is None or not math.isfinite(steps) else f"{steps / 1e6:.2f}M"
 
 
+def _wall_cell(row: Mapping[str, Any]) -> str:
+    """``31.2``: the mean training minutes of a seed; ``31.2 (2 of 5)`` where only some
+    seeds counted theirs (runs from before wall times were kept); – for none."""
+    cell = _cell(row.get("train_wall_s_per_seed"), ".1f", 1 / 60)
+    counted = row.get("train_wall_seeds")
+    if cell != "–" and counted is not None and counted < row["seeds"]:
+        cell += f" ({counted} of {row['seeds']})"
+    return cell
+
+
 def _device_legend(rows: Sequence[Mapping[str, Any]]) -> dict[str, str]:
     """Each device the rows' runs trained on → ``[k]``, numbered in the order first seen
     (the table cell names the number; the legend under the table the device)."""
@@ -268,7 +278,7 @@ def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
         lines.append(
             f"| {r['label']} | {r['agent']} | {r.get('learned', '–')} | {seeds} "
             f"| {_steps_cell(r.get('env_steps_per_seed'))} "
-            f"| {_cell(r.get('train_wall_s_per_seed'), '.1f', 1 / 60)} "
+            f"| {_wall_cell(r)} "
             f"| {_device_cell(r.get('devices'), legend)} "
             f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
             f"| {margin_cell(r)} "
@@ -292,8 +302,9 @@ def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
         "seed: the mean of what each seed trained on, in millions; – for a policy not "
         "learned here and in tables computed before they were counted. Train wall / seed: "
         "the mean training wall time of a seed, compile and checkpoints included (seeds "
-        "trained together share their call's); device: how many seeds trained on which "
-        "device (? for runs from before devices were kept).",
+        "trained together share their call's; k of n: over the seeds that counted it); "
+        "device: how many seeds trained on which device (? for runs from before devices "
+        "were kept).",
     ]
     if legend:
         lines += ["", "Devices: " + "; ".join(f"{k} {d}" for d, k in legend.items()) + "."]

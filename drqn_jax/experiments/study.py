@@ -184,12 +184,6 @@ def _devices(runs: Sequence[Mapping[str, Any]]) -> dict[str, int]:
     return dict(Counter(r.get("trained_on", NOT_RECORDED) for r in trained))
 
 
-def _mean_of_every(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
-    """The mean of ``metric`` over the runs, NaN unless every run has it."""
-    values = [r.get(metric) for r in runs]
-    return math.nan if any(v is None for v in values) else float(np.mean(values))
-
-
 _TRAINING_FACTS = ("env_steps", "trained_on")
 
 
@@ -224,8 +218,8 @@ def study_row(
     ``env_steps_per_seed``: the mean of the runs' training env steps (over the runs
     that counted them; NaN for a policy that was not trained). ``devices``: how many
     runs trained on each device (runs of one study may come from several machines);
-    ``train_wall_s_per_seed``: the mean of the runs' training wall times (NaN unless
-    every run counted its own).
+    ``train_wall_s_per_seed``: the mean of the runs' training wall times over the
+    ``train_wall_seeds`` runs that counted theirs (NaN for none).
     """
     if not runs:
         raise ValueError(f"study_row {label!r}: no runs")
@@ -266,7 +260,8 @@ def study_row(
         "goal_rate": _mean(runs, "goal_rate"),
         "env_steps_per_seed": _mean(runs, "env_steps"),
         "devices": _devices(runs),
-        "train_wall_s_per_seed": _mean_of_every(runs, "train_wall_s"),
+        "train_wall_s_per_seed": _mean(runs, "train_wall_s"),
+        "train_wall_seeds": sum(r.get("train_wall_s") is not None for r in runs),
         "collisions_per_km": collisions / km if km > 0 else math.nan,
         "per_seed": [
             {

@@ -72,6 +72,27 @@ def test_a_row_pools_seeds():
     assert row["avg_distance_collision_free_m"] == pytest.approx(expected)
 
 
+def test_a_row_says_where_and_how_long_its_seeds_trained():
+    """Seeds of one study may train on several machines, some before wall times were
+    kept: the device column counts each device's seeds, the wall time is the mean over
+    the seeds that counted theirs, and says how many did."""
+    runs = [
+        {**_run(0.9), "env_steps": 10, "trained_on": "CPU A", "train_wall_s": 60.0},
+        {**_run(0.8), "env_steps": 10, "trained_on": "GPU B", "train_wall_s": 180.0},
+        {**_run(0.7), "env_steps": 10, "trained_on": "CPU A"},
+        {**_run(0.6), "env_steps": 10},  # from before devices were kept
+    ]
+    row = study_row("drqn_jax: x", "drqn", runs, world="W")
+    assert row["devices"] == {"CPU A": 2, "GPU B": 1, NOT_RECORDED: 1}
+    assert row["train_wall_s_per_seed"] == 120.0 and row["train_wall_seeds"] == 2
+    table = study_table([row, baseline_row("rule-based", _run(0.5), world="W")])
+    assert "| 4 × 100 | 0.00M | 2.0 (2 of 4) | [1] ×2, [2] ×1, ? ×1 |" in table
+    assert "| 1 × 100 | – | – | – |" in table  # a policy not trained here
+    assert "Devices: [1] CPU A; [2] GPU B." in table
+    every = [{**r, "train_wall_s": 60.0} for r in runs]
+    assert "| 0.00M | 1.0 | [1] ×2" in study_table([study_row("y", "drqn", every, world="W")])
+
+
 def test_a_single_policy_keeps_its_wilson_interval():
     row = baseline_row("drqn_jax: env", _run(0.95), world="W")
     assert row["collision_free_ci"] == pytest.approx((0.9, 1.0))
