@@ -290,7 +290,11 @@ def _chunks(
 ) -> tuple[str, TrainState, int]:
     """:func:`~drqn_jax.experiments.host_loop.run_chunks` for one run: a progress bar, a checkpoint
     every ``run.checkpoint_every_s``, and a stop at the first non-finite loss."""
-    total, unit, done = _budget(config)
+    total, unit = training_budget(config)
+
+    def done(state: TrainState) -> int:
+        return budget_used(state, total, unit)
+
     with progress_bar(total, done(state), quiet, unit) as bar:
         clock = {"t": time.perf_counter(), "steps": int(state.env_steps)}
 
@@ -314,13 +318,18 @@ def _chunks(
         )
 
 
-def _budget(config: Config) -> tuple[int, str, Callable[[Any], int]]:
-    """The run's budget for its progress bar: (total, unit, how much of it a state
-    has used): ``train.num_env_steps`` env steps when set, else ``num_episodes``."""
+def training_budget(config: Config) -> tuple[int, str]:
+    """A run's budget for progress bars, ``(total, unit)``: ``train.num_env_steps`` env
+    steps (``"step"``) when set, else ``num_episodes`` episodes (``"ep"``)."""
     steps = config["train"]["num_env_steps"]
-    if steps:
-        return steps, "step", lambda state: min(int(state.env_steps), steps)
-    return config["train"]["num_episodes"], "ep", lambda state: int(state.recorded)
+    return (steps, "step") if steps else (config["train"]["num_episodes"], "ep")
+
+
+def budget_used(state: TrainState, total: int, unit: str, runs: int | None = None) -> int:
+    """How much of its :func:`training_budget` ``(total, unit)`` a run's state has used;
+    of a batched state (a sweep's call), its first ``runs`` runs' together."""
+    used = np.asarray(state.env_steps if unit == "step" else state.recorded)
+    return int(np.minimum(used if runs is None else used[:runs], total).sum())
 
 
 def load_run(run_dir: str | Path, overrides: tuple[str, ...] = ()) -> Config:

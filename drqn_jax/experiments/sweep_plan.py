@@ -105,11 +105,6 @@ class Call:
     memory: RunMemory | None = None  # per run, as planned
 
     @property
-    def episodes(self) -> int:
-        """Training episodes of the call's runs, padding excluded."""
-        return len(self.points) * self.points[0].config["train"]["num_episodes"]
-
-    @property
     def name(self) -> str:
         return f"runs-{self.points[0].index:04d}-{self.points[-1].index:04d}"
 

@@ -63,7 +63,13 @@ from drqn_jax.experiments.checkpoint import (
 )
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
 from drqn_jax.experiments.machine import device_identity, git_commit
-from drqn_jax.experiments.runner import json_ready, metrics_csv, save_agent
+from drqn_jax.experiments.runner import (
+    budget_used,
+    json_ready,
+    metrics_csv,
+    save_agent,
+    training_budget,
+)
 from drqn_jax.experiments.sweep import Sweep, SweepPoint
 from drqn_jax.experiments.sweep_plan import (
     Call,
@@ -493,26 +499,31 @@ def run_sweep(
     eval_key = first.keys()[1]
     every = first["run"]["checkpoint_every_s"]
     results: list[dict[str, Any]] = []
-    total = sum(call.episodes for call in calls)
+    budgets, unit = sweep_budgets(calls)
     stop = StopRequest()
     desc = f"sweep (process {dist.process})" if dist.processes > 1 else "sweep"
-    with stop.installed(), progress_bar(total, 0, quiet or not dist.leader) as bar:
+    with stop.installed(), progress_bar(sum(budgets), 0, quiet or not dist.leader, unit) as bar:
         bar.set_description(desc)
         done_before = continued = 0
-        for call in calls:
+        for call, budget in zip(calls, budgets, strict=True):
             directory = out / "calls" / call.name
             saved = directory / "runs.json"
             continued += resume and (saved.is_file() or (directory / CHECKPOINT_NPZ).is_file())
             if resume and saved.is_file():
                 results += json.loads(saved.read_text())
-                done_before += call.episodes
+                done_before += budget
                 bar.update(done_before - bar.n)
                 if on_call_finished is not None:
                     on_call_finished()
                 continue
 
-            def progress(state: TrainState, before: int = done_before, n: int = len(call.points)):
-                bar.update(before + int(np.asarray(state.recorded)[:n].sum()) - bar.n)
+            def progress(
+                state: TrainState,
+                before: int = done_before,
+                n: int = len(call.points),
+                per_run: int = budget // len(call.points),
+            ) -> None:
+                bar.update(before + budget_used(state, per_run, unit, n) - bar.n)
 
             outcome = train_call(
                 call,
@@ -535,13 +546,26 @@ def run_sweep(
             for name in (CHECKPOINT_NPZ, CHECKPOINT_JSON):  # the results replace them
                 (directory / name).unlink(missing_ok=True)
             results += call_result
-            done_before += call.episodes
+            done_before += budget
             if on_call_finished is not None:
                 on_call_finished()
     if dist.processes > 1:
         results = _gather(results, dist)
     results = sorted(results, key=lambda r: r["index"])
     return SweepOutcome("finished", results, list(calls), continued)
+
+
+def sweep_budgets(calls: Sequence[Call]) -> tuple[list[int], str]:
+    """Each call's budget for the sweep's progress bar (its runs' together) and the unit:
+    env steps where every call's runs have a step budget (``train.num_env_steps``: the
+    bar then moves as evenly as training does), else episodes."""
+    budgets = [training_budget(call.points[0].config) for call in calls]
+    if any(unit != "step" for _, unit in budgets):
+        per_run = [call.points[0].config["train"]["num_episodes"] for call in calls]
+        unit = "ep"
+    else:
+        per_run, unit = [total for total, _ in budgets], "step"
+    return [n * len(call.points) for n, call in zip(per_run, calls, strict=True)], unit
 
 
 #: A finished call's training wall time, beside its ``runs.json`` (which holds results

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import numpy as np
@@ -19,12 +20,14 @@ from drqn_jax import cli
 from drqn_jax.config import ConfigError
 from drqn_jax.experiments.host_loop import StopRequest
 from drqn_jax.experiments.memory import USABLE_FRACTION, run_memory
+from drqn_jax.experiments.runner import budget_used
 from drqn_jax.experiments.stats import interquartile_mean
 from drqn_jax.experiments.sweep import load_sweep, summarize_sweep
 from drqn_jax.experiments.sweep_plan import Call, call_size, plan_calls
 from drqn_jax.experiments.sweep_runner import (
     call_programs,
     run_sweep,
+    sweep_budgets,
     train_call,
     train_runs,
     validation_program,
@@ -247,6 +250,26 @@ def test_a_shape_changing_axis_splits_the_programs(tmp_path):
     assert {p.values["network.hidden"] for p in programs[0]} == {8}
     description = sweep.describe()
     assert "2 separate programs: network.hidden change(s) shapes" in description
+
+
+def test_the_progress_bar_counts_env_steps_where_every_run_has_a_step_budget(sweep_file):
+    """A sweep whose runs end at ``train.num_env_steps`` counts env steps (a run's
+    episodes lengthen as it learns: an episode bar's rate and estimate mislead), else
+    episodes; a call's progress is its real runs' (padding left out), each up to its
+    budget."""
+    step_budget = ("train.num_env_steps=3000", "train.snapshots=0")
+    for overrides, unit in (((), "ep"), (step_budget, "step")):
+        sweep = load_sweep(sweep_file, overrides)
+        train = sweep.points[0].config["train"]
+        per_run = train["num_env_steps"] if unit == "step" else train["num_episodes"]
+        calls = plan_calls(sweep, 1)
+        budgets, got_unit = sweep_budgets(calls)
+        assert got_unit == unit and budgets == [per_run * len(c.points) for c in calls]
+        assert sum(budgets) == per_run * len(sweep.points)
+    batched = SimpleNamespace(env_steps=np.array([120, 400, 999]), recorded=np.array([2, 9, 9]))
+    assert budget_used(batched, 300, "step", runs=2) == 120 + 300
+    assert budget_used(batched, 6, "ep", runs=2) == 2 + 6
+    assert budget_used(SimpleNamespace(env_steps=np.int32(50)), 300, "step") == 50
 
 
 def test_calls_that_differ_in_hyperparameter_values_share_their_programs(sweep_file):
