@@ -60,8 +60,13 @@ def device_identity() -> str:
     the accelerator's kind (e.g. ``NVIDIA H100 80GB HBM3``)."""
     device = jax.devices()[0]
     if device.platform == "cpu":
-        return f"{cpu_model()} ({cpu_identity()})"
+        return _cpu_device(cpu_model(), cpu_identity())
     return device.device_kind
+
+
+def _cpu_device(model: str, identity: str | None) -> str:
+    """``AMD EPYC (family 25 …)``: a CPU as :func:`device_identity` names it."""
+    return model + (f" ({identity})" if identity else "")
 
 
 def recorded_device(machine: Mapping[str, Any]) -> str:
@@ -71,8 +76,7 @@ def recorded_device(machine: Mapping[str, Any]) -> str:
         return machine["device"]
     if machine.get("platform") != "cpu":
         return machine.get("platform") or NOT_RECORDED
-    identity = machine.get("cpu_identity")
-    return machine.get("cpu_model", NOT_RECORDED) + (f" ({identity})" if identity else "")
+    return _cpu_device(machine.get("cpu_model", NOT_RECORDED), machine.get("cpu_identity"))
 
 
 #: What a run's record says of the device or commit that trained it where the record
