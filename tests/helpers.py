@@ -221,3 +221,42 @@ def tiny_train_config(max_steps: int = 30, **changes: Any) -> TrainConfig:
         hyperparams=Hyperparams(learning_starts=1, target_period=7),
     )
     return TrainConfig(**{**base, **changes})
+
+
+def policy_result(free: float, speed: float = 9.0) -> dict[str, Any]:
+    """One policy's evaluation result: ``free`` collision-free over 1000 episodes (its
+    interval ±3 points) at ``speed`` km/h (tests of tables and verdicts)."""
+    return {
+        "agent": "drqn",
+        "num_episodes": 1000,
+        "collision_free_rate": free,
+        "collision_free_ci": [free - 0.03, free + 0.03],
+        "avg_speed_kmh": speed,
+        "avg_distance_m": 100.0,
+        "goal_rate": 0.5,
+        "teacher": "none (reward alone)",
+    }
+
+
+#: A hand-made (concave) rule-based frontier of world "W": 100 % standing, 90 % at
+#: 2 km/h, 50 % at 6, 0 % at 10.
+HAND_FRONTIER = {
+    "world": "W",
+    "rule_based": {
+        "points": [
+            {"avg_speed_kmh": v, "collision_free_rate": r}
+            for v, r in [(0.0, 1.0), (2.0, 0.9), (6.0, 0.5), (10.0, 0.0)]
+        ]
+    },
+}
+
+
+def judged_row(free: float, speed: float) -> dict[str, Any]:
+    """:func:`policy_result`'s row (label "d") with its margin to :data:`HAND_FRONTIER`
+    (a speed limit of 15 km/h)."""
+    from drqn_jax.experiments.frontier import with_margin
+    from drqn_jax.experiments.study import baseline_row
+
+    return with_margin(
+        baseline_row("d", policy_result(free, speed), world="W"), HAND_FRONTIER, 15.0
+    )

@@ -251,8 +251,9 @@ def paper_comparison(
     frontier of ``frontier`` (:func:`~drqn_jax.experiments.frontier.world_frontier`), and
     the verdict on the paper's claim: the rows and the text."""
     from drqn_jax.experiments.frontier import with_margin
-    from drqn_jax.experiments.report import claim_verdict, study_table
+    from drqn_jax.experiments.report import study_table
     from drqn_jax.experiments.study import baseline_row, paper_rows
+    from drqn_jax.experiments.verdicts import claim_verdict
 
     world = frontier["world"]
     limit_kmh = frontier["speed_limit_kmh"]

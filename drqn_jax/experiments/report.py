@@ -34,8 +34,6 @@ __all__ = [
     "PAPER_WORLD",
     "SECTION_NAME",
     "check_section",
-    "claim_verdict",
-    "frontier_comparison",
     "load_results",
     "margin_cell",
     "render_section",
@@ -309,63 +307,3 @@ def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
     if legend:
         lines += ["", "Devices: " + "; ".join(f"{k} {d}" for d, k in legend.items()) + "."]
     return "\n".join(lines)
-
-
-def _side(low: float, high: float) -> str:
-    return "above" if low > 0.0 else "below" if high < 0.0 else "not distinguishable from"
-
-
-def frontier_comparison(row: Mapping[str, Any]) -> str:
-    """A row against the rule-based frontier at its own speed, as a sentence."""
-    if row.get("above_speed_limit"):
-        return (
-            f"{row['label']} ({row['agent']}) at {row['avg_speed_kmh']:.2f} km/h: faster than "
-            "the speed limit (in some seed), where the rule-based frontier has no point: "
-            "no margin (SPEC §9)"
-        )
-    low, high = row["frontier_margin_ci"]
-    return (
-        f"{row['label']} ({row['agent']}) at {row['avg_speed_kmh']:.2f} km/h: "
-        f"{_side(low, high)} the rule-based frontier at its own speed "
-        f"(margin {margin_cell(row)} points)"
-    )
-
-
-def claim_verdict(drqn: Mapping[str, Any]) -> str:
-    """One line on the paper's claim (Table III: the DRQN is safer than the rule-based
-    agent) from the DRQN's row, in SPEC §9's terms: supported only where its margin to
-    the rule-based frontier lies above 0 (safer than the rule-based family at its own
-    speed) *and* it drives at least as fast as the paper's DRQN
-    (:data:`PAPER_DRQN_SPEED_KMH`): a car that barely drives avoids nearly every
-    collision the authors' test counts; a DRQN faster than the speed limit has no margin
-    (:func:`~drqn_jax.experiments.frontier.frontier_margin`)."""
-    speed = drqn["avg_speed_kmh"]
-    low, high = drqn["frontier_margin_ci"] or (math.nan, math.nan)  # none above the limit
-    fast = speed >= PAPER_DRQN_SPEED_KMH
-    if drqn.get("above_speed_limit"):
-        verdict = (
-            "not shown: the DRQN drives faster than the speed limit, where the rule-based "
-            "family, which keeps the limit, has no point to compare it with"
-        )
-    elif low > 0.0 and fast:
-        verdict = (
-            "supported: the DRQN is above the rule-based frontier at its own speed, "
-            "at least as fast as the paper's DRQN"
-        )
-    elif low > 0.0:
-        verdict = (
-            "not shown: the DRQN is above the rule-based frontier at its own speed, but "
-            f"slower than the paper's DRQN ({PAPER_DRQN_SPEED_KMH} km/h)"
-        )
-    elif high < 0.0:
-        verdict = "reversed: the DRQN is below the rule-based frontier at its own speed"
-    else:
-        verdict = (
-            "not shown: the DRQN is not distinguishable from the rule-based frontier "
-            "at its own speed"
-        )
-    return (
-        f"The paper's claim (a DRQN safer than the rule-based agent, at the paper's DRQN's "
-        f"{PAPER_DRQN_SPEED_KMH} km/h or faster) is {verdict} (margin {margin_cell(drqn)} "
-        f"points at {speed:.2f} km/h)."
-    )

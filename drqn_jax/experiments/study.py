@@ -58,9 +58,6 @@ from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.curves import load_curves, plot_curves
 from drqn_jax.experiments.figures import plot_safety_speed
 from drqn_jax.experiments.frontier import (
-    above_speed_limit,
-    frontier_rate,
-    frontier_vertices,
     with_margin,
 )
 from drqn_jax.experiments.machine import NOT_RECORDED
@@ -68,13 +65,12 @@ from drqn_jax.experiments.report import (
     PAPER_EPISODES,
     PAPER_TABLE_III,
     PAPER_WORLD,
-    claim_verdict,
-    frontier_comparison,
     strict_json,
     study_table,
 )
 from drqn_jax.experiments.stats import t_interval
 from drqn_jax.experiments.sweep import Sweep, build_sweep
+from drqn_jax.experiments.verdicts import study_comparisons
 from drqn_jax.learners.hyperparams import (
     NOT_LEARNED,
     REWARD_ALONE,
@@ -89,7 +85,6 @@ __all__ = [
     "Arm",
     "StudyOutcome",
     "baseline_row",
-    "compare_paired",
     "frontier_rows",
     "paper_rows",
     "plan_study",
@@ -360,76 +355,6 @@ class StudyOutcome:
     finished_runs: dict[str, list[dict[str, Any]]] = dataclasses.field(default_factory=dict)
 
 
-def _by_seed(runs: Sequence[Mapping[str, Any]]) -> dict[Any, Mapping[str, Any]]:
-    return {r["values"].get("run.seed"): r for r in runs}
-
-
-def compare_paired(
-    name: str,
-    runs: Sequence[Mapping[str, Any]],
-    other: str,
-    others: Sequence[Mapping[str, Any]],
-    vertices: Sequence[Sequence[float]],
-    limit_kmh: float,
-) -> str | None:
-    """``name``'s margin to the rule-based frontier (``vertices``, SPEC §9) against
-    ``other``'s, paired over the seeds both trained (seed i against seed i, on the same
-    evaluation episodes, each at its own speed): the mean difference in percentage
-    points with its 95 % Student-t interval; None with fewer than 2 common seeds.
-    A seed faster than the speed limit ``limit_kmh`` has no margin: then the
-    sentence says so instead."""
-    mine, theirs = _by_seed(runs), _by_seed(others)
-    common = sorted(set(mine) & set(theirs))
-    if len(common) < 2:
-        return None
-    for label, own in ((name, mine), (other, theirs)):
-        if above_speed_limit([own[k]["avg_speed_kmh"] for k in common], limit_kmh):
-            return (
-                f"{name} − {other}, margin to the rule-based frontier: none, {label} drives "
-                f"faster than the {limit_kmh:g} km/h limit in some seed (SPEC §9)"
-            )
-
-    def margin(run: Mapping[str, Any]) -> float:
-        return run["collision_free_rate"] - float(frontier_rate(vertices, run["avg_speed_kmh"]))
-
-    diff = np.array([margin(mine[k]) - margin(theirs[k]) for k in common])
-    low, high = t_interval(diff)
-    side = "above" if low > 0 else "below" if high < 0 else "not distinguishable"
-    return (
-        f"{name} − {other}, margin to the rule-based frontier, paired over {len(common)} "
-        f"seeds: {100 * diff.mean():+.1f} points ({100 * low:+.1f} to {100 * high:+.1f}): "
-        f"{name} {side}"
-    )
-
-
-def _comparisons(
-    trained: Sequence[tuple[dict[str, Any], Config]],
-    names: Sequence[str],
-    runs: Mapping[str, Sequence[Mapping[str, Any]]],
-    frontiers: Mapping[str, Mapping[str, Any]],
-) -> list[str]:
-    """The sentences under a study's table: the verdict on the paper's claim (a
-    teacher-free headline DRQN, the first arm), each trained row against its world's
-    rule-based frontier, and the first arm against each other arm of its world, seed
-    by seed."""
-    comparisons = [frontier_comparison(row) for row, _ in trained]
-    if not names:
-        return comparisons
-    headline, config = trained[0]
-    if headline["agent"] == "drqn" and not headline["teacher"]:
-        comparisons.insert(0, claim_verdict(headline))
-    first = names[0]
-    key = frontier_key(config)
-    vertices = frontier_vertices(frontiers[key]["rule_based"]["points"])
-    own = {row["label"].removeprefix("drqn_jax: "): frontier_key(c) for row, c in trained}
-    paired = [
-        compare_paired(first, runs[first], name, runs[name], vertices, config.speed_limit_kmh())
-        for name in names[1:]
-        if own[name] == key
-    ]
-    return comparisons + [c for c in paired if c is not None]
-
-
 def run_study(
     arms: Sequence[Arm],
     out: str | Path,
@@ -529,7 +454,7 @@ def run_study(
     # configs that differ only in what the rule-based agent ignores (the reward) share its row
     shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines.values()}
     rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]
-    comparisons = _comparisons(trained, [a.name for a in done], runs, frontiers)
+    comparisons = study_comparisons(trained, [a.name for a in done], runs, frontiers)
     curves = {
         arm.name: load_curves(
             [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth

@@ -9,10 +9,7 @@ from pathlib import Path
 import pytest
 
 from drqn_jax import cli
-from drqn_jax.experiments.frontier import with_margin
 from drqn_jax.experiments.report import (
-    claim_verdict,
-    frontier_comparison,
     load_results,
     render_section,
     stale_documents,
@@ -21,31 +18,19 @@ from drqn_jax.experiments.report import (
     write_results,
 )
 from drqn_jax.experiments.study import baseline_row, paper_rows
+from tests.helpers import judged_row, policy_result
 
 ROOT = Path(__file__).resolve().parents[2]
 ABOUT = {"command": "drqn-jax study --configs x", "wall_time_s": 600.0, "machine": {}}
 
 
-def _run(free: float, speed: float = 9.0) -> dict:
-    return {
-        "agent": "drqn",
-        "num_episodes": 1000,
-        "collision_free_rate": free,
-        "collision_free_ci": [free - 0.03, free + 0.03],
-        "avg_speed_kmh": speed,
-        "avg_distance_m": 100.0,
-        "goal_rate": 0.5,
-        "teacher": "none (reward alone)",
-    }
-
-
 def test_a_section_replaces_its_own_rows_only(tmp_path):
     path = tmp_path / "results.json"
-    a = [baseline_row("a", _run(0.5), world="W")]
-    b = [baseline_row("b", _run(0.6), world="W"), *paper_rows()]
+    a = [baseline_row("a", policy_result(0.5), world="W")]
+    b = [baseline_row("b", policy_result(0.6), world="W"), *paper_rows()]
     write_results(path, "one", a, ["c1"], ABOUT)
     write_results(path, "two", b, [], {**ABOUT, "command": "other"})
-    write_results(path, "one", [baseline_row("a2", _run(0.7), world="W")], [], ABOUT)
+    write_results(path, "one", [baseline_row("a2", policy_result(0.7), world="W")], [], ABOUT)
     record = load_results(path)
     assert [(r["section"], r["label"]) for r in record["rows"]] == [
         ("two", "b"),
@@ -63,7 +48,9 @@ def test_a_section_replaces_its_own_rows_only(tmp_path):
 
 def test_blocks_regenerate_from_the_file_and_drift_is_caught(tmp_path):
     path = tmp_path / "results.json"
-    record = write_results(path, "t", [baseline_row("ours", _run(0.5), world="W")], [], ABOUT)
+    record = write_results(
+        path, "t", [baseline_row("ours", policy_result(0.5), world="W")], [], ABOUT
+    )
     doc = tmp_path / "doc.md"
     doc.write_text("intro\n<!-- results:t -->\nold numbers\n<!-- /results -->\nend\n")
     assert stale_documents([doc], record) == [str(doc)]
@@ -95,13 +82,15 @@ def test_an_interrupted_study_renders_its_progress_not_a_table(tmp_path):
     assert text.startswith("**In progress**: no table until every run has finished.")
     assert "Runs finished so far: `pqn` 2, `ppo` 1." in text
     assert "drqn-jax study --configs pqn,ppo" in text and "| source |" not in text
-    record = write_results(path, "t", [baseline_row("ours", _run(0.5), world="W")], [], ABOUT)
+    record = write_results(
+        path, "t", [baseline_row("ours", policy_result(0.5), world="W")], [], ABOUT
+    )
     assert render_section(record, "t").startswith("| source |")
 
 
 def test_the_report_command_fills_and_checks(tmp_path, capsys):
     path = tmp_path / "results.json"
-    write_results(path, "t", [baseline_row("ours", _run(0.5), world="W")], [], ABOUT)
+    write_results(path, "t", [baseline_row("ours", policy_result(0.5), world="W")], [], ABOUT)
     doc = tmp_path / "doc.md"
     doc.write_text("<!-- results:t -->\n<!-- /results -->\n")
     args = ["report", str(doc), "--results", str(path)]
@@ -112,56 +101,14 @@ def test_the_report_command_fills_and_checks(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
 
 
-#: A hand-made (concave) frontier: 100 % standing, 90 % at 2 km/h, 50 % at 6, 0 % at 10.
-FRONTIER = {
-    "world": "W",
-    "rule_based": {
-        "points": [
-            {"avg_speed_kmh": v, "collision_free_rate": r}
-            for v, r in [(0.0, 1.0), (2.0, 0.9), (6.0, 0.5), (10.0, 0.0)]
-        ]
-    },
-}
-
-
-def _judged(free: float, speed: float) -> dict:
-    return with_margin(baseline_row("d", _run(free, speed=speed), world="W"), FRONTIER, 15.0)
-
-
-def test_the_verdict_follows_the_margin_and_the_speed():
-    """Supported only above the frontier at its own speed *and* at least as fast as
-    the paper's DRQN (6.09 km/h); above it but slower is not shown; below is reversed."""
-    above = claim_verdict(_judged(0.8, 8.0))  # the frontier at 8 km/h: 25 %
-    assert "is supported:" in above and "+55.0 (+52.0 to +58.0) points at 8.00 km/h" in above
-    slow = claim_verdict(_judged(0.99, 1.0))  # the frontier: 95 %
-    assert "not shown:" in slow and "slower than the paper's DRQN (6.09 km/h)" in slow
-    overlap = claim_verdict(_judged(0.51, 6.0))
-    assert "not shown:" in overlap and "not distinguishable" in overlap
-    assert "reversed:" in claim_verdict(_judged(0.2, 6.5))
-    assert "below the rule-based frontier at its own speed" in frontier_comparison(
-        _judged(0.2, 6.5)
-    )
-
-
 def test_the_table_shows_the_margin_beside_struck_while_stopped():
-    table = study_table([*paper_rows(), _judged(0.6, 6.0)])
+    table = study_table([*paper_rows(), judged_row(0.6, 6.0)])
     header = table.splitlines()[0]
     assert "| margin to the rule-based frontier, points (95 %) | struck while stopped % |" in (
         header
     )
     assert "| 60.0 (57.0–63.0) | +10.0 (+7.0 to +13.0) |" in table
     assert "| 70.0 (39.7–89.2) | – |" in table  # the paper's rows: another world
-
-
-def test_a_row_above_the_speed_limit_has_no_margin_and_no_verdict_of_safety():
-    """A DRQN faster than the limit: "–" with the reason in the table, and the claim
-    not shown whatever its collision-free rate (SPEC §9)."""
-    fast = _judged(0.99, 30.0)
-    assert fast["frontier_margin"] is None and fast["above_speed_limit"]
-    assert "| 99.0 (96.0–102.0) | – (above the speed limit) |" in study_table([fast])
-    verdict = claim_verdict(fast)
-    assert "not shown: the DRQN drives faster than the speed limit" in verdict
-    assert "faster than the speed limit" in frontier_comparison(fast)
 
 
 def test_the_documents_quote_the_results_file():

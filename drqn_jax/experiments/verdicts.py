@@ -1,0 +1,300 @@
+"""The sentences under a results table (SPEC §9): each row against the rule-based
+frontier at its own speed, the paper's claim, the first arm against the others seed by
+seed, and Table III at scale's goal.
+
+* :func:`frontier_comparison`: one row's margin to the rule-based frontier;
+* :func:`claim_verdict`: the paper's claim (Table III: a DRQN safer than the rule-based
+  agent), from a teacher-free recurrent Q-network's row;
+* :func:`paired_margin` / :func:`compare_paired`: two arms' margins, paired over the
+  seeds both trained;
+* :func:`goal_verdict`: Table III at scale's goal, every part of it: at the paper's
+  DRQN's speed or faster, a margin above 0, a collision-free rate within
+  :data:`GOAL_CEILING_POINTS` of the privileged planner's ceiling at its own speed,
+  and above each memoryless twin, paired over seeds;
+* :func:`study_comparisons`: all of them for a study's table, in that order.
+
+"Above" means the 95 % interval lies above (claims follow intervals); every number
+in a sentence comes from the rows, never typed here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from drqn_jax.config import Config
+from drqn_jax.experiments.baselines import frontier_key
+from drqn_jax.experiments.frontier import (
+    above_speed_limit,
+    frontier_margin,
+    frontier_rate,
+    frontier_vertices,
+)
+from drqn_jax.experiments.report import PAPER_DRQN_SPEED_KMH, margin_cell
+from drqn_jax.experiments.stats import t_interval
+
+__all__ = [
+    "GOAL_CEILING_POINTS",
+    "RECURRENT_Q_NETWORKS",
+    "Paired",
+    "claim_verdict",
+    "compare_paired",
+    "frontier_comparison",
+    "goal_verdict",
+    "paired_margin",
+    "study_comparisons",
+]
+
+#: The agents (results tables' ``agent``) that are recurrent Q-networks, a DRQN in the
+#: paper's sense: the replay DRQN and recurrent PQN. The paper's claim and Table III at
+#: scale's goal are judged on a teacher-free one heading a study.
+RECURRENT_Q_NETWORKS = ("drqn", "pqn")
+#: Table III at scale's goal: how far, in points, the DRQN's collision-free rate may lie
+#: under the privileged planner's ceiling at its own speed (the whole interval within).
+GOAL_CEILING_POINTS = 10.0
+
+
+def _side(low: float, high: float) -> str:
+    return "above" if low > 0.0 else "below" if high < 0.0 else "not distinguishable from"
+
+
+def _points(low: float, high: float) -> str:
+    return f"({100 * low:+.1f} to {100 * high:+.1f})"
+
+
+def frontier_comparison(row: Mapping[str, Any]) -> str:
+    """A row against the rule-based frontier at its own speed, as a sentence."""
+    if row.get("above_speed_limit"):
+        return (
+            f"{row['label']} ({row['agent']}) at {row['avg_speed_kmh']:.2f} km/h: faster than "
+            "the speed limit (in some seed), where the rule-based frontier has no point: "
+            "no margin (SPEC §9)"
+        )
+    low, high = row["frontier_margin_ci"]
+    return (
+        f"{row['label']} ({row['agent']}) at {row['avg_speed_kmh']:.2f} km/h: "
+        f"{_side(low, high)} the rule-based frontier at its own speed "
+        f"(margin {margin_cell(row)} points)"
+    )
+
+
+def claim_verdict(drqn: Mapping[str, Any]) -> str:
+    """One line on the paper's claim (Table III: the DRQN is safer than the rule-based
+    agent) from the DRQN's row, in SPEC §9's terms: supported only where its margin to
+    the rule-based frontier lies above 0 (safer than the rule-based family at its own
+    speed) *and* it drives at least as fast as the paper's DRQN
+    (:data:`~drqn_jax.experiments.report.PAPER_DRQN_SPEED_KMH`): a car that barely
+    drives avoids nearly every collision the authors' test counts; a DRQN faster than
+    the speed limit has no margin (:func:`~drqn_jax.experiments.frontier.frontier_margin`)."""
+    speed = drqn["avg_speed_kmh"]
+    low, high = drqn["frontier_margin_ci"] or (math.nan, math.nan)  # none above the limit
+    fast = speed >= PAPER_DRQN_SPEED_KMH
+    if drqn.get("above_speed_limit"):
+        verdict = (
+            "not shown: the DRQN drives faster than the speed limit, where the rule-based "
+            "family, which keeps the limit, has no point to compare it with"
+        )
+    elif low > 0.0 and fast:
+        verdict = (
+            "supported: the DRQN is above the rule-based frontier at its own speed, "
+            "at least as fast as the paper's DRQN"
+        )
+    elif low > 0.0:
+        verdict = (
+            "not shown: the DRQN is above the rule-based frontier at its own speed, but "
+            f"slower than the paper's DRQN ({PAPER_DRQN_SPEED_KMH} km/h)"
+        )
+    elif high < 0.0:
+        verdict = "reversed: the DRQN is below the rule-based frontier at its own speed"
+    else:
+        verdict = (
+            "not shown: the DRQN is not distinguishable from the rule-based frontier "
+            "at its own speed"
+        )
+    return (
+        f"The paper's claim (a DRQN safer than the rule-based agent, at the paper's DRQN's "
+        f"{PAPER_DRQN_SPEED_KMH} km/h or faster) is {verdict} (margin {margin_cell(drqn)} "
+        f"points at {speed:.2f} km/h)."
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class Paired:
+    """Two arms' margins to the rule-based frontier, paired over ``seeds`` common seeds:
+    the mean ``difference`` (first minus second) and its 95 % Student-t ``interval``;
+    ``too_fast`` names the arm that breaks the speed limit in some seed (then there is
+    no margin, and no difference)."""
+
+    seeds: int
+    difference: float = math.nan
+    interval: tuple[float, float] = (math.nan, math.nan)
+    too_fast: str | None = None
+
+    @property
+    def above(self) -> bool:
+        """Whether the first arm's margin is above the second's (the interval above 0)."""
+        return self.too_fast is None and self.interval[0] > 0.0
+
+
+def _by_seed(runs: Sequence[Mapping[str, Any]]) -> dict[Any, Mapping[str, Any]]:
+    return {r["values"].get("run.seed"): r for r in runs}
+
+
+def paired_margin(
+    names: tuple[str, str],
+    runs: Sequence[Mapping[str, Any]],
+    others: Sequence[Mapping[str, Any]],
+    vertices: Sequence[Sequence[float]],
+    limit_kmh: float,
+) -> Paired | None:
+    """The margin to the rule-based frontier (``vertices``, SPEC §9) of ``runs`` (arm
+    ``names[0]``) against ``others``' (``names[1]``), seed i against seed i on the same
+    evaluation episodes, each at its own speed; None with fewer than 2 common seeds."""
+    mine, theirs = _by_seed(runs), _by_seed(others)
+    common = sorted(set(mine) & set(theirs))
+    if len(common) < 2:
+        return None
+    for label, own in zip(names, (mine, theirs), strict=True):
+        if above_speed_limit([own[k]["avg_speed_kmh"] for k in common], limit_kmh):
+            return Paired(len(common), too_fast=label)
+
+    def margin(run: Mapping[str, Any]) -> float:
+        return run["collision_free_rate"] - float(frontier_rate(vertices, run["avg_speed_kmh"]))
+
+    diff = np.array([margin(mine[k]) - margin(theirs[k]) for k in common])
+    return Paired(len(common), float(diff.mean()), t_interval(diff))
+
+
+def _paired_sentence(name: str, other: str, paired: Paired, limit_kmh: float) -> str:
+    if paired.too_fast is not None:
+        return (
+            f"{name} − {other}, margin to the rule-based frontier: none, {paired.too_fast} "
+            f"drives faster than the {limit_kmh:g} km/h limit in some seed (SPEC §9)"
+        )
+    side = _side(*paired.interval).removesuffix(" from")
+    return (
+        f"{name} − {other}, margin to the rule-based frontier, paired over {paired.seeds} "
+        f"seeds: {100 * paired.difference:+.1f} points {_points(*paired.interval)}: "
+        f"{name} {side}"
+    )
+
+
+def compare_paired(
+    name: str,
+    runs: Sequence[Mapping[str, Any]],
+    other: str,
+    others: Sequence[Mapping[str, Any]],
+    vertices: Sequence[Sequence[float]],
+    limit_kmh: float,
+) -> str | None:
+    """:func:`paired_margin` of arm ``name`` against arm ``other`` as a sentence: the
+    mean difference in percentage points with its 95 % interval; None with fewer than
+    2 common seeds; a seed faster than the speed limit ``limit_kmh`` has no margin, and
+    the sentence says so instead."""
+    paired = paired_margin((name, other), runs, others, vertices, limit_kmh)
+    return None if paired is None else _paired_sentence(name, other, paired, limit_kmh)
+
+
+def _ceiling_part(
+    drqn: Mapping[str, Any], ceiling: Sequence[Sequence[float]], limit_kmh: float
+) -> tuple[bool, str]:
+    """Whether ``drqn``'s collision-free rate lies within :data:`GOAL_CEILING_POINTS` of
+    the planner's ceiling (``ceiling``: its envelope's vertices) at its own speed."""
+    gap = frontier_margin(drqn, ceiling, limit_kmh)
+    if gap is None:
+        return False, "faster than the speed limit, where the planner has no point"
+    mean, (low, high) = gap
+    near = low >= -GOAL_CEILING_POINTS / 100
+    return near, (
+        f"collision-free rate minus the planner's ceiling at its own speed "
+        f"{100 * mean:+.1f} points {_points(low, high)}: "
+        f"{'within' if near else 'not within'} {GOAL_CEILING_POINTS:g} points"
+    )
+
+
+def goal_verdict(
+    drqn: Mapping[str, Any],
+    ceiling: Sequence[Sequence[float]],
+    limit_kmh: float,
+    twins: Mapping[str, Paired | None],
+) -> str:
+    """Table III at scale's goal, judged part by part on the DRQN's row ``drqn`` (its
+    ``frontier_margin_ci`` set by :func:`~drqn_jax.experiments.frontier.with_margin`):
+    an average speed at or above the paper's DRQN's; a margin to the rule-based
+    frontier above 0; a collision-free rate within :data:`GOAL_CEILING_POINTS` of the
+    privileged planner's ceiling (``ceiling``: its envelope's vertices) at its own
+    speed, the whole interval of the per-seed gap within; above each memoryless twin
+    of ``twins`` (name → :func:`paired_margin` of the DRQN against it). Met only
+    where every part is."""
+    speed = drqn["avg_speed_kmh"]
+    fast = speed >= PAPER_DRQN_SPEED_KMH
+    interval = drqn.get("frontier_margin_ci")
+    above = interval is not None and interval[0] > 0.0
+    parts = [
+        (fast, f"{speed:.2f} km/h, {'not ' * (not fast)}at or above {PAPER_DRQN_SPEED_KMH}"),
+        (above, f"margin {margin_cell(drqn)} points: {'not ' * (not above)}above 0"),
+        _ceiling_part(drqn, ceiling, limit_kmh),
+    ]
+    for name, paired in twins.items():
+        if paired is None:
+            parts.append((False, f"fewer than 2 seeds in common with {name}"))
+            continue
+        detail = (
+            f"{paired.too_fast} faster than the speed limit"
+            if paired.too_fast is not None
+            else f"{100 * paired.difference:+.1f} points {_points(*paired.interval)}"
+        )
+        parts.append(
+            (paired.above, f"{'above' if paired.above else 'not above'} {name} ({detail})")
+        )
+    met = all(ok for ok, _ in parts)
+    return (
+        f"Table III at scale's goal (at {PAPER_DRQN_SPEED_KMH} km/h or faster, a margin "
+        f"above 0, within {GOAL_CEILING_POINTS:g} points of the planner's ceiling at its "
+        f"own speed, above each memoryless twin paired over seeds) is "
+        f"{'met' if met else 'not met'} by {drqn['label']}: "
+        + "; ".join(text for _, text in parts)
+        + "."
+    )
+
+
+def _memoryless_twin(config: Config, of: Config) -> bool:
+    """Whether ``config`` trains ``of``'s learner with a network without memory."""
+    mine, theirs = config.train_config(), of.train_config()
+    return mine.algorithm == theirs.algorithm and mine.network.kind != "drqn"
+
+
+def study_comparisons(
+    trained: Sequence[tuple[dict[str, Any], Config]],
+    names: Sequence[str],
+    runs: Mapping[str, Sequence[Mapping[str, Any]]],
+    frontiers: Mapping[str, Mapping[str, Any]],
+) -> list[str]:
+    """The sentences under a study's table (``trained``: each trained row with the config
+    it was evaluated on, the arms' first; ``names``: the arms): where the first arm is a
+    teacher-free recurrent Q-network, the verdict on the paper's claim and, if the study
+    has a memoryless twin of it and the planner's ceiling, on Table III at scale's goal;
+    each trained row against its world's rule-based frontier; and the first arm against
+    each other arm of its world, seed by seed."""
+    comparisons = [frontier_comparison(row) for row, _ in trained]
+    if not names:
+        return comparisons
+    headline, config = trained[0]
+    first, key, limit = names[0], frontier_key(config), config.speed_limit_kmh()
+    vertices = frontier_vertices(frontiers[key]["rule_based"]["points"])
+    arms = {row["label"].removeprefix("drqn_jax: "): c for row, c in trained}
+    rivals = [name for name in names[1:] if frontier_key(arms[name]) == key]
+    paired = {n: paired_margin((first, n), runs[first], runs[n], vertices, limit) for n in rivals}
+    if headline["agent"] in RECURRENT_Q_NETWORKS and not headline["teacher"]:
+        verdicts = [claim_verdict(headline)]
+        twins = {n: paired[n] for n in rivals if _memoryless_twin(arms[n], config)}
+        if twins and "planner" in frontiers[key]:
+            ceiling = frontier_vertices(frontiers[key]["planner"]["points"])
+            verdicts.append(goal_verdict(headline, ceiling, limit, twins))
+        comparisons = verdicts + comparisons
+    sentences = [_paired_sentence(first, n, p, limit) for n, p in paired.items() if p is not None]
+    return comparisons + sentences
