@@ -186,7 +186,9 @@ def _export_parser(sub: Any) -> None:
         "write a finished run's trained agent alone (a few MB) to a directory",
         _EXPORT_DOC,
     )
-    export.add_argument("run_dir", help="a finished run directory (drqn-jax train)")
+    export.add_argument(
+        "run_dir", help="a finished run directory (drqn-jax train) or a sweep's OUT/agents/run-NNNN"
+    )
     export.add_argument("out", help="the directory to write")
     export.add_argument(
         "--command",
@@ -495,9 +497,11 @@ points as a section of the results file."""
 _EXPORT_DOC = """Write the agent of a finished run directory as OUT/config.toml and
 OUT/agent.npz (its parameters alone, no training state: a few MB, with the config's
 training hash) and OUT/provenance.json (the training command, episodes, env steps,
-gradient steps and wall time, and this machine and commit: export where the run
-trained). evaluate and replay read OUT like a run directory; a directory under
-drqn_jax/agents/trained/NAME is shipped with the package as --agent NAME."""
+gradient steps and wall time, the commit and device that trained it, and this machine:
+a sweep's run, OUT/agents/run-NNNN, names its own commit and device; a drqn-jax train
+run is taken to have trained here, so export it where it trained). evaluate and
+replay read OUT like a run directory; a directory under drqn_jax/agents/trained/NAME
+is shipped with the package as --agent NAME."""
 _BENCH_DOC = """Run the benchmark suite of benchmarks/ (a clone of the repository is
 needed): each benchmark prints a Markdown table with the machine it ran on, and
 --out DIR writes DIR/NAME.json and DIR/NAME.md. 'all' runs every benchmark with

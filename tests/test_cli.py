@@ -21,7 +21,7 @@ from drqn_jax.config import load_config
 from drqn_jax.env.state import ACTIONS
 from drqn_jax.experiments import runner
 from drqn_jax.experiments.checkpoint import CHECKPOINT_JSON, CHECKPOINT_NPZ, load_checkpoint
-from drqn_jax.experiments.machine import device_identity
+from drqn_jax.experiments.machine import device_identity, git_commit
 from tests.helpers import SMOKE_CHUNK
 
 SMOKE = ["--config", "smoke", "--quiet"]
@@ -288,6 +288,8 @@ def test_an_exported_agent_is_shipped_and_evaluates_as_its_run(
     meta = json.loads((straight / CHECKPOINT_JSON).read_text())
     assert provenance["command"] == command and provenance["env_steps"] == meta["env_steps"]
     assert provenance["wall_time_s"] == meta["wall_time_s"] and provenance["machine"]["git_commit"]
+    # a train run (no sweep record) is taken to have trained in this checkout, on this device
+    assert provenance["trained"] == {"commit": git_commit(), "device": device_identity()}
     assert (out / "agent.npz").stat().st_size < (straight / CHECKPOINT_NPZ).stat().st_size
 
     monkeypatch.setattr(shipped, "TRAINED_DIR", tmp_path / "trained")

@@ -304,11 +304,15 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     shipped = argparse.Namespace(run_dir=None, agent=HEADLINE, config=None)
     config, agent, _, _ = _chosen_agent(shipped, list(args.overrides))
     provenance = json.loads((directory / "provenance.json").read_text())
-    machine = provenance.get("machine", {})
+    machine = provenance.get("machine", {})  # exported before "trained" was kept: there
+    trained = provenance.get("trained") or {
+        "commit": machine.get("git_commit"),
+        "device": recorded_device(machine),
+    }
     about = (
         f"the shipped agent {HEADLINE!r}: {provenance['env_steps']:,} env steps, "
-        f"trained by `{provenance.get('command')}` at commit {machine.get('git_commit')} "
-        f"on {machine.get('cpu_model') or machine.get('platform')}"
+        f"trained by `{provenance.get('command')}` at commit {trained['commit']} "
+        f"on {trained['device']}"
     )
     if not args.quiet:
         print(about, file=sys.stderr)
@@ -316,7 +320,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     summary = {"agent_dir": str(directory), "provenance": provenance}
     training = {
         "env_steps": int(provenance["env_steps"]),
-        "trained_on": recorded_device(machine),
+        "trained_on": trained["device"],
         "train_wall_s": provenance.get("wall_time_s"),
     }
     return _beside_the_paper(config, agent, run_dir, args.quiet, start, summary, about, training)
@@ -380,9 +384,18 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from drqn_jax.experiments.machine import NOT_RECORDED
     from drqn_jax.experiments.runner import export_agent
+    from drqn_jax.experiments.sweep_runner import run_record
 
-    provenance = export_agent(args.run_dir, args.out, args.training_command)
+    record = run_record(args.run_dir)  # a sweep run's: where it trained, not where it is now
+    trained = None
+    if record is not None:
+        trained = {
+            "commit": record.get("commit") or NOT_RECORDED,
+            "device": record.get("trained_on") or NOT_RECORDED,
+        }
+    provenance = export_agent(args.run_dir, args.out, args.training_command, trained)
     if not args.quiet:
         print(
             f"{args.out}: the agent of {args.run_dir} ({provenance.get('env_steps', 0):,} env "

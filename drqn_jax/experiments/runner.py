@@ -376,16 +376,21 @@ def save_agent(directory: str | Path, config: Config, params: Any, meta: Mapping
 _TRAINING_COUNTS = ("recorded", "grad_steps", "env_steps", "wall_time_s")
 
 
-def export_agent(run_dir: str | Path, out: str | Path, command: str) -> dict[str, Any]:
+def export_agent(
+    run_dir: str | Path, out: str | Path, command: str, trained: Mapping[str, str] | None = None
+) -> dict[str, Any]:
     """Write a finished run's agent to ``out`` (:func:`save_agent`, a few MB) with
     ``provenance.json``: ``command`` (the one that trained it), the run's episodes, env
-    steps, gradient steps and training wall time, and this machine and commit
-    (export where the run trained). Returns the provenance.
+    steps, gradient steps and training wall time, ``trained`` (the ``commit`` and
+    ``device`` that trained it: a sweep run's record has them; by default this checkout's
+    and this machine's, so export a ``drqn-jax train`` run where it trained) and
+    ``machine`` (this one's :func:`~drqn_jax.experiments.machine.machine_info`, the
+    export's). Returns the provenance.
 
     Raises:
         CheckpointError: not a run directory, or its training has not finished.
     """
-    from drqn_jax.experiments.machine import machine_info
+    from drqn_jax.experiments.machine import device_identity, git_commit, machine_info
 
     config = load_run(run_dir)
     _, params, meta = load_trained_network(config, run_dir)
@@ -393,7 +398,8 @@ def export_agent(run_dir: str | Path, out: str | Path, command: str) -> dict[str
         raise CheckpointError(f"{run_dir}: training has not finished; export a finished run")
     counts = {k: meta[k] for k in _TRAINING_COUNTS if k in meta}
     save_agent(out, config, params, {"finished": True, **counts})
-    provenance = {"command": command, **counts, "machine": machine_info()}
+    trained = dict(trained or {"commit": git_commit(), "device": device_identity()})
+    provenance = {"command": command, **counts, "trained": trained, "machine": machine_info()}
     atomic_write_text(Path(out) / "provenance.json", json.dumps(provenance, indent=1) + "\n")
     return provenance
 

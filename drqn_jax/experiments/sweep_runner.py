@@ -599,6 +599,18 @@ def finished_results(directory: Path) -> list[dict[str, Any]]:
     return [results[i] for i in sorted(results)]
 
 
+def run_record(directory: str | Path) -> dict[str, Any] | None:
+    """The ``runs.json`` record of the sweep run whose :func:`agent_dir` is ``directory``
+    (its ``commit`` and ``trained_on`` say where it trained); None for a directory that
+    is not a finished sweep run's agent (a ``drqn-jax train`` run)."""
+    path = Path(directory)
+    index = path.name.removeprefix("run-")
+    if path.parent.name != "agents" or not index.isdigit():
+        return None
+    found = [r for r in finished_results(path.parent.parent) if r["index"] == int(index)]
+    return found[0] if found else None
+
+
 def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, Any]]:
     """Every process's results on process 0, through the coordination service's
     key-value store (no shared file system, no device collectives)."""

@@ -534,3 +534,28 @@ def test_every_run_keeps_its_trained_agent(trained, cli_sweep, tmp_path, capsys)
     (tmp_path / "other" / "agent.npz").write_bytes((directory / "agent.npz").read_bytes())
     assert cli.main(["evaluate", str(tmp_path / "other")]) == 2
     assert "run.seed" in capsys.readouterr().err
+
+
+def test_an_exported_sweep_agent_names_where_its_run_trained(cli_sweep, tmp_path):
+    """``drqn-jax export OUT/agents/run-NNNN`` keeps the commit and device of the run's
+    record (issue 53: a shipped agent's provenance), not those of the exporting
+    checkout: here the record is rewritten to say it trained elsewhere."""
+    import shutil
+
+    from drqn_jax.experiments.sweep_runner import agent_dir, run_record
+
+    out = tmp_path / "out"
+    shutil.copytree(cli_sweep, out)
+    elsewhere = {"commit": "abc1234", "trained_on": "another machine"}
+    for path in out.glob("calls/*/runs.json"):
+        runs = [{**r, **elsewhere} if r["index"] == 3 else r for r in json.loads(path.read_text())]
+        path.write_text(json.dumps(runs))
+    assert run_record(agent_dir(out, 3))["commit"] == "abc1234"
+    assert run_record(tmp_path) is None and run_record(out / "agents" / "run-0009") is None
+    shipped = tmp_path / "shipped"
+    assert (
+        cli.main(["export", str(agent_dir(out, 3)), str(shipped), "--command", "c", "--quiet"]) == 0
+    )
+    provenance = json.loads((shipped / "provenance.json").read_text())
+    assert provenance["trained"] == {"commit": "abc1234", "device": "another machine"}
+    assert provenance["machine"]["git_commit"]  # the export's own machine block stays
