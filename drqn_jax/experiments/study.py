@@ -20,7 +20,9 @@ config's world). Then:
 * ``OUT/study.md``: the paper's rows beside ours — collision-free % with a 95 %
   interval (across seeds: Student t; a single policy: Wilson over its
   episodes), the margin to the rule-based frontier at the agent's own speed,
-  average speed, distance (all and collision-free), goal %, collisions per km;
+  average speed, distance (all and collision-free), goal %, collisions per km, and
+  under them the sentences of :mod:`drqn_jax.experiments.verdicts` (each row against
+  the frontier, the paper's claim, Table III at scale's goal, arms paired by seed);
 * ``OUT/study.json``: the rows, every run's evaluation and the frontiers;
 * ``OUT/safety_speed.png``: collision-free rate against average speed, the
   frontiers and every agent (:func:`~drqn_jax.experiments.figures.plot_safety_speed`);
@@ -57,9 +59,7 @@ from drqn_jax.experiments.baselines import (
 from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.curves import load_curves, plot_curves
 from drqn_jax.experiments.figures import plot_safety_speed
-from drqn_jax.experiments.frontier import (
-    with_margin,
-)
+from drqn_jax.experiments.frontier import with_margin
 from drqn_jax.experiments.machine import NOT_RECORDED
 from drqn_jax.experiments.report import (
     PAPER_EPISODES,
