@@ -7,6 +7,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+import pytest
 
 from drqn_jax import programs
 from drqn_jax.agents import drqn_agent
@@ -14,6 +15,15 @@ from drqn_jax.networks import NetworkConfig, make_network
 from drqn_jax.programs import cached_program, clear_programs, program_counts
 
 PACKAGE = Path(programs.__file__).parent
+
+
+@pytest.fixture(autouse=True)
+def _under_the_map_budget(monkeypatch):
+    """Each test starts under the store's memory-map budget, whatever the worker holds:
+    a worker that ran other files first may hold more maps than the budget (JAX's own
+    caches), and the store would then drop what these tests build. The budget's own
+    test sets the maps it sees."""
+    monkeypatch.setattr(programs, "memory_maps", lambda: 0)
 
 
 def test_a_builder_builds_once_per_arguments_and_evicts_the_least_recent(monkeypatch):
