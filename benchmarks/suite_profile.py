@@ -7,7 +7,9 @@ Two halves:
   lowering to MLIR, XLA compiles and their count, persistent-cache hits):
   one TSV line per test in ``$SUITE_PROFILE_DIR/suite-<pid>.tsv`` (one file
   per xdist worker; default ``runs/suite-profile``). Subprocesses a test
-  starts are in its wall time only;
+  starts are in its wall time only; with it, the memory maps the test left its
+  worker holding (``/proc/self/maps`` after minus before: compiled programs hold
+  maps, and a worker over Linux's ``vm.max_map_count`` fails to map memory);
   and, per XLA program compiled or loaded from the persistent cache, one line
   in ``compiles-<pid>.tsv``: the test, the program's name, its persistent-cache
   key, ``miss`` or ``hit`` and the compile's seconds;
@@ -35,6 +37,7 @@ from typing import Any
 import pytest
 
 from benchmarks.harness import base_parser, markdown_table, report
+from drqn_jax.programs import memory_maps
 
 #: The ``jax.monitoring`` duration events summed per test (the last part of each name).
 EVENTS = {
@@ -43,7 +46,14 @@ EVENTS = {
     "backend_compile_duration": "compile_s",
     "cache_retrieval_time_sec": "cache_hit_s",
 }
-FIELDS = ("test", "wall_s", *(f for name in EVENTS.values() for f in (name, f"{name}_n")))
+FIELDS = (
+    "test",
+    "wall_s",
+    *(f for name in EVENTS.values() for f in (name, f"{name}_n")),
+    "maps_added",
+)
+#: The fields that count (integers); the others are seconds.
+COUNTS = (*(f for f in FIELDS if f.endswith("_n")), "maps_added")
 DEFAULT_DIR = "runs/suite-profile"
 
 PROGRAM_FIELDS = ("test", "program", "key", "outcome", "compile_s")
@@ -100,11 +110,13 @@ class _Recorder:
         _counts.clear()
         _programs.clear()
         _pending.clear()
+        maps = memory_maps()
         start = time.perf_counter()
         yield
         values = [f"{time.perf_counter() - start:.3f}"]
         for name in EVENTS.values():
             values += [f"{_seconds[name]:.3f}", str(_counts[name])]
+        values.append(str(memory_maps() - maps))
         with open(self.path, "a", encoding="utf-8") as f:
             f.write("\t".join([item.nodeid, *values]) + "\n")
         with open(self.programs, "a", encoding="utf-8") as f:
@@ -134,7 +146,7 @@ def read_rows(paths: Iterable[Path]) -> list[dict[str, Any]]:
             cells = line.split("\t")
             row: dict[str, Any] = {"worker": path.stem, "test": cells[0]}
             for field, cell in zip(FIELDS[1:], cells[1:], strict=True):
-                row[field] = int(cell) if field.endswith("_n") else float(cell)
+                row[field] = int(cell) if field in COUNTS else float(cell)
             rows.append(row)
     return rows
 
@@ -223,6 +235,7 @@ COLUMNS = {
     "trace_s": "trace s",
     "lower_s": "lower s",
     "cache_hit_s_n": "cache hits",
+    "maps_added": "memory maps added",
 }
 
 

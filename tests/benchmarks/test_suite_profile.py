@@ -53,6 +53,7 @@ def test_the_plugin_records_each_tests_wall_time_and_compiles(pytester, monkeypa
     assert len(rows) == 3
     assert compiled["compile_s_n"] >= 1 and compiled["compile_s"] > 0.0
     assert idle["compile_s_n"] == 0 and idle["wall_s"] >= 0.0
+    assert all(isinstance(r["maps_added"], int) for r in rows.values())
     programs = read_programs(out.glob("compiles-*.tsv"))
     sines = [p for p in programs if p["program"] == "jit_tripled_sine"]
     assert [p["test"].split("::")[1] for p in sines] == ["test_compiles", "test_compiles_it_again"]
@@ -64,13 +65,13 @@ def test_the_plugin_records_each_tests_wall_time_and_compiles(pytester, monkeypa
 
 
 def test_the_summary_adds_up_per_file_and_per_worker(tmp_path, capsys):
-    def line(test: str, wall: float, compile_s: float, compiles: int) -> str:
-        cells = [test, wall, 0.5, 2, 0.25, 2, compile_s, compiles, 0.0, 1]
+    def line(test: str, wall: float, compile_s: float, compiles: int, maps: int = 10) -> str:
+        cells = [test, wall, 0.5, 2, 0.25, 2, compile_s, compiles, 0.0, 1, maps]
         assert len(cells) == len(FIELDS)
         return "\t".join(map(str, cells))
 
     (tmp_path / "suite-1.tsv").write_text(
-        line("tests/a.py::t1", 10.0, 6.0, 3) + "\n" + line("tests/b.py::t", 2.0, 1.0, 1) + "\n"
+        line("tests/a.py::t1", 10.0, 6.0, 3, 40) + "\n" + line("tests/b.py::t", 2.0, 1.0, 1) + "\n"
     )
     (tmp_path / "suite-2.tsv").write_text(line("tests/a.py::t2", 5.0, 4.0, 2) + "\n")
     (tmp_path / "suite-3.tsv").write_text("")  # the xdist controller's
@@ -80,6 +81,7 @@ def test_the_summary_adds_up_per_file_and_per_worker(tmp_path, capsys):
     first, second = result["files"]
     assert (first["file"], first["tests"], first["wall_s"]) == ("tests/a.py", 2, 15.0)
     assert (first["compile_s"], first["compile_s_n"], first["cache_hit_s_n"]) == (10.0, 5, 2)
+    assert first["maps_added"] == 50 and isinstance(first["maps_added"], int)
     assert (second["file"], second["wall_s"]) == ("tests/b.py", 2.0)
     assert result["total"]["trace_s"] == 1.5
     (tmp_path / "compiles-1.tsv").write_text(
@@ -97,4 +99,6 @@ def test_the_summary_adds_up_per_file_and_per_worker(tmp_path, capsys):
     names = {g["program"]: g for g in printed["names"]}
     assert (names["jit_train"]["compiles"], names["jit_train"]["keys"]) == (3, 2)
     assert (names["jit_step"]["compiles"], names["jit_step"]["hits"]) == (0, 1)
-    assert "| tests/a.py | 2 | 15 | 10 | 5 |" in capsys.readouterr().out
+    printed_text = capsys.readouterr().out
+    assert "| tests/a.py | 2 | 15 | 10 | 5 | 1 | 0.5 | 2 | 50 |" in printed_text
+    assert "| cache hits | memory maps added |" in printed_text
