@@ -304,8 +304,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     shipped = argparse.Namespace(run_dir=None, agent=HEADLINE, config=None)
     config, agent, _, _ = _chosen_agent(shipped, list(args.overrides))
     provenance = json.loads((directory / "provenance.json").read_text())
-    machine = provenance.get("machine", {})  # exported before "trained" was kept: there
-    trained = provenance.get("trained") or {
+    machine = provenance.get("machine", {})
+    trained = provenance.get("trained") or {  # exported before it was kept: the machine's
         "commit": machine.get("git_commit"),
         "device": recorded_device(machine),
     }
