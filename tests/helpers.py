@@ -12,6 +12,8 @@ import numpy as np
 from drqn_jax.config import load_config
 from drqn_jax.env.road_map import WALKWAY, semantic_class
 from drqn_jax.env.state import SIDEWALK
+from drqn_jax.experiments.frontier import with_margin
+from drqn_jax.experiments.study import baseline_row
 from drqn_jax.learners import Hyperparams, TrainConfig, make_train
 from drqn_jax.networks import NetworkConfig
 
@@ -254,9 +256,6 @@ HAND_FRONTIER = {
 def judged_row(free: float, speed: float) -> dict[str, Any]:
     """:func:`policy_result`'s row (label "d") with its margin to :data:`HAND_FRONTIER`
     (a speed limit of 15 km/h)."""
-    from drqn_jax.experiments.frontier import with_margin
-    from drqn_jax.experiments.study import baseline_row
-
     return with_margin(
         baseline_row("d", policy_result(free, speed), world="W"), HAND_FRONTIER, 15.0
     )

@@ -75,30 +75,24 @@ def test_paired_comparison_is_of_margins_over_the_seeds_both_arms_trained():
     credit for being slower."""
     flat = [(0.0, 0.5), (10.0, 0.5)]  # a frontier of 50 % at every speed
 
-    def runs(rates, speed=5.0):
-        return [
-            {"values": {"run.seed": k}, "collision_free_rate": r, "avg_speed_kmh": speed}
-            for k, r in rates.items()
-        ]
-
-    a = runs({0: 0.9, 1: 0.8, 2: 0.85, 3: 0.5})
-    b = runs({0: 0.5, 1: 0.45, 2: 0.5})  # seed 3 untrained: left out of the pairs
+    a = _seeds([0.9, 0.8, 0.85, 0.5], 5.0)
+    b = _seeds([0.5, 0.45, 0.5], 5.0)  # seed 3 untrained: left out of the pairs
     line = compare_paired("drqn", a, "dqn", b, flat, 15.0)
     assert line.startswith(
         "drqn − dqn, margin to the rule-based frontier, paired over 3 seeds: +36.7 points"
     )
     assert line.endswith("drqn above")
-    close = runs({0: 0.5, 1: 0.6, 2: 0.4})
-    near = compare_paired("drqn", close, "dqn", runs({0: 0.55, 1: 0.5, 2: 0.42}), flat, 15.0)
+    close = _seeds([0.5, 0.6, 0.4], 5.0)
+    near = compare_paired("drqn", close, "dqn", _seeds([0.55, 0.5, 0.42], 5.0), flat, 15.0)
     assert near.endswith("drqn not distinguishable")
     assert compare_paired("drqn", a[:1], "dqn", b, flat, 15.0) is None
     # on a falling frontier (100 % standing, 0 % at 10 km/h) the same rates at a lower
     # speed are a smaller margin: 0.9 - 0.9 at 1 km/h against 0.5 - 0.5 at 5 km/h
     falling = [(0.0, 1.0), (10.0, 0.0)]
-    slow = runs({0: 0.9, 1: 0.9}, speed=1.0)
-    assert "+0.0 points" in compare_paired("a", slow, "b", runs({0: 0.5, 1: 0.5}), falling, 15.0)
+    slow = _seeds([0.9, 0.9], 1.0)
+    assert "+0.0 points" in compare_paired("a", slow, "b", _seeds([0.5, 0.5], 5.0), falling, 15.0)
     # a seed past the limit has no margin, so the pair has none either (SPEC §9)
-    fast = runs({0: 0.9, 1: 0.9, 2: 0.9}, speed=16.0)
+    fast = _seeds([0.9, 0.9, 0.9], 16.0)
     assert compare_paired("drqn", fast, "dqn", b, flat, 15.0).endswith(
         "none, drqn drives faster than the 15 km/h limit in some seed (SPEC §9)"
     )
