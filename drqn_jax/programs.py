@@ -17,8 +17,9 @@ more. Linux ends a process that reaches ``vm.max_map_count`` (65,530 by default)
 with a crash inside XLA, and 64 trainers would pass it. So before each build,
 while the process holds more than :func:`map_budget` maps, the least recently
 used half of the store is dropped (an executable's maps go with its last
-reference). A program used again is rebuilt, and its executable loaded from
-JAX's persistent cache when that is on; results are the same bits.
+reference), after JAX's own caches, which hold the executables of every function
+jitted outside the store. A program used again is rebuilt, and its executable
+loaded from JAX's persistent cache when that is on; results are the same bits.
 """
 
 from __future__ import annotations
@@ -91,9 +92,9 @@ def memory_maps() -> int:
 
 @functools.cache
 def map_budget() -> int:
-    """Maps the process may hold before the store drops programs: half of Linux's
-    ``vm.max_map_count`` (32,765 by default), leaving the other half to what the
-    store does not hold (JAX's own caches, the caller's compiled functions)."""
+    """Maps the process may hold before JAX's caches and the store's programs are
+    dropped: half of Linux's ``vm.max_map_count`` (32,765 by default), leaving the
+    other half as headroom for the programs compiled until the next build checks."""
     try:
         with open("/proc/sys/vm/max_map_count") as limit:
             return int(limit.read()) // 2
@@ -102,7 +103,18 @@ def map_budget() -> int:
 
 
 def _drop_while_over_map_budget() -> None:
-    """Drop the least recently used half of the store until the maps are under budget."""
+    """Over the budget, drop JAX's own caches, then the least recently used half of the
+    store until the maps are under budget.
+
+    JAX's caches keep an executable for every function a process ever jitted outside
+    the store (a test suite's, a notebook's, the eager ops'), most of the maps of a
+    process that compiles many. Cleared, those are recompiled (or loaded from the
+    persistent cache) on next use, with the same bits.
+    """
+    if memory_maps() <= map_budget():
+        return
+    jax.clear_caches()
+    gc.collect()
     while _STORE and memory_maps() > map_budget():
         for _ in range(max(1, len(_STORE) // 2)):
             _STORE.popitem(last=False)

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import jax
 import numpy as np
-import pytest
 
 from drqn_jax import programs
 from drqn_jax.agents import drqn_agent
@@ -15,15 +14,6 @@ from drqn_jax.networks import NetworkConfig, make_network
 from drqn_jax.programs import cached_program, clear_programs, program_counts
 
 PACKAGE = Path(programs.__file__).parent
-
-
-@pytest.fixture(autouse=True)
-def _under_the_map_budget(monkeypatch):
-    """Each test starts under the store's memory-map budget, whatever the worker holds:
-    a worker that ran other files first may hold more maps than the budget (JAX's own
-    caches), and the store would then drop what these tests build. The budget's own
-    test sets the maps it sees."""
-    monkeypatch.setattr(programs, "memory_maps", lambda: 0)
 
 
 def test_a_builder_builds_once_per_arguments_and_evicts_the_least_recent(monkeypatch):
@@ -64,6 +54,27 @@ def test_over_the_map_budget_the_least_recent_half_goes(monkeypatch):
     assert len(programs._STORE) == 4
     monkeypatch.undo()
     assert programs.memory_maps() > 0 and programs.map_budget() > 1000
+
+
+def test_over_the_map_budget_jaxs_own_caches_go_before_the_store(monkeypatch):
+    """A function jitted outside the store holds its executable in JAX's cache; over
+    the budget that goes first, and the store keeps what it holds once under it."""
+    outside = jax.jit(lambda x: x + 1)
+    outside(np.float32(1.0))
+    assert outside._cache_size() == 1
+
+    @cached_program
+    def build(x):
+        return object()
+
+    clear_programs()
+    build(0)
+    cleared, clear_caches = [], jax.clear_caches
+    monkeypatch.setattr(jax, "clear_caches", lambda: cleared.append(clear_caches()))
+    monkeypatch.setattr(programs, "memory_maps", lambda: 0 if cleared else 10**6)
+    build(1)
+    assert len(cleared) == 1 and outside._cache_size() == 0
+    assert [key[1][0][0] for key in programs._STORE] == [0, 1]
 
 
 def test_jit_in_store_jits_once_per_static_value_in_the_store():
