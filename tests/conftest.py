@@ -17,7 +17,9 @@ the same op-by-op programs; from the persistent cache each is compiled once.
 
 No test file needs to drop compiled programs to stay under Linux's
 ``vm.max_map_count``: :mod:`drqn_jax.programs` bounds what it holds by memory
-maps, and the package keeps no jitted function with static arguments outside it.
+maps, and over its budget clears JAX's own caches first (where the tests' own
+``jax.jit``s and eager ops keep their executables); the package keeps no jitted
+function with static arguments outside it.
 """
 
 import os
