@@ -45,6 +45,7 @@ from drqn_jax.agents.planner import PlannerParams
 from drqn_jax.agents.rule_based import RuleBasedParams
 from drqn_jax.env.params import KMH, EnvParams, StaticEnvParams
 from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.evaluation import MIN_BATCH
 from drqn_jax.learners import Hyperparams, TrainConfig
 from drqn_jax.learners.hyperparams import ON_POLICY
 from drqn_jax.networks import CELLS, NETWORK_KINDS, NetworkConfig
@@ -219,7 +220,9 @@ def _schema() -> dict[str, dict[str, _Field]]:
         "planner": _fields_of(PlannerParams),
         "evaluate": {
             "episodes": _Field(1000, "int", doc="episodes per agent"),
-            "batch_size": _Field(0, "int", doc="episodes per jitted batch; 0 = all at once"),
+            "batch_size": _Field(
+                0, "int", doc=f"episodes per jitted batch: 0 = all at once, else >= {MIN_BATCH}"
+            ),
         },
     }
 
@@ -527,9 +530,10 @@ class Config:
             raise ConfigError(f"run.checkpoint_every_s = {every}: must be a number > 0")
         if evaluate["episodes"] < 1:
             raise ConfigError(f"evaluate.episodes = {evaluate['episodes']}: must be >= 1")
-        if evaluate["batch_size"] < 0:
+        if evaluate["batch_size"] < 0 or 0 < evaluate["batch_size"] < MIN_BATCH:
             raise ConfigError(
-                f"evaluate.batch_size = {evaluate['batch_size']}: must be >= 0 (0: all at once)"
+                f"evaluate.batch_size = {evaluate['batch_size']}: must be 0 (all at once) or "
+                f">= {MIN_BATCH} (smaller batches round the network's products differently)"
             )
         try:
             env, _ = self.make_env()

@@ -43,8 +43,14 @@ Two more things fix the rounding of matrix products (measured, issues 6 and 51):
   hands Eigen the pool regardless (checked with jax 0.10.2).
 * **No batch of one.** A ``vmap`` over one element compiles unbatched
   products that round differently from the batched ones; the sweep runner
-  never gives a device a single run and evaluation never runs a single
-  episode alone.
+  never gives a device a single run.
+* **No small batch of episodes.** YNNPACK picks its matrix kernel by the
+  number of rows: the shipped network's 768-wide GRU products and its 4-wide
+  Q head round differently with fewer than about 61 and 81 rows than with
+  more (measured, whatever the thread pool). So every evaluation batch (and a
+  recording's decisions) runs at least :data:`drqn_jax.evaluation.MIN_BATCH`
+  episodes, padding included: episode i then has the same bits whatever the
+  number of episodes or ``evaluate.batch_size`` (0 or >= ``MIN_BATCH``).
 """
 
 from __future__ import annotations

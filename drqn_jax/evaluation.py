@@ -25,6 +25,7 @@ from drqn_jax.programs import jit_in_store
 from drqn_jax.pytree import pytree_dataclass
 
 __all__ = [
+    "MIN_BATCH",
     "Decision",
     "EpisodeMetrics",
     "episode_keys",
@@ -43,6 +44,9 @@ Z_95 = 1.959963984540054  # two-sided 95 % normal quantile
 
 #: Episodes per host call when :func:`evaluate` reports progress.
 PROGRESS_EPISODES = 200
+
+#: The fewest rows a batch of episodes runs with (:func:`map_episodes` pads to it).
+MIN_BATCH = 128
 
 #: m/s: the authors' average speed counts the steps faster than 0.5 km/h (``tester.py``).
 AUTHORS_MOVING_SPEED = 0.5 * KMH
@@ -213,8 +217,9 @@ def run_episodes(
 
     Args:
         keys: (N,) PRNG keys (see :func:`episode_keys`).
-        batch_size: run the episodes ``batch_size`` at a time (``lax.map``) to
-            bound memory; ``None`` runs all N at once. Results do not depend on it.
+        batch_size: run the episodes ``batch_size`` (>= :data:`MIN_BATCH`) at a time
+            (``lax.map``) to bound memory; ``None`` runs all N at once. Results do not
+            depend on it.
     Returns:
         EpisodeMetrics with leaves of leading size N.
     """
@@ -228,16 +233,25 @@ def run_episodes(
 def map_episodes(fn: Any, keys: jax.Array, batch_size: int | None = None) -> Any:
     """``vmap(fn)(keys)`` in batches of ``batch_size`` (all at once for None).
 
-    Every batch that runs has at least two rows: ``keys`` is padded with copies
-    of its first key to a multiple of the batch size, and the padding dropped.
-    A batch of one would make XLA:CPU pick its matrix-vector kernels for the
-    network's matmuls, whose rounding differs from the matrix-matrix ones
-    (Q-values 1 ulp apart), so episode i would not be bit-identical whatever
-    the number of episodes beside it. Rows are independent, so padding changes
-    nothing else.
+    Every batch that runs has at least :data:`MIN_BATCH` rows: ``keys`` is padded
+    with copies of its first key to a multiple of the batch size, and the padding
+    dropped. YNNPACK, which runs XLA:CPU's matrix products, picks its kernel by the
+    number of rows: the paper network's products round differently with fewer than
+    61–81 rows (by shape) than with more (measured, ``benchmarks/RESULTS.md``,
+    "Evaluation rows"), and a batch of one goes to matrix-vector kernels, so
+    episode i would not be bit-identical whatever the number of episodes beside
+    it. Rows are independent, so padding changes nothing else.
+
+    Raises:
+        ValueError: ``batch_size`` below :data:`MIN_BATCH`.
     """
+    if batch_size is not None and batch_size < MIN_BATCH:
+        raise ValueError(
+            f"batch_size = {batch_size}: must be >= {MIN_BATCH} (smaller batches round the "
+            "network's products differently) or None (all at once)"
+        )
     n = keys.shape[0]
-    size = max(2, n if batch_size is None else batch_size)
+    size = max(MIN_BATCH, n if batch_size is None else batch_size)
     padded = -(-n // size) * size
     if padded > n:
         pad = jnp.broadcast_to(keys[:1], (padded - n, *keys.shape[1:]))
@@ -350,8 +364,10 @@ def evaluate(
     """
     if not isinstance(num_episodes, int) or num_episodes < 1:
         raise ValueError(f"evaluate: num_episodes = {num_episodes!r}, must be an integer >= 1")
-    if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
-        raise ValueError(f"evaluate: batch_size = {batch_size!r}, must be an integer >= 1")
+    if batch_size is not None and (not isinstance(batch_size, int) or batch_size < MIN_BATCH):
+        raise ValueError(
+            f"evaluate: batch_size = {batch_size!r}, must be an integer >= {MIN_BATCH} or None"
+        )
     params = env.default_params if params is None else env.check_params(params)
     keys = episode_keys(key, num_episodes)
     if on_episodes is None:

@@ -13,8 +13,18 @@ import pytest
 import drqn_jax
 from drqn_jax import evaluation
 from drqn_jax.agents import RuleBasedParams
+from drqn_jax.agents.shipped import shipped_agent_dir
+from drqn_jax.config import load_config
 from drqn_jax.env.state import ACCELERATE, BRAKE
-from drqn_jax.evaluation import EpisodeMetrics, episode_keys, run_episodes, wilson_interval
+from drqn_jax.evaluation import (
+    MIN_BATCH,
+    EpisodeMetrics,
+    episode_keys,
+    map_episodes,
+    run_episodes,
+    wilson_interval,
+)
+from drqn_jax.networks import make_network
 from tests.helpers import assert_tree_equal, take
 
 NUM = 48
@@ -114,11 +124,36 @@ def test_episode_i_does_not_depend_on_num_episodes(env_params):
     env, params = env_params
     agent = drqn_jax.rule_based_agent()
     key = jax.random.key(5)
-    big = run_episodes(agent, episode_keys(key, NUM), env, params)
+    many = MIN_BATCH + 20  # two batches of MIN_BATCH when chunked
+    big = run_episodes(agent, episode_keys(key, many), env, params)
     small = run_episodes(agent, episode_keys(key, 3), env, params)
     assert_tree_equal(take(big, slice(0, 3)), small)
-    chunked = run_episodes(agent, episode_keys(key, NUM), env, params, batch_size=16)
+    chunked = run_episodes(agent, episode_keys(key, many), env, params, batch_size=MIN_BATCH)
     assert_tree_equal(big, chunked)
+    with pytest.raises(ValueError, match=f"batch_size = 16: must be >= {MIN_BATCH}"):
+        run_episodes(agent, episode_keys(key, 3), env, params, batch_size=16)
+
+
+def test_network_episode_does_not_depend_on_the_episodes_beside_it(env_params):
+    """The shipped network's Q-values in episode i: the same bits with 3 episodes, 200,
+    or 200 in batches. YNNPACK picks its matrix kernel by the number of rows, and its
+    768-wide GRU products round differently below about 64 rows (a tiny network's do
+    not, so this test needs the real widths); ``map_episodes`` pads to MIN_BATCH."""
+    env, params = env_params
+    config = load_config(shipped_agent_dir("headline") / "config.toml")
+    network = make_network(config.train_config().network)
+    weights = network.init(jax.random.key(0))
+
+    def q_values(key):
+        obs, _ = env.reset_env(key, params)
+        return network.step(weights, obs, network.initial_carry(()))[0]
+
+    keys = episode_keys(jax.random.key(1), 200)
+    alone = jax.jit(lambda k: map_episodes(q_values, k))
+    batched = jax.jit(lambda k: map_episodes(q_values, k, MIN_BATCH))
+    every = np.asarray(alone(keys))
+    np.testing.assert_array_equal(np.asarray(alone(keys[:3])), every[:3])
+    np.testing.assert_array_equal(np.asarray(batched(keys)), every)
 
 
 def test_progress_reporting_evaluates_the_same_episodes(env_params, results, monkeypatch):

@@ -1,5 +1,6 @@
 """The episodes a recording shows (paper §V-E; SPEC §8): ``num_episodes`` greedy
-episodes of an agent played by one jitted, vmapped rollout, with every step's
+episodes of an agent (its decisions played as the evaluation plays them, then
+replayed with every state traced: two jitted, vmapped rollouts), with every step's
 state, observation, action, reward, TTC and (for a network agent) Q-values:
 :class:`EpisodeRecord`, filled by :func:`collect_episodes`. Episode *i* uses
 ``fold_in(key, i)`` exactly as :func:`drqn_jax.evaluation.evaluate` does, so
@@ -112,32 +113,57 @@ def _q_values_beside(init_fn: InitFn, act_fn: ActFn, network: Network) -> tuple[
     return init, act
 
 
-def _record_decision(with_q: bool) -> Any:
-    def trace(d: Decision) -> dict[str, Any]:
-        return {
-            "state": d.state,
-            "grid": d.obs.grid,
-            "action": d.action,
-            "q_values": d.carry[2] if with_q else None,
-            "reward": d.reward,
-            "ttc": d.info["ttc"],
-            "collision": d.info["collision"],
-            "struck_while_stopped": d.info["struck_while_stopped"],
-            "goal": d.info["goal"],
-            "truncated": d.truncated,
-        }
-
-    return trace
+def _record_decision(d: Decision) -> dict[str, Any]:
+    return {
+        "state": d.state,
+        "grid": d.obs.grid,
+        "reward": d.reward,
+        "ttc": d.info["ttc"],
+        "collision": d.info["collision"],
+        "struck_while_stopped": d.info["struck_while_stopped"],
+        "goal": d.info["goal"],
+        "truncated": d.truncated,
+    }
 
 
 @jit_in_store("env", "with_q")
-def _rollouts(
+def _decisions(
     agent: Agent, keys: jax.Array, env: UrbanPedestrians, params: EnvParams, with_q: bool
-) -> EpisodeRecord:
-    """One episode per key: :func:`~drqn_jax.evaluation.play_episode`, traced."""
+) -> tuple[jax.Array, Any]:
+    """The agent's actions (N, T) and, ``with_q``, Q-values (N, T, 4) in each episode: the
+    evaluation's rollout (:func:`~drqn_jax.evaluation.map_episodes`: the same batches, so
+    the same rounding as :func:`drqn_jax.evaluate`), tracing only the decisions."""
 
-    def one(key: jax.Array) -> EpisodeRecord:
-        metrics, out, obs, state = play_episode(agent, key, env, params, _record_decision(with_q))
+    def one(key: jax.Array) -> tuple[jax.Array, Any]:
+        trace = lambda d: (d.action, d.carry[2] if with_q else None)  # noqa: E731
+        return play_episode(agent, key, env, params, trace)[1]
+
+    return map_episodes(one, keys)
+
+
+def _replaying(actions: jax.Array) -> Agent:
+    """An agent that takes ``actions`` (T,) in turn: the decisions of :func:`_decisions`."""
+    return Agent(params=actions, name="replay", init_fn=_first_decision, act_fn=_next_action)
+
+
+def _first_decision(actions: jax.Array, key: jax.Array) -> jax.Array:
+    return jnp.zeros((), jnp.int32)
+
+
+def _next_action(actions: jax.Array, key: jax.Array, obs: Any, t: jax.Array, *rest: Any) -> Any:
+    return actions[t], t + 1
+
+
+@jit_in_store("env")
+def _rollouts(
+    actions: jax.Array, keys: jax.Array, env: UrbanPedestrians, params: EnvParams
+) -> EpisodeRecord:
+    """One episode per key (N,), ``actions`` (N, T) replayed in it: every state traced."""
+
+    def one(actions: jax.Array, key: jax.Array) -> EpisodeRecord:
+        metrics, out, obs, state = play_episode(
+            _replaying(actions), key, env, params, _record_decision
+        )
         states = _stack_last(out["state"], state)
         centre, half = ego_box(states.ego.s, params)
         return EpisodeRecord(
@@ -145,8 +171,8 @@ def _rollouts(
             grid=_stack_last(out["grid"], obs.grid),
             ego_centre=centre,
             ego_half=half,
-            action=out["action"],
-            q_values=out["q_values"],
+            action=actions,
+            q_values=None,
             reward=out["reward"],
             ttc=out["ttc"],
             collision=out["collision"],
@@ -157,7 +183,7 @@ def _rollouts(
             episode_return=metrics.episode_return,
         )
 
-    return map_episodes(one, keys)
+    return jax.vmap(one)(actions, keys)
 
 
 def collect_episodes(
@@ -170,7 +196,8 @@ def collect_episodes(
     network: Network | None = None,
     network_params: Any = None,
 ) -> EpisodeRecord:
-    """Play ``num_episodes`` episodes of ``agent`` in one jitted, vmapped rollout.
+    """Play ``num_episodes`` episodes of ``agent``: its decisions as the evaluation plays
+    them (:func:`_decisions`), then those decisions replayed with every state traced.
 
     Episode i uses ``episode_keys(key, num_episodes)[i]`` = ``fold_in(key, i)``
     and the same key schedule as :func:`drqn_jax.evaluation.rollout_episode`,
@@ -181,7 +208,8 @@ def collect_episodes(
     the values whose argmax is the action.
 
     Memory: (T + 1) grids of 45 × 30 × 4 float32 per episode (21.6 MB at
-    T = 1000), all on the device at once.
+    T = 1000), all on the device at once; the decisions run in batches of at least
+    :data:`~drqn_jax.evaluation.MIN_BATCH` episodes, tracing only actions and Q-values.
 
     Returns:
         :class:`EpisodeRecord` with NumPy leaves.
@@ -194,5 +222,6 @@ def collect_episodes(
     keys = episode_keys(key, num_episodes)
     if network is not None:
         agent = with_q_values(agent, network, network_params)
-    record = _rollouts(agent, keys, env, env_params, network is not None)
+    actions, q_values = _decisions(agent, keys, env, env_params, network is not None)
+    record = _rollouts(actions, keys, env, env_params).replace(q_values=q_values)
     return jax.tree.map(np.asarray, record)
