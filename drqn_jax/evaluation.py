@@ -32,6 +32,7 @@ __all__ = [
     "evaluate",
     "map_episodes",
     "metrics_table",
+    "padded_keys",
     "play_episode",
     "rollout_episode",
     "run_episodes",
@@ -205,7 +206,6 @@ def rollout_episode(
     return play_episode(agent, key, env, params)[0]
 
 
-@jit_in_store("env", "batch_size")
 def run_episodes(
     agent: Agent,
     keys: jax.Array,
@@ -221,26 +221,36 @@ def run_episodes(
             (``lax.map``) to bound memory; ``None`` runs all N at once. Results do not
             depend on it.
     Returns:
-        EpisodeMetrics with leaves of leading size N.
+        EpisodeMetrics with leaves of leading size N. The keys are padded
+        (:func:`padded_keys`) before the program, so every N up to :data:`MIN_BATCH`
+        runs one compiled program.
     """
-
-    def one(key):
-        return rollout_episode(agent, key, env, params)
-
-    return map_episodes(one, keys, batch_size)
+    n = keys.shape[0]
+    out = _run_padded(agent, padded_keys(keys, batch_size), env, params, batch_size)
+    return jax.tree.map(lambda x: x[:n], out)
 
 
-def map_episodes(fn: Any, keys: jax.Array, batch_size: int | None = None) -> Any:
-    """``vmap(fn)(keys)`` in batches of ``batch_size`` (all at once for None).
+@jit_in_store("env", "batch_size")
+def _run_padded(
+    agent: Agent,
+    keys: jax.Array,
+    env: UrbanPedestrians,
+    params: EnvParams,
+    batch_size: int | None,
+) -> EpisodeMetrics:
+    return map_episodes(lambda key: rollout_episode(agent, key, env, params), keys, batch_size)
 
-    Every batch that runs has at least :data:`MIN_BATCH` rows: ``keys`` is padded
-    with copies of its first key to a multiple of the batch size, and the padding
-    dropped. YNNPACK, which runs XLA:CPU's matrix products, picks its kernel by the
-    number of rows: the paper network's products round differently with fewer than
-    61–81 rows (by shape) than with more (measured, ``benchmarks/RESULTS.md``,
+
+def padded_keys(keys: jax.Array, batch_size: int | None = None) -> jax.Array:
+    """``keys`` (N,) and copies of its first key, to a multiple of the batch: the
+    batch is ``batch_size`` (all N for None), and at least :data:`MIN_BATCH`.
+
+    YNNPACK, which runs XLA:CPU's matrix products, picks its kernel by the number
+    of rows: the paper network's products round differently with fewer than 61–81
+    rows (by shape) than with more (measured, ``benchmarks/RESULTS.md``,
     "Evaluation rows"), and a batch of one goes to matrix-vector kernels, so
-    episode i would not be bit-identical whatever the number of episodes beside
-    it. Rows are independent, so padding changes nothing else.
+    without the padding episode i would not be bit-identical whatever the number
+    of episodes beside it. Rows are independent, so padding changes nothing else.
 
     Raises:
         ValueError: ``batch_size`` below :data:`MIN_BATCH`.
@@ -253,10 +263,19 @@ def map_episodes(fn: Any, keys: jax.Array, batch_size: int | None = None) -> Any
     n = keys.shape[0]
     size = max(MIN_BATCH, n if batch_size is None else batch_size)
     padded = -(-n // size) * size
-    if padded > n:
-        pad = jnp.broadcast_to(keys[:1], (padded - n, *keys.shape[1:]))
-        keys = jnp.concatenate([keys, pad])
-    out = jax.vmap(fn)(keys) if padded == size else jax.lax.map(fn, keys, batch_size=size)
+    if padded == n:
+        return keys
+    return jnp.concatenate([keys, jnp.broadcast_to(keys[:1], (padded - n, *keys.shape[1:]))])
+
+
+def map_episodes(fn: Any, keys: jax.Array, batch_size: int | None = None) -> Any:
+    """``vmap(fn)(keys)`` in batches of ``batch_size`` (all at once for None), every
+    batch of at least :data:`MIN_BATCH` rows (:func:`padded_keys`; the padding is
+    dropped), so that episode i has the same bits whatever the episodes beside it."""
+    n = keys.shape[0]
+    keys = padded_keys(keys, batch_size)
+    size = keys.shape[0] if batch_size is None else max(MIN_BATCH, batch_size)
+    out = jax.vmap(fn)(keys) if keys.shape[0] == size else jax.lax.map(fn, keys, batch_size=size)
     return jax.tree.map(lambda x: x[:n], out)
 
 

@@ -21,7 +21,13 @@ from drqn_jax.env.collision import ego_box
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.state import ACTIONS, EnvState
 from drqn_jax.env.urban import UrbanPedestrians
-from drqn_jax.evaluation import Decision, episode_keys, map_episodes, play_episode
+from drqn_jax.evaluation import (
+    Decision,
+    episode_keys,
+    map_episodes,
+    padded_keys,
+    play_episode,
+)
 from drqn_jax.networks import Network
 from drqn_jax.programs import cached_program, jit_in_store
 from drqn_jax.pytree import pytree_dataclass
@@ -132,7 +138,9 @@ def _decisions(
 ) -> tuple[jax.Array, Any]:
     """The agent's actions (N, T) and, ``with_q``, Q-values (N, T, 4) in each episode: the
     evaluation's rollout (:func:`~drqn_jax.evaluation.map_episodes`: the same batches, so
-    the same rounding as :func:`drqn_jax.evaluate`), tracing only the decisions."""
+    the same rounding as :func:`drqn_jax.evaluate`), tracing only the decisions. The
+    caller pads the keys (:func:`~drqn_jax.evaluation.padded_keys`): one program for
+    every N up to ``MIN_BATCH``."""
 
     def one(key: jax.Array) -> tuple[jax.Array, Any]:
         trace = lambda d: (d.action, d.carry[2] if with_q else None)  # noqa: E731
@@ -222,6 +230,7 @@ def collect_episodes(
     keys = episode_keys(key, num_episodes)
     if network is not None:
         agent = with_q_values(agent, network, network_params)
-    actions, q_values = _decisions(agent, keys, env, env_params, network is not None)
+    decided = _decisions(agent, padded_keys(keys), env, env_params, network is not None)
+    actions, q_values = jax.tree.map(lambda x: x[:num_episodes], decided)
     record = _rollouts(actions, keys, env, env_params).replace(q_values=q_values)
     return jax.tree.map(np.asarray, record)

@@ -352,19 +352,17 @@ def test_drqn_episode_is_bit_identical_alone_or_in_a_batch(env_params, key):
     weights = network.init(jax.random.key(3))
     agent = drqn_jax.drqn_agent(network, weights)
 
-    def first(n):
-        record = episode_record.collect_episodes(
+    def collect(n):
+        return episode_record.collect_episodes(
             agent, key, n, env, params, network=network, network_params=weights
         )
-        return np.asarray(record.q_values)[0], np.asarray(record.action)[0]
 
-    alone = first(1)
-    for got, want in zip(first(NUM_EPISODES), alone, strict=True):
-        np.testing.assert_array_equal(got, want)
-    record = episode_record.collect_episodes(agent, key, 3, env, params)
-    evaluated = drqn_jax.evaluate(agent, key, 3, env, params)["episodes"]
-    np.testing.assert_array_equal(record.length, evaluated.length)
-    np.testing.assert_array_equal(record.episode_return, evaluated.episode_return)
+    alone, together = collect(1), collect(NUM_EPISODES)
+    np.testing.assert_array_equal(together.q_values[0], alone.q_values[0])
+    np.testing.assert_array_equal(together.action[0], alone.action[0])
+    evaluated = drqn_jax.evaluate(agent, key, NUM_EPISODES, env, params)["episodes"]
+    np.testing.assert_array_equal(together.length, evaluated.length)
+    np.testing.assert_array_equal(together.episode_return, evaluated.episode_return)
 
 
 def test_rule_based_recording_has_no_q_values(rule_based):
