@@ -46,7 +46,7 @@ Z_95 = 1.959963984540054  # two-sided 95 % normal quantile
 #: Episodes per host call when :func:`evaluate` reports progress.
 PROGRESS_EPISODES = 200
 
-#: The fewest rows a batch of episodes runs with (:func:`map_episodes` pads to it).
+#: The fewest rows a batch of episodes runs with (:func:`padded_keys` pads to it).
 MIN_BATCH = 128
 
 #: m/s: the authors' average speed counts the steps faster than 0.5 km/h (``tester.py``).
@@ -274,7 +274,7 @@ def map_episodes(fn: Any, keys: jax.Array, batch_size: int | None = None) -> Any
     dropped), so that episode i has the same bits whatever the episodes beside it."""
     n = keys.shape[0]
     keys = padded_keys(keys, batch_size)
-    size = keys.shape[0] if batch_size is None else max(MIN_BATCH, batch_size)
+    size = keys.shape[0] if batch_size is None else batch_size
     out = jax.vmap(fn)(keys) if keys.shape[0] == size else jax.lax.map(fn, keys, batch_size=size)
     return jax.tree.map(lambda x: x[:n], out)
 
