@@ -33,7 +33,9 @@ __all__ = ["differing_rows", "network_products"]
 def network_products(agent: str = "headline") -> dict[str, tuple[int, int]]:
     """The (k, n) of every matrix product of a shipped agent's forward pass: a conv
     kernel (kh, kw, C, F) multiplies patches (kh·kw·C, F); a GRU's (n_in + H, 3H)
-    weights multiply the input (n_in, 3H) and the state (H, 3H); a dense (k, n)."""
+    weights multiply the input (n_in, 3H) and the state (H, 3H); a dense (k, n). A GRU
+    with extra inputs (speed, last action) multiplies them in a product of their own;
+    here they count in the input's (the same n, a k a few wider)."""
     weights = np.load(shipped_agent_dir(agent) / "agent.npz")
     shapes: dict[str, tuple[int, int]] = {}
     for name in sorted(weights.files):

@@ -137,7 +137,7 @@ def test_episode_i_does_not_depend_on_num_episodes(env_params):
 def test_network_episode_does_not_depend_on_the_episodes_beside_it(env_params):
     """The shipped network's Q-values in episode i: the same bits with 3 episodes or 200
     (chunking: the test above). YNNPACK picks its matrix kernel by the number of rows, and its
-    768-wide GRU products round differently below about 64 rows (a tiny network's do
+    768-wide GRU products round differently below 61 rows (a tiny network's do
     not, so this test needs the real widths); ``map_episodes`` pads to MIN_BATCH."""
     env, params = env_params
     config = load_config(shipped_agent_dir("headline") / "config.toml")

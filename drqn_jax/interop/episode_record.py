@@ -142,9 +142,11 @@ def _decisions(
     caller pads the keys (:func:`~drqn_jax.evaluation.padded_keys`): one program for
     every N up to ``MIN_BATCH``."""
 
+    def decision(d: Decision) -> tuple[jax.Array, Any]:
+        return d.action, d.carry[2] if with_q else None
+
     def one(key: jax.Array) -> tuple[jax.Array, Any]:
-        trace = lambda d: (d.action, d.carry[2] if with_q else None)  # noqa: E731
-        return play_episode(agent, key, env, params, trace)[1]
+        return play_episode(agent, key, env, params, decision)[1]
 
     return map_episodes(one, keys)
 
