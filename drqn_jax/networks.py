@@ -31,6 +31,7 @@ at the steps where ``resets`` is true (an episode starts there).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -480,63 +481,73 @@ def _stack_sequence(
     return _stacked(seen), seen[-1, ..., 1:, :, :, :]
 
 
+def _recurrent_names(config: NetworkConfig) -> tuple[str, str]:
+    """The recurrent layers' parameter names (the paper's LSTMs keep the names of
+    every checkpoint written before the GRU)."""
+    return ("lstm1", "lstm2") if config.cell == "lstm" else ("gru1", "gru2")
+
+
+def _init_torso(config: NetworkConfig, keys: jax.Array) -> Params:
+    """The torso's parameters: ``{"conv": [{"w": (kh, kw, C_in, F), "b": (F,)}, ...]}``
+    or ``{"torso": [dense, ...]}`` for the MLP torso; one key per layer."""
+    if config.torso != "conv":
+        widths = (config.obs_size, *config.mlp)
+        return {
+            "torso": [
+                _dense_init(k, n_in, n_out, config.layer_norm)
+                for k, n_in, n_out in zip(keys, widths[:-1], widths[1:], strict=False)
+            ]
+        }
+    layers, c_in = [], config.grid_shape[2] * config.frames
+    for k, (kh, kw, _, filters) in zip(keys, config.conv, strict=False):
+        fan_in, fan_out = kh * kw * c_in, kh * kw * filters
+        layers.append(
+            {
+                "w": _glorot(k, (kh, kw, c_in, filters), fan_in, fan_out),
+                "b": jnp.zeros((filters,), jnp.float32),
+            }
+        )
+        c_in = filters
+    return {"conv": layers}
+
+
+def _init_params(config: NetworkConfig, key: jax.Array) -> Params:
+    """Fresh parameters of the network ``config`` describes (its ``init``)."""
+    width, n_extra = config.recurrent, config.extra_inputs
+    n_torso = len(config.conv) if config.torso == "conv" else len(config.mlp)
+    keys = jax.random.split(key, n_torso + 4)
+    k1, k2, k3, k4 = keys[n_torso:]
+    if config.kind == "drqn":
+        cell_init = _lstm_init if config.cell == "lstm" else _gru_init
+        first, second = _recurrent_names(config)
+        core = {
+            first: cell_init(k1, config.features, width),
+            second: cell_init(k2, width + n_extra, width),
+        }
+    else:
+        core = {
+            "dense1": _dense_init(k1, config.features, width),
+            "dense2": _dense_init(k2, width + n_extra, width),
+        }
+    return {
+        **_init_torso(config, keys[:n_torso]),
+        **core,
+        "fc": _dense_init(k3, width, config.hidden, config.layer_norm),
+        "q": _dense_init(k4, config.hidden, config.num_actions),
+    }
+
+
 @cached_program
 def make_network(config: NetworkConfig | None = None) -> Network:
     """Build the pure functions of a DRQN (or DQN) for ``config`` (once per config:
     the same config gives the same functions, so ``jit`` reuses their compilations)."""
     config = NetworkConfig() if config is None else config
     width, n_act = config.recurrent, config.num_actions
-    n_extra = config.extra_inputs
     conv = config.torso == "conv"
 
     frames = config.frames
-    # the recurrent layers' parameter names and step function (the paper's LSTMs keep
-    # the names of every checkpoint written before the GRU)
-    layers = ("lstm1", "lstm2") if config.cell == "lstm" else ("gru1", "gru2")
+    layers = _recurrent_names(config)  # and the cell's step function
     cell = lstm_cell if config.cell == "lstm" else gru_cell
-
-    def init_torso(keys: jax.Array) -> Params:
-        if not conv:
-            widths = (config.obs_size, *config.mlp)
-            return {
-                "torso": [
-                    _dense_init(k, n_in, n_out, config.layer_norm)
-                    for k, n_in, n_out in zip(keys, widths[:-1], widths[1:], strict=False)
-                ]
-            }
-        layers, c_in = [], config.grid_shape[2] * frames
-        for k, (kh, kw, _, filters) in zip(keys, config.conv, strict=False):
-            fan_in, fan_out = kh * kw * c_in, kh * kw * filters
-            layers.append(
-                {
-                    "w": _glorot(k, (kh, kw, c_in, filters), fan_in, fan_out),
-                    "b": jnp.zeros((filters,), jnp.float32),
-                }
-            )
-            c_in = filters
-        return {"conv": layers}
-
-    def init(key: jax.Array) -> Params:
-        n_torso = len(config.conv) if conv else len(config.mlp)
-        keys = jax.random.split(key, n_torso + 4)
-        k1, k2, k3, k4 = keys[n_torso:]
-        if config.kind == "drqn":
-            cell_init = _lstm_init if config.cell == "lstm" else _gru_init
-            core = {
-                layers[0]: cell_init(k1, config.features, width),
-                layers[1]: cell_init(k2, width + n_extra, width),
-            }
-        else:
-            core = {
-                "dense1": _dense_init(k1, config.features, width),
-                "dense2": _dense_init(k2, width + n_extra, width),
-            }
-        return {
-            **init_torso(keys[:n_torso]),
-            **core,
-            "fc": _dense_init(k3, width, config.hidden, config.layer_norm),
-            "q": _dense_init(k4, config.hidden, n_act),
-        }
 
     def initial_carry(batch_shape: tuple[int, ...] = ()) -> Carry:
         if config.kind == "dqn":
@@ -608,7 +619,13 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         h2, second = _recurrent_layer(params[layers[1]], h1, extra, second, resets, config.cell)
         return head(params, h2), (first, second)
 
-    return Network(config=config, init=init, initial_carry=initial_carry, step=step, unroll=unroll)
+    return Network(
+        config=config,
+        init=functools.partial(_init_params, config),
+        initial_carry=initial_carry,
+        step=step,
+        unroll=unroll,
+    )
 
 
 def param_count(params: Params) -> int:

@@ -301,10 +301,37 @@ def check_env_contract(
 
     args = (params, reset_keys, action_keys, step_keys)
     rollout = jax.device_get(_jit_rollout(env, reset_key, *args))
-    first, steps = rollout["reset"], rollout["steps"]
+    steps = rollout["steps"]
     reward, terminated, truncated = steps["reward"], steps["terminated"], steps["truncated"]
 
-    batch = (num_steps, num_envs)
+    _check_rollout(rollout, (num_steps, num_envs))
+
+    diff = _first_difference(rollout, jax.device_get(_jit_rollout(env, reset_key, *args)))
+    if diff is not None:
+        _fail(f"the same keys gave a different rollout: {diff}")
+
+    if eager_steps:
+        _check_eager(env, args, eager_steps, rollout, rtol, atol)
+
+    done = terminated | truncated
+    return ContractReport(
+        num_envs=num_envs,
+        num_steps=num_steps,
+        terminations=int(terminated.sum()),
+        truncations=int(truncated.sum()),
+        resets=int(done.sum()),
+        reward_min=float(reward.min()),
+        reward_max=float(reward.max()),
+    )
+
+
+def _check_rollout(rollout: dict, batch: tuple[int, int]) -> None:
+    """The rules on a compiled rollout's host copy: ``reward``, ``terminated`` and
+    ``truncated`` of shape ``batch`` (T, N), observations in the space and finite,
+    finite rewards, auto-reset to ``reset`` and ``final_observation`` (module docstring)."""
+    first, steps = rollout["reset"], rollout["steps"]
+    reward, terminated, truncated = steps["reward"], steps["terminated"], steps["truncated"]
+    num_steps, num_envs = batch
     for name, x in (("reward", reward), ("terminated", terminated), ("truncated", truncated)):
         if x.shape != batch:
             _fail(f"{name} of {num_envs} envs over {num_steps} steps: shape {x.shape}")
@@ -333,29 +360,20 @@ def check_env_contract(
             f"returned observation {where(~steps['final_ok'])}"
         )
 
-    diff = _first_difference(rollout, jax.device_get(_jit_rollout(env, reset_key, *args)))
+
+def _check_eager(
+    env: Any, args: tuple, eager_steps: int, rollout: dict, rtol: float, atol: float
+) -> None:
+    """jit ≡ no jit: the first ``eager_steps`` steps, run op by op, equal the compiled
+    ``rollout``'s (within ``rtol`` and ``atol`` for float leaves)."""
+    first, steps = rollout["reset"], rollout["steps"]
+    eager_first, eager = _eager_rollout(env, *args, eager_steps)
+    compiled_first = {"obs": first["obs"], "state": first["state"]}
+    diff = _first_difference(eager_first, compiled_first, rtol, atol)
     if diff is not None:
-        _fail(f"the same keys gave a different rollout: {diff}")
-
-    if eager_steps:
-        eager_first, eager = _eager_rollout(env, *args, eager_steps)
-        compiled_first = {"obs": first["obs"], "state": first["state"]}
-        diff = _first_difference(eager_first, compiled_first, rtol, atol)
+        _fail(f"jit differs from no jit after reset: {diff}")
+    for t, out in enumerate(eager):
+        compiled = {name: jax.tree.map(lambda x, t=t: x[t], steps[name]) for name in out}
+        diff = _first_difference(out, compiled, rtol, atol)
         if diff is not None:
-            _fail(f"jit differs from no jit after reset: {diff}")
-        for t, out in enumerate(eager):
-            compiled = {name: jax.tree.map(lambda x, t=t: x[t], steps[name]) for name in out}
-            diff = _first_difference(out, compiled, rtol, atol)
-            if diff is not None:
-                _fail(f"jit differs from no jit at step {t}: {diff}")
-
-    done = terminated | truncated
-    return ContractReport(
-        num_envs=num_envs,
-        num_steps=num_steps,
-        terminations=int(terminated.sum()),
-        truncations=int(truncated.sum()),
-        resets=int(done.sum()),
-        reward_min=float(reward.min()),
-        reward_max=float(reward.max()),
-    )
+            _fail(f"jit differs from no jit at step {t}: {diff}")

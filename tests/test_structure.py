@@ -1,5 +1,5 @@
 """The package's shape (issue 51, docs/architecture.md): no import circle, a small top
-level, no oversized module, and tests that mirror the package."""
+level, no oversized module or function, and tests that mirror the package."""
 
 from __future__ import annotations
 
@@ -15,6 +15,9 @@ TESTS = Path(__file__).resolve().parent
 MAX_TOP_LEVEL_MODULES = 12
 #: No module longer than this many lines.
 MAX_MODULE_LINES = 650
+#: No function longer than this many lines, its docstring left out (the brief: "no
+#: function much over 80 lines"); a nested function counts in its parent too.
+MAX_FUNCTION_LINES = 90
 
 
 def module_name(path: Path) -> str:
@@ -102,6 +105,39 @@ def test_no_module_is_oversized():
         for name, path in modules().items()
         if (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES
     }
+    assert long == {}
+
+
+def function_lines(node: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
+    """``node``'s lines, decorators and docstring left out."""
+    lines = node.end_lineno - node.lineno + 1
+    first = node.body[0]
+    if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+        lines -= first.end_lineno - first.lineno + 1
+    return lines
+
+
+def long_functions(path: Path, limit: int) -> dict[str, int]:
+    functions = (
+        n
+        for n in ast.walk(ast.parse(path.read_text()))
+        if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)
+    )
+    return {f"{path.name}:{f.name}": n for f in functions if (n := function_lines(f)) > limit}
+
+
+def test_the_function_counter_counts_code_not_docstrings(tmp_path):
+    body = "\n".join(f"    x{i} = {i}" for i in range(5))
+    source = tmp_path / "m.py"
+    source.write_text(f'def f():\n    """Doc\n\n    more."""\n{body}\n')
+    assert long_functions(source, 6) == {}  # the def line and five, not the docstring's three
+    assert long_functions(source, 5) == {"m.py:f": 6}
+
+
+def test_no_function_is_oversized():
+    long = {}
+    for path in modules().values():
+        long |= long_functions(path, MAX_FUNCTION_LINES)
     assert long == {}
 
 

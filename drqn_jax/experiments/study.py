@@ -379,16 +379,38 @@ def run_study(
     that a study whose machine is shut down without warning loses at most the run in
     progress.
     """
-    from drqn_jax.experiments.portable import portable_runs, restore_runs
-    from drqn_jax.experiments.sweep_runner import (
-        finished_results,
-        metrics_path,
-        run_sweep,
-        run_timings,
-    )
-    from drqn_jax.interop.training_recording import record_study_curves
-
     out = Path(out)
+    trained_runs = _train_arms(arms, out, quiet, train, carried, keep)
+    if isinstance(trained_runs, StudyOutcome):
+        return trained_runs
+    runs, continued = trained_runs
+    done = [arm for arm in arms if runs[arm.name]]
+    rows, trained, cross, frontiers = _study_rows(arms, done, runs, out, quiet)
+    comparisons = study_comparisons(trained, [a.name for a in done], runs, frontiers)
+    table = "\n\n".join([study_table(rows), "\n".join(f"* {c}" for c in comparisons)])
+    atomic_write_text(out / "study.md", table + "\n")
+    record = {"rows": rows, "comparisons": comparisons, "runs": runs, "cross": cross}
+    record = strict_json({**record, "smooth": smooth, "frontiers": frontiers})
+    atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
+    if done:
+        _write_figures(out, done, runs, rows, frontiers, smooth, png)
+    return StudyOutcome("finished", rows, runs, table, comparisons, continued, frontiers)
+
+
+def _train_arms(
+    arms: Sequence[Arm],
+    out: Path,
+    quiet: bool,
+    train: bool,
+    carried: Mapping[str, Sequence[Mapping[str, Any]]] | None,
+    keep: Callable[[dict[str, list[dict[str, Any]]]], None] | None,
+) -> tuple[dict[str, list[dict[str, Any]]], bool] | StudyOutcome:
+    """Each arm's finished runs (training what is left when ``train``) and whether a
+    sweep continued an earlier invocation's; an interrupted sweep's
+    :class:`StudyOutcome` instead (:func:`run_study`'s arguments)."""
+    from drqn_jax.experiments.portable import portable_runs, restore_runs
+    from drqn_jax.experiments.sweep_runner import finished_results, run_sweep
+
     runs: dict[str, list[dict[str, Any]]] = {}
     continued = not train
 
@@ -416,7 +438,21 @@ def run_study(
             return StudyOutcome("interrupted", finished_runs=finished_runs())
         runs[arm.name] = outcome.results
         continued = continued or outcome.continued > 0
-    done = [arm for arm in arms if runs[arm.name]]
+    return runs, continued
+
+
+def _study_rows(
+    arms: Sequence[Arm],
+    done: Sequence[Arm],
+    runs: Mapping[str, list[dict[str, Any]]],
+    out: Path,
+    quiet: bool,
+) -> tuple[list[dict[str, Any]], list[tuple[dict[str, Any], Config]], dict, dict]:
+    """The table's rows (the paper's, each finished arm's and its cross-env rows, each
+    world's rule-based agent, all with their margins), the trained rows with the
+    config each was evaluated on, the cross-env evaluations and the frontiers."""
+    from drqn_jax.experiments.sweep_runner import run_timings
+
     cross_configs = {a.name: {e: a.cross_config(e) for e in a.cross_envs} for a in done}
     cross = {
         arm.name: {
@@ -454,30 +490,31 @@ def run_study(
     # configs that differ only in what the rule-based agent ignores (the reward) share its row
     shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines.values()}
     rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]
-    comparisons = study_comparisons(trained, [a.name for a in done], runs, frontiers)
+    return rows, trained, cross, frontiers
+
+
+def _write_figures(
+    out: Path,
+    done: Sequence[Arm],
+    runs: Mapping[str, list[dict[str, Any]]],
+    rows: Sequence[Mapping[str, Any]],
+    frontiers: Mapping[str, Any],
+    smooth: int,
+    png: bool,
+) -> None:
+    """``OUT/curves.rrd`` and, with ``png``, ``OUT/curves.png`` and
+    ``OUT/safety_speed.png`` (module docstring)."""
+    from drqn_jax.experiments.sweep_runner import metrics_path
+    from drqn_jax.interop.training_recording import record_study_curves
+
     curves = {
         arm.name: load_curves(
             [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth
         )
         for arm in done
     }
-    table = "\n\n".join([study_table(rows), "\n".join(f"* {c}" for c in comparisons)])
-    atomic_write_text(out / "study.md", table + "\n")
-    record = strict_json(
-        {
-            "rows": rows,
-            "comparisons": comparisons,
-            "runs": runs,
-            "cross": cross,
-            "smooth": smooth,
-            "frontiers": frontiers,
-        }
-    )
-    atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
-    if curves:
-        record_study_curves(out / "curves.rrd", curves)
-        if png:
-            plot_curves(curves, out / "curves.png", smooth)
-            first = frontiers[frontier_key(done[0].config)]
-            plot_safety_speed(rows, first, out / "safety_speed.png")
-    return StudyOutcome("finished", rows, runs, table, comparisons, continued, frontiers)
+    record_study_curves(out / "curves.rrd", curves)
+    if png:
+        plot_curves(curves, out / "curves.png", smooth)
+        first = frontiers[frontier_key(done[0].config)]
+        plot_safety_speed(rows, first, out / "safety_speed.png")

@@ -302,10 +302,26 @@ def _log_episode(
 ) -> None:
     """Log episode ``i`` of ``record`` under ``episode/<i>`` (layout: module docstring);
     ``hud``: its states' HUD glyphs, (T + 1, 2, L) (:func:`hud_labels`)."""
+    _log_world(rec, record, i, env, params, hud)
+    _log_grid(rec, record, i, env.static.grid_shape)
+    _log_series(rec, record, i)
+    _log_events(rec, record, i)
+
+
+def _log_world(
+    rec: rr.RecordingStream,
+    record: EpisodeRecord,
+    i: int,
+    env: UrbanPedestrians,
+    params: EnvParams,
+    hud: np.ndarray,
+) -> None:
+    """The top view of episode ``i``: the ego (red from its first collision on, its
+    HUD label), the pedestrians (coloured by behaviour, faded where occluded) and
+    their headings, at state steps 0…L."""
     root = f"episode/{i}"
     n = int(record.length[i])
     states = np.arange(n + 1)  # state steps 0…L
-    decisions = np.arange(n)  # decision steps 0…L-1
     peds = jax.tree.map(lambda x: x[i, : n + 1], record.state.pedestrians)
     num_peds = peds.position.shape[1]
 
@@ -354,7 +370,16 @@ def _log_episode(
         ).partition(lengths),
     )
 
-    rows, cols, _ = env.static.grid_shape
+
+def _log_grid(
+    rec: rr.RecordingStream, record: EpisodeRecord, i: int, grid_shape: tuple[int, int, int]
+) -> None:
+    """Episode ``i``'s observation grid (rows, cols, channels) as one greyscale image
+    per channel, at state steps 0…L."""
+    root = f"episode/{i}"
+    n = int(record.length[i])
+    states = np.arange(n + 1)
+    rows, cols, _ = grid_shape
     image_format = rr.components.ImageFormat(
         width=cols, height=rows, color_model="L", channel_datatype="F32"
     )
@@ -365,6 +390,14 @@ def _log_episode(
         buffers = np.ascontiguousarray(grids[..., c]).reshape(n + 1, -1).view(np.uint8)
         rec.send_columns(entity, indexes=_steps(states), columns=rr.Image.columns(buffer=buffers))
 
+
+def _log_series(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
+    """Episode ``i``'s time series: speed (km/h, state steps), action, Q-values (when
+    recorded), reward and TTC (finite only), at decision steps."""
+    root = f"episode/{i}"
+    n = int(record.length[i])
+    states = np.arange(n + 1)
+    decisions = np.arange(n)  # decision steps 0…L-1
     speed_kmh = record.state.ego.v[i, : n + 1].astype(np.float64) * 3.6
     _scalars(rec, f"{root}/speed_kmh", states, speed_kmh)
     actions = record.action[i, :n]
@@ -387,6 +420,14 @@ def _log_episode(
     rec.log(f"{root}/reward", rr.SeriesLines(names="reward"), static=True)
     rec.log(f"{root}/speed_kmh", rr.SeriesLines(names="speed (km/h)"), static=True)
 
+
+def _log_events(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
+    """Episode ``i``'s text log: each decision's action (a warning where a pedestrian
+    struck the standing car), then how the episode ended."""
+    root = f"episode/{i}"
+    n = int(record.length[i])
+    states = np.arange(n + 1)
+    actions = record.action[i, :n]
     end, level = {
         "collision": ("collision", "WARN"),
         "goal": ("goal reached", "INFO"),
