@@ -302,26 +302,31 @@ def _log_episode(
 ) -> None:
     """Log episode ``i`` of ``record`` under ``episode/<i>`` (layout: module docstring);
     ``hud``: its states' HUD glyphs, (T + 1, 2, L) (:func:`hud_labels`)."""
-    _log_world(rec, record, i, env, params, hud)
+    _log_world(rec, record, i, hud, _f(params.ped_radius), env.static.ttc_horizon)
     _log_grid(rec, record, i, env.static.grid_shape)
     _log_series(rec, record, i)
     _log_events(rec, record, i)
+
+
+def _span(record: EpisodeRecord, i: int) -> tuple[str, int, np.ndarray]:
+    """Episode ``i``'s entity root, its length L and its state steps 0…L."""
+    n = int(record.length[i])
+    return f"episode/{i}", n, np.arange(n + 1)
 
 
 def _log_world(
     rec: rr.RecordingStream,
     record: EpisodeRecord,
     i: int,
-    env: UrbanPedestrians,
-    params: EnvParams,
     hud: np.ndarray,
+    ped_radius: float,
+    heading_s: float,
 ) -> None:
     """The top view of episode ``i``: the ego (red from its first collision on, its
-    HUD label), the pedestrians (coloured by behaviour, faded where occluded) and
-    their headings, at state steps 0…L."""
-    root = f"episode/{i}"
-    n = int(record.length[i])
-    states = np.arange(n + 1)  # state steps 0…L
+    HUD label), the pedestrians (coloured by behaviour, faded where occluded, of radius
+    ``ped_radius`` m) and their headings (``heading_s`` seconds of walking), at state
+    steps 0…L."""
+    root, n, states = _span(record, i)
     peds = jax.tree.map(lambda x: x[i, : n + 1], record.state.pedestrians)
     num_peds = peds.position.shape[1]
 
@@ -354,7 +359,7 @@ def _log_world(
         columns=rr.Points2D.columns(
             positions=positions,
             colors=colours,
-            radii=np.full(len(positions), _f(params.ped_radius), np.float32),
+            radii=np.full(len(positions), ped_radius, np.float32),
             class_ids=behaviour.astype(np.uint16),
             draw_order=np.full(len(positions), 4.0, np.float32),
         ).partition(lengths),
@@ -364,7 +369,7 @@ def _log_world(
         indexes=_steps(states),
         columns=rr.Arrows2D.columns(
             origins=positions,
-            vectors=to_view(peds.velocity.reshape(-1, 2) * env.static.ttc_horizon),
+            vectors=to_view(peds.velocity.reshape(-1, 2) * heading_s),
             colors=colours,
             radii=np.full(len(positions), 0.06, np.float32),
         ).partition(lengths),
@@ -376,9 +381,7 @@ def _log_grid(
 ) -> None:
     """Episode ``i``'s observation grid (rows, cols, channels) as one greyscale image
     per channel, at state steps 0…L."""
-    root = f"episode/{i}"
-    n = int(record.length[i])
-    states = np.arange(n + 1)
+    root, n, states = _span(record, i)
     rows, cols, _ = grid_shape
     image_format = rr.components.ImageFormat(
         width=cols, height=rows, color_model="L", channel_datatype="F32"
@@ -394,9 +397,7 @@ def _log_grid(
 def _log_series(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
     """Episode ``i``'s time series: speed (km/h, state steps), action, Q-values (when
     recorded), reward and TTC (finite only), at decision steps."""
-    root = f"episode/{i}"
-    n = int(record.length[i])
-    states = np.arange(n + 1)
+    root, n, states = _span(record, i)
     decisions = np.arange(n)  # decision steps 0…L-1
     speed_kmh = record.state.ego.v[i, : n + 1].astype(np.float64) * 3.6
     _scalars(rec, f"{root}/speed_kmh", states, speed_kmh)
@@ -424,9 +425,7 @@ def _log_series(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
 def _log_events(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
     """Episode ``i``'s text log: each decision's action (a warning where a pedestrian
     struck the standing car), then how the episode ended."""
-    root = f"episode/{i}"
-    n = int(record.length[i])
-    states = np.arange(n + 1)
+    root, n, states = _span(record, i)
     actions = record.action[i, :n]
     end, level = {
         "collision": ("collision", "WARN"),
