@@ -38,6 +38,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from drqn_jax.env.state import NUM_ACTIONS, Observation
 from drqn_jax.programs import cached_program
@@ -406,16 +407,20 @@ def gru_cell(p: Params, x: jax.Array, state: tuple[jax.Array]) -> tuple[jax.Arra
 def conv_torso(params: Params, grid: jax.Array, config: NetworkConfig) -> jax.Array:
     """The conv stack on grids of any leading shape: (..., 45, 30, 4) -> (..., 64).
 
-    Each layer gathers its patches by strided slicing (exact copies) and
-    multiplies them with the kernel as a matrix. A plain
-    ``conv_general_dilated`` gives the same values, but once ``vmap`` batches
-    the kernels over seeds XLA runs it as a grouped convolution that sums in
-    another order: a run among others would then drift from the same run alone.
+    Each layer gathers its patches (exact copies) and multiplies them with the
+    kernel as a matrix. A plain ``conv_general_dilated`` gives the same values,
+    but once ``vmap`` batches the kernels over seeds XLA runs it as a grouped
+    convolution that sums in another order: a run among others would then
+    drift from the same run alone. The first layer's patches come from one
+    gather (:func:`_gathered_patches`), the later layers' from strided slices
+    (:func:`_patches`), whose gradient sums the overlapping windows in the
+    order every recorded training used.
     """
     lead = grid.shape[: grid.ndim - 3]
     x = grid.reshape((-1, *grid.shape[-3:]))
-    for layer, (kh, kw, stride, _) in zip(params["conv"], config.conv, strict=True):
-        x = jax.nn.relu(affine(_patches(x, kh, kw, stride), _kernel_matrix(layer["w"]), layer["b"]))
+    for i, (layer, (kh, kw, stride, _)) in enumerate(zip(params["conv"], config.conv, strict=True)):
+        patches = (_gathered_patches if i == 0 else _patches)(x, kh, kw, stride)
+        x = jax.nn.relu(affine(patches, _kernel_matrix(layer["w"]), layer["b"]))
     return x.reshape((*lead, config.features))
 
 
@@ -429,6 +434,25 @@ def _patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
         for j in range(kw)
     ]
     return jnp.concatenate(rows, axis=-1)
+
+
+def _gathered_patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
+    """:func:`_patches` as one gather: the same (N, H', W', kh·kw·C) copies.
+
+    For the first layer, whose input is the observation: no gradient flows
+    into it, so only the forward pass matters, and XLA:CPU runs one gather
+    much faster than kh·kw strided slices and their concatenation (the
+    paper network's 48 slices were half of an evaluation step on 2 cores,
+    ``benchmarks/RESULTS.md``, "The conv patches"). Its gradient would be a
+    scatter-add, which sums overlapping windows in another order than the
+    slices' (and so :func:`conv_torso` keeps slices beyond the first layer).
+    """
+    n, h, w, c = x.shape
+    h_out, w_out = (h - kh) // stride + 1, (w - kw) // stride + 1
+    rows = np.arange(h_out)[:, None, None, None] * stride + np.arange(kh)[None, None, :, None]
+    cols = np.arange(w_out)[None, :, None, None] * stride + np.arange(kw)[None, None, None, :]
+    index = ((rows * w + cols)[..., None] * c + np.arange(c)).reshape(-1)  # (H'·W'·kh·kw·C,)
+    return x.reshape(n, h * w * c)[:, index].reshape(n, h_out, w_out, kh * kw * c)
 
 
 def _kernel_matrix(w: jax.Array) -> jax.Array:

@@ -10,6 +10,8 @@ import pytest
 from drqn_jax.env.state import Observation
 from drqn_jax.networks import (
     NetworkConfig,
+    _gathered_patches,
+    _patches,
     conv_torso,
     gru_cell,
     lstm_cell,
@@ -52,6 +54,25 @@ def test_conv_stack_reaches_1x1x64(drqn):
         )
         shapes.append(x.shape[1:])
     assert shapes == [(10, 7, 32), (3, 2, 64), (1, 1, 64)]
+
+
+@pytest.mark.parametrize(
+    "shape, kh, kw, stride",
+    [((3, 45, 30, 4), 8, 6, 4), ((2, 10, 7, 32), 4, 3, 3), ((2, 9, 11, 2), 3, 5, 2)],
+)
+def test_gathered_patches_are_the_sliced_patches(shape, kh, kw, stride):
+    # the first layer's gather must copy exactly what the slices copy, in their order
+    x = flat_random(jax.random.normal, jax.random.key(1), shape)
+    gathered = np.asarray(_gathered_patches(x, kh, kw, stride))
+    sliced = np.asarray(_patches(x, kh, kw, stride))
+    assert gathered.shape == sliced.shape
+    np.testing.assert_array_equal(gathered, sliced)
+    # and the slices are the convolution's patches: one kernel per patch position
+    w = flat_random(jax.random.normal, jax.random.key(2), (kh, kw, shape[-1], 1))
+    conv = jax.lax.conv_general_dilated(
+        x, w, (stride, stride), "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC")
+    )
+    np.testing.assert_allclose(gathered @ w.reshape(-1, 1), np.asarray(conv), rtol=1e-4, atol=1e-4)
 
 
 def test_parameter_count(drqn):
