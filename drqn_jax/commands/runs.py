@@ -8,6 +8,7 @@ import json
 import sys
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -121,16 +122,23 @@ def _beside_the_paper(
     episodes, sweep the rule-based frontier on them, and print and write Table III
     beside the paper's (:func:`paper_comparison`) with the safety/speed figure.
     ``training``: the agent's ``env_steps``, ``trained_on`` and ``train_wall_s``, as a
-    sweep run's record has them."""
+    sweep run's record has them.
+
+    The frontier sweeps in a second thread while the agents play: XLA compiles on
+    one core and an evaluation keeps two cores only partly busy, so the programs fill
+    each other's idle time (``benchmarks/RESULTS.md``, "``drqn-jax reproduce`` in
+    two minutes"); each program's output is what it gives alone.
+    """
     from drqn_jax.experiments.baselines import config_frontier
 
     agents = [agent, builtin_agent("rule-based", config)]
     if not quiet:
-        _say_evaluating(config, agents)
-    results = evaluate_agents(config, agents, quiet=quiet)
-    if not quiet:
         print("sweeping the rule-based frontier on the same episodes...", file=sys.stderr)
-    frontier = config_frontier(config, planner=False)
+        _say_evaluating(config, agents)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        swept = pool.submit(config_frontier, config, planner=False)
+        results = evaluate_agents(config, agents, quiet=quiet)
+        frontier = swept.result()
     rows, table = paper_comparison([{**results[0], **training}, results[1]], frontier)
     run_dir.mkdir(parents=True, exist_ok=True)
     figure = _safety_speed_figure(rows, frontier, run_dir / "safety_speed.png")
