@@ -441,10 +441,10 @@ def _gathered_patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
 
     For the first layer, whose input is the observation: no gradient flows
     into it, so only the forward pass matters, and XLA:CPU runs one gather
-    much faster than kh·kw strided slices and their concatenation (the
-    paper network's 48 slices were half of an evaluation step on 2 cores,
-    ``benchmarks/RESULTS.md``, "The conv patches"). Its gradient would be a
-    scatter-add, which sums overlapping windows in another order than the
+    much faster than kh·kw strided slices and their concatenation (the paper
+    network's 48 slices were over a third of an evaluation step on 2 cores,
+    ``benchmarks/RESULTS.md``, "``drqn-jax reproduce`` wall time"). Its gradient
+    would be a scatter-add, which sums overlapping windows in another order than the
     slices' (and so :func:`conv_torso` keeps slices beyond the first layer).
     """
     n, h, w, c = x.shape
