@@ -412,9 +412,7 @@ def conv_torso(params: Params, grid: jax.Array, config: NetworkConfig) -> jax.Ar
     but once ``vmap`` batches the kernels over seeds XLA runs it as a grouped
     convolution that sums in another order: a run among others would then
     drift from the same run alone. The first layer's patches come from one
-    gather (:func:`_gathered_patches`), the later layers' from strided slices
-    (:func:`_patches`), whose gradient sums the overlapping windows in the
-    order every recorded training used.
+    gather (:func:`_gathered_patches`), the later layers' from strided slices.
     """
     lead = grid.shape[: grid.ndim - 3]
     x = grid.reshape((-1, *grid.shape[-3:]))
@@ -437,16 +435,10 @@ def _patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
 
 
 def _gathered_patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
-    """:func:`_patches` as one gather: the same (N, H', W', kh·kw·C) copies.
-
-    For the first layer, whose input is the observation: no gradient flows
-    into it, so only the forward pass matters, and XLA:CPU runs one gather
-    much faster than kh·kw strided slices and their concatenation (the paper
-    network's 48 slices were over a third of an evaluation step on 2 cores,
-    ``benchmarks/RESULTS.md``, "``drqn-jax reproduce`` wall time"). Its gradient
-    would be a scatter-add, which sums overlapping windows in another order than the
-    slices' (and so :func:`conv_torso` keeps slices beyond the first layer).
-    """
+    """:func:`_patches` as one gather of the same copies, which XLA:CPU runs much faster
+    than the paper network's 48 slices (``benchmarks/RESULTS.md``, "``drqn-jax
+    reproduce`` wall time"). First layer only: the observation takes no gradient, and
+    a gather's (a scatter-add) would sum overlapping windows in another order."""
     n, h, w, c = x.shape
     h_out, w_out = (h - kh) // stride + 1, (w - kw) // stride + 1
     rows = np.arange(h_out)[:, None, None, None] * stride + np.arange(kh)[None, None, :, None]
