@@ -404,20 +404,21 @@ def gru_cell(p: Params, x: jax.Array, state: tuple[jax.Array]) -> tuple[jax.Arra
     return _gru_gates(affine(x, p["w"][:n_in], p["b"]), state[0], p["w"][n_in:], p["b_hn"])
 
 
-def conv_torso(params: Params, grid: jax.Array, config: NetworkConfig) -> jax.Array:
+def conv_torso(
+    params: Params, grid: jax.Array, config: NetworkConfig, *, gather: bool = False
+) -> jax.Array:
     """The conv stack on grids of any leading shape: (..., 45, 30, 4) -> (..., 64).
 
-    Each layer gathers its patches (exact copies) and multiplies them with the
-    kernel as a matrix. A plain ``conv_general_dilated`` gives the same values,
-    but once ``vmap`` batches the kernels over seeds XLA runs it as a grouped
-    convolution that sums in another order: a run among others would then
-    drift from the same run alone. The first layer's patches come from one
-    gather (:func:`_gathered_patches`), the later layers' from strided slices.
+    Each layer multiplies its patches (exact copies) with the kernel as a matrix:
+    ``vmap`` runs a ``conv_general_dilated`` over seeds as a grouped convolution
+    that sums in another order (a run among others would drift from it alone).
+    ``gather`` (acting) takes the first layer's patches from one gather; the
+    update keeps slices, with a third fewer temporaries (paper: 47 MB, not 72).
     """
     lead = grid.shape[: grid.ndim - 3]
     x = grid.reshape((-1, *grid.shape[-3:]))
     for i, (layer, (kh, kw, stride, _)) in enumerate(zip(params["conv"], config.conv, strict=True)):
-        patches = (_gathered_patches if i == 0 else _patches)(x, kh, kw, stride)
+        patches = (_gathered_patches if gather and i == 0 else _patches)(x, kh, kw, stride)
         x = jax.nn.relu(affine(patches, _kernel_matrix(layer["w"]), layer["b"]))
     return x.reshape((*lead, config.features))
 
@@ -435,10 +436,9 @@ def _patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
 
 
 def _gathered_patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
-    """:func:`_patches` as one gather of the same copies, which XLA:CPU runs much faster
-    than the paper network's 48 slices (``benchmarks/RESULTS.md``, "``drqn-jax
-    reproduce`` wall time"). First layer only: the observation takes no gradient, and
-    a gather's (a scatter-add) would sum overlapping windows in another order."""
+    """:func:`_patches` as one gather of the same copies: on XLA:CPU much faster than the
+    paper network's 48 slices (``benchmarks/RESULTS.md``, "``drqn-jax reproduce`` wall
+    time"), but its gradient (a scatter-add) sums in another order: acting only."""
     n, h, w, c = x.shape
     h_out, w_out = (h - kh) // stride + 1, (w - kw) // stride + 1
     rows = np.arange(h_out)[:, None, None, None] * stride + np.arange(kh)[None, None, :, None]
@@ -593,22 +593,23 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         h2, carry = core(params, features, extra, carry)
         return head(params, h2), carry
 
-    def inputs(params: Params, obs: Any) -> tuple[jax.Array, jax.Array]:
+    def inputs(params: Params, obs: Any, gather: bool) -> tuple[jax.Array, jax.Array]:
         """The torso's features and the extra inputs of unstacked observations."""
         if not conv:
             features = mlp_torso(params, obs)
             return features, features[..., :0]
-        return conv_torso(params, obs.grid, config), _extra_inputs(obs, n_act)
+        return conv_torso(params, obs.grid, config, gather=gather), _extra_inputs(obs, n_act)
 
     def step(params: Params, obs: Any, carry: Carry) -> tuple[jax.Array, Carry]:
-        """Q-values (..., A) for one time step with any leading batch shape."""
+        """Q-values (..., A) for one time step with any leading batch shape (acting:
+        the first conv layer's patches gathered, see :func:`conv_torso`)."""
         if not conv or frames == 1:
-            return core_step(params, *inputs(params, obs), carry)
+            return core_step(params, *inputs(params, obs, gather=True), carry)
         grid = obs.grid
         # the carry holds the grids before: stack, keep the newest k - 1
         seen = jnp.concatenate([carry, grid[..., None, :, :, :]], axis=-4)
         grid, carry = _stacked(seen), seen[..., 1:, :, :, :]
-        features = conv_torso(params, grid, config)
+        features = conv_torso(params, grid, config, gather=True)
         return core_step(params, features, _extra_inputs(obs, n_act), carry)
 
     def unroll(
@@ -627,7 +628,7 @@ def make_network(config: NetworkConfig | None = None) -> Network:
             features = conv_torso(params, grid, config)  # (T, B..., F)
             q, _ = core_step(params, features, _extra_inputs(obs_seq, n_act), ())
             return q, carry
-        features, extra = inputs(params, obs_seq)
+        features, extra = inputs(params, obs_seq, gather=False)
         if config.kind == "dqn":  # no carry: every step at once
             return core_step(params, features, extra, carry)
         first, second = carry
