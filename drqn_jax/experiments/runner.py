@@ -72,6 +72,7 @@ __all__ = [
     "compiled_run",
     "evaluate_agents",
     "export_agent",
+    "final_train_return",
     "init_program",
     "json_ready",
     "load_run",
@@ -149,6 +150,16 @@ def recorded_metrics(state: TrainState | Mapping[str, Any]) -> dict[str, np.ndar
     )
     out.update({name: metrics[name][done] for name in columns})
     return out
+
+
+def final_train_return(metrics: Mapping[str, Any]) -> float:
+    """Mean return of the last 10 % (at least one) of a run's recorded episodes
+    (:func:`recorded_metrics`; ``metrics``: one run's, leaves ``(num_episodes,)``), not
+    of the ``num_episodes`` slots, which a step budget leaves mostly empty; NaN if none."""
+    returns = recorded_metrics(metrics)["episode_return"]
+    if not len(returns):
+        return math.nan
+    return float(np.mean(returns[-max(1, len(returns) // 10) :]))
 
 
 def _format(value: Any) -> str:

@@ -65,6 +65,7 @@ from drqn_jax.experiments.host_loop import StopRequest, finite_training, progres
 from drqn_jax.experiments.machine import device_identity, git_commit
 from drqn_jax.experiments.runner import (
     budget_used,
+    final_train_return,
     json_ready,
     metrics_csv,
     save_agent,
@@ -324,15 +325,16 @@ def call_results(
     call: Call, outcome: CallOutcome, eval_key: jax.Array, params: Any, commit: str
 ) -> list[dict[str, Any]]:
     """Per run: its index and axis values, the evaluation of its agent (``params``:
-    :func:`real_agent_params`), the final training return (mean of the last 10 % of
-    episodes), the env steps it trained on, the device it trained on
+    :func:`real_agent_params`), the final training return (``final_train_return``),
+    the env steps it trained on, the device it trained on
     (:func:`~drqn_jax.experiments.machine.device_identity`: runs of one study may come
     from several machines), ``commit`` (the checkout's when the sweep started: the code
     this process runs, not ``HEAD`` by the time it finishes) and whether it diverged.
     Nothing that differs between two trainings of the same runs: the wall time is
     apart (:func:`run_timings`)."""
     n = len(call.points)
-    returns = np.asarray(outcome.state.metrics["episode_return"])[:n]
+    metrics = jax.tree.map(np.asarray, outcome.state.metrics)
+    returns = [final_train_return({k: v[i] for k, v in metrics.items()}) for i in range(n)]
     env_steps = np.asarray(outcome.state.env_steps)[:n]
     finite = np.asarray(jax.vmap(finite_training)(outcome.state))[:n]
     evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key)
@@ -343,12 +345,11 @@ def call_results(
         val, hp = jax.tree.map(
             lambda x, i=i: np.asarray(x)[i], (outcome.state.validation, outcome.state.hparams)
         )
-        tail = max(1, len(ret) // 10)
         results.append(
             {
                 "index": point.index,
                 "values": point.values,
-                "final_train_return": float(np.mean(ret[-tail:])),
+                "final_train_return": ret,
                 "env_steps": int(steps),
                 "trained_on": device,
                 "commit": commit,

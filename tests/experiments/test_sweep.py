@@ -507,6 +507,26 @@ def test_every_run_writes_its_training_metrics(trained, cli_sweep):
         assert len(text.splitlines()) == 1 + 4  # header + train.num_episodes rows
 
 
+def test_the_final_training_return_is_of_the_recorded_episodes(trained, cli_sweep):
+    """The mean return of the last tenth of the episodes a run recorded, not of the
+    ``num_episodes`` slots a step budget leaves mostly empty (every run of a step budget
+    reported 0.0 before); in runs.json, each run's own."""
+    from drqn_jax.experiments.runner import final_train_return
+
+    length = np.zeros(200, np.int32)
+    length[:25] = 7
+    length[[3, 21]] = 0  # episodes still running when the run stopped
+    returns = np.where(length > 0, np.arange(200, dtype=np.float32), np.float32(0))
+    metrics = {"episode_return": returns, "length": length}
+    assert final_train_return(metrics) == 23.5  # 23 recorded: the last 2, slots 23 and 24
+    assert np.isnan(final_train_return({"episode_return": returns, "length": 0 * length}))
+    _, _, metrics = trained
+    runs = json.loads((cli_sweep / "runs.json").read_text())
+    for run in runs:
+        mine = {name: values[run["index"]] for name, values in metrics.items()}
+        assert run["final_train_return"] == final_train_return(mine) != 0.0
+
+
 def test_every_run_keeps_its_trained_agent(trained, cli_sweep, tmp_path, capsys):
     """OUT/agents/run-NNNN holds the run's agent bit for bit; ``drqn-jax evaluate``
     reads it like a run directory and scores it as the sweep did."""
