@@ -53,6 +53,7 @@ __all__ = [
     "STRATEGIES",
     "Sweep",
     "SweepPoint",
+    "budget_warnings",
     "build_sweep",
     "load_sweep",
     "shape_key",
@@ -270,6 +271,23 @@ TABLE_METRICS = (
     "avg_return",
     "final_train_return",
 )
+
+
+def budget_warnings(points: Sequence[SweepPoint], results: Sequence[dict[str, Any]]) -> list[str]:
+    """One line per run of a step budget (``train.num_env_steps``) that its episode cap
+    ended first: it trained on fewer env steps than its config says (a diverged run
+    says so elsewhere)."""
+    lines = []
+    for point, result in zip(points, results, strict=True):
+        train = point.config["train"]
+        budget, steps = train["num_env_steps"], result["env_steps"]
+        if budget and steps < budget and not result["diverged"]:
+            lines.append(
+                f"warning: run {point.index} ended at train.num_episodes = "
+                f"{train['num_episodes']} after {steps:,} of its {budget:,} env steps: "
+                "raise train.num_episodes to train on the whole step budget"
+            )
+    return lines
 
 
 def summarize_sweep(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:

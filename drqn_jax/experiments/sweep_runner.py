@@ -40,6 +40,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -71,7 +72,7 @@ from drqn_jax.experiments.runner import (
     save_agent,
     training_budget,
 )
-from drqn_jax.experiments.sweep import Sweep, SweepPoint
+from drqn_jax.experiments.sweep import Sweep, SweepPoint, budget_warnings
 from drqn_jax.experiments.sweep_plan import (
     Call,
     Distributed,
@@ -538,6 +539,8 @@ def run_sweep(
                 return SweepOutcome("interrupted", results, list(calls), continued)
             params = real_agent_params(call, outcome)
             call_result = call_results(call, outcome, eval_key, params, commit)
+            for line in budget_warnings(call.points, call_result):
+                print(line, file=sys.stderr)
             directory.mkdir(parents=True, exist_ok=True)
             write_training_metrics(out, call, outcome.state)
             write_timing(directory, call, outcome.wall_time_s)
