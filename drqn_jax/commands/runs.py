@@ -394,7 +394,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from drqn_jax.experiments.machine import NOT_RECORDED
     from drqn_jax.experiments.runner import export_agent
-    from drqn_jax.experiments.sweep_runner import run_record
+    from drqn_jax.experiments.sweep_outputs import run_record
 
     record = run_record(args.run_dir)  # a sweep run's: where it trained, not where it is now
     trained = None

@@ -27,7 +27,9 @@ __all__ = [
 ]
 
 
-def ego_box(s: jax.Array, params: EnvParams, inflate: float | jax.Array = 0.0):
+def ego_box(
+    s: jax.Array, params: EnvParams, inflate: float | jax.Array = 0.0
+) -> tuple[jax.Array, jax.Array]:
     """Centre (..., 2) and half extents (2,) of the ego footprint at arc length ``s``."""
     s = jnp.asarray(s, jnp.float32)
     centre = jnp.stack([s, jnp.broadcast_to(lane_centre_y(params), s.shape)], axis=-1)

@@ -111,7 +111,7 @@ def cross_results(
         load_run,
         load_trained_network,
     )
-    from drqn_jax.experiments.sweep_runner import agent_dir
+    from drqn_jax.experiments.sweep_outputs import agent_dir
 
     env_id = config["env"]["id"]
 

@@ -27,14 +27,14 @@ import jax
 from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.machine import NOT_RECORDED
 from drqn_jax.experiments.sweep import Sweep
-from drqn_jax.experiments.sweep_plan import plan_calls
-from drqn_jax.experiments.sweep_runner import (
+from drqn_jax.experiments.sweep_outputs import (
     finished_results,
     metrics_path,
     plan_record,
     run_timings,
     write_timing,
 )
+from drqn_jax.experiments.sweep_plan import plan_calls
 
 __all__ = ["portable_runs", "restore_runs"]
 

@@ -358,7 +358,7 @@ def load_trained_network(
     online parameters, or the validated choice among snapshots) and the metadata
     of a run directory's last checkpoint, or of a sweep's trained agent (a
     directory with ``agent.npz`` and no ``checkpoint.npz``:
-    :func:`drqn_jax.experiments.sweep_runner.agent_dir`)."""
+    :func:`drqn_jax.experiments.sweep_outputs.agent_dir`)."""
     trainer = make_train(config.train_config())
     template = jax.eval_shape(trainer.init, config.keys()[0])
     expected = config.training_identity()

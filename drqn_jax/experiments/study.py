@@ -186,7 +186,7 @@ def _training_facts(
     runs: Sequence[Mapping[str, Any]], timings: Mapping[int, float | None]
 ) -> dict[int, dict[str, Any]]:
     """By run index: how each run trained (env steps, device: from its record; its wall
-    time: kept apart from the records, :func:`~drqn_jax.experiments.sweep_runner.run_timings`),
+    time: kept apart from the records, :func:`~drqn_jax.experiments.sweep_outputs.run_timings`),
     for its rows in every world it is evaluated in."""
     return {
         r["index"]: {
@@ -409,7 +409,8 @@ def _train_arms(
     sweep continued an earlier invocation's; an interrupted sweep's
     :class:`StudyOutcome` instead (:func:`run_study`'s arguments)."""
     from drqn_jax.experiments.portable import portable_runs, restore_runs
-    from drqn_jax.experiments.sweep_runner import finished_results, run_sweep
+    from drqn_jax.experiments.sweep_outputs import finished_results
+    from drqn_jax.experiments.sweep_runner import run_sweep
 
     runs: dict[str, list[dict[str, Any]]] = {}
     continued = not train
@@ -451,7 +452,7 @@ def _study_rows(
     """The table's rows (the paper's, each finished arm's and its cross-env rows, each
     world's rule-based agent, all with their margins), the trained rows with the
     config each was evaluated on, the cross-env evaluations and the frontiers."""
-    from drqn_jax.experiments.sweep_runner import run_timings
+    from drqn_jax.experiments.sweep_outputs import run_timings
 
     cross_configs = {a.name: {e: a.cross_config(e) for e in a.cross_envs} for a in done}
     cross = {
@@ -504,7 +505,7 @@ def _write_figures(
 ) -> None:
     """``OUT/curves.rrd`` and, with ``png``, ``OUT/curves.png`` and
     ``OUT/safety_speed.png`` (module docstring)."""
-    from drqn_jax.experiments.sweep_runner import metrics_path
+    from drqn_jax.experiments.sweep_outputs import metrics_path
     from drqn_jax.interop.training_recording import record_study_curves
 
     curves = {

@@ -16,18 +16,8 @@ ended and continues the others from their checkpoints. A run's results do not
 depend on the call it was in, the device count or the process count: each is
 bit-identical to the same run alone (tests/experiments/test_sweep.py).
 
-Output directory::
-
-    OUT/plan.json                      the points (values, training hash) and processes
-    OUT/calls/runs-<first>-<last>/     checkpoint.npz/.json while a call runs,
-                                       runs.json once it ended
-    OUT/metrics/run-<index>.csv        each run's training metrics, one row per episode
-                                       (written by the process that trained it)
-    OUT/agents/run-<index>/            each run's trained agent: config.toml and agent.npz
-                                       (its parameters, no training state), read by
-                                       ``drqn-jax evaluate`` and ``replay`` like a run directory
-    OUT/results.md, results.csv        per setting: mean, std, 95 % interval, IQM
-    OUT/runs.json                      every run's evaluation and training summary
+What a call writes under the sweep's output directory, and the layout:
+:mod:`drqn_jax.experiments.sweep_outputs`.
 
 Several processes (machines): :func:`init_distributed` calls
 ``jax.distributed.initialize``; every process trains its slice and publishes
@@ -57,7 +47,6 @@ from drqn_jax.evaluation import evaluate
 from drqn_jax.experiments.checkpoint import (
     CHECKPOINT_JSON,
     CHECKPOINT_NPZ,
-    CheckpointError,
     atomic_write_text,
     load_checkpoint,
     save_checkpoint,
@@ -68,11 +57,15 @@ from drqn_jax.experiments.runner import (
     budget_used,
     final_train_return,
     json_ready,
-    metrics_csv,
-    save_agent,
     training_budget,
 )
 from drqn_jax.experiments.sweep import Sweep, SweepPoint, budget_warnings
+from drqn_jax.experiments.sweep_outputs import (
+    open_plan,
+    write_agents,
+    write_timing,
+    write_training_metrics,
+)
 from drqn_jax.experiments.sweep_plan import (
     Call,
     Distributed,
@@ -91,17 +84,11 @@ __all__ = [
     "call_inputs",
     "call_programs",
     "evaluate_runs",
-    "finished_results",
-    "metrics_path",
-    "plan_record",
     "run_sweep",
     "train_call",
 ]
 
 _GATHER_TIMEOUT_MS = 2**31 - 1  # process 0 waits for the others as long as they train
-
-
-# ------------------------------------------------------------------------------- the plan
 
 
 # ----------------------------------------------------------------------------- a call
@@ -362,46 +349,6 @@ def call_results(
     return results
 
 
-def metrics_path(out: str | Path, index: int) -> Path:
-    """``OUT/metrics/run-NNNN.csv``: the training metrics of the sweep's run ``index``."""
-    return Path(out) / "metrics" / f"run-{index:04d}.csv"
-
-
-def write_training_metrics(out: Path, call: Call, state: TrainState) -> None:
-    """Each run's per-episode training metrics as a ``metrics.csv`` (as ``drqn-jax
-    train`` writes it) at :func:`metrics_path`."""
-    metrics = jax.tree.map(np.asarray, state.metrics)
-    for i, point in enumerate(call.points):
-        path = metrics_path(out, point.index)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, metrics_csv({k: v[i] for k, v in metrics.items()}))
-
-
-def agent_dir(out: str | Path, index: int) -> Path:
-    """``OUT/agents/run-NNNN``: the sweep's run ``index`` as a directory that ``drqn-jax
-    evaluate`` and ``replay`` read like a trained run's (its ``config.toml`` and
-    ``agent.npz``)."""
-    return Path(out) / "agents" / f"run-{index:04d}"
-
-
-def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
-    """Each run's trained agent (``params``: :func:`real_agent_params`; the final or the
-    validated parameters, as evaluated) at :func:`agent_dir`
-    (:func:`~drqn_jax.experiments.runner.save_agent`)."""
-    counts = jax.tree.map(np.asarray, (state.recorded, state.grad_steps, state.env_steps))
-    for i, point in enumerate(call.points):
-        recorded, grad_steps, env_steps = (int(c[i]) for c in counts)
-        meta = {
-            "values": point.values,
-            "finished": True,
-            "recorded": recorded,
-            "grad_steps": grad_steps,
-            "env_steps": env_steps,
-        }
-        run_params = jax.tree.map(lambda x, i=i: x[i], params)
-        save_agent(agent_dir(out, point.index), point.config, run_params, meta)
-
-
 # ------------------------------------------------------------------------------ the sweep
 
 
@@ -415,47 +362,6 @@ class SweepOutcome:
     results: list[dict[str, Any]]
     calls: list[Call]
     continued: int = 0
-
-
-def plan_record(sweep: Sweep, dist: Distributed = Distributed()) -> dict[str, Any]:
-    """``OUT/plan.json``'s record: the sweep's points (values, training hash) and processes."""
-    return {
-        "base": sweep.base,
-        "axes": sweep.axes,
-        "processes": dist.processes,
-        "points": [
-            {"index": p.index, "values": p.values, "training_hash": p.config.training_hash()}
-            for p in sweep.points
-        ],
-    }
-
-
-def _plan_path(out: Path, dist: Distributed) -> Path:
-    """``OUT/plan.json``; one per process when there are several (no shared file system needed)."""
-    return out / ("plan.json" if dist.processes == 1 else f"plan.process-{dist.process}.json")
-
-
-def _check_plan(path: Path, record: dict[str, Any]) -> bool:
-    """Check that ``path`` holds this sweep, or its first points (a study given more
-    seeds); return whether the plan grows. Every saved point must keep its training hash."""
-    out = path.parent
-    if not path.is_file():
-        raise CheckpointError(f"{out}: no sweep to resume (no {path.name})")
-    saved = json.loads(path.read_text())
-    if saved.get("processes") != record["processes"]:
-        raise CheckpointError(
-            f"{out}: the sweep ran as {saved.get('processes')} process(es); resume it with as many"
-        )
-    old = {p["index"]: p for p in saved.get("points", [])}
-    new = {p["index"]: p for p in record["points"]}
-    for index, point in old.items():
-        if new.get(index, {}).get("training_hash") != point["training_hash"]:
-            raise CheckpointError(
-                f"{out} holds another sweep: point {index} ({point['values']}) "
-                "differs or is missing; resume with the same sweep file and --set overrides "
-                "(more points may follow the saved ones, none may change)"
-            )
-    return len(new) > len(old)
 
 
 def run_sweep(
@@ -485,21 +391,9 @@ def run_sweep(
     devices, commit = jax.local_devices(), git_commit()  # HEAD may move while runs train
     if calls is None:
         calls = plan_calls(sweep, len(devices), dist)
-    record, plan = plan_record(sweep, dist), _plan_path(out, dist)
-    if resume:
-        write_plan = _check_plan(plan, record)  # grown (more seeds): the new points are added
-    else:
-        if plan.exists():
-            raise CheckpointError(
-                f"{out} already holds a sweep; continue it with --resume or choose another --out"
-            )
-        out.mkdir(parents=True, exist_ok=True)
-        write_plan = True
-    if write_plan:
-        atomic_write_text(plan, json.dumps(record, indent=1) + "\n")
-    first = sweep.points[0].config
-    eval_key = first.keys()[1]
-    every = first["run"]["checkpoint_every_s"]
+    open_plan(out, sweep, dist, resume)
+    eval_key = sweep.points[0].config.keys()[1]
+    every = sweep.points[0].config["run"]["checkpoint_every_s"]
     results: list[dict[str, Any]] = []
     budgets, unit = sweep_budgets(calls)
     stop = StopRequest()
@@ -513,43 +407,28 @@ def run_sweep(
             continued += resume and (saved.is_file() or (directory / CHECKPOINT_NPZ).is_file())
             if resume and saved.is_file():
                 results += json.loads(saved.read_text())
-                done_before += budget
-                bar.update(done_before - bar.n)
-                if on_call_finished is not None:
-                    on_call_finished()
-                continue
+                bar.update(done_before + budget - bar.n)
+            else:
 
-            def progress(
-                state: TrainState,
-                before: int = done_before,
-                n: int = len(call.points),
-                per_run: int = budget // len(call.points),
-            ) -> None:
-                bar.update(before + budget_used(state, per_run, unit, n) - bar.n)
+                def progress(
+                    state: TrainState,
+                    before: int = done_before,
+                    n: int = len(call.points),
+                    per_run: int = budget // len(call.points),
+                ) -> None:
+                    bar.update(before + budget_used(state, per_run, unit, n) - bar.n)
 
-            outcome = train_call(
-                call,
-                devices,
-                directory=directory,
-                checkpoint_every_s=every,
-                stop=stop,
-                on_chunk=None if bar.disable else progress,  # no host copy unless shown
-            )
-            if outcome.status == "interrupted":
-                return SweepOutcome("interrupted", results, list(calls), continued)
-            params = real_agent_params(call, outcome)
-            call_result = call_results(call, outcome, eval_key, params, commit)
-            for line in budget_warnings(call.points, call_result):
-                print(line, file=sys.stderr)
-            directory.mkdir(parents=True, exist_ok=True)
-            write_training_metrics(out, call, outcome.state)
-            write_timing(directory, call, outcome.wall_time_s)
-            if keep_agents:
-                write_agents(out, call, outcome.state, params)
-            atomic_write_text(saved, json.dumps(call_result, indent=1) + "\n")
-            for name in (CHECKPOINT_NPZ, CHECKPOINT_JSON):  # the results replace them
-                (directory / name).unlink(missing_ok=True)
-            results += call_result
+                outcome = train_call(
+                    call,
+                    devices,
+                    directory=directory,
+                    checkpoint_every_s=every,
+                    stop=stop,
+                    on_chunk=None if bar.disable else progress,  # no host copy unless shown
+                )
+                if outcome.status == "interrupted":
+                    return SweepOutcome("interrupted", results, list(calls), continued)
+                results += _finish_call(out, call, outcome, eval_key, commit, keep_agents)
             done_before += budget
             if on_call_finished is not None:
                 on_call_finished()
@@ -557,6 +436,34 @@ def run_sweep(
         results = _gather(results, dist)
     results = sorted(results, key=lambda r: r["index"])
     return SweepOutcome("finished", results, list(calls), continued)
+
+
+def _finish_call(
+    out: Path,
+    call: Call,
+    outcome: CallOutcome,
+    eval_key: jax.Array,
+    commit: str,
+    keep_agents: bool,
+) -> list[dict[str, Any]]:
+    """A trained call's runs evaluated (:func:`call_results`) and written: their
+    training metrics, the call's timing, their agents (``keep_agents``) and
+    ``calls/<call>/runs.json``, which replaces the call's checkpoint. Returns the runs'
+    results."""
+    directory = out / "calls" / call.name
+    params = real_agent_params(call, outcome)
+    results = call_results(call, outcome, eval_key, params, commit)
+    for line in budget_warnings(call.points, results):
+        print(line, file=sys.stderr)
+    directory.mkdir(parents=True, exist_ok=True)
+    write_training_metrics(out, call, outcome.state)
+    write_timing(directory, call, outcome.wall_time_s)
+    if keep_agents:
+        write_agents(out, call, outcome.state, params)
+    atomic_write_text(directory / "runs.json", json.dumps(results, indent=1) + "\n")
+    for name in (CHECKPOINT_NPZ, CHECKPOINT_JSON):  # the results replace them
+        (directory / name).unlink(missing_ok=True)
+    return results
 
 
 def sweep_budgets(calls: Sequence[Call]) -> tuple[list[int], str]:
@@ -570,49 +477,6 @@ def sweep_budgets(calls: Sequence[Call]) -> tuple[list[int], str]:
     else:
         per_run, unit = [total for total, _ in budgets], "step"
     return [n * len(call.points) for n, call in zip(per_run, calls, strict=True)], unit
-
-
-#: A finished call's training wall time, beside its ``runs.json`` (which holds results
-#: only: the same bits on every device count, resume or chunking).
-TIMING_JSON = "timing.json"
-
-
-def write_timing(call_dir: Path, call: Call, wall_time_s: float | None) -> None:
-    """``calls/<call>/timing.json``: the call's training wall time (None where a
-    checkpoint from before it was counted continued the call) and its runs."""
-    record = {"train_wall_s": wall_time_s, "runs": [p.index for p in call.points]}
-    atomic_write_text(call_dir / TIMING_JSON, json.dumps(record, indent=1) + "\n")
-
-
-def run_timings(directory: Path) -> dict[int, float | None]:
-    """Each run's training wall time (s): its share of its call's (the call's runs train
-    together), by index; None where not counted, absent where no call of it has one."""
-    timings: dict[int, float | None] = {}
-    for path in sorted((directory / "calls").glob(f"*/{TIMING_JSON}")):
-        record = json.loads(path.read_text())
-        wall, indices = record["train_wall_s"], record["runs"]
-        timings.update((i, None if wall is None else wall / len(indices)) for i in indices)
-    return timings
-
-
-def finished_results(directory: Path) -> list[dict[str, Any]]:
-    """The runs of a config's sweep whose call has ended (``calls/*/runs.json``), by index."""
-    results: dict[int, dict[str, Any]] = {}  # by index: a grown plan may regroup its calls
-    for path in sorted((directory / "calls").glob("*/runs.json")):
-        results.update((r["index"], r) for r in json.loads(path.read_text()))
-    return [results[i] for i in sorted(results)]
-
-
-def run_record(directory: str | Path) -> dict[str, Any] | None:
-    """The ``runs.json`` record of the sweep run whose :func:`agent_dir` is ``directory``
-    (its ``commit`` and ``trained_on`` say where it trained); None for a directory that
-    is not a finished sweep run's agent (a ``drqn-jax train`` run)."""
-    path = Path(directory)
-    index = path.name.removeprefix("run-")
-    if path.parent.name != "agents" or not index.isdigit():
-        return None
-    found = [r for r in finished_results(path.parent.parent) if r["index"] == int(index)]
-    return found[0] if found else None
 
 
 def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, Any]]:

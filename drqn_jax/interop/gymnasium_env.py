@@ -238,7 +238,11 @@ def _split(key_data: jax.Array) -> tuple[jax.Array, jax.Array]:
     return jax.random.key_data(kept), use
 
 
-def single_reset(env: UrbanPedestrians, key_data: jax.Array, params: EnvParams):
+def single_reset(
+    env: UrbanPedestrians, key_data: jax.Array, params: EnvParams
+) -> tuple[jax.Array, Observation, EnvState]:
+    """One env's reset from raw key data (``key_data_shape()``): ``(the key data kept
+    for the next call, obs, state)``."""
     held, reset_key = _split(key_data)
     obs, state = env.reset_env(reset_key, params)
     return held, obs, state
@@ -246,7 +250,9 @@ def single_reset(env: UrbanPedestrians, key_data: jax.Array, params: EnvParams):
 
 def single_step(
     env: UrbanPedestrians, key_data: jax.Array, state: EnvState, action: jax.Array, params
-):
+) -> tuple[jax.Array, Observation, EnvState, jax.Array, jax.Array, jax.Array, dict]:
+    """One env's step (no auto-reset: ``step_env``) from raw key data: ``(the key data
+    kept for the next call, obs, state, reward, terminated, truncated, info)``."""
     held, step_key = _split(key_data)
     obs, state, reward, terminated, truncated, info = env.step_env(step_key, state, action, params)
     return held, obs, state, reward, terminated, truncated, info

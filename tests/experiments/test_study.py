@@ -20,7 +20,7 @@ from drqn_jax.experiments.study import (
     plan_study,
     study_row,
 )
-from drqn_jax.experiments.sweep_runner import agent_dir, metrics_path
+from drqn_jax.experiments.sweep_outputs import agent_dir, metrics_path
 from tests.helpers import SMOKE_SWEEP_SET
 
 
@@ -551,7 +551,7 @@ def test_eval_envs_evaluate_the_trained_agents_among_other_pedestrians(
     cross = record["cross"]["smoke"][realistic]
     assert [r["index"] for r in cross] == [0, 1]
     evaluation = tmp_path / "run1.json"
-    agent = str(sweep_runner.agent_dir(out / "smoke", 1))
+    agent = str(agent_dir(out / "smoke", 1))
     command = ["evaluate", agent, "--seed", "0", "--set", f"env.id={realistic}"]
     assert cli.main([*command, "--json", str(evaluation)]) == 0
     alone = json.loads(evaluation.read_text())

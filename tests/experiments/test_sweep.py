@@ -497,7 +497,7 @@ def test_several_processes_need_all_three_settings(monkeypatch):
 def test_every_run_writes_its_training_metrics(trained, cli_sweep):
     """OUT/metrics/run-NNNN.csv: each run's metrics.csv, as ``drqn-jax train`` writes it."""
     from drqn_jax.experiments.runner import metrics_csv
-    from drqn_jax.experiments.sweep_runner import metrics_path
+    from drqn_jax.experiments.sweep_outputs import metrics_path
 
     sweep, _, metrics = trained
     for point in sweep.points:
@@ -548,7 +548,7 @@ def test_every_run_keeps_its_trained_agent(trained, cli_sweep, tmp_path, capsys)
     """OUT/agents/run-NNNN holds the run's agent bit for bit; ``drqn-jax evaluate``
     reads it like a run directory and scores it as the sweep did."""
     from drqn_jax.experiments.runner import load_run, load_trained_network
-    from drqn_jax.experiments.sweep_runner import agent_dir
+    from drqn_jax.experiments.sweep_outputs import agent_dir
 
     sweep, params, _ = trained
     for point in sweep.points:
@@ -579,7 +579,7 @@ def test_an_exported_sweep_agent_names_where_its_run_trained(cli_sweep, tmp_path
     checkout: here the record is rewritten to say it trained elsewhere."""
     import shutil
 
-    from drqn_jax.experiments.sweep_runner import agent_dir, run_record
+    from drqn_jax.experiments.sweep_outputs import agent_dir, run_record
 
     out = tmp_path / "out"
     shutil.copytree(cli_sweep, out)

@@ -1,0 +1,190 @@
+"""What a sweep writes under its output directory, and how it is read back.
+
+:mod:`drqn_jax.experiments.sweep_runner` trains the runs; this module names the
+files, writes them and reads them back (the study, ``drqn-jax evaluate`` of a
+sweep's agent, the portable records of :mod:`drqn_jax.experiments.portable`).
+
+Output directory::
+
+    OUT/plan.json                      the points (values, training hash) and processes
+    OUT/calls/runs-<first>-<last>/     checkpoint.npz/.json while a call runs,
+                                       runs.json once it ended
+    OUT/metrics/run-<index>.csv        each run's training metrics, one row per episode
+                                       (written by the process that trained it)
+    OUT/agents/run-<index>/            each run's trained agent: config.toml and agent.npz
+                                       (its parameters, no training state), read by
+                                       ``drqn-jax evaluate`` and ``replay`` like a run directory
+    OUT/results.md, results.csv        per setting: mean, std, 95 % interval, IQM
+    OUT/runs.json                      every run's evaluation and training summary
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from drqn_jax.experiments.checkpoint import CheckpointError, atomic_write_text
+from drqn_jax.experiments.runner import metrics_csv, save_agent
+from drqn_jax.experiments.sweep import Sweep
+from drqn_jax.experiments.sweep_plan import Call, Distributed
+from drqn_jax.learners.dqn.state import TrainState
+
+__all__ = [
+    "TIMING_JSON",
+    "agent_dir",
+    "finished_results",
+    "metrics_path",
+    "open_plan",
+    "plan_record",
+    "run_record",
+    "run_timings",
+    "write_agents",
+    "write_timing",
+    "write_training_metrics",
+]
+
+
+def plan_record(sweep: Sweep, dist: Distributed = Distributed()) -> dict[str, Any]:
+    """``OUT/plan.json``'s record: the sweep's points (values, training hash) and processes."""
+    return {
+        "base": sweep.base,
+        "axes": sweep.axes,
+        "processes": dist.processes,
+        "points": [
+            {"index": p.index, "values": p.values, "training_hash": p.config.training_hash()}
+            for p in sweep.points
+        ],
+    }
+
+
+def plan_path(out: Path, dist: Distributed) -> Path:
+    """``OUT/plan.json``; one per process when there are several (no shared file system needed)."""
+    return out / ("plan.json" if dist.processes == 1 else f"plan.process-{dist.process}.json")
+
+
+def check_plan(path: Path, record: dict[str, Any]) -> bool:
+    """Check that ``path`` holds this sweep, or its first points (a study given more
+    seeds); return whether the plan grows. Every saved point must keep its training hash."""
+    out = path.parent
+    if not path.is_file():
+        raise CheckpointError(f"{out}: no sweep to resume (no {path.name})")
+    saved = json.loads(path.read_text())
+    if saved.get("processes") != record["processes"]:
+        raise CheckpointError(
+            f"{out}: the sweep ran as {saved.get('processes')} process(es); resume it with as many"
+        )
+    old = {p["index"]: p for p in saved.get("points", [])}
+    new = {p["index"]: p for p in record["points"]}
+    for index, point in old.items():
+        if new.get(index, {}).get("training_hash") != point["training_hash"]:
+            raise CheckpointError(
+                f"{out} holds another sweep: point {index} ({point['values']}) "
+                "differs or is missing; resume with the same sweep file and --set overrides "
+                "(more points may follow the saved ones, none may change)"
+            )
+    return len(new) > len(old)
+
+
+def open_plan(out: Path, sweep: Sweep, dist: Distributed, resume: bool) -> None:
+    """Write ``OUT/plan.json`` for a new sweep (refused where ``out`` holds one), or
+    check it for a resumed one (:func:`check_plan`), adding the points it grew by."""
+    record, plan = plan_record(sweep, dist), plan_path(out, dist)
+    if resume:
+        write = check_plan(plan, record)  # grown (more seeds): the new points are added
+    else:
+        if plan.exists():
+            raise CheckpointError(
+                f"{out} already holds a sweep; continue it with --resume or choose another --out"
+            )
+        out.mkdir(parents=True, exist_ok=True)
+        write = True
+    if write:
+        atomic_write_text(plan, json.dumps(record, indent=1) + "\n")
+
+
+def metrics_path(out: str | Path, index: int) -> Path:
+    """``OUT/metrics/run-NNNN.csv``: the training metrics of the sweep's run ``index``."""
+    return Path(out) / "metrics" / f"run-{index:04d}.csv"
+
+
+def write_training_metrics(out: Path, call: Call, state: TrainState) -> None:
+    """Each run's per-episode training metrics as a ``metrics.csv`` (as ``drqn-jax
+    train`` writes it) at :func:`metrics_path`."""
+    metrics = jax.tree.map(np.asarray, state.metrics)
+    for i, point in enumerate(call.points):
+        path = metrics_path(out, point.index)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, metrics_csv({k: v[i] for k, v in metrics.items()}))
+
+
+def agent_dir(out: str | Path, index: int) -> Path:
+    """``OUT/agents/run-NNNN``: the sweep's run ``index`` as a directory that ``drqn-jax
+    evaluate`` and ``replay`` read like a trained run's (its ``config.toml`` and
+    ``agent.npz``)."""
+    return Path(out) / "agents" / f"run-{index:04d}"
+
+
+def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
+    """Each run's trained agent at :func:`agent_dir`
+    (:func:`~drqn_jax.experiments.runner.save_agent`): ``params`` are the final or the
+    validated parameters, as evaluated
+    (:func:`~drqn_jax.experiments.sweep_runner.real_agent_params`)."""
+    counts = jax.tree.map(np.asarray, (state.recorded, state.grad_steps, state.env_steps))
+    for i, point in enumerate(call.points):
+        recorded, grad_steps, env_steps = (int(c[i]) for c in counts)
+        meta = {
+            "values": point.values,
+            "finished": True,
+            "recorded": recorded,
+            "grad_steps": grad_steps,
+            "env_steps": env_steps,
+        }
+        run_params = jax.tree.map(lambda x, i=i: x[i], params)
+        save_agent(agent_dir(out, point.index), point.config, run_params, meta)
+
+
+#: A finished call's training wall time, beside its ``runs.json`` (which holds results
+#: only: the same bits on every device count, resume or chunking).
+TIMING_JSON = "timing.json"
+
+
+def write_timing(call_dir: Path, call: Call, wall_time_s: float | None) -> None:
+    """``calls/<call>/timing.json``: the call's training wall time (None where a
+    checkpoint from before it was counted continued the call) and its runs."""
+    record = {"train_wall_s": wall_time_s, "runs": [p.index for p in call.points]}
+    atomic_write_text(call_dir / TIMING_JSON, json.dumps(record, indent=1) + "\n")
+
+
+def run_timings(directory: Path) -> dict[int, float | None]:
+    """Each run's training wall time (s): its share of its call's (the call's runs train
+    together), by index; None where not counted, absent where no call of it has one."""
+    timings: dict[int, float | None] = {}
+    for path in sorted((directory / "calls").glob(f"*/{TIMING_JSON}")):
+        record = json.loads(path.read_text())
+        wall, indices = record["train_wall_s"], record["runs"]
+        timings.update((i, None if wall is None else wall / len(indices)) for i in indices)
+    return timings
+
+
+def finished_results(directory: Path) -> list[dict[str, Any]]:
+    """The runs of a config's sweep whose call has ended (``calls/*/runs.json``), by index."""
+    results: dict[int, dict[str, Any]] = {}  # by index: a grown plan may regroup its calls
+    for path in sorted((directory / "calls").glob("*/runs.json")):
+        results.update((r["index"], r) for r in json.loads(path.read_text()))
+    return [results[i] for i in sorted(results)]
+
+
+def run_record(directory: str | Path) -> dict[str, Any] | None:
+    """The ``runs.json`` record of the sweep run whose :func:`agent_dir` is ``directory``
+    (its ``commit`` and ``trained_on`` say where it trained); None for a directory that
+    is not a finished sweep run's agent (a ``drqn-jax train`` run)."""
+    path = Path(directory)
+    index = path.name.removeprefix("run-")
+    if path.parent.name != "agents" or not index.isdigit():
+        return None
+    found = [r for r in finished_results(path.parent.parent) if r["index"] == int(index)]
+    return found[0] if found else None
