@@ -61,12 +61,12 @@ def plan_record(sweep: Sweep, dist: Distributed = Distributed()) -> dict[str, An
     }
 
 
-def plan_path(out: Path, dist: Distributed) -> Path:
+def _plan_path(out: Path, dist: Distributed) -> Path:
     """``OUT/plan.json``; one per process when there are several (no shared file system needed)."""
     return out / ("plan.json" if dist.processes == 1 else f"plan.process-{dist.process}.json")
 
 
-def check_plan(path: Path, record: dict[str, Any]) -> bool:
+def _check_plan(path: Path, record: dict[str, Any]) -> bool:
     """Check that ``path`` holds this sweep, or its first points (a study given more
     seeds); return whether the plan grows. Every saved point must keep its training hash."""
     out = path.parent
@@ -91,10 +91,10 @@ def check_plan(path: Path, record: dict[str, Any]) -> bool:
 
 def open_plan(out: Path, sweep: Sweep, dist: Distributed, resume: bool) -> None:
     """Write ``OUT/plan.json`` for a new sweep (refused where ``out`` holds one), or
-    check it for a resumed one (:func:`check_plan`), adding the points it grew by."""
-    record, plan = plan_record(sweep, dist), plan_path(out, dist)
+    check it for a resumed one (:func:`_check_plan`), adding the points it grew by."""
+    record, plan = plan_record(sweep, dist), _plan_path(out, dist)
     if resume:
-        write = check_plan(plan, record)  # grown (more seeds): the new points are added
+        write = _check_plan(plan, record)  # grown (more seeds): the new points are added
     else:
         if plan.exists():
             raise CheckpointError(
