@@ -36,7 +36,7 @@ from drqn_jax.experiments.sweep_outputs import (
 )
 from drqn_jax.experiments.sweep_plan import plan_calls
 
-__all__ = ["portable_runs", "restore_runs"]
+__all__ = ["differing_runs", "portable_runs", "restore_runs"]
 
 
 def portable_runs(directory: Path, sweep: Sweep) -> list[dict[str, Any]]:
@@ -104,3 +104,18 @@ def restore_runs(directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, An
         write_timing(call_dir, call, None if None in walls else sum(walls))
         atomic_write_text(call_dir / "runs.json", json.dumps(saved, indent=1) + "\n")
     return sum(len(c.points) for c in restored)
+
+
+def differing_runs(directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, Any]]) -> list[int]:
+    """Indices of the finished runs in ``directory`` whose record ``stored`` (the
+    results file's, same index and training hash) holds otherwise. A continued study
+    keeps the directory's and stores them again, so a results file edited alone would
+    be overwritten: the study says so (:func:`~drqn_jax.experiments.study.run_study`)."""
+    kept = {run.get("index"): run for run in stored}
+    return [
+        run["index"]
+        for run in portable_runs(directory, sweep)
+        if run["index"] in kept
+        and kept[run["index"]].get("training_hash") == run["training_hash"]
+        and kept[run["index"]] != run
+    ]

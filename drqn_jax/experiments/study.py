@@ -374,7 +374,8 @@ def run_study(
     interrupted to go on later. ``carried``: arm name → finished runs an interrupted
     study stored in its results file, written back into an arm's directory that holds
     no sweep yet (:func:`~drqn_jax.experiments.portable.restore_runs`), so that only
-    the other runs train. ``keep``: called with every arm's finished runs (as
+    the other runs train; where the directory holds the same runs otherwise, its own
+    are kept and a line says which. ``keep``: called with every arm's finished runs (as
     ``finished_runs`` of :class:`StudyOutcome`) each time one more run has finished, so
     that a study whose machine is shut down without warning loses at most the run in
     progress.
@@ -408,7 +409,7 @@ def _train_arms(
     """Each arm's finished runs (training what is left when ``train``) and whether a
     sweep continued an earlier invocation's; an interrupted sweep's
     :class:`StudyOutcome` instead (:func:`run_study`'s arguments)."""
-    from drqn_jax.experiments.portable import portable_runs, restore_runs
+    from drqn_jax.experiments.portable import differing_runs, portable_runs, restore_runs
     from drqn_jax.experiments.sweep_outputs import finished_results
     from drqn_jax.experiments.sweep_runner import run_sweep
 
@@ -421,9 +422,17 @@ def _train_arms(
 
     for arm in arms:
         directory = out / arm.name
-        restored = restore_runs(directory, arm.sweep, (carried or {}).get(arm.name, ()))
+        stored = (carried or {}).get(arm.name, ())
+        restored = restore_runs(directory, arm.sweep, stored)
         if restored and not quiet:
             print(f"{arm.name}: {restored} finished run(s) from the results file", file=sys.stderr)
+        changed = [] if restored else differing_runs(directory, arm.sweep, stored)
+        if changed:
+            print(
+                f"{arm.name}: run(s) {changed} in {directory} differ from the results file's "
+                f"records; the directory's are kept (remove {directory} to use the file's)",
+                file=sys.stderr,
+            )
         if not train:
             runs[arm.name] = finished_results(directory)
             continue

@@ -570,3 +570,26 @@ def test_eval_envs_are_validated_before_anything_runs():
         plan_study(["smoke"], 2, 10, eval_envs=["Nope-v0"])
     (arm,) = plan_study(["realistic"], 2, 10, eval_envs=["UrbanPedestriansRealistic-v0"])
     assert arm.cross_envs == ()  # its own env
+
+
+def test_a_results_file_edited_apart_from_the_study_directory_is_named(
+    study, tmp_path, monkeypatch, capsys
+):
+    """Continued in its own --out, a study keeps that directory's runs and stores them
+    again: a record edited in the results file alone would silently go back, so the
+    study names the runs whose records differ."""
+    kept = _kept_when_shut_down_in_run_1(study, tmp_path, monkeypatch)
+    results = tmp_path / "results.json"
+    argv = ["study", *STUDY, "--no-png", "--results", str(results), "--section", "s"]
+    capsys.readouterr()
+    with pytest.raises(SystemExit, match="shut down"):  # the same records: nothing to say
+        cli.main([*argv, "--out", str(tmp_path / "partial")])
+    assert "differ from the results file" not in capsys.readouterr().err
+    record = json.loads(results.read_text())
+    record["sections"]["s"]["finished_runs"]["smoke"][0] = {**kept[0], "final_train_return": 0.5}
+    results.write_text(json.dumps(record))
+    with pytest.raises(SystemExit, match="shut down"):  # run 1 still cannot train
+        cli.main([*argv, "--out", str(tmp_path / "partial")])
+    assert "smoke: run(s) [0] in" in capsys.readouterr().err
+    again = json.loads(results.read_text())["sections"]["s"]["finished_runs"]["smoke"]
+    assert again == kept  # the directory's record, stored again
