@@ -46,21 +46,20 @@ class Curve:
     """A training curve over seeds against env steps (issue 41: a learner that ends
     episodes early or runs many envs gets no credit from an episode axis).
 
-    ``env_steps`` (G,): a common grid from 0 to the fewest env steps any seed's
-    recorded episodes took; ``mean``, ``low``, ``high`` (G,): the mean and min–max
-    across seeds of each seed's running mean over ``smooth`` episodes, read at the grid
-    (linear between episodes); ``seeds``: per seed, its raw values per training
-    episode (E_s,), in the order they ended (seeds record different numbers of
-    episodes in one env-step budget); ``seed_steps``: per seed, the env steps taken
-    when each had ended (E_s,) (the running total of episode lengths).
+    ``env_steps`` (G,): a common grid from 0 to the fewest env steps any seed took;
+    ``mean``, ``low``, ``high`` (G,): the mean and min–max across seeds of each seed's
+    running mean over ``smooth`` episodes, read at the grid (linear between episodes);
+    ``seeds`` (S, E): each seed's raw values per training episode, in the order
+    they ended; ``seed_steps`` (S, E): the env steps taken when each had ended
+    (the running total of episode lengths).
     """
 
     env_steps: np.ndarray
     mean: np.ndarray
     low: np.ndarray
     high: np.ndarray
-    seeds: tuple[np.ndarray, ...]
-    seed_steps: tuple[np.ndarray, ...]
+    seeds: np.ndarray
+    seed_steps: np.ndarray
 
 
 def _read_csv(path: Path) -> dict[str, np.ndarray]:
@@ -75,8 +74,8 @@ def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Cu
     """The :data:`CURVES` of one config over its seeds' ``metrics.csv`` files, against
     env steps (:class:`Curve`).
 
-    Each seed counts every episode it recorded, so the grid reaches the end of a
-    step budget. Raises ValueError when a file is missing or empty.
+    Seeds are cut to the episodes they all recorded. Raises ValueError when a
+    file is missing or empty.
     """
     if smooth < 1:
         raise ValueError(f"smooth = {smooth!r}: must be an integer >= 1")
@@ -88,11 +87,12 @@ def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Cu
         if not table:
             raise ValueError(f"{path}: no recorded episodes")
         tables.append(table)
-    steps = tuple(np.cumsum(t["length"]) for t in tables)
-    grid = np.linspace(0.0, min(s[-1] for s in steps), CURVE_POINTS)
+    n = min(len(t["episode"]) for t in tables)
+    steps = np.stack([np.cumsum(t["length"][:n]) for t in tables])
+    grid = np.linspace(0.0, steps[:, -1].min(), CURVE_POINTS)
     curves = {}
     for column, _ in CURVES:
-        raw = tuple(t[column] for t in tables)
+        raw = np.stack([t[column][:n] for t in tables])
         read = np.stack(
             [np.interp(grid, x, running_mean(y, smooth)) for x, y in zip(steps, raw, strict=True)]
         )
@@ -117,7 +117,7 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
     for ax, (column, label) in zip(axes, CURVES, strict=True):
         for name, by_metric in curves.items():
             c = by_metric[column]
-            seeds = len(c.seeds)
+            seeds = c.seeds.shape[0]
             plural = "s" if seeds > 1 else ""
             (line,) = ax.plot(c.env_steps, c.mean, label=f"{name} ({seeds} seed{plural})")
             ax.fill_between(c.env_steps, c.low, c.high, color=line.get_color(), alpha=0.2, lw=0)

@@ -146,30 +146,26 @@ def test_a_study_that_goes_on_from_earlier_runs_says_so_beside_its_wall_time(stu
     assert about["continued"] is True
 
 
-def test_curves_are_running_means_against_env_steps_to_the_fewest_steps_a_seed_took(
+def test_curves_are_running_means_against_env_steps_over_the_episodes_all_seeds_recorded(
     tmp_path,
 ):
-    """Seeds of one env-step budget record different numbers of episodes: each counts
-    all of its own, and the grid ends where the seed with the fewest env steps ends."""
     a, b = tmp_path / "a.csv", tmp_path / "b.csv"
     _write_metrics(a, [1.0, 3.0, 5.0, 7.0], [10, 20, 30, 40])
     _write_metrics(b, [3.0, 5.0, 7.0], [30, 30, 30])
     curves = load_curves([a, b], smooth=2)
     assert set(curves) == {column for column, _ in CURVES}
     ret = curves["episode_return"]
-    np.testing.assert_array_equal(ret.seeds[0], [1.0, 3.0, 5.0, 7.0])
-    np.testing.assert_array_equal(ret.seeds[1], [3.0, 5.0, 7.0])
-    # episodes end at env steps a → 10, 30, 60, 100; b → 30, 60, 90: the grid ends at 90
-    np.testing.assert_array_equal(ret.seed_steps[0], [10, 30, 60, 100])
-    np.testing.assert_array_equal(ret.seed_steps[1], [30, 60, 90])
-    assert ret.env_steps[0] == 0.0 and ret.env_steps[-1] == 90.0
-    # running means of 2: a → 1, 2, 4, 6 and b → 3, 4, 6, linear between the episode ends
-    seed_a = np.interp(ret.env_steps, [10, 30, 60, 100], [1.0, 2.0, 4.0, 6.0])
+    np.testing.assert_array_equal(ret.seeds, [[1.0, 3.0, 5.0], [3.0, 5.0, 7.0]])
+    # episodes end at env steps a → 10, 30, 60; b → 30, 60, 90: the grid ends at 60
+    np.testing.assert_array_equal(ret.seed_steps, [[10, 30, 60], [30, 60, 90]])
+    assert ret.env_steps[0] == 0.0 and ret.env_steps[-1] == 60.0
+    # running means of 2: a → 1, 2, 4 and b → 3, 4, 6, linear between the episode ends
+    seed_a = np.interp(ret.env_steps, [10, 30, 60], [1.0, 2.0, 4.0])
     seed_b = np.interp(ret.env_steps, [30, 60, 90], [3.0, 4.0, 6.0])
     np.testing.assert_allclose(ret.mean, (seed_a + seed_b) / 2)
     np.testing.assert_allclose(ret.low, np.minimum(seed_a, seed_b))
     np.testing.assert_allclose(ret.high, np.maximum(seed_a, seed_b))
-    np.testing.assert_allclose([ret.low[-1], ret.high[-1]], [5.5, 6.0])  # both at 90 steps
+    np.testing.assert_allclose([ret.low[-1], ret.high[-1]], [4.0, 4.0])  # both at 60 steps
     with pytest.raises(ValueError, match="no training metrics"):
         load_curves([a, tmp_path / "missing.csv"])
 
@@ -328,7 +324,7 @@ def test_the_curves_are_the_logged_metrics(study):
         logged = np.loadtxt(metrics_path(study / "smoke", i), delimiter=",", skiprows=1)
         np.testing.assert_array_equal(curves["length"].seeds[i], logged[:, 2])
         np.testing.assert_array_equal(curves["length"].seed_steps[i], np.cumsum(logged[:, 2]))
-    end = min(steps[-1] for steps in curves["length"].seed_steps)
+    end = curves["length"].seed_steps[:, -1].min()
     assert curves["length"].env_steps[-1] == end  # the grid stops where every seed has data
 
 
