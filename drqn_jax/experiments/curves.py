@@ -46,7 +46,10 @@ class Curve:
     """A training curve over seeds against env steps (issue 41: a learner that ends
     episodes early or runs many envs gets no credit from an episode axis).
 
-    ``env_steps`` (G,): a common grid from 0 to the fewest env steps any seed took;
+    ``env_steps`` (G,): a common grid from 0 to the fewest env steps any seed's first
+    E episodes took, E the fewest episodes any seed recorded (so a step budget's curves
+    stop short of its end: past that point the seeds' last completions are mostly
+    short episodes, those of the envs whose episode could still end within the budget);
     ``mean``, ``low``, ``high`` (G,): the mean and min–max across seeds of each seed's
     running mean over ``smooth`` episodes, read at the grid (linear between episodes);
     ``seeds`` (S, E): each seed's raw values per training episode, in the order
