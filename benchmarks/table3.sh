@@ -12,7 +12,8 @@
 #
 # Budget per seed: TABLE3_STEPS env steps. The default is 24,000,000 on an accelerator
 # (issue 53's floor of 20M; the length of benchmarks/gpu.sh's learning curve) and
-# 6,000,000 on a CPU, what 2 cores afford (a `pqn` seed: about 16 min on an AMD EPYC).
+# 6,000,000 on a CPU, what 2 cores afford (the whole table: about a day on a 2-core AMD
+# EPYC; section table3-cpu of docs/results.json keeps each arm's training time per seed).
 #
 # Usage, from the repository root of an installed clone:
 #   benchmarks/table3.sh [OUT]                   # OUT defaults to runs/table3-<backend>
