@@ -150,8 +150,9 @@ def test_memory_matters_for_drqn_not_dqn():
         net = make_network(NetworkConfig(kind=kind, recurrent=32, hidden=32))
         params = net.init(jax.random.key(0))
         resets = jnp.zeros((4, 1), bool)
-        q_a, _ = net.unroll(params, obs, net.initial_carry((1,)), resets)
-        q_b, _ = net.unroll(params, other_first, net.initial_carry((1,)), resets)
+        unroll = jax.jit(net.unroll)  # one program for both sequences
+        q_a, _ = unroll(params, obs, net.initial_carry((1,)), resets)
+        q_b, _ = unroll(params, other_first, net.initial_carry((1,)), resets)
         changed_later = not np.allclose(np.asarray(q_a[3]), np.asarray(q_b[3]))
         assert changed_later == remembers, kind
         assert net.initial_carry((1,)) == () if kind == "dqn" else True
@@ -213,15 +214,16 @@ def test_mlp_torso_for_flat_observations():
         params = net.init(jax.random.key(0))
         assert [layer["w"].shape for layer in params["torso"]] == [(3, 16), (16, 8)]
         assert "conv" not in params and config.extra_inputs == 0
-        q_seq, _ = net.unroll(params, obs, net.initial_carry((2,)), resets)
+        unroll, step = jax.jit(net.unroll), jax.jit(net.step)  # a program each, not op by op
+        q_seq, _ = unroll(params, obs, net.initial_carry((2,)), resets)
         carry = net.initial_carry((2,))
         for t in range(5):
             carry = jax.tree.map(lambda x, t=t: jnp.where(resets[t][:, None], 0.0, x), carry)
-            q, carry = net.step(params, obs[t], carry)
+            q, carry = step(params, obs[t], carry)
             np.testing.assert_allclose(np.asarray(q_seq[t]), np.asarray(q), rtol=1e-5, atol=1e-6)
         other = obs.at[0].set(0.0)
-        q_other, _ = net.unroll(params, other, net.initial_carry((2,)), jnp.zeros((5, 2), bool))
-        q_same, _ = net.unroll(params, obs, net.initial_carry((2,)), jnp.zeros((5, 2), bool))
+        q_other, _ = unroll(params, other, net.initial_carry((2,)), jnp.zeros((5, 2), bool))
+        q_same, _ = unroll(params, obs, net.initial_carry((2,)), jnp.zeros((5, 2), bool))
         assert (not np.allclose(q_other[1], q_same[1])) == (kind == "drqn"), kind
     with pytest.raises(ValueError, match="obs_size"):
         NetworkConfig(torso="mlp", obs_size=0)
@@ -246,7 +248,8 @@ def test_frame_stacking_dqn_sees_the_last_grids_and_restarts_with_the_episode():
     steps, batch = 6, 2
     obs = _obs(jax.random.key(4), (steps, batch))
     resets = jnp.zeros((steps, batch), bool).at[3, 1].set(True)
-    q_seq, final = jax.jit(net.unroll)(params, obs, net.initial_carry((batch,)), resets)
+    unroll = jax.jit(net.unroll)  # one program for every unroll below (op by op: hundreds)
+    q_seq, final = unroll(params, obs, net.initial_carry((batch,)), resets)
     carry, step = net.initial_carry((batch,)), jax.jit(net.step)
     assert carry.shape == (batch, 2, 45, 30, 4)
     for t in range(steps):
@@ -257,16 +260,16 @@ def test_frame_stacking_dqn_sees_the_last_grids_and_restarts_with_the_episode():
     # env 1 restarted at t = 3: its grids before are gone from steps 3 and 4
     no_reset = jnp.zeros((steps, batch), bool)
     changed = obs.replace(grid=obs.grid.at[1, 1].set(0.0).at[2, 1].set(0.0))
-    q_changed, _ = net.unroll(params, changed, net.initial_carry((batch,)), resets)
+    q_changed, _ = unroll(params, changed, net.initial_carry((batch,)), resets)
     np.testing.assert_array_equal(np.asarray(q_changed[3:, 1]), np.asarray(q_seq[3:, 1]))
-    q_a, _ = net.unroll(params, obs, net.initial_carry((batch,)), no_reset)
-    q_changed, _ = net.unroll(params, changed, net.initial_carry((batch,)), no_reset)
+    q_a, _ = unroll(params, obs, net.initial_carry((batch,)), no_reset)
+    q_changed, _ = unroll(params, changed, net.initial_carry((batch,)), no_reset)
     assert not np.allclose(np.asarray(q_changed[3, 1]), np.asarray(q_a[3, 1]))
     # without a reset, zeroing the grids before is the reset: the same stack
     np.testing.assert_array_equal(np.asarray(q_changed[3, 1]), np.asarray(q_seq[3, 1]))
     # the window is k grids: grid 0 reaches steps 0-2, not step 3
     zero_first = obs.replace(grid=obs.grid.at[0].set(0.0))
-    q_b, _ = net.unroll(params, zero_first, net.initial_carry((batch,)), no_reset)
+    q_b, _ = unroll(params, zero_first, net.initial_carry((batch,)), no_reset)
     assert not np.allclose(np.asarray(q_a[2]), np.asarray(q_b[2]))
     np.testing.assert_array_equal(np.asarray(q_a[3:]), np.asarray(q_b[3:]))
     with pytest.raises(ValueError, match="frames = 2: stacking grids is for kind 'dqn'"):

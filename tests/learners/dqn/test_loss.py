@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -149,6 +151,26 @@ def small_net():
     return net, net.init(jax.random.key(0)), net.init(jax.random.key(1))
 
 
+@functools.partial(jax.jit, static_argnums=(3, 5))
+def _td_loss(online, target, windows, net, clip_mode=CLIP_HUBER, n_step=1):
+    """``sequence_loss`` at γ = 0.9 as one program per network and window shape, which
+    the tests share (op by op, each call compiles hundreds of small programs)."""
+    return sequence_loss(online, target, windows, net, 0.9, clip_mode, n_step)
+
+
+#: The gradients of ``_td_loss`` with respect to the online and the target parameters.
+_td_grads = jax.jit(
+    jax.grad(lambda *args: _td_loss(*args)[0], argnums=(0, 1)), static_argnums=(3, 5)
+)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _unroll(net, params, obs):
+    """The network's Q-values over a window from the initial carry, no resets."""
+    batch = obs.speed.shape[1:]
+    return net.unroll(params, obs, net.initial_carry(batch), jnp.zeros(obs.speed.shape, bool))[0]
+
+
 def _windows(key, steps=4, batch=3, mask=None):
     k1, k2, k3, k4 = jax.random.split(key, 4)
     obs = Observation(
@@ -173,10 +195,8 @@ def _windows(key, steps=4, batch=3, mask=None):
 def test_sequence_loss_matches_hand_unrolled(small_net):
     net, online, target = small_net
     w = _windows(jax.random.key(2))
-    loss, _ = sequence_loss(online, target, w, net, 0.9, CLIP_HUBER)
-    resets = jnp.zeros((5, 3), bool)
-    q_on, _ = net.unroll(online, w.obs, net.initial_carry((3,)), resets)
-    q_tg, _ = net.unroll(target, w.obs, net.initial_carry((3,)), resets)
+    loss, _ = _td_loss(online, target, w, net)
+    q_on, q_tg = _unroll(net, online, w.obs), _unroll(net, target, w.obs)
     q_on, q_tg = np.asarray(q_on, np.float64), np.asarray(q_tg, np.float64)
     total = 0.0
     for t in range(4):
@@ -192,10 +212,8 @@ def test_n_step_sequence_loss_matches_hand_unrolled(small_net):
     net, online, target = small_net
     mask = jnp.ones((4, 3), bool).at[3:, 1].set(False).at[2:, 2].set(False)
     w = _windows(jax.random.key(5), mask=mask)
-    loss, _ = sequence_loss(online, target, w, net, 0.9, CLIP_HUBER, n_step=3)
-    resets = jnp.zeros((5, 3), bool)
-    q_on, _ = net.unroll(online, w.obs, net.initial_carry((3,)), resets)
-    q_tg, _ = net.unroll(target, w.obs, net.initial_carry((3,)), resets)
+    loss, _ = _td_loss(online, target, w, net, CLIP_HUBER, 3)
+    q_on, q_tg = _unroll(net, online, w.obs), _unroll(net, target, w.obs)
     q_on, q_tg = np.asarray(q_on, np.float64), np.asarray(q_tg, np.float64)
     m = np.asarray(w.mask)
     y = _n_step_reference(
@@ -205,7 +223,7 @@ def test_n_step_sequence_loss_matches_hand_unrolled(small_net):
     td = (q_taken - y)[m]
     per_step = np.where(np.abs(td) <= 1, 0.5 * td**2, np.abs(td) - 0.5)
     assert float(loss) == pytest.approx(per_step.mean(), rel=1e-5)
-    one_step, _ = sequence_loss(online, target, w, net, 0.9, CLIP_HUBER)
+    one_step, _ = _td_loss(online, target, w, net)
     assert float(loss) != pytest.approx(float(one_step), rel=1e-5)
 
 
@@ -213,16 +231,18 @@ def test_padding_is_masked_out(small_net):
     net, online, target = small_net
     mask = jnp.ones((4, 3), bool).at[2:, 1].set(False)
     w = _windows(jax.random.key(3), mask=mask)
-    loss, _ = sequence_loss(online, target, w, net, 0.9)
+    loss, _ = _td_loss(online, target, w, net)
     # garbage in the padded steps changes nothing
     garbage = w.replace(
         action=w.action.at[2:, 1].set(3),
         obs=w.obs.replace(grid=w.obs.grid.at[3:, 1].set(7.0)),
     )
-    loss_g, _ = sequence_loss(online, target, garbage, net, 0.9)
+    loss_g, _ = _td_loss(online, target, garbage, net)
     assert float(loss) == float(loss_g)
-    grads = jax.grad(lambda p: sequence_loss(p, target, garbage, net, 0.9)[0])(online)
-    grads_ref = jax.grad(lambda p: sequence_loss(p, target, w, net, 0.9)[0])(online)
+    grads, grads_ref = (
+        _td_grads(online, target, garbage, net)[0],
+        _td_grads(online, target, w, net)[0],
+    )
     for a, b in zip(jax.tree.leaves(grads), jax.tree.leaves(grads_ref), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
@@ -253,13 +273,13 @@ def test_burn_in_warms_the_lstm_without_loss_or_gradient(small_net):
 def test_gradients_flow_only_to_online_and_grad_mode(small_net):
     net, online, target = small_net
     w = _windows(jax.random.key(4))
-    g_target = jax.grad(lambda t: sequence_loss(online, t, w, net, 0.9)[0])(target)
+    _, g_target = _td_grads(online, target, w, net)
     assert all(float(jnp.abs(x).max()) == 0.0 for x in jax.tree.leaves(g_target))
     # MSE mode: the loss is ½δ², its clamped gradient is in [-1, 1]
-    loss_mse, aux = sequence_loss(online, target, w, net, 0.9, CLIP_GRAD)
-    loss_huber, _ = sequence_loss(online, target, w, net, 0.9, CLIP_HUBER)
+    loss_mse, aux = _td_loss(online, target, w, net, CLIP_GRAD)
+    loss_huber, _ = _td_loss(online, target, w, net, CLIP_HUBER)
     assert float(loss_mse) >= float(loss_huber)
-    g = jax.grad(lambda p: sequence_loss(p, target, w, net, 0.9, CLIP_GRAD)[0])(online)
+    g, _ = _td_grads(online, target, w, net, CLIP_GRAD)
     clamped, _ = clip(1.0).update(g, (), online)
     assert all(float(jnp.abs(x).max()) <= 1.0 for x in jax.tree.leaves(clamped))
     assert float(aux["td_abs"]) > 0.0
@@ -287,8 +307,7 @@ def test_imitation_term_adds_the_weighted_margin_and_teaches_the_expert(small_ne
     zero, _ = sequence_loss(online, target, w, net, 0.9, CLIP_GRAD, 1, expert, weight * 0, 1.0)
     assert float(zero) == float(td_loss)
     loss, aux = sequence_loss(online, target, w, net, 0.9, CLIP_GRAD, 1, expert, weight, 1.0)
-    q, _ = net.unroll(online, w.obs, net.initial_carry((3,)), jnp.zeros((5, 3), bool))
-    q = np.asarray(q[:-1], np.float64)
+    q = np.asarray(_unroll(net, online, w.obs)[:-1], np.float64)
     q_expert = np.take_along_axis(q, np.asarray(expert)[..., None], -1)[..., 0]
     other = np.arange(4) != np.asarray(expert)[..., None]
     j_e = (q + 1.0 * other).max(-1) - q_expert
@@ -310,7 +329,6 @@ def test_imitation_term_adds_the_weighted_margin_and_teaches_the_expert(small_ne
     params, opt_state = online, opt.init(online)
     for _ in range(200):
         params, opt_state = step(params, opt_state)
-    q, _ = net.unroll(params, w.obs, net.initial_carry((3,)), jnp.zeros((5, 3), bool))
-    greedy = np.asarray(jnp.argmax(q[:-1], -1))
+    greedy = np.asarray(jnp.argmax(_unroll(net, params, w.obs)[:-1], -1))
     taught = m & (np.asarray(weight) > 0)
     np.testing.assert_array_equal(greedy[taught], np.asarray(expert)[taught])
