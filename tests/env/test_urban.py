@@ -170,7 +170,7 @@ def test_vmap_matches_python_loop(env_params, jit_step):
     env, params = env_params
     n, steps = 64, 12
     keys = jax.random.split(jax.random.key(2), n)
-    _, states = jax.vmap(env.reset, (0, None))(keys, params)
+    _, states = jax.jit(jax.vmap(env.reset, (0, None)))(keys, params)
     actions = jax.random.randint(jax.random.key(3), (steps, n), 0, 4)
     step_keys = jax.random.split(jax.random.key(4), (steps, n))
     vstep = jax.jit(jax.vmap(env.step, (0, 0, 0, None)))

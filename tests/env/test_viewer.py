@@ -120,7 +120,9 @@ def test_frame_is_240_by_480_uint8(env_params, fns, start):
 
 def test_other_sizes_crop_the_hud(env_params, start):
     env, params = env_params
-    small = viewer.render_frame(start, params, env.static, half_width_m=2.0, pixels_per_m=2)
+    small = jax.jit(  # one program (op by op: about 200 small ones)
+        lambda s, p: viewer.render_frame(s, p, env.static, half_width_m=2.0, pixels_per_m=2)
+    )(start, params)
     assert small.shape == (8, 120, 3) and small.dtype == jnp.uint8
 
 

@@ -520,7 +520,7 @@ def test_the_vector_env_resets_exactly_the_envs_that_restart(restarting):
     assert len(restarting) == 0 or len(restarting) <= gv.SPARSE_RESETS < n or len(restarting) == n
     mask = np.isin(np.arange(n), restarting)
     keys = jax.random.split(jax.random.key(7), 3 * n)
-    states = jax.vmap(env.reset_state, (0, None))(keys[:n], params)
+    states = jax.jit(jax.vmap(env.reset_state, (0, None)))(keys[:n], params)
     held = jax.random.key_data(keys[n : 2 * n])
     reset_data = jax.random.key_data(keys[2 * n :])
     restart = jax.jit(lambda *a: gv._restart_where(env, *a))

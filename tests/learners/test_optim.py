@@ -68,11 +68,15 @@ def test_adam_and_radam_match_optax_over_100_steps(lr, ours, theirs, atol):
     ours, theirs = ours(lr), theirs(lr)
     p_ours, p_theirs = params, params
     s_ours, s_theirs = ours.init(params), theirs.init(params)
-    for _ in range(100):
+
+    @jax.jit  # as training runs it, and one program (op by op: a hundred small ones)
+    def steps(p_ours, s_ours, p_theirs, s_theirs):
         u, s_ours = ours.update(grad(p_ours), s_ours, p_ours)
-        p_ours = apply_updates(p_ours, u)
-        u, s_theirs = theirs.update(grad(p_theirs), s_theirs, p_theirs)
-        p_theirs = optax.apply_updates(p_theirs, u)
+        u_theirs, s_theirs = theirs.update(grad(p_theirs), s_theirs, p_theirs)
+        return apply_updates(p_ours, u), s_ours, optax.apply_updates(p_theirs, u_theirs), s_theirs
+
+    for _ in range(100):
+        p_ours, s_ours, p_theirs, s_theirs = steps(p_ours, s_ours, p_theirs, s_theirs)
     for a, b in zip(jax.tree.leaves(p_ours), jax.tree.leaves(p_theirs), strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=atol, rtol=0)
     assert not np.allclose(np.asarray(p_ours["w"]), np.asarray(params["w"]))  # it moved

@@ -71,14 +71,17 @@ def test_loss_is_half_the_squared_error_against_the_q_lambda_targets(rollout):
     rollout and the scaled rewards."""
     trainer, state, after, traj = rollout
     hp = state.hparams
-    q_after, _ = trainer.network.step(state.online, after.obs, restarted(trainer.network, after))
+    carry = restarted(trainer.network, after)
+    q_after, _ = jax.jit(trainer.network.step)(state.online, after.obs, carry)  # not op by op
     q_next = jnp.concatenate([traj.q[1:], q_after[None]]).max(axis=-1)
     reward = traj.reward * hp.reward_scale  # purejaxql's 0.1 in pqn_config
     targets = q_lambda_targets(q_next, reward, traj.done, hp.gamma, hp.q_lambda)
     chosen = jnp.take_along_axis(traj.q, traj.action[..., None], axis=-1)[..., 0]
     expected = 0.5 * float(jnp.mean((chosen - targets) ** 2))
     last = jax.tree.map(lambda x: x[0], traj)._replace(obs=after.obs, reset=after.done)
-    loss, _ = pqn_loss(state.online, trainer.network, state.carry, traj, last, hp)
+    loss, _ = jax.jit(pqn_loss, static_argnums=1)(
+        state.online, trainer.network, state.carry, traj, last, hp
+    )
     assert float(loss) == pytest.approx(expected, rel=1e-4)
 
 
