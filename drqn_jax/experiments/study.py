@@ -426,7 +426,7 @@ def _train_arms(
         restored = restore_runs(directory, arm.sweep, stored)
         if restored and not quiet:
             print(f"{arm.name}: {restored} finished run(s) from the results file", file=sys.stderr)
-        changed = [] if restored else differing_runs(directory, arm.sweep, stored)
+        changed = [] if restored or not stored else differing_runs(directory, arm.sweep, stored)
         if changed:
             print(
                 f"{arm.name}: run(s) {changed} in {directory} differ from the results file's "
