@@ -115,21 +115,23 @@ def test_grid_nearest_pedestrian_wins_shared_cell(params, static, raster, nearer
     assert int(np.count_nonzero(grid[..., 0])) == 1
 
 
-def test_nearest_wins_pairwise_equals_the_mask_form(monkeypatch):
-    # P = 12 pedestrians in 4 cells with many exact distance ties: the pairwise
-    # form (P <= PAIRWISE_MAX_PEDESTRIANS) and the (P, P) mask form agree.
-    from drqn_jax.env import grid
+@pytest.mark.parametrize("num", [12, 40])
+def test_nearest_wins_equals_the_numpy_oracle(num):
+    # P pedestrians in 4 cells with many exact distance ties: the OR-ed rows agree
+    # with the NumPy oracle's (P, P) mask reduced by ``np.any``, one winner per cell.
+    from benchmarks.numpy_env import _nearest_wins as oracle
+    from drqn_jax.env.grid import _nearest_wins
 
-    rng = np.random.default_rng(0)
-    flat = jnp.asarray(rng.integers(0, 4, (50, 12)), jnp.int32)
-    dist2 = jnp.asarray(rng.integers(0, 3, (50, 12)), jnp.float32)
-    pairwise = jax.vmap(grid._nearest_wins, (0, 0, None))(flat, dist2, 1350)
-    monkeypatch.setattr(grid, "PAIRWISE_MAX_PEDESTRIANS", 0)
-    mask = jax.vmap(grid._nearest_wins, (0, 0, None))(flat, dist2, 1350)
-    np.testing.assert_array_equal(np.asarray(pairwise), np.asarray(mask))
-    kept = np.asarray(pairwise) < 1350
-    for row in range(50):  # one winner per occupied cell
-        assert sorted(np.asarray(flat)[row][kept[row]]) == sorted(set(np.asarray(flat)[row]))
+    rng = np.random.default_rng(num)
+    flat = rng.integers(0, 4, (50, num)).astype(np.int32)
+    dist2 = rng.integers(0, 3, (50, num)).astype(np.float32)
+    got = np.asarray(
+        jax.jit(jax.vmap(_nearest_wins, (0, 0, None)), static_argnums=2)(flat, dist2, 1350)
+    )
+    for row in range(50):
+        np.testing.assert_array_equal(got[row], oracle(flat[row], dist2[row], 1350))
+        kept = got[row] < 1350
+        assert sorted(flat[row][kept]) == sorted(set(flat[row]))
 
 
 def test_grid_semantic_map_channel(static, raster):
