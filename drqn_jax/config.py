@@ -10,7 +10,8 @@ names only what it changes:
   An override ``env.id=...`` brings the new id's preset also where the file
   repeats the old id's (as a run's resolved ``config.toml`` does): a trained
   run is evaluated among other pedestrians with ``--set env.id=...``;
-* ``[network]``: ``kind``, ``conv``, ``recurrent``, ``hidden`` (Table I), ``frames``;
+* ``[network]``: ``kind``, ``conv``, ``recurrent``, ``hidden`` (Table I), ``frames``,
+  ``layer_norm``, ``cell`` and ``scan_unroll`` (compile time against speed; same bits);
 * ``[train]``: the ``TrainConfig`` sizes (envs, episodes, replay, batch,
   window, update ratio, chunk) and every ``Hyperparams`` field (Table II);
 * ``[rule_based]``: the baseline's ``RuleBasedParams`` (SPEC §6);
@@ -59,6 +60,7 @@ __all__ = [
     "RENAMED_LEAVES",
     "REVISED",
     "TRAIN_SIZES",
+    "UNHASHED",
     "Config",
     "ConfigError",
     "added_leaves",
@@ -73,6 +75,10 @@ CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 
 #: The sections a training checkpoint depends on (the rest may change on resume).
 TRAINING_SECTIONS = ("run.seed", "env", "network", "train")
+
+#: Fields no result depends on (tests check the bits): left out of
+#: :meth:`Config.training_dict`, so a run resumes with another value.
+UNHASHED = {("network", "scan_unroll")}
 
 #: Fields added after run directories existed, with the value those runs had:
 #: left out of :meth:`Config.training_dict` at that value, so the runs resume.
@@ -492,6 +498,7 @@ class Config:
             frames=net["frames"],
             layer_norm=net["layer_norm"],
             cell=net["cell"],
+            scan_unroll=net["scan_unroll"],
         )
 
     def hyperparams(self) -> Hyperparams:
@@ -574,9 +581,10 @@ class Config:
     def training_dict(self) -> dict[str, Any]:
         """The part of the configuration a training run's results depend on.
 
-        Fields at the value runs had before they existed (``ADDED_LATER``) are
-        left out, and a ``RENAMED`` field is written under its old name and
-        code, so the hashes of older runs stay what they were.
+        Fields at the value runs had before they existed (``ADDED_LATER``) and
+        fields no result depends on (``UNHASHED``) are left out, and a ``RENAMED``
+        field is written under its old name and code, so the hashes of older runs
+        stay what they were.
         """
         out: dict[str, Any] = {}
         for entry in TRAINING_SECTIONS:
@@ -586,7 +594,7 @@ class Config:
                 continue
             table = {}
             for field, value in self[section].items():
-                if (section, field) in ADDED_LATER and ADDED_LATER[(section, field)] == value:
+                if (section, field) in UNHASHED or ADDED_LATER.get((section, field), ()) == value:
                     continue
                 table.update([_old_name(section, field, value)])
             out[entry] = table

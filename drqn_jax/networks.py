@@ -90,6 +90,9 @@ class NetworkConfig:
             Table I, none).
         cell: the recurrent cell of kind ``drqn``: ``"lstm"`` (Table I) or
             ``"gru"`` (purejaxql's recurrent PQN; :func:`gru_cell`).
+        scan_unroll: steps of each recurrent layer's ``lax.scan`` (an unroll)
+            written out per loop iteration: the same bits whatever its value; more
+            compile longer (9: the paper's windows whole, PPO's rollouts in blocks).
     """
 
     kind: str = "drqn"
@@ -104,6 +107,7 @@ class NetworkConfig:
     obs_size: int = 0
     layer_norm: bool = False
     cell: str = "lstm"
+    scan_unroll: int = 9
 
     def __post_init__(self) -> None:
         if not isinstance(self.layer_norm, bool):
@@ -132,7 +136,7 @@ class NetworkConfig:
                     f"NetworkConfig.frames = {self.frames}: stacking is for grids (torso "
                     "'conv'); use 1"
                 )
-        for name in ("recurrent", "hidden", "frames", "num_actions"):
+        for name in ("recurrent", "hidden", "frames", "num_actions", "scan_unroll"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"NetworkConfig.{name} = {value!r}: must be an integer >= 1")
@@ -317,21 +321,15 @@ def lstm_cell(p: Params, x: jax.Array, state: LSTMState) -> tuple[jax.Array, LST
     return _lstm_gates(affine(jnp.concatenate([x, h], axis=-1), p["w"], p["b"]), c)
 
 
-#: Steps of an LSTM's ``lax.scan`` unrolled into one loop iteration: the paper's
-#: windows (8 transitions, 9 observations) whole; longer sequences (PPO's
-#: rollouts) in blocks, so that their programs stay small.
-UNROLL = 9
-
-
 def _recurrent_layer(
     p: Params,
     x: jax.Array,
     extra: jax.Array | None,
     state: Any,
     resets: jax.Array,
-    cell: str = "lstm",
+    config: NetworkConfig,
 ) -> tuple[jax.Array, Any]:
-    """One recurrent layer of ``cell`` (:data:`CELLS`) over a time-major sequence:
+    """One recurrent layer of ``config.cell`` (:data:`CELLS`) over a time-major sequence:
     outputs (T, B..., H) and the last state.
 
     The same function as :func:`lstm_cell` (:func:`gru_cell`) step by step on
@@ -351,13 +349,14 @@ def _recurrent_layer(
     def body(state, xs):
         gates, reset = xs
         state = jax.tree.map(lambda s: jnp.where(reset[..., None], 0.0, s), state)
-        if cell == "gru":
+        if config.cell == "gru":
             h, state = _gru_gates(gates, state[0], w_h, p["b_hn"])
         else:
             h, state = _lstm_gates(gates + matmul(state[0], w_h), state[1])
         return state, h
 
-    state, h = jax.lax.scan(body, state, (x_gates, resets), unroll=min(x.shape[0], UNROLL))
+    unroll = min(x.shape[0], config.scan_unroll)
+    state, h = jax.lax.scan(body, state, (x_gates, resets), unroll=unroll)
     return h, state
 
 
@@ -632,8 +631,8 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         if config.kind == "dqn":  # no carry: every step at once
             return core_step(params, features, extra, carry)
         first, second = carry
-        h1, first = _recurrent_layer(params[layers[0]], features, None, first, resets, config.cell)
-        h2, second = _recurrent_layer(params[layers[1]], h1, extra, second, resets, config.cell)
+        h1, first = _recurrent_layer(params[layers[0]], features, None, first, resets, config)
+        h2, second = _recurrent_layer(params[layers[1]], h1, extra, second, resets, config)
         return head(params, h2), (first, second)
 
     return Network(

@@ -189,8 +189,9 @@ def invariant_rollout(env, params, keys, num_steps: int):
     return jax.vmap(one)(keys)
 
 
+#: smoke.toml's network.
 SMALL_NET = NetworkConfig(
-    conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=16, hidden=16
+    conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=16, hidden=16, scan_unroll=1
 )
 
 

@@ -401,10 +401,15 @@ def test_training_hash_tracks_training_fields_only():
 def test_training_hashes_of_existing_run_directories_stay_put():
     """A run directory resumes only while its config hashes as it did when written.
     This hash was smoke's at 8e816cf^ (before PQN's fields): a new training field
-    must enter ``ADDED_LATER`` at its default, or every run on disk stops resuming."""
+    must enter ``ADDED_LATER`` at its default, or every run on disk stops resuming.
+    ``network.scan_unroll`` (1 in smoke) changes no bit, so it is not hashed: a run
+    resumes with another."""
     assert load_config("smoke").training_hash() == (
         "5e48885dee7fa0a58840fde4ac3253df03e13fa22cc134012a7b52e94a27a153"
     )
+    unrolled = load_config("smoke", ["network.scan_unroll=9"])
+    assert unrolled.network_config().scan_unroll == 9
+    assert unrolled.training_hash() == load_config("smoke").training_hash()
 
 
 def test_fields_added_later_keep_older_runs_resumable():

@@ -456,10 +456,14 @@ def test_vmapped_seeds_read_their_hyperparameters_from_the_state_alone(tiny, tin
     """Seeds under ``vmap`` train bit for bit as separate runs, and
     ``TrainConfig.hyperparams`` is only ``init``'s default: a trainer built with other
     hyperparameters, given the tiny run's as ``init``'s argument, trains as the tiny
-    run (what sweeps and resumes rely on). One compiled program checks both."""
+    run (what sweeps and resumes rely on). Its network has the default
+    ``scan_unroll`` (9: the windows' 5 steps written out, against smoke's 1), which
+    changes no bit either. One compiled program checks all three."""
     trainer, train = tiny
+    assert trainer.config.network.scan_unroll == 1
     other = dataclasses.replace(
         trainer.config,
+        network=dataclasses.replace(trainer.config.network, scan_unroll=9),
         hyperparams=Hyperparams(
             learning_rate=3e-2, gamma=0.5, target_period=3, epsilon_end=0.5, learning_starts=2
         ),
