@@ -26,13 +26,11 @@ from drqn_jax.env.road_map import semantic_class
 from drqn_jax.env.state import ACTIONS, BEHAVIOURS
 from drqn_jax.evaluation import episode_keys, run_episodes
 from drqn_jax.interop import episode_record, recording, training_recording
-from drqn_jax.networks import NetworkConfig, make_network
+from drqn_jax.networks import make_network
+from tests.helpers import SMALL_NET
 
 NUM_EPISODES = 2
 MAX_STEPS = 30
-TINY_NETWORK = NetworkConfig(
-    conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=16, hidden=16
-)
 
 
 # --- reading a recording ---------------------------------------------------------
@@ -166,7 +164,7 @@ def rule_based(tmp_path_factory, env_params, key):
 def drqn(tmp_path_factory, env_params, key):
     """(rrd contents, reference episodes) of a DRQN with a tiny network and random weights."""
     env, params = env_params
-    network = make_network(TINY_NETWORK)
+    network = make_network(SMALL_NET)
     weights = network.init(jax.random.key(3))
     agent = drqn_jax.drqn_agent(network, weights)
     path = tmp_path_factory.mktemp("rec") / "drqn.rrd"
@@ -348,7 +346,7 @@ def test_drqn_episode_is_bit_identical_alone_or_in_a_batch(env_params, key):
     fewer rows differently; see tests/test_evaluation.py for the real widths).
     """
     env, params = env_params
-    network = make_network(TINY_NETWORK)
+    network = make_network(SMALL_NET)
     weights = network.init(jax.random.key(3))
     agent = drqn_jax.drqn_agent(network, weights)
 

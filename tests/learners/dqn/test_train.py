@@ -562,7 +562,10 @@ def test_learns_to_drive_near_the_speed_limit():
             ("prob_sidewalk", 1.0),
         ),
         network=NetworkConfig(
-            conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=32, hidden=32
+            conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)),
+            recurrent=32,
+            hidden=32,
+            scan_unroll=1,
         ),
         num_envs=16,
         num_episodes=192,
