@@ -294,6 +294,7 @@ def test_set_overrides_and_parsing():
         ("env.max_steps=0", r"env\.max_steps = 0: must be an integer >= 1"),
         ("env.prob_crossing=0.9", r"\[env\]|prob_crossing"),
         ("network.kind=lstm", r"network\.kind = 'lstm': must be one of"),
+        ("network.scan_unroll=0", r"network\.scan_unroll = 0: must be an integer >= 1"),
         ("network.conv=[[8, 6, 4]]", r"network\.conv = .*kernel_h, kernel_w, stride, filters"),
         ("network.conv=[[50, 6, 4, 8]]", r"network\.conv = .*shrinks to nothing"),
         ("run.seed=-1", r"run\.seed = -1"),
