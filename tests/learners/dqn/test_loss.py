@@ -147,7 +147,7 @@ def test_huber():
 
 @pytest.fixture(scope="module")
 def small_net():
-    net = make_network(NetworkConfig(recurrent=16, hidden=16))
+    net = make_network(NetworkConfig(recurrent=16, hidden=16, scan_unroll=1))
     return net, net.init(jax.random.key(0)), net.init(jax.random.key(1))
 
 
