@@ -230,8 +230,9 @@ def pqn_memory_config(
         epsilon_fraction=0.1,
         explore_bias_fraction=0.0,
     )
-    wide = {"recurrent": width, "hidden": width, "mlp": (width,) * 2}
-    core = SMALL if width is None else {**SMALL, **wide}
+    core = dict(SMALL)
+    if width is not None:
+        core.update(recurrent=width, hidden=width, mlp=(width,) * 2)
     return TrainConfig(
         env_id="gymnax:MemoryChain-bsuite",
         env_overrides=(("max_steps", memory_length + 1), ("memory_length", memory_length)),

@@ -100,9 +100,7 @@ MB = 1e6
 
 QUICK_CONFIG = TrainConfig(
     env_overrides=(("max_steps", 30),),
-    network=NetworkConfig(
-        conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=16, hidden=16, scan_unroll=1
-    ),
+    network=load_config("smoke").network_config(),
     num_episodes=50,
     replay_episodes=8,
     batch_size=4,

@@ -15,7 +15,6 @@ from drqn_jax.env.state import SIDEWALK
 from drqn_jax.experiments.frontier import with_margin
 from drqn_jax.experiments.study import baseline_row
 from drqn_jax.learners import Hyperparams, TrainConfig, make_train
-from drqn_jax.networks import NetworkConfig
 
 #: The smoke config as test_sweep's sweep sets it. test_study and test_memory
 #: train with the same settings so that the suite compiles those programs once
@@ -190,9 +189,7 @@ def invariant_rollout(env, params, keys, num_steps: int):
 
 
 #: smoke.toml's network.
-SMALL_NET = NetworkConfig(
-    conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)), recurrent=16, hidden=16, scan_unroll=1
-)
+SMALL_NET = load_config("smoke").network_config()
 
 
 def train_alone(point: Any) -> tuple[Any, dict[str, jax.Array]]:
