@@ -15,6 +15,13 @@ in-memory cache misses it; one of them was compiled 80 times in a profile,
 ``benchmarks/suite_profile.py``), and both workers and the subprocesses compile
 the same op-by-op programs; from the persistent cache each is compiled once.
 
+Each pytest-xdist worker gets its share of the cores as its XLA:CPU thread pool
+(``PJRT_NPROC``: cores // workers, at least 1, unless ``PJRT_NPROC`` is set): with
+the default pool (every core) in every worker, 2 workers on 2 cores run 4 pool
+threads that contend for the cores. Results do not depend on the pool's size
+(:mod:`drqn_jax.determinism`; the 4-device and 2-process tests run a bigger pool
+than their parent's and compare every bit).
+
 No test file needs to drop compiled programs to stay under Linux's
 ``vm.max_map_count``: :mod:`drqn_jax.programs` bounds what it holds by memory
 maps, and over its budget clears JAX's own caches first (where the tests' own
@@ -30,10 +37,18 @@ import jax
 import pytest
 
 import drqn_jax
+from drqn_jax.determinism import cpu_thread_pool_size
 
 _CACHE_VARIABLE = "JAX_COMPILATION_CACHE_DIR"
 _MIN_TIME_VARIABLE = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
 _made_cache = pytest.StashKey[str]()
+
+
+def _share_the_cores() -> None:
+    """An xdist worker's ``PJRT_NPROC``: the usable cores over the workers."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1 and "PJRT_NPROC" not in os.environ:
+        os.environ["PJRT_NPROC"] = str(max(1, cpu_thread_pool_size() // workers))
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -44,6 +59,7 @@ def pytest_configure(config: pytest.Config) -> None:
         os.environ[_CACHE_VARIABLE] = path
         config.stash[_made_cache] = path
     os.environ.setdefault(_MIN_TIME_VARIABLE, "0")
+    _share_the_cores()  # before this worker's CPU backend starts
     # jax was imported (by drqn_jax) before the variables were set in this process.
     jax.config.update("jax_compilation_cache_dir", os.environ[_CACHE_VARIABLE])
     jax.config.update(
