@@ -117,15 +117,15 @@ def test_config_validation():
 def test_chunked_run_ends_bit_identical_to_one_shot():
     """Updates after the episode budget is met change nothing: chunks of 1 and 3
     updates end where the whole run in one ``train`` call does. That call's network
-    writes out its scans 9 steps per loop iteration (the default ``scan_unroll``: a
-    16-step rollout in blocks of 9 and 7), the chunks' one step (the recipe's): the
-    same bits."""
+    writes out its scans 3 steps per loop iteration (``scan_unroll = 3``: a 16-step
+    rollout as a loop over five blocks of 3, then the last step), the chunks' one
+    step (the recipe's): the same bits (the default 9 is test_networks')."""
     config = dataclasses.replace(
         ppo_config(num_episodes=24, num_env_steps=0), rollout_steps=16, chunk_iterations=5
     )
     trainer = make_train(config)
     assert config.network.scan_unroll == 1
-    unrolled = dataclasses.replace(config.network, scan_unroll=9)
+    unrolled = dataclasses.replace(config.network, scan_unroll=3)
     key = jax.random.key(1)
     params, metrics = jax.jit(make_train(dataclasses.replace(config, network=unrolled)).train)(key)
     run = jax.jit(trainer.run, static_argnums=1)  # one program per chunk size
