@@ -20,8 +20,7 @@ from drqn_jax.learners.dqn.loss import sequence_loss
 from drqn_jax.learners.dqn.replay import WINDOW_ANYWHERE, sample_windows
 from drqn_jax.learners.hyperparams import IMITATION_STATES, annealed, step_share, teacher_label
 from drqn_jax.learners.task import observations
-from drqn_jax.networks import NetworkConfig
-from tests.helpers import assert_tree_equal, take, tiny_train_config
+from tests.helpers import SMALL_NET, assert_tree_equal, take, tiny_train_config
 
 TINY = tiny_train_config()
 
@@ -561,12 +560,7 @@ def test_learns_to_drive_near_the_speed_limit():
             ("prob_jaywalking", 0.0),
             ("prob_sidewalk", 1.0),
         ),
-        network=NetworkConfig(
-            conv=((8, 6, 4, 8), (4, 3, 3, 16), (2, 2, 2, 16)),
-            recurrent=32,
-            hidden=32,
-            scan_unroll=1,
-        ),
+        network=dataclasses.replace(SMALL_NET, recurrent=32, hidden=32),
         num_envs=16,
         num_episodes=192,
         replay_episodes=32,
