@@ -36,6 +36,19 @@ base = "smoke"
 """.format("\n".join('"{}" = {}'.format(*s.split("=")) for s in SMOKE_SWEEP_SET))
 
 
+#: XLA:CPU compiler options without LLVM's optimisation: a program compiles in about
+#: half the time and runs slower. Its floating point rounds differently from the
+#: default level's (benchmarks/RESULTS.md), so only a test that compares a program's
+#: outputs with each other, or with a reference within a tolerance, may compile with
+#: it: never one that checks the bits a user's program gives.
+FAST_COMPILE = {"xla_backend_optimization_level": 0}
+
+
+def fast_jit(fun, **options):
+    """``jax.jit(fun, **options)`` compiled with :data:`FAST_COMPILE` (see there)."""
+    return jax.jit(fun, compiler_options=FAST_COMPILE, **options)
+
+
 def tree_equal(a, b) -> bool:
     """Bitwise equality of two pytrees (structure, shapes, dtypes, values incl. NaN/inf)."""
     la, ta = jax.tree.flatten(a)

@@ -18,7 +18,7 @@ from drqn_jax.networks import (
     make_network,
     param_count,
 )
-from tests.helpers import flat_random
+from tests.helpers import fast_jit, flat_random
 
 
 @pytest.fixture(scope="module")
@@ -63,8 +63,8 @@ def test_conv_stack_reaches_1x1x64(drqn):
 def test_gathered_patches_are_the_sliced_patches(shape, kh, kw, stride):
     # the first layer's gather must copy exactly what the slices copy, in their order
     x = flat_random(jax.random.normal, jax.random.key(1), shape)
-    gathered = np.asarray(jax.jit(_gathered_patches, static_argnums=(1, 2, 3))(x, kh, kw, stride))
-    sliced = np.asarray(jax.jit(_patches, static_argnums=(1, 2, 3))(x, kh, kw, stride))
+    gathered = np.asarray(fast_jit(_gathered_patches, static_argnums=(1, 2, 3))(x, kh, kw, stride))
+    sliced = np.asarray(fast_jit(_patches, static_argnums=(1, 2, 3))(x, kh, kw, stride))
     assert gathered.shape == sliced.shape
     np.testing.assert_array_equal(gathered, sliced)
     # and the slices are the convolution's patches: one kernel per patch position
@@ -126,15 +126,15 @@ def test_unroll_equals_repeated_steps_with_resets(drqn):
     steps, batch = 6, 3
     obs = _obs(jax.random.key(2), (steps, batch))
     resets = jnp.zeros((steps, batch), bool).at[3, 1].set(True)  # env 1 restarts at t = 3
-    q_seq, _final = jax.jit(net.unroll)(params, obs, net.initial_carry((batch,)), resets)
+    q_seq, _final = fast_jit(net.unroll)(params, obs, net.initial_carry((batch,)), resets)
     carry = net.initial_carry((batch,))
-    step = jax.jit(net.step)
+    step = fast_jit(net.step)
     for t in range(steps):
         carry = jax.tree.map(lambda x, t=t: jnp.where(resets[t][:, None], 0.0, x), carry)
         q, carry = step(params, jax.tree.map(lambda x, t=t: x[t], obs), carry)
         np.testing.assert_allclose(np.asarray(q_seq[t]), np.asarray(q), rtol=1e-5, atol=1e-6)
     # the reset really changes env 1 from t = 3 on, and nothing else
-    q_nr, _ = jax.jit(net.unroll)(
+    q_nr, _ = fast_jit(net.unroll)(
         params, obs, net.initial_carry((batch,)), jnp.zeros((steps, batch), bool)
     )
     assert np.array_equal(np.asarray(q_nr[:3]), np.asarray(q_seq[:3]))
@@ -150,7 +150,7 @@ def test_memory_matters_for_drqn_not_dqn():
         net = make_network(NetworkConfig(kind=kind, recurrent=32, hidden=32))
         params = net.init(jax.random.key(0))
         resets = jnp.zeros((4, 1), bool)
-        unroll = jax.jit(net.unroll)  # one program for both sequences
+        unroll = fast_jit(net.unroll)  # one program for both sequences
         q_a, _ = unroll(params, obs, net.initial_carry((1,)), resets)
         q_b, _ = unroll(params, other_first, net.initial_carry((1,)), resets)
         changed_later = not np.allclose(np.asarray(q_a[3]), np.asarray(q_b[3]))
@@ -214,7 +214,7 @@ def test_mlp_torso_for_flat_observations():
         params = net.init(jax.random.key(0))
         assert [layer["w"].shape for layer in params["torso"]] == [(3, 16), (16, 8)]
         assert "conv" not in params and config.extra_inputs == 0
-        unroll, step = jax.jit(net.unroll), jax.jit(net.step)  # a program each, not op by op
+        unroll, step = fast_jit(net.unroll), fast_jit(net.step)  # a program each, not op by op
         q_seq, _ = unroll(params, obs, net.initial_carry((2,)), resets)
         carry = net.initial_carry((2,))
         for t in range(5):
@@ -248,9 +248,9 @@ def test_frame_stacking_dqn_sees_the_last_grids_and_restarts_with_the_episode():
     steps, batch = 6, 2
     obs = _obs(jax.random.key(4), (steps, batch))
     resets = jnp.zeros((steps, batch), bool).at[3, 1].set(True)
-    unroll = jax.jit(net.unroll)  # one program for every unroll below (op by op: hundreds)
+    unroll = fast_jit(net.unroll)  # one program for every unroll below (op by op: hundreds)
     q_seq, final = unroll(params, obs, net.initial_carry((batch,)), resets)
-    carry, step = net.initial_carry((batch,)), jax.jit(net.step)
+    carry, step = net.initial_carry((batch,)), fast_jit(net.step)
     assert carry.shape == (batch, 2, 45, 30, 4)
     for t in range(steps):
         carry = jnp.where(resets[t][:, None, None, None, None], 0.0, carry)

@@ -1,18 +1,21 @@
 """``benchmarks/purejaxql_reference.py``'s adapters: the gymnax step purejaxql was
-written for, and the LSTM that stands in for its GRU (its clone is not needed)."""
+written for, and the LSTM that stands in for its GRU (its clone is not needed).
+gymnax is imported where it is used, not at collection: importing it (and the
+plotting libraries it brings) costs each pytest worker about 2 s."""
 
 from __future__ import annotations
 
-import gymnax
 import jax
 import jax.numpy as jnp
 import numpy as np
-from gymnax.wrappers.purerl import FlattenObservationWrapper, LogWrapper
 
 from benchmarks.purejaxql_reference import _gymnax_step_of_its_time, lstm_core
 
 
 def test_the_step_is_gymnaxs_five_tuple_with_done_as_terminated_or_truncated():
+    import gymnax
+    from gymnax.wrappers.purerl import FlattenObservationWrapper, LogWrapper
+
     env, params = gymnax.make("MemoryChain-bsuite")
     env = LogWrapper(FlattenObservationWrapper(env))
     six = LogWrapper.step

@@ -24,6 +24,7 @@ from drqn_jax.env.pedestrians import (
 from drqn_jax.env.road_map import CROSSING_AREA, ROAD, WALKWAY, semantic_class
 from drqn_jax.env.state import BRAKE, CROSSING, JAYWALKING, NUM_WAYPOINTS, SIDEWALK
 from tests import scenes
+from tests.helpers import fast_jit
 from tests.scenes import LANE_Y, box_distance, make_ego, make_peds, make_state
 
 
@@ -115,7 +116,7 @@ def test_pedestrians_walk_their_path_and_are_replaced(env_params):
     params = EnvParams(ped_speed_min=1.0, ped_speed_max=1.0)  # fast, to finish paths
     _, state = env.reset(jax.random.key(3), params)
 
-    @jax.jit
+    @fast_jit
     def run(state):
         def body(state, k):
             _, state, *_ = env.step_env(k, state, 2, params)  # ego brakes: stands still
@@ -141,7 +142,7 @@ def test_road_is_entered_only_by_crossers_and_jaywalkers(env_params):
     _, state = env.reset(jax.random.key(8), params)
     params_fast = EnvParams(ped_speed_min=1.0, ped_speed_max=1.5)
 
-    @jax.jit
+    @fast_jit
     def run(state):
         def body(state, k):
             _, state, *_ = env.step(k, state, 2, params_fast)

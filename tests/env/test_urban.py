@@ -22,6 +22,7 @@ from tests.helpers import (
     assert_tree_equal,
     batched_rollout_summary,
     bit_hash,
+    fast_jit,
     random_rollout,
     take,
     tree_equal,
@@ -223,7 +224,7 @@ def test_make_under_jit_vmap_1024(env_params):
     env, params = env_params
     n = 1024
 
-    @jax.jit
+    @fast_jit
     def run(key):
         keys = jax.random.split(key, n)
         _obs, state = jax.vmap(env.reset, (0, None))(keys, params)
@@ -298,7 +299,7 @@ def test_truncation_at_max_steps(env_params, jit_step):
     env, params = env_params
     state = _scene_with_pedestrian_at(env, params, -500.0, 100.0)
 
-    @jax.jit
+    @fast_jit
     def run(state):
         def body(state, k):
             # stand still (brake): no goal, and pedestrians keep respawning far ahead

@@ -24,7 +24,7 @@ from drqn_jax.learners.dqn.loss import (
 from drqn_jax.learners.dqn.replay import Windows
 from drqn_jax.learners.optim import adam, apply_updates, clip
 from drqn_jax.networks import NetworkConfig, make_network
-from tests.helpers import flat_random
+from tests.helpers import fast_jit, flat_random
 
 
 def test_double_dqn_target_hand_computed():
@@ -151,20 +151,22 @@ def small_net():
     return net, net.init(jax.random.key(0)), net.init(jax.random.key(1))
 
 
-@functools.partial(jax.jit, static_argnums=(3, 5))
-def _td_loss(online, target, windows, net, clip_mode=CLIP_HUBER, n_step=1):
-    """``sequence_loss`` at γ = 0.9 as one program per network and window shape, which
-    the tests share (op by op, each call compiles hundreds of small programs)."""
+def _sequence_loss(online, target, windows, net, clip_mode=CLIP_HUBER, n_step=1):
+    """``sequence_loss`` at γ = 0.9."""
     return sequence_loss(online, target, windows, net, 0.9, clip_mode, n_step)
 
 
+#: ``_sequence_loss`` as one program per network and window shape, which the tests
+#: share (op by op, each call compiles hundreds of small programs).
+_td_loss = fast_jit(_sequence_loss, static_argnums=(3, 5))
+
 #: The gradients of ``_td_loss`` with respect to the online and the target parameters.
-_td_grads = jax.jit(
-    jax.grad(lambda *args: _td_loss(*args)[0], argnums=(0, 1)), static_argnums=(3, 5)
+_td_grads = fast_jit(
+    jax.grad(lambda *args: _sequence_loss(*args)[0], argnums=(0, 1)), static_argnums=(3, 5)
 )
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@functools.partial(fast_jit, static_argnums=0)
 def _unroll(net, params, obs):
     """The network's Q-values over a window from the initial carry, no resets."""
     batch = obs.speed.shape[1:]
@@ -259,7 +261,7 @@ def test_burn_in_warms_the_lstm_without_loss_or_gradient(small_net):
         return sequence_loss(online, target, w.replace(obs=obs), net, 0.9, burn_in=burn_in)[0]
 
     # jitted, one program per burn-in: op by op, each unroll's scan compiles anew
-    loss_and_grad = jax.jit(jax.value_and_grad(loss_of), static_argnums=1)
+    loss_and_grad = fast_jit(jax.value_and_grad(loss_of), static_argnums=1)
     with_burn, g_burn = loss_and_grad(w.obs.grid, burn)
     through, g_through = loss_and_grad(w.obs.grid, 0)
     assert float(with_burn) == pytest.approx(float(through), rel=1e-6)
@@ -316,7 +318,7 @@ def test_imitation_term_adds_the_weighted_margin_and_teaches_the_expert(small_ne
 
     opt = adam(1e-2)
 
-    @jax.jit
+    @fast_jit
     def step(params, opt_state):
         grads = jax.grad(
             lambda p: sequence_loss(p, target, w, net, 0.0, CLIP_GRAD, 1, expert, weight * 50)[0]

@@ -22,6 +22,7 @@ from drqn_jax.learners.dqn.replay import (
     sample_windows,
 )
 from drqn_jax.learners.task import observations
+from tests.helpers import fast_jit
 
 STATIC = StaticEnvParams(num_pedestrians=2)
 
@@ -52,7 +53,7 @@ def _record(n, episode, t):
     )
 
 
-@jax.jit
+@fast_jit
 def _fill(replay, lengths, episode_ids):
     """Writers play episodes of the given lengths (E, N) one after another; the
     last one is left in progress."""
@@ -91,7 +92,7 @@ def _sample(replay, key, window_start):  # always traced: one program for both m
     return sample_windows(replay, key, BATCH, WINDOW, _observe, window_start)
 
 
-sample = jax.jit(_sample)
+sample = fast_jit(_sample)
 
 
 @settings(max_examples=15, deadline=None, derandomize=True)
@@ -146,7 +147,7 @@ def test_windows_stay_inside_one_complete_episode(
 BURN_IN = 5
 
 
-@jax.jit
+@fast_jit
 def _sample_burn_in(replay, key):
     return sample_windows(replay, key, BATCH, WINDOW, _observe, WINDOW_INSIDE, BURN_IN)
 

@@ -20,7 +20,7 @@ from drqn_jax.learners.dqn.loss import sequence_loss
 from drqn_jax.learners.dqn.replay import WINDOW_ANYWHERE, sample_windows
 from drqn_jax.learners.hyperparams import IMITATION_STATES, annealed, step_share, teacher_label
 from drqn_jax.learners.task import observations
-from tests.helpers import SMALL_NET, assert_tree_equal, take, tiny_train_config
+from tests.helpers import SMALL_NET, assert_tree_equal, fast_jit, take, tiny_train_config
 
 TINY = tiny_train_config()
 
@@ -118,14 +118,14 @@ def test_stored_state_is_the_acting_lstms_state():
     config = dataclasses.replace(TINY, stored_state=1)
     trainer = make_train(config)
     hp = TINY.hyperparams.replace(learning_rate=1e-30)
-    state = jax.jit(trainer.init)(jax.random.key(5), hp)
-    state = jax.jit(trainer.run, static_argnums=1)(state, 45)
+    state = fast_jit(trainer.init)(jax.random.key(5), hp)
+    state = fast_jit(trainer.run, static_argnums=1)(state, 45)
     replay = state.replay
     slot = int(np.flatnonzero(np.asarray(replay.complete))[0])
     n = int(replay.length[slot])
     net, static = trainer.network, trainer.env.static
 
-    @jax.jit
+    @fast_jit
     def entered(state):  # the LSTM state each observation of the episode was entered with
         episode = jax.tree.map(lambda x: x[slot, : n + 1], state.replay.records)
         prev = jnp.concatenate([jnp.array([-1]), state.replay.action[slot, :n]])
@@ -140,7 +140,7 @@ def test_stored_state_is_the_acting_lstms_state():
     for a, b in zip(jax.tree.leaves(stored), jax.tree.leaves(entered(state)), strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
 
-    @jax.jit
+    @fast_jit
     def windows_and_losses(state):
         windows = sample_windows(
             state.replay, jax.random.key(1), 4, 4, _observe(state, static), hp.window_start
@@ -195,7 +195,7 @@ TINY_N3 = dataclasses.replace(TINY, n_step=3)
 def update_n3():
     """``(trainer, jit(gradient_update))`` of ``TINY_N3``."""
     trainer = make_train(TINY_N3)
-    return trainer, jax.jit(trainer.gradient_update)
+    return trainer, fast_jit(trainer.gradient_update)
 
 
 def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked, update_n3):
@@ -210,7 +210,7 @@ def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked, update_
     args = (learner, key, state.replay, state.hparams, state.env_params)
     _, loss = update(*args)
 
-    @jax.jit
+    @fast_jit
     def losses(state, key):  # n = 3 and n = 1 on the windows the update samples
         hp = state.hparams
         static = trainer.env.static
@@ -234,7 +234,7 @@ def test_value_rescale_reaches_the_gradient_update(tiny_chunked, update_n3):
     learner = (state.online, state.target, state.opt_state, state.grad_steps)
     key = jax.random.key(13)
 
-    @jax.jit
+    @fast_jit
     def losses(state, key):
         hp = state.hparams
         static = trainer.env.static
@@ -261,11 +261,11 @@ def test_burn_in_reaches_the_gradient_update(tiny_chunked):
     trainer = make_train(config)
     learner = (state.online, state.target, state.opt_state, state.grad_steps)
     key = jax.random.key(14)
-    _, loss = jax.jit(trainer.gradient_update)(
+    _, loss = fast_jit(trainer.gradient_update)(
         learner, key, state.replay, state.hparams, state.env_params
     )
 
-    @jax.jit
+    @fast_jit
     def expected(state, key):
         hp = state.hparams
         static = trainer.env.static
@@ -302,7 +302,7 @@ def test_imitation_reaches_the_gradient_update(tiny_chunked, update_n3):
     key = jax.random.key(12)
     learner = (state.online, state.target, state.opt_state, state.grad_steps)
 
-    @jax.jit
+    @fast_jit
     def expected(state, key, weight, everywhere, teacher):
         hp = state.hparams
         w = sample_windows(
