@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from functools import partial
 from typing import Any
 
@@ -47,6 +48,13 @@ FAST_COMPILE = {"xla_backend_optimization_level": 0}
 def fast_jit(fun, **options):
     """``jax.jit(fun, **options)`` compiled with :data:`FAST_COMPILE` (see there)."""
     return jax.jit(fun, compiler_options=FAST_COMPILE, **options)
+
+
+def fast_compile_env() -> dict[str, str]:
+    """This process's environment with ``XLA_FLAGS`` asking for :data:`FAST_COMPILE`,
+    for a subprocess whose outputs the test compares with no other program's bits."""
+    flags = " ".join(f"--{name}={value}" for name, value in FAST_COMPILE.items())
+    return {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} {flags}".strip()}
 
 
 def tree_equal(a, b) -> bool:

@@ -22,7 +22,7 @@ from drqn_jax.env.state import ACTIONS
 from drqn_jax.experiments import runner
 from drqn_jax.experiments.checkpoint import CHECKPOINT_JSON, CHECKPOINT_NPZ, load_checkpoint
 from drqn_jax.experiments.machine import device_identity, git_commit
-from tests.helpers import SMOKE_CHUNK
+from tests.helpers import SMOKE_CHUNK, fast_compile_env
 
 SMOKE = ["--config", "smoke", "--quiet"]
 RUN_FILES = {
@@ -162,7 +162,8 @@ def test_ppo_trains_resumes_bit_identical_and_evaluates(tmp_path, monkeypatch, c
 
 
 def test_sigterm_in_a_subprocess_saves_and_exits_130(tmp_path):
-    """A real signal from outside, delivered while the process trains."""
+    """A real signal from outside, delivered while the process trains (its programs,
+    compiled for it alone, without LLVM's optimisation: ``tests.helpers.FAST_COMPILE``)."""
     run_dir = tmp_path / "run"
     cmd = [
         sys.executable,
@@ -177,7 +178,9 @@ def test_sigterm_in_a_subprocess_saves_and_exits_130(tmp_path):
         "--run-dir",
         str(run_dir),
     ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=fast_compile_env()
+    )
     deadline = time.monotonic() + 240
     while not (run_dir / CHECKPOINT_JSON).exists():  # written once compiled
         assert proc.poll() is None, proc.communicate()
