@@ -28,18 +28,13 @@ from drqn_jax.experiments.checkpoint import (
     save_checkpoint,
 )
 from drqn_jax.learners import Hyperparams, make_train
-from tests.helpers import assert_tree_equal, tiny_train_config
+from tests.helpers import assert_tree_equal, fast_jit, tiny_train_config
 
 # short episodes, so that 5 iterations already complete one and take gradient steps
 TINY = tiny_train_config(
     max_steps=3, num_episodes=8, hyperparams=Hyperparams(learning_starts=1, target_period=2)
 )
 CONFIG = {"train": {"batch_size": 4, "num_envs": 2, "window": 4}, "env": {"max_steps": 3}}
-
-
-# compiled without LLVM optimisation: 3× faster to compile; every comparison below is
-# between runs of one compiled program, so what it tests does not depend on this
-FAST_COMPILE = {"xla_backend_optimization_level": 0}
 
 
 def is_key(x) -> bool:
@@ -90,8 +85,9 @@ def rewrite_manifest(npz, text: str) -> None:
 def tiny():
     """The trainer, its jitted run, the state after init and after 5 iterations."""
     trainer = make_train(TINY)
-    run = jax.jit(trainer.run, static_argnums=1, compiler_options=FAST_COMPILE)
-    state0 = jax.jit(trainer.init, compiler_options=FAST_COMPILE)(jax.random.key(0))
+    # every comparison below is between runs of this one program (tests.helpers.FAST_COMPILE)
+    run = fast_jit(trainer.run, static_argnums=1)
+    state0 = fast_jit(trainer.init)(jax.random.key(0))
     state5 = run(state0, 5)
     assert int(state5.grad_steps) > 0 and int(state5.recorded) > 0  # a non-trivial state
     return trainer, run, state0, state5
