@@ -335,7 +335,7 @@ def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: An
 
 def config_names() -> tuple[str, ...]:
     """The run presets at the top of ``configs/`` (``paper``, ``default``, …). The
-    configs in its folders (``teacher/``, ``notebook/``) load by name too; sweep files
+    configs in its folders (``ablations/``, ``teacher/``) load by name too; sweep files
     (a top-level ``[axes]`` table, in ``sweeps/``) are not configs."""
     return tuple(sorted(p.stem for p in CONFIG_DIR.glob("*.toml") if not _is_sweep_file(p)))
 

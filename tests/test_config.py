@@ -91,7 +91,7 @@ def test_shipped_sweep_files_validate():
     from drqn_jax.experiments.sweep import load_sweep
 
     sweeps = sorted(CONFIG_DIR.glob("sweeps/*.toml"))
-    assert {p.stem for p in sweeps} >= {"sweep", "reward", "occlusion"}
+    assert {p.stem for p in sweeps} == {"sweep", "occlusion"}
     for path in sweeps:
         assert load_sweep(path).points
 
@@ -106,25 +106,6 @@ def test_paper_config_is_the_papers_protocol():
     assert config["env"]["max_steps"] == 1000 and config.env_overrides() == {}
 
 
-def test_default_is_the_budget_with_the_safety_recipe():
-    """default.toml = budget.toml + the departures of the notebook §5 that are not a
-    teacher (§5's guided exploration is in the *-teacher presets), no others."""
-    budget, default = load_config("budget").training_dict(), load_config("default").training_dict()
-    changed = {
-        (section, key): (budget[section][key], default[section][key])
-        for section in ("env", "network", "train")
-        for key in budget[section]
-        if budget[section][key] != default[section][key]
-    }
-    assert changed == {
-        ("env", "reward_collision"): (-10.0, -100.0),
-        ("env", "reward_stopped"): (-1.0, -0.1),
-        ("env", "reward_overspeed"): (-0.5, -2.0),
-        ("train", "clip"): ("huber", "grad"),
-        ("train", "target_period"): (1000, 100),
-        ("train", "gamma"): (0.9, 0.99),
-        ("train", "learning_rate_end"): (1.0, 0.1),
-    }
 
 
 def test_dqn_stack_is_default_with_a_frame_stacking_dqn():
@@ -143,114 +124,20 @@ def test_realistic_extends_default_with_walking_speeds():
     assert realistic["env"]["reward_collision"] == default["env"]["reward_collision"] == -100.0
 
 
-def test_heedless_is_default_among_pedestrians_that_walk_into_the_car_with_contact():
-    default, heedless, ablation = (load_config(n) for n in ("default", "heedless", "heedless-dqn"))
-    assert heedless["env"]["id"] == "UrbanPedestriansHeedless-v0"
-    assert heedless["env"]["ped_behaviour_to_car"] == default["env"]["ped_behaviour_to_car"]
-    assert default["env"]["ped_behaviour_to_car"] == "ignore"
-    differ = changed(heedless, default, "env")
-    assert differ == {"id": "UrbanPedestriansHeedless-v0", "collision_model": "contact"}, differ
-    assert heedless["train"] == default["train"] and heedless["network"] == default["network"]
-    assert ablation["network"]["kind"] == "dqn" and ablation["env"] == heedless["env"]
-    assert ablation["train"] == heedless["train"]
 
 
-def test_heedless_safe_imitates_a_cautious_rule_based_agent_not_the_compared_one():
-    heedless, safe = load_config("heedless"), load_config("heedless-safe-teacher")
-    assert safe["env"] == heedless["env"] and safe["network"] == heedless["network"]
-    differ = changed(safe, heedless, "train")
-    assert differ == {
-        "explore_guide": 0.5,
-        "imitation_weight": 10.0,
-        "imitation_states": "all",
-        "imitation_corridor_margin": 3.0,
-        "imitation_lookahead": 15.0,
-    }, differ
-    # the study's rule-based row stays SPEC §6's agent, not the teacher
-    assert safe["rule_based"] == heedless["rule_based"] == load_config("default")["rule_based"]
-    assert safe.rule_based_params().corridor_margin == 0.5
 
 
-def test_beyond_is_safe_with_a_faster_teacher_on_both_pedestrians():
-    safe, beyond = load_config("safe-teacher"), load_config("beyond-teacher")
-    assert beyond["env"] == safe["env"] and beyond["network"] == safe["network"]
-    differ = changed(beyond, safe, "train")
-    assert differ == {
-        "imitation_v_max": pytest.approx(14.5 / 3.6),
-        "imitation_corridor_margin": 0.45,
-        "imitation_lookahead": 5.0,
-    }, differ
-    assert beyond["rule_based"] == safe["rule_based"] == load_config("default")["rule_based"]
-    realistic = load_config("beyond-realistic-teacher")
-    assert realistic["env"] == load_config("safe-realistic-teacher")["env"]
-    assert realistic["train"] == beyond["train"]
-    # the notebook §9's study ran `safe` with these --set overrides: the same runs
-    teacher = (
-        "train.imitation_v_max=4.027777777777778",
-        "train.imitation_corridor_margin=0.45",
-        "train.imitation_lookahead=5",
-    )
-    assert beyond.training_hash() == load_config("safe-teacher", teacher).training_hash()
 
 
-def test_beyond_long_is_beyond_trained_twice_as_long():
-    beyond, long = load_config("beyond-teacher"), load_config("beyond-long-teacher")
-    assert changed(long, beyond, "train") == {"num_episodes": 512}
-    assert long["env"] == beyond["env"] and long["network"] == beyond["network"]
-    realistic = load_config("beyond-long-realistic-teacher")
-    assert realistic["env"] == load_config("beyond-realistic-teacher")["env"]
-    assert realistic["train"] == long["train"]
-    # the notebook §9 ("Longer training") ran `beyond` with this --set: the same runs
-    for name, base in (
-        ("beyond-long-teacher", "beyond-teacher"),
-        ("beyond-long-realistic-teacher", "beyond-realistic-teacher"),
-    ):
-        longer = load_config(base, ["train.num_episodes=512"])
-        assert load_config(name).training_hash() == longer.training_hash()
 
 
-def test_beyond_long_mixed_is_beyond_long_among_both_kinds():
-    """the notebook §9 ("Trained among both kinds"): only the pedestrians differ."""
-    long, mixed = load_config("beyond-long-teacher"), load_config("beyond-long-mixed-teacher")
-    assert mixed["train"] == long["train"] and mixed["network"] == long["network"]
-    # the env id brings its registered preset: walking speeds up to 1.5 m/s
-    assert changed(mixed, long, "env") == {"id": "UrbanPedestriansMixed-v0", "ped_speed_max": 1.5}
 
 
-def test_anticipate_is_beyond_long_mixed_with_an_anticipating_narrower_teacher():
-    """the notebook §9 ("A teacher that anticipates"): only the imitated teacher
-    differs; the compared rule-based agent and the exploration guide keep SPEC §6's rule."""
-    mixed, anticipate = load_config("beyond-long-mixed-teacher"), load_config("anticipate-teacher")
-    assert anticipate["env"] == mixed["env"] and anticipate["network"] == mixed["network"]
-    differ = changed(anticipate, mixed, "train")
-    assert differ == {"imitation_horizon": 1.0, "imitation_corridor_margin": 0.3}, differ
-    assert anticipate["rule_based"] == load_config("default")["rule_based"]
-    assert anticipate.rule_based_params().horizon == 0.0
 
 
-def test_anticipate_narrow_is_anticipate_with_a_025_m_teacher():
-    """the notebook §9 ("A corridor margin of 0.25 m"): only the teacher's margin
-    differs, and the preset trains what the documented ``--set`` study trained."""
-    anticipate, narrow = load_config("anticipate-teacher"), load_config("anticipate-narrow-teacher")
-    assert narrow["env"] == anticipate["env"] and narrow["network"] == anticipate["network"]
-    differ = changed(narrow, anticipate, "train")
-    assert differ == {"imitation_corridor_margin": 0.25}, differ
-    assert narrow["rule_based"] == anticipate["rule_based"]
-    studied = load_config("anticipate-teacher", ["train.imitation_corridor_margin=0.25"])
-    assert narrow.training_hash() == studied.training_hash()
 
 
-def test_anticipate_narrow_dqn_is_its_ablation_and_trains_the_studied_runs():
-    """the notebook §9 ("The memory, with the teacher"): only the network kind
-    differs, and the preset trains what the documented ``--set`` study trained."""
-    narrow, ablation = (
-        load_config("anticipate-narrow-teacher"),
-        load_config("anticipate-narrow-dqn-teacher"),
-    )
-    assert ablation["env"] == narrow["env"] and ablation["train"] == narrow["train"]
-    assert changed(ablation, narrow, "network") == {"kind": "dqn"}
-    studied = load_config("anticipate-narrow-teacher", ["network.kind=dqn"])
-    assert ablation.training_hash() == studied.training_hash()
 
 
 def test_set_overrides_and_parsing():
