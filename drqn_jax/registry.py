@@ -18,14 +18,14 @@ _PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     # The paper's world with pedestrians from the paper's slowest (0.5 km/h) to the
     # realistic fastest (1.5 m/s), for an agent trained for both.
     "UrbanPedestriansMixed-v0": ({}, {"ped_speed_max": 1.5}),
-    # The project's world before the 2026-11-25 revision: pedestrians yield to the car
-    # (for at most ped_wait_max_s, then walk on) and collisions are box-disc contact.
+    # Pedestrians that yield to the car (for at most ped_wait_max_s, then walk on) and
+    # box-disc contact as the collision test: the sensitivity study's yielding world.
     "UrbanPedestriansYielding-v0": (
         {},
         {"ped_behaviour_to_car": "yield", "collision_model": "contact"},
     ),
-    # Pedestrians that ignore the car with box-disc contact as the collision test
-    # (the world of docs/notebook/yielding-world.md §10).
+    # Pedestrians that ignore the car with box-disc contact as the collision test: the
+    # rule-based agent collides as in the paper (docs/spec.md, "Worlds").
     "UrbanPedestriansHeedless-v0": (
         {},
         {"ped_behaviour_to_car": "ignore", "collision_model": "contact"},

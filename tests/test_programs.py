@@ -1,4 +1,4 @@
-"""The one cache of built programs (drqn_jax/programs.py; issue 42)."""
+"""The one cache of built programs (drqn_jax/programs.py)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The package's shape (issue 51, docs/architecture.md): no import circle, a small top
+"""The package's shape (docs/architecture.md): no import circle, a small top
 level, no oversized module or function, and tests that mirror the package."""
 
 from __future__ import annotations

@@ -37,7 +37,7 @@ _REQUIRED_METRICS = ("episode", "episode_return", "length", "collision", "mean_l
 EPISODE_TIMELINE = "episode"
 
 
-ENV_STEPS_TIMELINE = "env_steps"  # a study's curves (issue 41)
+ENV_STEPS_TIMELINE = "env_steps"  # a study's curves
 
 
 COLLISION_RATE_WINDOW = 20  # episodes in the running collision/goal rates (as the progress bar)

@@ -497,7 +497,7 @@ print(json.dumps({
 
 def test_stable_baselines3_trains_on_the_registered_id_without_wrappers():
     """SB3's DQN and PPO with ``MultiInputPolicy`` take the env as ``gymnasium.make``
-    returns it (issue 42: ``Discrete(5, start=-1)`` crashed SB3's one-hot encoding).
+    returns it (``Discrete(5, start=-1)`` would crash SB3's one-hot encoding).
     In a child process: torch and this worker's JAX programs stay apart."""
     out = subprocess.run(
         [sys.executable, "-c", _SB3_CLIENT], capture_output=True, text=True, timeout=600
