@@ -38,30 +38,15 @@ that shows the collision). TTC is logged only where it is finite (``inf``:
 no overlap within the horizon or the ego stopped, SPEC §5), as points. Steps
 after the episode ended are not logged.
 
-World coordinates are the simulator's metres with **y negated** (rerun's 2D
-views point y down; negating keeps the ego's left up, so the ego drives on
-the right of the road as in SPEC §1): a logged position ``(x, y)`` is the
-simulator's ``(x, -y)``, see :func:`to_view`. Grid images are the observation
-as the network sees it: row 0 is 5 m behind the ego (top), column 0 is 15 m
-to its right (SPEC §4).
+World coordinates are the simulator's metres with **y negated** (rerun's 2D views
+point y down), see :func:`drqn_jax.interop.rerun_map.to_view`; the static map is
+:mod:`drqn_jax.interop.rerun_map`'s. Grid images are the observation as the network
+sees it: row 0 is 5 m behind the ego, column 0 is 15 m to its right (SPEC §4).
 
-Colours: the palette of :mod:`drqn_jax.env.viewer`, which the Gymnasium
-envs' ``rgb_array`` frames use too (:data:`BEHAVIOUR_COLOURS`,
-:data:`OCCLUDED_ALPHA` are its names, re-exported). Map regions in
-``MAP_COLOURS`` (road dark grey, walkways light grey, crosswalks off-white; the
-view's background is the off-road colour), centre line ``LANE_MARK_COLOUR``,
-goal ``GOAL_COLOUR`` (yellow), ego ``EGO_COLOUR`` (blue) and
-``EGO_COLLISION_COLOUR`` (magenta), Q-value curves ``ACTION_COLOURS``
-(accelerate green, slow_down orange, brake red, steer blue). Pedestrians
-(legend; also an ``AnnotationContext`` on ``/`` labels the class ids 0, 1, 2
-with the behaviour names):
-
-* crossing (legal, on crosswalks): green;
-* jaywalking: red;
-* sidewalk (never enters the road): orange;
-
-faded (alpha :data:`OCCLUDED_ALPHA`) while occluded, i.e. left out of the
-observation grid (``EnvParams.occlusion_prob``).
+Colours: the palette of :mod:`drqn_jax.env.viewer` (the Gymnasium frames use it
+too); pedestrians are coloured by behaviour (crossing green, jaywalking red, sidewalk
+orange; an ``AnnotationContext`` on ``/`` names the class ids) and faded while
+occluded (``EnvParams.occlusion_prob``).
 
 The ego's label at step t is the HUD of state t, the text the rendered frames
 show (:func:`drqn_jax.env.viewer.hud_glyphs` read back by
@@ -75,7 +60,6 @@ replaced, so the two can differ on a step that replaced one.
 
 from __future__ import annotations
 
-import dataclasses
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -87,29 +71,21 @@ import rerun.blueprint as rrb
 
 from drqn_jax.agents.base import Agent
 from drqn_jax.env.params import EnvParams
-from drqn_jax.env.road_map import (
-    CROSSING_AREA,
-    OFF_ROAD,
-    ROAD,
-    WALKWAY,
-    crosswalk_centres,
-    intersection_centres,
-)
-from drqn_jax.env.state import ACTIONS, BEHAVIOURS
+from drqn_jax.env.road_map import OFF_ROAD
+from drqn_jax.env.state import ACTIONS
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.env.viewer import (
     ACTION_COLOURS,
     BEHAVIOUR_COLOURS,
     EGO_COLLISION_COLOUR,
     EGO_COLOUR,
-    GOAL_COLOUR,
-    LANE_MARK_COLOUR,
     MAP_COLOURS,
     OCCLUDED_ALPHA,
     hud_glyphs,
     hud_text,
 )
 from drqn_jax.interop.episode_record import EpisodeRecord, collect_episodes
+from drqn_jax.interop.rerun_map import log_map, map_extent, to_view
 from drqn_jax.networks import Network
 from drqn_jax.programs import cached_program
 
@@ -118,147 +94,16 @@ __all__ = [
     "GRID_CHANNELS",
     "OCCLUDED_ALPHA",
     "STEP_TIMELINE",
-    "MapRegion",
     "close_recording",
     "episode_blueprint",
     "hud_labels",
-    "map_extent",
-    "map_regions",
     "open_recording",
     "record_episodes",
-    "to_view",
     "write_episodes",
 ]
 
 STEP_TIMELINE = "step"
 GRID_CHANNELS = ("occupancy", "heading", "speed", "semantics")  # SPEC §4 channel order
-_VIEW_FLIP = np.array([1.0, -1.0], np.float32)
-
-
-def to_view(xy: np.ndarray) -> np.ndarray:
-    """Simulator (x, y) → logged (x, −y), (..., 2) float32 (rerun's 2D y axis points down)."""
-    return (np.asarray(xy, np.float32) * _VIEW_FLIP).astype(np.float32)
-
-
-# --- the rollout -----------------------------------------------------------------
-
-
-# --- the map ---------------------------------------------------------------------
-
-
-@dataclasses.dataclass(frozen=True)
-class MapRegion:
-    """An axis-aligned rectangle of one semantic class (simulator frame, m).
-
-    Attributes:
-        name: what it is ("main road", "crosswalk", …).
-        semantic: ROAD, WALKWAY or CROSSING_AREA (drqn_jax.env.road_map).
-        x_min, x_max, y_min, y_max: its extent.
-    """
-
-    name: str
-    semantic: int
-    x_min: float
-    x_max: float
-    y_min: float
-    y_max: float
-
-
-def _f(x: Any) -> float:
-    return float(np.asarray(x))
-
-
-def map_extent(env: UrbanPedestrians, params: EnvParams) -> tuple[float, float, float]:
-    """``(x_min, x_max, y_half)`` of the drawn map: everywhere an ego or pedestrian can be."""
-    x_min = min(0.0, _f(params.ego_start_s) + env.static.grid_x_min)
-    x_max = _f(params.goal_x) + max(_f(params.spawn_max), _f(params.despawn_ahead))
-    y_half = max(-env.static.grid_y_min, _f(params.lane_width) + _f(params.sidewalk_width))
-    return x_min, x_max, y_half
-
-
-def map_regions(env: UrbanPedestrians, params: EnvParams) -> list[MapRegion]:
-    """The SPEC §1 map as rectangles: roads, walkways and crosswalks.
-
-    The positions come from :mod:`drqn_jax.env.road_map` (intersection and
-    crosswalk centres) and the map widths; every rectangle's interior has the
-    class :func:`~drqn_jax.env.road_map.semantic_class` gives it.
-    """
-    x_min, x_max, y_half = map_extent(env, params)
-    lane, side = _f(params.lane_width), _f(params.sidewalk_width)
-    half_street, cw = 0.5 * _f(params.cross_street_width), _f(params.crosswalk_width)
-    xcs = [float(x) for x in np.asarray(intersection_centres(params, env.static))]
-    regions = [MapRegion("main road", ROAD, x_min, x_max, -lane, lane)]
-    # main sidewalks, cut where they cross a cross street (there they are crosswalks)
-    cuts = [x_min, *[c for xc in xcs for c in (xc - half_street, xc + half_street)], x_max]
-    for lo, hi in zip(cuts[::2], cuts[1::2], strict=True):
-        for sign in (1.0, -1.0):
-            y0, y1 = sorted((sign * lane, sign * (lane + side)))
-            regions.append(MapRegion("sidewalk", WALKWAY, lo, hi, y0, y1))
-    for xc in xcs:
-        for sign in (1.0, -1.0):  # sign: the ego's left (+) or right (-) side of the road
-            y_far = sorted((sign * (lane + side), sign * y_half))
-            y_near = sorted((sign * lane, sign * (lane + side)))
-            x_street = (xc - half_street, xc + half_street)
-            regions.append(MapRegion("cross street", ROAD, *x_street, *y_far))
-            regions.append(MapRegion("crosswalk", CROSSING_AREA, *x_street, *y_near))
-            for x_sign in (-1.0, 1.0):  # the cross street's sidewalks, before and after it
-                x0, x1 = sorted((xc + x_sign * half_street, xc + x_sign * (half_street + side)))
-                regions.append(MapRegion("cross-street sidewalk", WALKWAY, x0, x1, *y_far))
-    for xw in np.asarray(crosswalk_centres(params, env.static)).tolist():
-        regions.append(MapRegion("crosswalk", CROSSING_AREA, xw - cw / 2, xw + cw / 2, -lane, lane))
-    return regions
-
-
-def _log_map(rec: rr.RecordingStream, env: UrbanPedestrians, params: EnvParams) -> None:
-    """The static map (SPEC §1) under ``map/`` and the behaviour annotation context."""
-    regions = map_regions(env, params)
-    for entity, semantic in (("road", ROAD), ("walkways", WALKWAY), ("crosswalks", CROSSING_AREA)):
-        rs = [r for r in regions if r.semantic == semantic]
-        mins = to_view(np.array([[r.x_min, r.y_max] for r in rs]))  # y_max → view minimum
-        sizes = np.array([[r.x_max - r.x_min, r.y_max - r.y_min] for r in rs], np.float32)
-        rec.log(
-            f"map/{entity}",
-            rr.Boxes2D(
-                mins=mins,
-                sizes=sizes,
-                colors=MAP_COLOURS[semantic],
-                labels=[r.name for r in rs],
-                show_labels=False,
-                radii=0.08,
-                draw_order=1.0,
-            ),
-            static=True,
-        )
-    x_min, x_max, _ = map_extent(env, params)
-    lane = _f(params.lane_width)
-    rec.log(
-        "map/centre_line",
-        rr.LineStrips2D(
-            [to_view([[x_min, 0.0], [x_max, 0.0]])], colors=LANE_MARK_COLOUR, radii=0.1
-        ),
-        static=True,
-    )
-    goal = _f(params.goal_x)
-    rec.log(
-        "map/goal",
-        rr.LineStrips2D(
-            [to_view([[goal, -lane], [goal, lane]])],
-            colors=GOAL_COLOUR,
-            radii=0.25,
-            labels="goal",
-        ),
-        static=True,
-    )
-    rec.log(
-        "/",
-        rr.AnnotationContext(
-            [
-                rr.AnnotationInfo(id=code, label=BEHAVIOURS[code], color=colour)
-                for code, colour in BEHAVIOUR_COLOURS.items()
-            ]
-        ),
-        static=True,
-    )
 
 
 # --- logging episodes ------------------------------------------------------------
@@ -302,7 +147,7 @@ def _log_episode(
 ) -> None:
     """Log episode ``i`` of ``record`` under ``episode/<i>`` (layout: module docstring);
     ``hud``: its states' HUD glyphs, (T + 1, 2, L) (:func:`hud_labels`)."""
-    _log_world(rec, record, i, hud, _f(params.ped_radius), env.static.ttc_horizon)
+    _log_world(rec, record, i, hud, float(params.ped_radius), env.static.ttc_horizon)
     _log_grid(rec, record, i, env.static.grid_shape)
     _log_series(rec, record, i)
     _log_events(rec, record, i)
@@ -548,7 +393,7 @@ def write_episodes(
         blueprint = episode_blueprint(record.num_episodes, has_q, env, env_params)
     rec = open_recording(path, application_id, blueprint)
     try:
-        _log_map(rec, env, env_params)
+        log_map(rec, env, env_params)
         hud = hud_labels(record, env, env_params)
         for i in range(record.num_episodes):
             _log_episode(rec, record, i, env, env_params, hud[i])
