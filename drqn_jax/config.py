@@ -53,17 +53,11 @@ from drqn_jax.networks import CELLS, NETWORK_KINDS, NetworkConfig
 from drqn_jax.registry import make, preset, registered_envs
 
 __all__ = [
-    "ADDED_LATER",
-    "ADDED_STATE_LEAVES",
     "CONFIG_DIR",
-    "RENAMED",
-    "RENAMED_LEAVES",
-    "REVISED",
     "TRAIN_SIZES",
     "UNHASHED",
     "Config",
     "ConfigError",
-    "added_leaves",
     "config_names",
     "load_config",
     "parse_override",
@@ -73,92 +67,13 @@ __all__ = [
 #: ``configs/`` of the source tree (the project is installed editable).
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 
-#: The sections a training checkpoint depends on (the rest may change on resume).
-TRAINING_SECTIONS = ("run.seed", "env", "network", "train")
+#: The sections a training checkpoint depends on, with ``run.seed`` (the rest may
+#: change on resume).
+TRAINING_SECTIONS = ("env", "network", "train")
 
 #: Fields no result depends on (tests check the bits): left out of
 #: :meth:`Config.training_dict`, so a run resumes with another value.
 UNHASHED = {("network", "scan_unroll")}
-
-#: Fields added after run directories existed, with the value those runs had:
-#: left out of :meth:`Config.training_dict` at that value, so the runs resume.
-ADDED_LATER = {
-    ("train", "n_step"): 1,
-    ("train", "window_start"): "inside",
-    ("train", "snapshots"): 0,
-    ("train", "validation_episodes"): 100,
-    ("train", "imitation_weight"): 0.0,
-    ("train", "imitation_margin"): 1.0,
-    ("train", "imitation_states"): "brake",
-    ("train", "imitation_lookahead"): 7.0,
-    ("train", "imitation_corridor_margin"): 0.5,
-    ("train", "imitation_v_max"): 15.0 * KMH,
-    ("train", "imitation_horizon"): 0.0,
-    ("train", "select_by"): "return",
-    ("train", "select_speed_floor"): 0.0,
-    ("train", "value_rescale"): 0,
-    ("train", "burn_in"): 0,
-    ("train", "epsilon_fraction"): 1.0,
-    ("train", "stored_state"): 0,
-    ("train", "algorithm"): "dqn",
-    ("train", "num_env_steps"): 0,
-    ("train", "rollout_steps"): 128,
-    ("train", "update_epochs"): 4,
-    ("train", "num_minibatches"): 4,
-    ("train", "gae_lambda"): 0.95,
-    ("train", "clip_eps"): 0.2,
-    ("train", "ent_coef"): 0.01,
-    ("train", "vf_coef"): 0.5,
-    ("train", "max_grad_norm"): 0.5,
-    ("network", "frames"): 1,
-    # recurrent PQN (2026-11-27)
-    ("train", "q_lambda"): 0.95,
-    ("train", "reward_scale"): 1.0,
-    ("train", "optimizer"): "adam",
-    ("network", "layer_norm"): False,
-    ("network", "cell"): "lstm",
-    # The 2026-11-25 revision (docs/spec.md, "The paper's world"): runs before it had
-    # pedestrians yielding for ever (the timeout applies to them too: no standoffs in
-    # any world), the contact collision test, and no authors' zone.
-    ("env", "ped_behaviour_to_car"): "yield",
-    ("env", "ped_wait_max_s"): 5.0,
-    ("env", "collision_model"): "contact",
-    ("env", "authors_zone_back"): 2.2,
-    ("env", "authors_zone_front"): 3.5,
-    ("env", "authors_zone_half_width"): 2.2,
-}
-
-#: Fields renamed since run directories existed: old name -> (new name, how an old
-#: value reads). A config naming an old field was written before the 2026-11-25
-#: revision, so where it is silent it gets the ``REVISED`` fields' old values.
-RENAMED = {("env", "ped_yield"): ("ped_behaviour_to_car", {0: "ignore", 1: "yield"})}
-
-#: Defaults the 2026-11-25 revision changed (``ADDED_LATER`` holds the old values).
-REVISED = (("env", "ped_behaviour_to_car"), ("env", "collision_model"))
-
-#: Checkpoint leaves renamed with their fields (same codes): old key path -> new.
-RENAMED_LEAVES = {".env_params.ped_yield": ".env_params.ped_behaviour_to_car"}
-
-#: State leaves added after checkpoints existed, with the value they start from.
-ADDED_STATE_LEAVES = {".env_state.pedestrians.waited": 0.0, ".step_budget": 0}
-
-
-def added_leaves(hparams: Hyperparams, env_params: EnvParams) -> dict[str, Any]:
-    """The ``TrainState`` leaves that checkpoints written before the
-    ``ADDED_LATER`` fields lack (key path -> value, from the run's ``hparams``
-    and ``env_params``, whose training hash the checkpoint's matched), for
-    ``load_checkpoint(fill=…)``, and the ``ADDED_STATE_LEAVES``. Untraced fields
-    (static sizes) are no leaves."""
-    owners = {"train": ("hparams", hparams), "env": ("env_params", env_params)}
-    fills: dict[str, Any] = dict(ADDED_STATE_LEAVES)
-    for section, name in ADDED_LATER:
-        if section not in owners:  # a static setting (network shape): no leaf
-            continue
-        leaf, values = owners[section]
-        if name in {f.name for f in dataclasses.fields(values)}:
-            fills[f".{leaf}.{name}"] = getattr(values, name)
-    return fills
-
 
 TRAIN_SIZES = tuple(
     f.name
@@ -249,15 +164,9 @@ _OWNER = {
 
 def _is_conv(value: Any) -> bool:
     """A non-empty list of ``[kernel_h, kernel_w, stride, filters]`` integer lists."""
-    return (
-        isinstance(value, list)
-        and bool(value)
-        and all(
-            isinstance(layer, list)
-            and len(layer) == 4
-            and all(isinstance(x, int) and not isinstance(x, bool) for x in layer)
-            for layer in value
-        )
+    layers = value if isinstance(value, list) and value else [None]
+    return all(
+        isinstance(v, list) and len(v) == 4 and all(type(x) is int for x in v) for v in layers
     )
 
 
@@ -306,21 +215,8 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     return section, name, value
 
 
-def _renamed(section: str, name: str, value: Any) -> tuple[str, Any]:
-    """An old field name and value (``RENAMED``) as the new field's, or as given."""
-    if (section, name) not in RENAMED:
-        return name, value
-    new, codes = RENAMED[(section, name)]
-    if isinstance(value, bool) or value not in codes:
-        allowed = ", ".join(f"{code} ({meaning})" for code, meaning in codes.items())
-        raise ConfigError(f"{section}.{name} = {value!r}: must be one of {allowed}")
-    return new, codes[value]
-
-
-def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: Any) -> str:
-    """Check ``section.name = value`` and set it in ``values``; return the field's
-    name (the new one for a ``RENAMED`` field)."""
-    name, value = _renamed(section, name, value)
+def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: Any) -> None:
+    """Check ``section.name = value`` and set it in ``values``."""
     if section not in SCHEMA:
         raise ConfigError(
             f"unknown section [{section}] (field {section}.{name}); sections: {', '.join(SCHEMA)}"
@@ -330,7 +226,6 @@ def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: An
             f"unknown field {section}.{name}; [{section}] has: {', '.join(SCHEMA[section])}"
         )
     values[section][name] = _check_type(f"{section}.{name}", value, SCHEMA[section][name])
-    return name
 
 
 def config_names() -> tuple[str, ...]:
@@ -419,12 +314,11 @@ def load_config(
             raise ConfigError(f"{section} = {table!r}: expected a [{section}] table")
         for name, value in table.items():
             _merge(given, section, name, value)
-    _keep_pre_revision_world(raw, given)
     file_env_id = given["env"].get("id", SCHEMA["env"]["id"].default)
     overridden_env: set[str] = set()
     for text in overrides:
         section, name, value = parse_override(text)
-        name = _merge(given, section, name, value)
+        _merge(given, section, name, value)
         if section == "env":
             overridden_env.add(name)
 
@@ -438,17 +332,6 @@ def load_config(
     config = Config(values, origin)
     config.validate()
     return config
-
-
-def _keep_pre_revision_world(raw: dict[str, Any], given: dict[str, dict[str, Any]]) -> None:
-    """A config written before the 2026-11-25 revision (it names a ``RENAMED`` field,
-    as every run's resolved ``config.toml`` of that time does) keeps the world it
-    ran in: the ``REVISED`` fields it is silent on take their old values."""
-    old_names = {(s, n) for s, table in raw.items() if isinstance(table, dict) for n in table}
-    if not old_names & RENAMED.keys():
-        return
-    for section, name in REVISED:
-        given[section].setdefault(name, ADDED_LATER[(section, name)])
 
 
 def _follow_new_preset(env: dict[str, Any], old_id: str, overridden: set[str]) -> None:
@@ -489,17 +372,7 @@ class Config:
 
     def network_config(self) -> NetworkConfig:
         net = self["network"]
-        conv = tuple(tuple(layer) for layer in net["conv"])
-        return NetworkConfig(
-            kind=net["kind"],
-            conv=conv,
-            recurrent=net["recurrent"],
-            hidden=net["hidden"],
-            frames=net["frames"],
-            layer_norm=net["layer_norm"],
-            cell=net["cell"],
-            scan_unroll=net["scan_unroll"],
-        )
+        return NetworkConfig(**{**net, "conv": tuple(tuple(layer) for layer in net["conv"])})
 
     def hyperparams(self) -> Hyperparams:
         train = self["train"]
@@ -579,25 +452,15 @@ class Config:
         return "\n".join(lines)
 
     def training_dict(self) -> dict[str, Any]:
-        """The part of the configuration a training run's results depend on.
-
-        Fields at the value runs had before they existed (``ADDED_LATER``) and
-        fields no result depends on (``UNHASHED``) are left out, and a ``RENAMED``
-        field is written under its old name and code, so the hashes of older runs
-        stay what they were.
-        """
-        out: dict[str, Any] = {}
-        for entry in TRAINING_SECTIONS:
-            section, _, name = entry.partition(".")
-            if name:
-                out[entry] = self[section][name]
-                continue
-            table = {}
-            for field, value in self[section].items():
-                if (section, field) in UNHASHED or ADDED_LATER.get((section, field), ()) == value:
-                    continue
-                table.update([_old_name(section, field, value)])
-            out[entry] = table
+        """The part of the configuration a training run's results depend on: ``run.seed``
+        and every field of ``[env]``, ``[network]`` and ``[train]`` but the ``UNHASHED``."""
+        out: dict[str, Any] = {"run.seed": self["run"]["seed"]}
+        for section in TRAINING_SECTIONS:
+            out[section] = {
+                name: value
+                for name, value in self[section].items()
+                if (section, name) not in UNHASHED
+            }
         return out
 
     def training_hash(self) -> str:
@@ -609,14 +472,6 @@ class Config:
         """``{"config": training_dict, "config_hash": training_hash}``: what a checkpoint
         stores, and what loading one checks (the differing fields are named)."""
         return {"config": self.training_dict(), "config_hash": self.training_hash()}
-
-
-def _old_name(section: str, field: str, value: Any) -> tuple[str, Any]:
-    """``(field, value)``, or its ``RENAMED`` old name and code."""
-    for (old_section, old), (new, codes) in RENAMED.items():
-        if old_section == section and new == field:
-            return old, next(code for code, meaning in codes.items() if meaning == value)
-    return field, value
 
 
 def _in_config_words(message: str) -> str:

@@ -229,6 +229,37 @@ def test_truncated_checkpoint_is_reported(straight, tmp_path, capsys):
     assert CHECKPOINT_NPZ in err and len(err.strip().splitlines()) == 1
 
 
+def test_a_run_directory_of_an_older_version_is_refused_in_one_line(straight, tmp_path, capsys):
+    """A run directory an older version wrote (a format-1 checkpoint, a config.toml
+    naming ``env.ped_yield``) is neither resumed nor evaluated: status 2 and one line
+    naming what wrote it and what to do."""
+    import zipfile
+
+    run_dir = tmp_path / "old"
+    run_dir.mkdir()
+    toml = (straight / "config.toml").read_text()
+    (run_dir / "config.toml").write_text(
+        toml.replace('ped_behaviour_to_car = "ignore"', "ped_yield = 0")
+    )
+    with (
+        zipfile.ZipFile(straight / CHECKPOINT_NPZ) as old,
+        zipfile.ZipFile(run_dir / CHECKPOINT_NPZ, "w") as new,
+    ):
+        for info in old.infolist():
+            data = old.read(info)
+            if info.filename == "manifest.json":
+                manifest = json.loads(data)
+                del manifest["drqn_jax_commit"]
+                data = json.dumps({**manifest, "format": 1, "drqn_jax_version": "0.1.0"})
+            new.writestr(info, data)
+    for command in (["train", "--resume", str(run_dir)], ["evaluate", str(run_dir)]):
+        assert cli.main([*command, "--quiet"]) == 2, command
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and "Traceback" not in err, err
+        assert "written by drqn_jax 0.1.0 in format 1; this version reads format 2" in err
+        assert err.endswith("train it again, or use the commit that wrote it"), err
+
+
 def test_fresh_run_refuses_a_used_directory(straight, capsys):
     assert cli.main(["train", *SMOKE, "--run-dir", str(straight)]) == 2
     assert "--resume" in capsys.readouterr().err

@@ -9,10 +9,9 @@ from pathlib import Path
 import pytest
 
 from drqn_jax.config import (
-    ADDED_LATER,
     CONFIG_DIR,
-    REVISED,
     SCHEMA,
+    UNHASHED,
     ConfigError,
     config_names,
     load_config,
@@ -106,14 +105,13 @@ def test_paper_config_is_the_papers_protocol():
     assert config["env"]["max_steps"] == 1000 and config.env_overrides() == {}
 
 
-
-
 def test_dqn_stack_is_default_with_a_frame_stacking_dqn():
     default, stack = load_config("default"), load_config("dqn-stack")
     assert changed(stack, default, "network") == {"kind": "dqn", "frames": 4}
     assert stack["train"] == default["train"] and stack["env"] == default["env"]
-    assert stack.network_config().frames == 4 and "frames" in stack.training_dict()["network"]
-    assert "frames" not in default.training_dict()["network"]  # runs from before still match
+    assert stack.network_config().frames == 4
+    assert stack.training_dict()["network"]["frames"] == 4
+    assert default.training_dict()["network"]["frames"] == 1
 
 
 def test_realistic_extends_default_with_walking_speeds():
@@ -122,22 +120,6 @@ def test_realistic_extends_default_with_walking_speeds():
     assert realistic["env"]["ped_speed_max"] == 1.5 and default["env"]["ped_speed_max"] < 0.5
     assert realistic["train"] == default["train"] and realistic["network"] == default["network"]
     assert realistic["env"]["reward_collision"] == default["env"]["reward_collision"] == -100.0
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 
 
 def test_set_overrides_and_parsing():
@@ -286,64 +268,37 @@ def test_training_hash_tracks_training_fields_only():
         assert load_config("smoke", [override]).training_hash() != base.training_hash(), override
 
 
-def test_training_hashes_of_existing_run_directories_stay_put():
-    """A run directory resumes only while its config hashes as it did when written.
-    This hash was smoke's at 8e816cf^ (before PQN's fields): a new training field
-    must enter ``ADDED_LATER`` at its default, or every run on disk stops resuming.
-    ``network.scan_unroll`` (1 in smoke) changes no bit, so it is not hashed: a run
-    resumes with another."""
-    assert load_config("smoke").training_hash() == (
-        "5e48885dee7fa0a58840fde4ac3253df03e13fa22cc134012a7b52e94a27a153"
-    )
+def test_the_training_hash_is_of_every_training_field_but_the_unhashed():
+    """``run.seed`` and every ``[env]``, ``[network]`` and ``[train]`` field, at any
+    value, under its own name; ``network.scan_unroll`` changes no bit, so a run resumes
+    with another."""
+    config = load_config("smoke")
+    hashed = config.training_dict()
+    assert set(hashed) == {"run.seed", "env", "network", "train"}
+    assert hashed["run.seed"] == config["run"]["seed"]
+    for section in ("env", "network", "train"):
+        kept = {n: v for n, v in config[section].items() if (section, n) not in UNHASHED}
+        assert hashed[section] == kept, section
+    assert {("network", "scan_unroll")} == UNHASHED
+    assert "scan_unroll" not in hashed["network"]
     unrolled = load_config("smoke", ["network.scan_unroll=9"])
     assert unrolled.network_config().scan_unroll == 9
-    assert unrolled.training_hash() == load_config("smoke").training_hash()
+    assert unrolled.training_hash() == config.training_hash()
+    for default in ("env.collision_model=authors", "train.n_step=1", "network.cell=lstm"):
+        assert load_config("smoke", [default]).training_hash() == config.training_hash()
+    for override in ("env.collision_model=contact", "train.q_lambda=0.5", "network.cell=gru"):
+        assert load_config("smoke", [override]).training_hash() != config.training_hash()
 
 
-def test_fields_added_later_keep_older_runs_resumable():
-    """A field added after run directories existed is hashed only away from the
-    value those runs had, so their checkpoints still match. The fields the
-    2026-11-25 revision added with new defaults (REVISED) are at their old values
-    in a config written before it, which names the old ``env.ped_yield``."""
-    config = load_config("smoke")
-    for (section, name), old_value in ADDED_LATER.items():
-        if (section, name) in REVISED:
-            assert config[section][name] != old_value
-            continue
-        assert config[section][name] == old_value
-        assert name not in config.training_dict()[section]
-    assert "n_step" in load_config("smoke", ["train.n_step=2"]).training_dict()["train"]
-    anywhere = load_config("smoke", ["train.window_start=anywhere"])
-    assert anywhere.training_dict()["train"]["window_start"] == "anywhere"
-
-
-def _before_revision(ped_yield: int) -> dict:
-    """smoke's resolved config as a run directory written before the revision holds it:
-    every field of that time, ``env.ped_yield`` among them, none of the new ones."""
-    values = load_config("smoke").values
-    env = {k: v for k, v in values["env"].items() if ("env", k) not in ADDED_LATER}
-    return {**values, "env": {**env, "ped_yield": ped_yield}}
-
-
-@pytest.mark.parametrize(("ped_yield", "behaviour"), [(1, "yield"), (0, "ignore")])
-def test_configs_written_before_the_revision_keep_their_world_and_hash(ped_yield, behaviour):
-    """``env.ped_yield`` reads as ``ped_behaviour_to_car``; such a config keeps the
-    contact collision test, and hashes as it did then: ``ped_yield`` under its old
-    name when it was not the default, no new field."""
-    old = load_config(_before_revision(ped_yield))
-    assert old["env"]["ped_behaviour_to_car"] == behaviour
-    assert old["env"]["collision_model"] == "contact" and old["env"]["ped_wait_max_s"] == 5.0
-    hashed = old.training_dict()["env"]
-    assert not {name for section, name in ADDED_LATER if section == "env"} & hashed.keys()
-    assert hashed.get("ped_yield", 1) == ped_yield
-    # today's configs name the new field, get the paper's world and hash what differs
-    new = load_config("smoke")
-    assert new["env"]["collision_model"] == "authors"
-    assert new.training_dict()["env"]["ped_yield"] == 0
-    assert new.training_dict()["env"]["collision_model"] == "authors"
-    with pytest.raises(ConfigError, match=r"env\.ped_yield = 2: must be one of 0 \(ignore\), 1"):
-        load_config("smoke", ["env.ped_yield=2"])
-    assert load_config("smoke", ["env.ped_yield=1"])["env"]["ped_behaviour_to_car"] == "yield"
+def test_a_field_this_version_does_not_know_is_refused():
+    """No old names are read: a config naming a field of no section (a run directory of
+    another version) is refused in one line naming it."""
+    values = {**load_config("smoke").values}
+    values["env"] = {**values["env"], "ped_yield": 1}
+    with pytest.raises(ConfigError, match=r"^unknown field env\.ped_yield; \[env\] has: id, "):
+        load_config(values)
+    with pytest.raises(ConfigError, match=r"^unknown field env\.ped_yield;"):
+        load_config("smoke", ["env.ped_yield=1"])
 
 
 def test_env_overrides_are_the_difference_from_the_preset():

@@ -1,4 +1,4 @@
-"""Trained agents shipped with the package (issue 53), so that a result can be tried
+"""Trained agents shipped with the package, so that a result can be tried
 without training: ``drqn-jax evaluate --agent NAME`` and ``replay --agent NAME``.
 
 Each is a directory ``trained/<NAME>/`` beside this module, as ``drqn-jax export``

@@ -17,7 +17,7 @@ from drqn_jax.agents.shipped import shipped_agent_dir, shipped_agents
 from drqn_jax.commands import default_run_dir, duration_text
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import metrics_table
-from drqn_jax.experiments.machine import device_identity, recorded_device
+from drqn_jax.experiments.machine import device_identity
 from drqn_jax.experiments.runner import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
@@ -205,15 +205,16 @@ def _chosen_agent(args: argparse.Namespace, overrides: list[str]) -> tuple[Confi
             raise ConfigError(f"--agent {chosen} is a shipped agent: give no RUN_DIR")
         run_dir, chosen = str(shipped_agent_dir(chosen)), "drqn"
     if chosen != "drqn":
-        source = Path(run_dir) / "config.toml" if run_dir else args.config
-        config = load_config(source, overrides)
+        config = (
+            load_run(run_dir, tuple(overrides)) if run_dir else load_config(args.config, overrides)
+        )
         return config, builtin_agent(chosen, config), None, None
     if run_dir is None:
         raise ConfigError("--agent drqn needs a RUN_DIR (a trained run)")
     network, params, meta = load_trained_network(load_run(run_dir, ()), run_dir)
-    if not meta.get("finished", False):
+    if not meta["finished"]:
         print(
-            f"note: {run_dir} has not finished training ({meta.get('recorded')} episodes so far)",
+            f"note: {run_dir} has not finished training ({meta['recorded']} episodes so far)",
             file=sys.stderr,
         )
     config = load_run(run_dir, tuple(overrides))
@@ -312,14 +313,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     shipped = argparse.Namespace(run_dir=None, agent=HEADLINE, config=None)
     config, agent, _, _ = _chosen_agent(shipped, list(args.overrides))
     provenance = json.loads((directory / "provenance.json").read_text())
-    machine = provenance.get("machine", {})
-    trained = provenance.get("trained") or {  # exported before it was kept: the machine's
-        "commit": machine.get("git_commit"),
-        "device": recorded_device(machine),
-    }
+    trained = provenance["trained"]
     about = (
         f"the shipped agent {HEADLINE!r}: {provenance['env_steps']:,} env steps, "
-        f"trained by `{provenance.get('command')}` at commit {trained['commit']} "
+        f"trained by `{provenance['command']}` at commit {trained['commit']} "
         f"on {trained['device']}"
     )
     if not args.quiet:
@@ -392,17 +389,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from drqn_jax.experiments.machine import NOT_RECORDED
     from drqn_jax.experiments.runner import export_agent
     from drqn_jax.experiments.sweep_outputs import run_record
 
     record = run_record(args.run_dir)  # a sweep run's: where it trained, not where it is now
     trained = None
     if record is not None:
-        trained = {
-            "commit": record.get("commit") or NOT_RECORDED,
-            "device": record.get("trained_on") or NOT_RECORDED,
-        }
+        trained = {"commit": record["commit"], "device": record["trained_on"]}
     provenance = export_agent(args.run_dir, args.out, args.training_command, trained)
     if not args.quiet:
         print(

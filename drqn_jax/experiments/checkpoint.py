@@ -9,9 +9,9 @@ in ``run_dir`` is:
   and a ``manifest.json`` entry. Typed PRNG keys are stored as their
   ``jax.random.key_data`` (uint32, the key shape plus the impl's trailing
   axis); dtypes NumPy does not know natively (``bfloat16`` …) as unsigned
-  integers of the same width. The manifest holds ``format`` (1),
-  ``drqn_jax_version``, every key of the caller's ``meta`` (``config``,
-  ``config_hash``, ``recorded``, ``grad_steps``, …) and ``leaves`` (one
+  integers of the same width. The manifest holds what wrote it (``format``,
+  ``drqn_jax_version``, ``drqn_jax_commit``), every key of the caller's ``meta``
+  (``config``, ``config_hash``, ``recorded``, …) and ``leaves`` (one
   ``{name, path, shape, dtype}`` per leaf in npz order, plus ``key_impl`` for
   a PRNG key leaf; ``shape`` and ``dtype`` are the leaf's own, e.g. ``[]``
   and ``"key<fry>"`` for one key). The bytes are deterministic (fixed zip
@@ -22,32 +22,23 @@ in ``run_dir`` is:
 
 Restoration is bit-exact: every leaf comes back with the same dtype, shape
 and bits (NaN payloads and signed zeros included), in the tree structure of
-the caller's template, so a run resumed from a checkpoint continues exactly
-as the uninterrupted run would have.
+the caller's template, so a resumed run continues exactly as the
+uninterrupted run would have. This version reads its own :data:`FORMAT` only.
 
-Crash safety: the npz is written to a temporary file in ``run_dir``, flushed
-and fsynced, then renamed over the old one (``os.replace``, then the
-directory is fsynced). That one rename is the commit point: a process that
-dies at any instant leaves the previous npz or the new one, each complete
-and self-contained, never a mixture, so a run that is interrupted keeps its
-last good checkpoint (at worst beside a stray hidden ``.checkpoint.npz.*.tmp``
-file, which nothing reads). The json is written the same way after the npz;
-after a crash between the two renames it lags one save behind (its
-``npz_sha256`` is then not the npz's), until the next save rewrites it.
-Integrity rests on the CRC-32 that the zip format keeps for every entry:
-each entry is checked as it is read, so a truncated archive or a changed
-byte in an entry is detected.
-
-Every problem on loading (no checkpoint, i.e. no ``checkpoint.npz``; an
-unreadable, truncated or corrupt npz, a CRC-32 mismatch included; an unknown
-format; a leaf missing or of another shape or dtype than the template;
-another configuration) raises :class:`CheckpointError` with a one-line
-message that names the file, the leaf or the configuration field.
+Crash safety: the npz is written to a temporary file in ``run_dir``, fsynced,
+then renamed over the old one (``os.replace``, then the directory is fsynced).
+That rename is the commit point: a process that dies at any instant leaves the
+previous npz or the new one, each complete, never a mixture (at worst beside a
+stray hidden ``.checkpoint.npz.*.tmp`` file, which nothing reads). The json is
+written the same way after the npz, so after a crash between the two renames it
+lags one save behind. The zip format's CRC-32 of every entry is checked as it is
+read: a truncated archive or a changed byte is detected.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import io
 import json
@@ -55,7 +46,6 @@ import os
 import re
 import secrets
 import zipfile
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -74,28 +64,23 @@ __all__ = [
     "atomic_write_text",
     "config_hash",
     "load_checkpoint",
+    "read_manifest",
     "save_checkpoint",
+    "writer",
 ]
 
 CHECKPOINT = "checkpoint"  # the default file stem: checkpoint.npz and checkpoint.json
 CHECKPOINT_NPZ = f"{CHECKPOINT}.npz"
 CHECKPOINT_JSON = f"{CHECKPOINT}.json"
 AGENT = "agent"  # the stem of a trained agent's parameters alone (a sweep's OUT/agents/run-NNNN)
-FORMAT = 1
+FORMAT = 2  # the layout this version writes and reads (its TrainState, its training hash)
 _MANIFEST = "manifest.json"  # the npz entry that holds the manifest
-_RESERVED = ("format", "drqn_jax_version", "npz_sha256", "leaves")
+_RESERVED = ("format", "drqn_jax_version", "drqn_jax_commit", "npz_sha256", "leaves")
 _MAX_LISTED = 5  # mismatches named in one error message
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # fixed entry timestamps: deterministic bytes
-
-
-_ZIP_ERRORS = (
-    zipfile.BadZipFile,
-    zipfile.LargeZipFile,
-    OSError,
-    EOFError,
-    ValueError,
-    RuntimeError,  # an entry flagged as encrypted; NotImplementedError: unknown compression
-)
+#: What reading a broken archive raises (``zipfile.error`` is ``BadZipFile``;
+#: RuntimeError: an entry flagged as encrypted).
+_ZIP_ERRORS = (zipfile.error, zipfile.LargeZipFile, OSError, EOFError, ValueError, RuntimeError)
 
 
 class CheckpointError(ValueError):
@@ -108,11 +93,9 @@ class CheckpointError(ValueError):
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically: readers see the old file or the new one.
 
-    The bytes go to a temporary file in the same directory (created with the
-    usual ``0o666 & ~umask`` permissions), which is flushed, fsynced and then
-    renamed over ``path`` with ``os.replace``; the directory is fsynced too
-    where the platform allows, so the rename survives a power loss. On any
-    error the temporary file is removed. The parent directory must exist.
+    The bytes go to a temporary file beside ``path`` (permissions ``0o666 & ~umask``),
+    fsynced, then renamed over it (``os.replace``) and the directory fsynced where the
+    platform allows. On any error the temporary file is removed.
     """
     path = Path(path)
     while True:
@@ -134,28 +117,17 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
-    _fsync_dir(path.parent)
+    with contextlib.suppress(OSError, AttributeError):  # the rename made durable (POSIX)
+        fd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     """:func:`atomic_write_bytes` of ``text`` encoded as UTF-8."""
     atomic_write_bytes(path, text.encode("utf-8"))
-
-
-def _fsync_dir(directory: Path) -> None:
-    """Make a rename in ``directory`` durable (POSIX; silently skipped elsewhere)."""
-    flags = getattr(os, "O_DIRECTORY", None)
-    if flags is None:
-        return
-    try:
-        fd = os.open(directory, os.O_RDONLY | flags)
-    except OSError:
-        return
-    try:
-        with contextlib.suppress(OSError):
-            os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 # ----------------------------------------------------------------------------- configuration
@@ -236,12 +208,8 @@ def _encode(state: Any) -> tuple[list[dict[str, Any]], list[np.ndarray]]:
     for path, leaf in leaves:
         keystr = jax.tree_util.keystr(path)
         shape, dtype = _shape_dtype(leaf)
-        entry: dict[str, Any] = {
-            "name": _npz_name(keystr, used),
-            "path": keystr,
-            "shape": list(shape),
-            "dtype": str(dtype),
-        }
+        entry: dict[str, Any] = {"name": _npz_name(keystr, used), "path": keystr}
+        entry |= {"shape": list(shape), "dtype": str(dtype)}
         if _is_key_dtype(dtype):
             impl = jax.random.key_impl(leaf)
             entry["key_impl"] = impl if isinstance(impl, str) else str(impl)
@@ -269,6 +237,14 @@ def _npz_bytes(entries: list[dict[str, Any]], arrays: list[np.ndarray], manifest
 # ----------------------------------------------------------------------------- save / load
 
 
+@functools.cache
+def _commit() -> str:
+    """The commit of the code this process runs (``git_commit``, read at the first save)."""
+    from drqn_jax.experiments.machine import git_commit  # late: it imports drqn_jax
+
+    return git_commit()
+
+
 def save_checkpoint(
     run_dir: str | os.PathLike, state: Any, meta: dict[str, Any], *, name: str = CHECKPOINT
 ) -> None:
@@ -276,18 +252,13 @@ def save_checkpoint(
 
     Args:
         run_dir: the run's directory, created if missing.
-        state: any pytree of arrays, typed PRNG key arrays or Python scalars
-            (a :class:`~drqn_jax.learners.dqn.state.TrainState`); it is copied to the host.
-        meta: JSON-serialisable values stored at the top level of the
-            manifest (NumPy/JAX scalars are converted); it may not use the
-            reserved keys ``format``, ``drqn_jax_version``, ``npz_sha256``,
-            ``leaves``.
+        state: any pytree of arrays, typed PRNG key arrays or Python scalars.
+        meta: JSON-serialisable values (NumPy/JAX scalars are converted) for the
+            top level of the manifest, none under a reserved key (``_RESERVED``).
         name: the files' stem (``NAME.npz``, ``NAME.json``); e.g. ``agent`` for a
-            sweep's trained agent parameters beside no training state.
+            trained agent's parameters beside no training state.
 
-    The npz, which holds the manifest, is written atomically first (the
-    commit point), then the json copy (see the module docstring for what a
-    crash leaves behind).
+    The npz is written atomically first (the commit point), then the json copy.
 
     Raises:
         ValueError: ``meta`` uses a reserved key.
@@ -300,17 +271,16 @@ def save_checkpoint(
         raise ValueError(f"checkpoint meta may not use the reserved key(s) {', '.join(clash)}")
     run_dir = Path(run_dir)
     entries, arrays = _encode(state)
-    version = getattr(drqn_jax, "__version__", "unknown")
-    manifest = {"format": FORMAT, "drqn_jax_version": version, **meta, "leaves": entries}
+    version = {
+        "format": FORMAT,
+        "drqn_jax_version": getattr(drqn_jax, "__version__", "unknown"),
+        "drqn_jax_commit": _commit(),
+    }
+    manifest = {**version, **meta, "leaves": entries}
     text = json.dumps(manifest, indent=1, default=_json_default) + "\n"  # may raise: no write
     data = _npz_bytes(entries, arrays, text.encode("utf-8"))
     saved = json.loads(text)  # as stored: NumPy scalars and tuples already converted
-    copy = {
-        "format": FORMAT,
-        "drqn_jax_version": version,
-        "npz_sha256": hashlib.sha256(data).hexdigest(),
-        **saved,
-    }
+    copy = {**version, "npz_sha256": hashlib.sha256(data).hexdigest(), **saved}
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(run_dir / f"{name}.npz", data)
     atomic_write_text(run_dir / f"{name}.json", json.dumps(copy, indent=1) + "\n")
@@ -320,76 +290,77 @@ def load_checkpoint(
     run_dir: str | os.PathLike,
     template: Any,
     expected_meta: dict[str, Any] | None = None,
-    fill: Mapping[str, Any] | None = None,
     *,
     name: str = CHECKPOINT,
-    renamed: Mapping[str, str] | None = None,
 ) -> tuple[Any, dict[str, Any]]:
     """Load the checkpoint in ``run_dir`` into the structure of ``template``.
 
-    Only ``checkpoint.npz`` is read (with the manifest it holds);
-    ``checkpoint.json`` is ignored, missing or not.
+    Only ``checkpoint.npz`` is read (with its manifest), never ``checkpoint.json``.
 
     Args:
         run_dir: the directory :func:`save_checkpoint` wrote.
-        template: a pytree of the saved state's structure whose leaves are
-            arrays, key arrays or ``jax.ShapeDtypeStruct`` (e.g.
-            ``jax.eval_shape(trainer.init, key)``); only shapes, dtypes and
-            key paths are used. Every template leaf must have a saved leaf at
-            the same key path with the same shape and dtype, and vice versa.
+        template: a pytree of the saved state's structure (e.g.
+            ``jax.eval_shape(trainer.init, key)``): each of its leaves and the
+            saved ones must match one to one in key path, shape and dtype.
         expected_meta: optional; if it and the checkpoint both have a
             ``config_hash``, they must be equal. Other keys are not checked.
-        fill: optional values of leaves added to the state after the
-            checkpoint was written (key path -> array of the template's shape
-            and dtype), used where the checkpoint lacks them.
         name: the npz's stem, as given to :func:`save_checkpoint`.
-        renamed: optional old key path -> new key path of leaves renamed after
-            the checkpoint was written (their values read unchanged).
 
     Returns:
-        ``(state, meta)``: the state (``jax.Array`` leaves, typed keys
-        rebuilt with ``jax.random.wrap_key_data``, bit-identical to the saved
-        leaves) in ``template``'s tree structure, and the manifest's fields
-        except ``leaves`` (the caller's ``meta`` plus ``format`` and
-        ``drqn_jax_version``).
+        ``(state, meta)``: the state, bit-identical to the saved leaves (typed keys
+        rebuilt with ``jax.random.wrap_key_data``), in ``template``'s structure,
+        and the manifest but its ``leaves``.
 
     Raises:
-        CheckpointError: no checkpoint (no npz); the npz unreadable,
-            truncated or corrupt (a CRC-32 mismatch in any entry); an unknown
-            format; leaves that do not fit the template (the first few are
-            named, with saved and expected shape and dtype); another
-            configuration (the differing ``config`` fields are named).
+        CheckpointError: with a one-line message naming the file, the leaf or
+            the field: no npz; an unreadable, truncated or corrupt one (a CRC-32
+            mismatch); another format (naming what wrote it); leaves that do not
+            fit the template; another configuration (the differing fields).
     """
     run_dir = Path(run_dir)
+    npz_path, archive = _open(run_dir, name)
+    with archive:
+        manifest = _read_manifest(npz_path, archive)
+        if expected_meta is not None:
+            _check_config(run_dir, manifest, expected_meta)
+        entries = _check_template(run_dir, manifest["leaves"], template)
+        leaves = [_decode(npz_path, archive, entry) for entry in entries]
+    treedef = jax.tree.structure(template)
+    meta = {k: v for k, v in manifest.items() if k != "leaves"}
+    return jax.tree.unflatten(treedef, leaves), meta
+
+
+def read_manifest(run_dir: str | os.PathLike, name: str = CHECKPOINT) -> dict[str, Any]:
+    """The manifest of the checkpoint ``run_dir/NAME.npz``, its ``leaves`` included,
+    checked as :func:`load_checkpoint` checks it (its format among them)."""
+    npz_path, archive = _open(Path(run_dir), name)
+    with archive:
+        return _read_manifest(npz_path, archive)
+
+
+def writer(manifest: dict[str, Any]) -> str:
+    """``drqn_jax 0.1.0 at commit abc1234 in format 2``: what wrote a manifest."""
+    commit = manifest.get("drqn_jax_commit")
+    at = f" at commit {commit}" if commit else ""
+    return f"drqn_jax {manifest.get('drqn_jax_version')}{at} in format {manifest['format']!r}"
+
+
+def _open(run_dir: Path, name: str) -> tuple[Path, zipfile.ZipFile]:
+    """``run_dir/NAME.npz`` and its zip archive, open (an atomic save replaces the file,
+    not the bytes an open archive reads)."""
     npz_path = run_dir / f"{name}.npz"
     if not run_dir.is_dir():
         raise CheckpointError(f"no checkpoint: directory {run_dir} does not exist")
     try:
-        data = npz_path.read_bytes()
+        return npz_path, zipfile.ZipFile(npz_path)
     except FileNotFoundError:
         raise CheckpointError(f"no checkpoint in {run_dir} (no {npz_path.name})") from None
-    except OSError as err:
-        raise CheckpointError(f"cannot read {npz_path}: {err.strerror or err}") from None
-    try:
-        archive = zipfile.ZipFile(io.BytesIO(data))
-    except _ZIP_ERRORS as err:
+    except (zipfile.error, zipfile.LargeZipFile, EOFError, ValueError) as err:
         raise CheckpointError(
             f"{npz_path} is not a valid npz archive (truncated or corrupt: {err})"
         ) from None
-    manifest = _read_manifest(npz_path, archive)
-    if expected_meta is not None:
-        _check_config(run_dir, manifest, expected_meta)
-    saved = [
-        {**entry, "path": (renamed or {}).get(entry["path"], entry["path"])}
-        for entry in manifest["leaves"]
-    ]
-    entries = _check_template(run_dir, saved, template, fill or {})
-    leaves = [
-        _decode(npz_path, archive, entry) if isinstance(entry, dict) else entry for entry in entries
-    ]
-    treedef = jax.tree.structure(template)
-    meta = {k: v for k, v in manifest.items() if k != "leaves"}
-    return jax.tree.unflatten(treedef, leaves), meta
+    except OSError as err:
+        raise CheckpointError(f"cannot read {npz_path}: {err.strerror or err}") from None
 
 
 def _read_entry(npz_path: Path, archive: zipfile.ZipFile, member: str, what: str) -> bytes:
@@ -412,14 +383,12 @@ def _read_manifest(npz_path: Path, archive: zipfile.ZipFile) -> dict[str, Any]:
         manifest = json.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise CheckpointError(f"{where} is unreadable (truncated or corrupt: {err})") from None
-    if not isinstance(manifest, dict):
-        raise CheckpointError(f"{where} is not a checkpoint manifest (not a JSON object)")
-    if "format" not in manifest:
+    if not isinstance(manifest, dict) or "format" not in manifest:
         raise CheckpointError(f"{where} is not a checkpoint manifest (no 'format')")
     if manifest["format"] != FORMAT:
         raise CheckpointError(
-            f"{where} has unknown checkpoint format {manifest['format']!r} "
-            f"(this drqn_jax reads format {FORMAT})"
+            f"{npz_path}: written by {writer(manifest)}; this version reads format {FORMAT}: "
+            "train it again, or use the commit that wrote it"
         )
     if not isinstance(manifest.get("leaves"), list):
         raise CheckpointError(f"{where} is corrupt: 'leaves' missing or malformed")
@@ -438,8 +407,6 @@ def _check_config(run_dir: Path, manifest: dict[str, Any], expected: dict[str, A
     if "config_hash" not in expected:
         return
     saved_hash = manifest.get("config_hash")
-    if saved_hash is None:
-        raise CheckpointError(f"checkpoint in {run_dir} records no config_hash to compare")
     if saved_hash == expected["config_hash"]:
         return
     saved, wanted = manifest.get("config"), expected.get("config")
@@ -453,13 +420,17 @@ def _check_config(run_dir: Path, manifest: dict[str, Any], expected: dict[str, A
             f"{str(saved_hash)[:12]}… in the checkpoint, {str(expected['config_hash'])[:12]}… "
             "in this run"
         )
-    more = f"; and {len(diffs) - _MAX_LISTED} more" if len(diffs) > _MAX_LISTED else ""
     raise CheckpointError(
         f"checkpoint in {run_dir} was made with another configuration "
-        f"({len(diffs)} field{'s differ' if len(diffs) > 1 else ' differs'}): "
-        + "; ".join(diffs[:_MAX_LISTED])
-        + more
+        + _listed(diffs, "field differs", "fields differ")
     )
+
+
+def _listed(problems: list[str], one: str, many: str) -> str:
+    """``(7 fields differ): a; b; c; d; e; and 2 more``."""
+    more = f"; and {len(problems) - _MAX_LISTED} more" if len(problems) > _MAX_LISTED else ""
+    what = f"({len(problems)} {many if len(problems) > 1 else one}): "
+    return what + "; ".join(problems[:_MAX_LISTED]) + more
 
 
 def _describe(shape: Any, dtype: Any) -> str:
@@ -467,10 +438,9 @@ def _describe(shape: Any, dtype: Any) -> str:
 
 
 def _check_template(
-    run_dir: Path, saved: list[dict[str, Any]], template: Any, fill: Mapping[str, Any]
-) -> list[dict[str, Any] | jax.Array]:
-    """The saved entries in ``template``'s leaf order (or, for a leaf the checkpoint
-    lacks, its value in ``fill``); raise if any leaf does not fit."""
+    run_dir: Path, saved: list[dict[str, Any]], template: Any
+) -> list[dict[str, Any]]:
+    """The saved entries in ``template``'s leaf order; raise if any leaf does not fit."""
     by_path = {entry["path"]: entry for entry in saved}
     wanted, _ = jax.tree_util.tree_flatten_with_path(template)
     problems: list[str] = []
@@ -479,9 +449,6 @@ def _check_template(
         keystr = jax.tree_util.keystr(path)
         shape, dtype = _shape_dtype(leaf)
         entry = by_path.pop(keystr, None)
-        if entry is None and keystr in fill:
-            entries.append(jnp.broadcast_to(jnp.asarray(fill[keystr], dtype), shape))
-            continue
         if entry is None:
             problems.append(f"{keystr}: not in the checkpoint, expected {_describe(shape, dtype)}")
             continue
@@ -497,12 +464,9 @@ def _check_template(
         for path, entry in by_path.items()
     ]
     if problems:
-        more = f"; and {len(problems) - _MAX_LISTED} more" if len(problems) > _MAX_LISTED else ""
         raise CheckpointError(
             f"checkpoint in {run_dir} does not fit the expected state "
-            f"({len(problems)} {'leaves differ' if len(problems) > 1 else 'leaf differs'}): "
-            + "; ".join(problems[:_MAX_LISTED])
-            + more
+            + _listed(problems, "leaf differs", "leaves differ")
         )
     return entries
 

@@ -6,7 +6,6 @@ import datetime
 import os
 import platform
 import subprocess
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -60,23 +59,8 @@ def device_identity() -> str:
     the accelerator's kind (e.g. ``NVIDIA H100 80GB HBM3``)."""
     device = jax.devices()[0]
     if device.platform == "cpu":
-        return _cpu_device(cpu_model(), cpu_identity())
+        return f"{cpu_model()} ({cpu_identity()})"
     return device.device_kind
-
-
-def _cpu_device(model: str, identity: str | None) -> str:
-    """``AMD EPYC (family 25 …)``: a CPU as :func:`device_identity` names it."""
-    return model + (f" ({identity})" if identity else "")
-
-
-def recorded_device(machine: Mapping[str, Any]) -> str:
-    """The :func:`device_identity` a :func:`machine_info` block names (blocks written
-    before it kept one: the CPU model, with its identity where kept, or the platform)."""
-    if "device" in machine:
-        return machine["device"]
-    if machine.get("platform") != "cpu":
-        return machine.get("platform") or NOT_RECORDED
-    return _cpu_device(machine.get("cpu_model", NOT_RECORDED), machine.get("cpu_identity"))
 
 
 #: What a run's record says of the device or commit that trained it where the record
@@ -140,7 +124,7 @@ def machine_info() -> dict[str, Any]:
 def machine_lines(info: dict[str, Any]) -> list[str]:
     """The machine block as Markdown bullet lines."""
     return [
-        f"- CPU: {info['cpu_model']} ({info.get('cpu_identity', 'identity not recorded')})",
+        f"- CPU: {info['cpu_model']} ({info['cpu_identity']})",
         f"- logical cores (os.cpu_count()): {info['logical_cores']}"
         f" (usable by this process: {info['usable_cores']})",
         f"- JAX {info['jax_version']}, jaxlib {info['jaxlib_version']}",

@@ -3,7 +3,7 @@
 The learning itself is the pure :func:`drqn_jax.learners.make_train`; this module
 calls its compiled ``run(state, chunk_iterations)`` from Python so that it can
 show progress, write checkpoints and stop cleanly between chunks. A run split
-into chunks ends bit-identical to a one-shot run (issue 3), so none of this
+into chunks ends bit-identical to a one-shot run, so none of this
 changes the results: not the progress bar, not the checkpoint interval, not an
 interruption followed by ``--resume``.
 
@@ -37,15 +37,18 @@ import numpy as np
 
 from drqn_jax.agents import rule_based_agent
 from drqn_jax.agents.base import Agent
-from drqn_jax.config import RENAMED_LEAVES, Config, added_leaves, load_config
+from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import evaluate
 from drqn_jax.experiments.checkpoint import (
     AGENT,
+    CHECKPOINT,
     CHECKPOINT_NPZ,
     CheckpointError,
     atomic_write_text,
     load_checkpoint,
+    read_manifest,
     save_checkpoint,
+    writer,
 )
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
 from drqn_jax.learners import Trainer, make_train
@@ -235,8 +238,7 @@ def train_run(
     if resume:
         expected = config.training_identity()
         template = jax.eval_shape(init, train_key)
-        fill = added_leaves(trainer.config.hyperparams, trainer.env_params)
-        state, meta = load_checkpoint(run_dir, template, expected, fill, renamed=RENAMED_LEAVES)
+        state, meta = load_checkpoint(run_dir, template, expected)
         wall_before, chunks = float(meta["wall_time_s"]), int(meta["chunks"])
     else:
         if (run_dir / CHECKPOINT_NPZ).exists():
@@ -344,11 +346,29 @@ def budget_used(state: TrainState, total: int, unit: str, runs: int | None = Non
 
 
 def load_run(run_dir: str | Path, overrides: tuple[str, ...] = ()) -> Config:
-    """The resolved configuration stored in a run directory, with ``overrides``."""
-    path = Path(run_dir) / "config.toml"
+    """The resolved configuration stored in a run directory (a training run's, or a
+    trained agent's: ``agent.npz``), with ``overrides``.
+
+    Raises:
+        CheckpointError: not a run directory; its checkpoint is of another format, or
+            its ``config.toml`` does not load in this version (one line naming the
+            version and commit that wrote it, and what to do).
+    """
+    run_dir = Path(run_dir)
+    path = run_dir / "config.toml"
     if not path.is_file():
         raise CheckpointError(f"{run_dir}: not a run directory (no config.toml)")
-    return load_config(path, overrides)
+    saved = [n for n in (CHECKPOINT, AGENT) if (run_dir / f"{n}.npz").is_file()]
+    manifest = read_manifest(run_dir, saved[0]) if saved else None  # refuses another format
+    try:
+        config = load_config(path)
+    except ConfigError as err:
+        by = f", written by {writer(manifest)}," if manifest else ""
+        raise CheckpointError(
+            f"{path}{by} does not load in this version: {err}; train it again, "
+            "or use the commit that wrote it"
+        ) from None
+    return load_config(path, overrides) if overrides else config
 
 
 def load_trained_network(
@@ -367,8 +387,7 @@ def load_trained_network(
         agent_template = jax.eval_shape(trainer.agent_params, template)
         params, meta = load_checkpoint(run_dir, agent_template, expected, name=AGENT)
         return trainer.network, params, meta
-    fill = added_leaves(trainer.config.hyperparams, trainer.env_params)
-    state, meta = load_checkpoint(run_dir, template, expected, fill, renamed=RENAMED_LEAVES)
+    state, meta = load_checkpoint(run_dir, template, expected)
     return trainer.network, trainer.agent_params(state), meta
 
 
@@ -405,7 +424,7 @@ def export_agent(
 
     config = load_run(run_dir)
     _, params, meta = load_trained_network(config, run_dir)
-    if not meta.get("finished", False):
+    if not meta["finished"]:
         raise CheckpointError(f"{run_dir}: training has not finished; export a finished run")
     counts = {k: meta[k] for k in _TRAINING_COUNTS if k in meta}
     save_agent(out, config, params, {"finished": True, **counts})

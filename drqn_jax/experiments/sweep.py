@@ -300,12 +300,11 @@ def summarize_sweep(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         settings.setdefault(key, []).append(r)
     rows = []
     for key, runs in settings.items():
-        diverged = sum(bool(r.get("diverged")) for r in runs)
+        diverged = sum(bool(r["diverged"]) for r in runs)
         row: dict[str, Any] = {"setting": dict(key), "runs": len(runs), "diverged": diverged}
         row["teacher"] = teachers_of(runs)
         for metric in TABLE_METRICS:
-            # None: a non-finite number in JSON; absent: a run evaluated before the metric
-            x = np.array([r.get(metric) for r in runs], np.float64)
+            x = np.array([r[metric] for r in runs], np.float64)  # None: non-finite, in JSON
             low, high = t_interval(x)
             row[metric] = {
                 "mean": float(x.mean()),
@@ -324,7 +323,7 @@ def sweep_table(rows: Sequence[dict[str, Any]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
     for row in rows:
         runs = f"{row['runs']}" + (f" ({row['diverged']} diverged)" if row["diverged"] else "")
-        cells = [str(row["setting"][n]) for n in names] + [runs, row.get("teacher", "–")]
+        cells = [str(row["setting"][n]) for n in names] + [runs, row["teacher"]]
         for metric in TABLE_METRICS:
             m = row[metric]
             low, high = m["ci95"]

@@ -152,21 +152,20 @@ def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
 TIMING_JSON = "timing.json"
 
 
-def write_timing(call_dir: Path, call: Call, wall_time_s: float | None) -> None:
-    """``calls/<call>/timing.json``: the call's training wall time (None where a
-    checkpoint from before it was counted continued the call) and its runs."""
+def write_timing(call_dir: Path, call: Call, wall_time_s: float) -> None:
+    """``calls/<call>/timing.json``: the call's training wall time (s) and its runs."""
     record = {"train_wall_s": wall_time_s, "runs": [p.index for p in call.points]}
     atomic_write_text(call_dir / TIMING_JSON, json.dumps(record, indent=1) + "\n")
 
 
-def run_timings(directory: Path) -> dict[int, float | None]:
+def run_timings(directory: Path) -> dict[int, float]:
     """Each run's training wall time (s): its share of its call's (the call's runs train
-    together), by index; None where not counted, absent where no call of it has one."""
-    timings: dict[int, float | None] = {}
+    together), by index; absent where no call of it has one."""
+    timings: dict[int, float] = {}
     for path in sorted((directory / "calls").glob(f"*/{TIMING_JSON}")):
         record = json.loads(path.read_text())
         wall, indices = record["train_wall_s"], record["runs"]
-        timings.update((i, None if wall is None else wall / len(indices)) for i in indices)
+        timings.update((i, wall / len(indices)) for i in indices)
     return timings
 
 

@@ -42,7 +42,6 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from drqn_jax.agents import drqn_agent
-from drqn_jax.config import RENAMED_LEAVES, added_leaves
 from drqn_jax.evaluation import evaluate
 from drqn_jax.experiments.checkpoint import (
     CHECKPOINT_JSON,
@@ -53,12 +52,7 @@ from drqn_jax.experiments.checkpoint import (
 )
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
 from drqn_jax.experiments.machine import device_identity, git_commit
-from drqn_jax.experiments.runner import (
-    budget_used,
-    final_train_return,
-    json_ready,
-    training_budget,
-)
+from drqn_jax.experiments.runner import budget_used, final_train_return, json_ready, training_budget
 from drqn_jax.experiments.sweep import Sweep, SweepPoint, budget_warnings
 from drqn_jax.experiments.sweep_outputs import (
     open_plan,
@@ -216,9 +210,7 @@ class CallOutcome:
     status: str
     trainer: Trainer
     state: TrainState  # batched, padding included
-    #: s: the call's training wall time over every invocation, compile and validation
-    #: included; None when a checkpoint from before it was counted continued it.
-    wall_time_s: float | None = None
+    wall_time_s: float  # s, over every invocation, compile and validation included
 
     def agent_params(self) -> Any:
         """Every run's agent (``Trainer.agent_params``), padding included."""
@@ -248,17 +240,15 @@ def train_call(
     checkpoint = directory is not None and (directory / CHECKPOINT_NPZ).exists()
     if checkpoint:
         template = jax.eval_shape(init, *args)
-        _, hparams, env_params = args
         expected = {"config_hash": call.fingerprint()}
-        fill = added_leaves(hparams, env_params)
-        state, meta = load_checkpoint(directory, template, expected, fill, renamed=RENAMED_LEAVES)
+        state, meta = load_checkpoint(directory, template, expected)
         state = jax.device_put(state, _sharding(devices))
-        before = meta.get("wall_time_s")
+        before = float(meta["wall_time_s"])
     else:
         state, before = init(*args), 0.0
 
-    def wall() -> float | None:
-        return None if before is None else before + time.perf_counter() - start
+    def wall() -> float:
+        return before + time.perf_counter() - start
 
     status, state, _ = run_chunks(
         lambda state: run(state, real),
@@ -278,7 +268,7 @@ def train_call(
     return CallOutcome("finished", trainer, state, wall())
 
 
-def _save_call(directory: Path | None, call: Call, state: TrainState, wall: float | None) -> None:
+def _save_call(directory: Path | None, call: Call, state: TrainState, wall: float) -> None:
     if directory is not None:
         meta = {"config_hash": call.fingerprint(), "runs": [p.index for p in call.points]}
         save_checkpoint(directory, state, {**meta, "wall_time_s": wall})
@@ -313,13 +303,10 @@ def call_results(
     call: Call, outcome: CallOutcome, eval_key: jax.Array, params: Any, commit: str
 ) -> list[dict[str, Any]]:
     """Per run: its index and axis values, the evaluation of its agent (``params``:
-    :func:`real_agent_params`), the final training return (``final_train_return``),
-    the env steps it trained on, the device it trained on
-    (:func:`~drqn_jax.experiments.machine.device_identity`: runs of one study may come
-    from several machines), ``commit`` (the checkout's when the sweep started: the code
-    this process runs, not ``HEAD`` by the time it finishes) and whether it diverged.
-    Nothing that differs between two trainings of the same runs: the wall time is
-    apart (:func:`run_timings`)."""
+    :func:`real_agent_params`), the final training return, the env steps, the device it
+    trained on (runs of one study may come from several machines), ``commit`` (the code
+    this process runs, read when the sweep started) and whether it diverged. Nothing that
+    differs between two trainings of the same runs: the wall time is apart."""
     n = len(call.points)
     metrics = jax.tree.map(np.asarray, outcome.state.metrics)
     returns = [final_train_return({k: v[i] for k, v in metrics.items()}) for i in range(n)]

@@ -1,5 +1,6 @@
-"""The agents shipped with the package (issue 53): each loads with today's code, and its
-provenance names a command that trains exactly its config."""
+"""The agents shipped with the package: each loads with this version (its checkpoint
+format and training hash), and its provenance names a command that trains exactly its
+config and what trained it."""
 
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ def test_a_shipped_agent_loads_and_its_command_trains_its_config(name):
     assert meta["finished"] and provenance["env_steps"] == meta["env_steps"] > 0
     assert _trained_config(provenance["command"]).training_hash() == config.training_hash()
     assert provenance["machine"]["git_commit"] and provenance["machine"]["cpu_model"]
+    assert provenance["trained"]["commit"] and provenance["trained"]["device"]
     assert (directory / "agent.npz").stat().st_size < 5_000_000  # a few MB in git
 
 

@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 
 import drqn_jax.experiments.checkpoint as checkpoint_module
-from drqn_jax.config import ADDED_LATER, RENAMED_LEAVES, added_leaves, load_config
-from drqn_jax.env.params import EnvParams
+from drqn_jax.config import ConfigError, load_config
 from drqn_jax.experiments.checkpoint import (
+    AGENT,
     CHECKPOINT_JSON,
     CHECKPOINT_NPZ,
+    FORMAT,
     CheckpointError,
     atomic_write_bytes,
     atomic_write_text,
@@ -27,6 +28,8 @@ from drqn_jax.experiments.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from drqn_jax.experiments.machine import git_commit
+from drqn_jax.experiments.runner import load_run
 from drqn_jax.learners import Hyperparams, make_train
 from tests.helpers import assert_tree_equal, fast_jit, tiny_train_config
 
@@ -114,7 +117,8 @@ def test_round_trip_bit_exact(tmp_path, tiny, template):
 
     # the npz holds the manifest; the json is a copy of it plus the npz's SHA-256
     manifest = read_manifest(tmp_path / CHECKPOINT_NPZ)
-    assert manifest["format"] == 1 and manifest["drqn_jax_version"]
+    assert manifest["format"] == FORMAT == 2 and manifest["drqn_jax_version"]
+    assert manifest["drqn_jax_commit"] == git_commit()  # what wrote it
     assert {k: v for k, v in manifest.items() if k != "leaves"} == loaded_meta
     copy = json.loads((tmp_path / CHECKPOINT_JSON).read_text())
     npz_bytes = (tmp_path / CHECKPOINT_NPZ).read_bytes()
@@ -150,7 +154,7 @@ def test_round_trip_special_leaves(tmp_path):
     }
     save_checkpoint(tmp_path, state, {})
     loaded, meta = load_checkpoint(tmp_path, jax.eval_shape(lambda: state))
-    assert meta["format"] == 1
+    assert meta["format"] == FORMAT
     assert_state_equal(loaded, {**state, "a_b": jnp.float32(3.5)})
     assert np.array_equal(
         np.asarray(loaded["floats"]).view(np.uint32)[:2], nan_payload.view(np.uint32)
@@ -258,7 +262,8 @@ def test_crash_between_the_renames_loads_the_new_checkpoint(tmp_path, tiny, temp
     assert (tmp_path / CHECKPOINT_JSON).read_text() == json_a  # the json lags one save
     loaded, meta = load_checkpoint(tmp_path, template, meta_of(state_b))
     assert_state_equal(loaded, state_b)  # all of B, no leaf of A
-    assert meta == {**meta_of(state_b), "format": 1, "drqn_jax_version": meta["drqn_jax_version"]}
+    writer = {k: meta[k] for k in ("drqn_jax_version", "drqn_jax_commit")}
+    assert meta == {**meta_of(state_b), "format": FORMAT, **writer}
 
 
 def test_crash_before_the_npz_rename_keeps_the_old_checkpoint(
@@ -282,12 +287,76 @@ def test_crash_before_the_npz_rename_keeps_the_old_checkpoint(
     assert meta["recorded"] == int(state_a.recorded)
 
 
-def test_unknown_format(tmp_path, tiny, template):
+def test_another_format_is_refused_naming_what_wrote_it(tmp_path, tiny, template):
+    """A checkpoint of the previous layout (format 1: no commit recorded) or of a later
+    one is refused in one line: the version, commit and format that wrote it, and what
+    to do; this version reads no other layout."""
     save_checkpoint(tmp_path, tiny[3], {})
     npz = tmp_path / CHECKPOINT_NPZ
-    rewrite_manifest(npz, json.dumps({**read_manifest(npz), "format": 2}))
-    with pytest.raises(CheckpointError, match=r"unknown checkpoint format 2 .*reads format 1"):
+    manifest = read_manifest(npz)
+    old = {k: v for k, v in manifest.items() if k != "drqn_jax_commit"}
+    rewrite_manifest(npz, json.dumps({**old, "format": 1, "drqn_jax_version": "0.1.0"}))
+    with pytest.raises(
+        CheckpointError,
+        match=r"checkpoint\.npz: written by drqn_jax 0\.1\.0 in format 1; this version reads "
+        r"format 2: train it again, or use the commit that wrote it$",
+    ):
         load_checkpoint(tmp_path, template)
+    later = {**manifest, "format": 3, "drqn_jax_commit": "abc1234"}
+    rewrite_manifest(npz, json.dumps(later))
+    with pytest.raises(CheckpointError, match=r"at commit abc1234 in format 3; this version"):
+        load_checkpoint(tmp_path, template)
+
+
+def _old_run_dir(directory, tiny, config_toml: str, manifest_changes: dict) -> None:
+    """A run directory: ``config_toml`` and a checkpoint whose manifest is changed so
+    (a key changed to None is dropped)."""
+    directory.mkdir()
+    (directory / "config.toml").write_text(config_toml)
+    save_checkpoint(directory, tiny[3], {})
+    npz = directory / CHECKPOINT_NPZ
+    manifest = {**read_manifest(npz), **manifest_changes}
+    rewrite_manifest(npz, json.dumps({k: v for k, v in manifest.items() if v is not None}))
+
+
+def test_a_run_directory_of_another_version_is_refused_in_one_line(tmp_path, tiny):
+    """A run directory written by an older version (a format-1 checkpoint, a config.toml
+    naming ``env.ped_yield``) is refused in one line naming what wrote it and what to
+    do, before any config is read; so is a current one whose config.toml names a field
+    this version does not know. A trained agent's directory (``agent.npz``) alike."""
+    resolved = load_config("smoke").to_toml()
+    old_toml = resolved.replace('ped_behaviour_to_car = "ignore"', "ped_yield = 0")
+    assert old_toml != resolved
+    old = tmp_path / "old"
+    old_writer = {"format": 1, "drqn_jax_version": "0.1.0", "drqn_jax_commit": None}
+    _old_run_dir(old, tiny, old_toml, old_writer)
+    with pytest.raises(
+        CheckpointError,
+        match=r"old/checkpoint\.npz: written by drqn_jax 0\.1\.0 in format 1; "
+        r"this version reads format 2: train it again, or use the commit that wrote it$",
+    ):
+        load_run(old)
+    edited = tmp_path / "edited"
+    _old_run_dir(edited, tiny, old_toml, {"drqn_jax_commit": "abc1234"})
+    with pytest.raises(
+        CheckpointError,
+        match=r"edited/config\.toml, written by drqn_jax \S+ at commit abc1234 in format 2, "
+        r"does not load in this version: unknown field env\.ped_yield; \[env\] has: .*; "
+        r"train it again, or use the commit that wrote it$",
+    ) as refused:
+        load_run(edited)
+    assert "\n" not in str(refused.value)
+    agent = tmp_path / "agent"
+    agent.mkdir()
+    (agent / "config.toml").write_text(old_toml)
+    save_checkpoint(agent, {"w": jnp.zeros(2)}, {}, name=AGENT)
+    with pytest.raises(CheckpointError, match=r"agent/config\.toml, written by .* in format 2,"):
+        load_run(agent)
+    # the run's own config loads; an override's problem stays a ConfigError of its own
+    (edited / "config.toml").write_text(resolved)
+    assert load_run(edited, ("train.gamma=0.5",))["train"]["gamma"] == 0.5
+    with pytest.raises(ConfigError, match=r"^unknown field train\.nope"):
+        load_run(edited, ("train.nope=1",))
 
 
 def test_template_of_another_shape(tmp_path, tiny, template):
@@ -312,60 +381,6 @@ def test_template_of_another_shape(tmp_path, tiny, template):
         r"\.metrics\['extra'\]: not in the checkpoint, expected \(3,\) int32$",
     ):
         load_checkpoint(tmp_path, changed)
-
-
-def test_leaves_added_later_are_filled(tmp_path, tiny, template):
-    """A leaf the state gained after the checkpoint was written loads from ``fill``;
-    the runner fills the hyperparameters of ``ADDED_LATER`` from the run's config."""
-    state5 = tiny[3]
-    save_checkpoint(tmp_path, state5, {})
-    extra = jax.ShapeDtypeStruct((3,), jnp.int32)
-    grown = template.replace(metrics={**template.metrics, "extra": extra})
-    fill = {".metrics['extra']": np.int32(7)}
-    state, _ = load_checkpoint(tmp_path, grown, fill=fill)
-    np.testing.assert_array_equal(np.asarray(state.metrics["extra"]), [7, 7, 7])
-    assert_state_equal(state.replace(metrics=state5.metrics), state5)
-    paths = {jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_leaves_with_path(template)}
-    # a run's config written before the 2026-11-25 revision names env.ped_yield
-    _, old_env = load_config({"env": {"ped_yield": 1}}).make_env()
-    fills = added_leaves(TINY.hyperparams, old_env)
-    assert fills and set(fills) <= paths
-    # each at the value the runs written before it had (n_step is static, not a leaf)
-    for owner, section, leaf in (
-        (Hyperparams, "train", "hparams"),
-        (EnvParams, "env", "env_params"),
-    ):
-        traced = {f.name for f in dataclasses.fields(owner)}
-        added = {n: v for (s, n), v in ADDED_LATER.items() if s == section and n in traced}
-        before = owner(**added)
-        ours = {p: v for p, v in fills.items() if p.startswith(f".{leaf}.")}
-        assert added and len(ours) == len(added), section
-        for path, value in ours.items():
-            np.testing.assert_array_equal(value, getattr(before, path.removeprefix(f".{leaf}.")))
-
-
-def test_checkpoints_written_before_the_revision_load(tmp_path, tiny, template):
-    """A checkpoint of the time before the 2026-11-25 revision holds
-    ``.env_params.ped_yield`` (same codes as ``ped_behaviour_to_car``), no
-    pedestrians' ``waited`` and no ``step_budget``: the runner's ``renamed`` and
-    ``fill`` load it."""
-    state5 = tiny[3]
-    save_checkpoint(tmp_path, state5, {})
-    npz = tmp_path / CHECKPOINT_NPZ
-    manifest = read_manifest(npz)
-    added = (".env_state.pedestrians.waited", ".step_budget")
-    leaves = [e for e in manifest["leaves"] if e["path"] not in added]
-    assert len(leaves) == len(manifest["leaves"]) - 2
-    for entry in leaves:
-        if entry["path"] == ".env_params.ped_behaviour_to_car":
-            entry["path"] = ".env_params.ped_yield"
-    rewrite_manifest(npz, json.dumps({**manifest, "leaves": leaves}))
-    fill = added_leaves(TINY.hyperparams, EnvParams())
-    with pytest.raises(CheckpointError, match=r"\.env_params\.ped_yield: in the checkpoint"):
-        load_checkpoint(tmp_path, template, fill=fill)
-    state, _ = load_checkpoint(tmp_path, template, fill=fill, renamed=RENAMED_LEAVES)
-    assert not np.any(np.asarray(state5.env_state.pedestrians.waited))  # nobody yields here
-    assert_state_equal(state, state5)
 
 
 def test_config_mismatch_names_the_field(tmp_path, tiny, template):

@@ -29,8 +29,6 @@ def test_the_cpu_is_named_beyond_its_model_name(monkeypatch):
     assert machine.machine_lines(info)[0] == (
         "- CPU: AMD EPYC (family 25 model 1 stepping 1; avx avx2 avx512f fma)"
     )
-    old = {k: v for k, v in info.items() if k != "cpu_identity"}  # recorded before it existed
-    assert machine.machine_lines(old)[0] == "- CPU: AMD EPYC (identity not recorded)"
 
 
 def test_a_machine_without_proc_cpuinfo_says_so(monkeypatch):

@@ -290,6 +290,7 @@ def test_statistics_are_computed_from_the_runs():
         {
             "values": {"run.seed": s, "train.gamma": g},
             "teacher": "imitation" if g == 0.5 else "none (reward alone)",
+            "diverged": False,
             **dict.fromkeys(_metrics(), float(v)),
         }
         for s, g, v in [(0, 0.9, 1.0), (1, 0.9, 2.0), (2, 0.9, 6.0), (0, 0.5, 3.0)]
