@@ -19,7 +19,6 @@ SUITE = (
     "peers",
     "train_throughput",
     "evaluation",
-    "sweep_throughput",
     "gymnasium_throughput",
 )
 
