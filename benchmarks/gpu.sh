@@ -1,16 +1,12 @@
 #!/usr/bin/env bash
-# Every GPU figure of issue 52 from one command, sized for about 12 minutes on one H100
-# (an estimate from earlier H100 runs of PPO and the evaluation; not yet timed):
-#   1. the learning throughput of every learner (benchmarks/train_throughput.py
-#      --learners): the replay DRQN at its own 32 envs, PQN and PPO at 4,096 envs,
-#      one seed each (OUT/throughput/); PQN with 5 seeds vmapped in one program
-#      (OUT/seeds/; PPO's 128-step rollouts of 5 x 4,096 envs would hold 56 GB of
-#      observations);
-#   2. PQN's learning curve (benchmarks/learning_curve.py): one seed of the `pqn`
-#      preset (GRU cells) trained to 24M env steps, its greedy agent evaluated on 1,000 episodes
-#      at 12 marks: collision-free rate, speed and margin against env steps.
-# Each writes its JSON and Markdown under OUT (default runs/gpu): throughput/,
-# seeds/ and curve/.
+# The learners' GPU figures from one command:
+#   1. the learning throughput of every learner (benchmarks/train_throughput.py): the
+#      replay DRQN at its own 32 envs, PQN and PPO at 4,096 envs, one seed each
+#      (OUT/throughput/); PQN with 5 seeds vmapped in one program (OUT/seeds/);
+#   2. PQN's learning curve (benchmarks/learning_curve.py): one seed of the `pqn` preset
+#      trained to 24M env steps, its greedy agent evaluated on 1,000 episodes at 12
+#      marks: collision-free rate, speed and margin against env steps (OUT/curve/).
+# Each writes its JSON and Markdown under OUT (default runs/gpu).
 #
 # Usage, from the repository root of an installed clone:
 #   benchmarks/gpu.sh [OUT]

@@ -5,14 +5,14 @@ Usage::
     python -m benchmarks.gymnasium_throughput [--num-envs 256] [--steps 200] [--out DIR]
     drqn-jax bench gymnasium_throughput …
 
-What a Gymnasium user gets (issue 42): ``gym.make("drqn_jax/UrbanPedestrians-v0")``
+What a Gymnasium user gets: ``gym.make("drqn_jax/UrbanPedestrians-v0")``
 stepped from Python with random actions (NumPy observations out, one jitted
 call per step), and ``gym.make_vec(…, num_envs=N)`` (``UrbanPedestriansVectorEnv``:
 one jitted call per step for all N envs, auto-reset included), each against the
 bare ``jit(vmap(step_env))`` of the JAX env at the same N (device arrays in and out,
 no host transfer, no reset at all: episodes run on past their end): the ceiling a
 Python-side client can approach. Run s = median of ``--repeats`` timed loops of ``--steps`` steps
-after a warm-up loop. Targets (issue 42): the single env ≥ 5,000 steps/s; the
+after a warm-up loop. Targets: the single env ≥ 5,000 steps/s; the
 vector env ≥ 50 % of ``jit(vmap(step_env))``'s env steps/s at 256 envs.
 """
 

@@ -14,7 +14,7 @@ episodes (``drqn-jax frontier``, or a study), each point also gets
 its margin over the frontier at its own speed (SPEC §9); none above the speed
 limit, where the rule-based family and the planner, capped at it, have no point.
 
-This is how a preset's env-step budget is chosen (issue 52): train once to a
+This is how a preset's env-step budget is chosen: train once to a
 large budget and read where the curve stops rising. A curve read at a mark of a
 longer run is not a run of that budget (the learning rate and ε anneal over the
 whole budget); it says where the gains end. With ``--out DIR`` every point is

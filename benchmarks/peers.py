@@ -1,45 +1,23 @@
-"""Peers: our env against the simulators a user would otherwise use, in one run.
+"""Peers: our env against highway-env, the driving RL env a user would otherwise pick.
 
 Usage::
 
     python -m benchmarks.peers [--repeats 5] [--out DIR] [--quick] [--num-envs 4096]
-        [--steps 200] [--numpy-steps 2000] [--highway-steps 100] [--no-highway]
+        [--steps 200] [--highway-steps 100] [--no-highway]
 
-Three implementations are timed side by side in ONE process, each with random
-actions and its full observation computed every step:
+Timed side by side in one process, random actions, full observation every step:
 
-* **ours**: ``UrbanPedestrians-v0`` (``drqn_jax.make``), ``--num-envs`` envs
-  stepped at once. One call is ONE jitted program, ``lax.scan`` over
-  ``--steps`` steps of ``jax.vmap(env.step)`` with the (45, 30, 4) float32
-  grid in the carry (``benchmarks.env_throughput``'s ``make_init`` /
-  ``make_rollout``; the carry is donated). A step simulates ``params.dt``
-  (0.1 s) and includes same-step auto-reset. Compile time is measured apart.
-* **numpy**: the same env in plain NumPy (``benchmarks.numpy_env``), one env at
-  a time in a Python loop, as ``numpy_steps_per_s`` runs it (random action and
-  uniforms from one ``np.random.Generator``, the grid rasterised, auto-reset
-  within the step); one call is ``--numpy-steps`` steps. Same ``EnvParams``
-  and ``StaticEnvParams`` as ours, so the same dt.
-* **highway-env** ``intersection-v0`` (``pip install -e ".[bench]"``), the
-  closest driving RL env (vehicles only, no pedestrians), with an
-  ``OccupancyGrid`` observation shaped like ours: 45 m ahead × 30 m across at
-  1 m cells (``grid_size`` [[-5, 40], [-15, 15]], ``grid_step`` [1, 1], in the
-  ego's axes), four per-vehicle features (presence, vx, vy, heading) as ours
-  has four per-pedestrian channels. Its default simulation and policy
-  frequencies are kept and reported: one ``env.step`` is one policy decision
-  and simulates ``1 / policy_frequency`` seconds. One call is
-  ``--highway-steps`` decision steps, resetting on termination or truncation,
-  rendering off. If highway-env cannot be imported it is reported as
-  unavailable, with the reason, and the rest still runs.
+* **ours**: ``UrbanPedestrians-v0``, ``--num-envs`` envs in one jitted
+  ``lax.scan`` of ``--steps`` vmapped steps (:func:`benchmarks.env_throughput.time_rollout`);
+  a step simulates 0.1 s;
+* **highway-env** ``intersection-v0`` (``pip install -e ".[bench]"``) with an
+  ``OccupancyGrid`` shaped like ours (45 m ahead × 30 m across, 1 m cells, four
+  per-vehicle features); one ``env.step`` is one policy decision of
+  ``1 / policy_frequency`` s. Unavailable (with the reason) when it cannot be imported.
 
-Each call is timed with ``benchmarks.harness.time_calls``: one warm-up call,
-then the MEDIAN of ``--repeats`` timed calls, each continuing from the last.
-Reported per implementation: steps/s (ours: env steps/s summed over the
-envs; highway-env: decision steps/s), simulated seconds per wall second
-(steps/s × seconds simulated per step) and the ratios of ours to it, per
-step and per simulated second, against the issue's targets (ours ≥ 30 × the
-NumPy loop, ours ≥ 10,000 × highway-env per decision step). Ours uses every
-core XLA gives it; the NumPy and highway-env loops are single-threaded Python
-(the "cores used" column says what each got).
+Each call: one warm-up, then the median of ``--repeats`` (``harness.time_calls``).
+Reported: steps/s, simulated seconds per wall second, and ours over it per step and
+per simulated second.
 """
 
 from __future__ import annotations
@@ -61,22 +39,14 @@ import numpy as np
 import drqn_jax
 from benchmarks import harness
 from benchmarks.env_throughput import QUICK_ENVS, QUICK_STEPS, time_rollout
-from benchmarks.numpy_env import NumpyUrbanPedestrians, random_steps
 
 ENV_ID = "UrbanPedestrians-v0"
 HIGHWAY_ENV_ID = "intersection-v0"
 INSTALL_HINT = 'pip install -e ".[bench]"'
-TARGET_VS_NUMPY = 30.0
 TARGET_VS_HIGHWAY = 10_000.0
 
-FULL = {"num_envs": 4096, "steps": 200, "numpy_steps": 2000, "highway_steps": 100, "repeats": 5}
-QUICK = {
-    "num_envs": QUICK_ENVS,
-    "steps": QUICK_STEPS,
-    "numpy_steps": 200,
-    "highway_steps": 20,
-    "repeats": 2,
-}
+FULL = {"num_envs": 4096, "steps": 200, "highway_steps": 100, "repeats": 5}
+QUICK = {"num_envs": QUICK_ENVS, "steps": QUICK_STEPS, "highway_steps": 20, "repeats": 2}
 
 # An OccupancyGrid like ours: rows forward from -5 m to 40 m, columns across from -15 m
 # to 15 m, 1 m cells, in the ego's axes; four per-agent channels (ours: presence,
@@ -116,36 +86,6 @@ def bench_ours(num_envs: int, num_steps: int, repeats: int, seed: int) -> dict[s
         "cores_used": _mean(timing["cores_used_per_call"]),
         "grid_shape": list(env.static.grid_shape),
         "grid_finite": grid_finite,
-    }
-
-
-def bench_numpy(num_steps: int, repeats: int, seed: int) -> dict[str, Any]:
-    """Time ``num_steps`` steps of the NumPy env, one env at a time; the row of numpy.
-
-    Runs ``benchmarks.numpy_env.random_steps`` (the loop of ``numpy_steps_per_s``)
-    with ``EnvParams`` of ``drqn_jax.make``, split into calls for ``harness.time_calls``.
-    """
-    env, params = drqn_jax.make(ENV_ID)
-    np_env = NumpyUrbanPedestrians(env.static, params)
-    rng = np.random.default_rng(seed)
-    _, state = np_env.reset(rng)
-
-    _, timing = harness.time_calls(
-        lambda state: random_steps(np_env, state, num_steps, rng), state, repeats
-    )
-    dt = float(np_env.params.dt)
-    steps_per_s = num_steps / timing["run_s"]
-    return {
-        "available": True,
-        "implementation": f"NumPy: {ENV_ID}, one env in a Python loop",
-        "step": f"one env step ({dt:g} s)",
-        "num_envs": 1,
-        "steps_per_call": num_steps,
-        "seconds_per_step": dt,
-        **timing,
-        "steps_per_s": steps_per_s,
-        "sim_s_per_wall_s": steps_per_s * dt,
-        "cores_used": _mean(timing["cores_used_per_call"]),
     }
 
 
@@ -239,10 +179,10 @@ def ratios(ours: dict[str, Any], other: dict[str, Any]) -> dict[str, float]:
 
 
 def targets(results: dict[str, dict[str, Any]], ratio: dict[str, dict[str, float]]) -> list[dict]:
-    """The issue's targets: each with its measured ratio and ``met`` (None: not measured)."""
+    """The target, ours >= 10,000 × highway-env per decision step, with its measured
+    ratio and ``met`` (None: not measured)."""
     out = []
     for name, target, what in (
-        ("numpy", TARGET_VS_NUMPY, "the NumPy loop, per env step"),
         ("highway-env", TARGET_VS_HIGHWAY, "highway-env, per decision step"),
     ):
         measured = ratio[name]["per_step"] if name in ratio else None
@@ -317,12 +257,6 @@ def parse_args(argv: Sequence[str] | None = None) -> Any:
         "--steps", type=int, metavar="T", help=f"ours: steps per timed call ({FULL['steps']})"
     )
     parser.add_argument(
-        "--numpy-steps",
-        type=int,
-        metavar="T",
-        help=f"NumPy: steps per timed call ({FULL['numpy_steps']})",
-    )
-    parser.add_argument(
         "--highway-steps",
         type=int,
         metavar="T",
@@ -349,13 +283,11 @@ def parse_args(argv: Sequence[str] | None = None) -> Any:
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    """Run the three benchmarks, print the report, return its data."""
+    """Run both benchmarks, print the report, return its data."""
     args = parse_args(argv)
     results: dict[str, dict[str, Any]] = {}
     print(f"[ours: {args.num_envs} envs × {args.steps} steps per call]", file=sys.stderr)
     results["ours"] = bench_ours(args.num_envs, args.steps, args.repeats, args.seed)
-    print(f"[numpy: {args.numpy_steps} steps per call]", file=sys.stderr)
-    results["numpy"] = bench_numpy(args.numpy_steps, args.repeats, args.seed)
     if args.no_highway:
         results["highway-env"] = highway_unavailable("skipped (--no-highway)")
     else:
@@ -397,7 +329,6 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
             "env_id": ENV_ID,
             "num_envs": args.num_envs,
             "steps": args.steps,
-            "numpy_steps": args.numpy_steps,
             "highway_steps": args.highway_steps,
             "repeats": args.repeats,
             "seed": args.seed,
@@ -409,7 +340,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     }
     return harness.report(
         name="peers",
-        title=f"Peers: {ENV_ID} (JAX) vs its NumPy loop vs highway-env {HIGHWAY_ENV_ID}",
+        title=f"Peers: {ENV_ID} (JAX) vs highway-env {HIGHWAY_ENV_ID}",
         result=result,
         lines=lines,
         out=args.out,

@@ -1,19 +1,19 @@
 #!/usr/bin/env bash
-# Table III at scale (issue 53) from one command: the four teacher-free learned arms,
-# recurrent PQN (`pqn`, GRU cells), its memoryless and frame-stacked twins (`pqn-dqn`,
-# `pqn-stack`) and recurrent PPO (`ppo`), 5 seeds each at one env-step budget; every
-# run's greedy agent is evaluated on the same 1,000 episodes beside the rule-based agent
-# and its family's frontier (docs/spec.md §9). First the estimate (one timed training
-# chunk per arm: the study's training wall time on this device), then the study. Its rows
-# go into docs/results.json, section table3-<backend> (table3-gpu, table3-cpu), and
-# `drqn-jax report README.md docs/results.md` quotes them; its learning curves and
-# safety/speed figure go into docs/figures/table3-<backend>-*.png. Running it again continues an
-# interrupted study; in a fresh clone too, from the finished runs the results file keeps.
+# Table III at scale from one command: the four teacher-free learned arms, recurrent PQN
+# (`pqn`, GRU cells), its memoryless and frame-stacked twins (`pqn-dqn`, `pqn-stack`) and
+# recurrent PPO (`ppo`), 5 seeds each at one env-step budget; every run's greedy agent is
+# evaluated on the same 1,000 episodes beside the rule-based agent and its family's
+# frontier (docs/spec.md §9). First the estimate (one timed training chunk per arm: the
+# study's training wall time on this device), then the study. Its rows go into
+# docs/results.json, section table3-<backend> (table3-gpu, table3-cpu), which
+# `drqn-jax report README.md docs/results.md` quotes; its learning curves and safety/speed
+# figure go into docs/figures/table3-<backend>-*.png. Running it again continues an
+# interrupted study, in a fresh clone too, from the finished runs the results file keeps.
 #
-# Budget per seed: TABLE3_STEPS env steps. The default is 24,000,000 on an accelerator
-# (issue 53's floor of 20M; the length of benchmarks/gpu.sh's learning curve) and
-# 6,000,000 on a CPU, what 2 cores afford (the whole table: about a day on a 2-core AMD
-# EPYC; section table3-cpu of docs/results.json keeps each arm's training time per seed).
+# Budget per seed: TABLE3_STEPS env steps; by default 24,000,000 on an accelerator (the
+# length of benchmarks/gpu.sh's learning curve, above the 20M floor of docs/spec.md) and
+# 6,000,000 on a CPU, what 2 cores afford (section table3-cpu of docs/results.json keeps
+# each arm's training time per seed).
 #
 # Usage, from the repository root of an installed clone:
 #   benchmarks/table3.sh [OUT]                   # OUT defaults to runs/table3-<backend>

@@ -408,8 +408,7 @@ def _bench_parser(sub: Any) -> None:
         nargs="?",
         default="all",
         choices=("all", "quick", *SUITE, *TOOLS),
-        help="a benchmark of the suite, 'all' of them, 'quick' (figures of one config), "
-        "or 'profile' (where a program's time goes, op by op)",
+        help="a benchmark of the suite, 'all' of them, or 'quick' (figures of one config)",
     )
     bench.add_argument(
         "args",

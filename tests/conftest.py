@@ -11,8 +11,8 @@ are the same bits; only compile time is saved. Every compile is kept, however
 short (``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0``, JAX's default keeps
 those over a second): the suite's eager calls compile the same small programs
 again and again (an eager ``lax.cond`` is traced afresh at each call, so JAX's
-in-memory cache misses it; one of them was compiled 80 times in a profile,
-``benchmarks/suite_profile.py``), and both workers and the subprocesses compile
+in-memory cache misses it, so the same program would be compiled at every
+call), and both workers and the subprocesses compile
 the same op-by-op programs; from the persistent cache each is compiled once.
 
 Each pytest-xdist worker gets its share of the cores as its XLA:CPU thread pool

@@ -16,21 +16,17 @@ from drqn_jax.experiments.runner import EXIT_OK
 #: The suite's benchmarks, in the order ``drqn-jax bench all`` runs them.
 SUITE = (
     "env_throughput",
-    "stages",
     "peers",
-    "roofline",
     "train_throughput",
     "evaluation",
-    "sweep_throughput",
     "gymnasium_throughput",
 )
 
 
-#: Benchmark tools run by name only (not by ``all``): the op-by-op profile, the
-#: learners on outside benchmarks (gymnax), a learning curve on this world (minutes
-#: to hours of training, not a throughput figure), and the summary of a test-suite
-#: run profiled with ``-p benchmarks.suite_profile``.
-TOOLS = ("profile", "gymnax_validation", "learning_curve", "suite_profile")
+#: Benchmarks run by name only (not by ``all``): the learners on outside benchmarks
+#: (gymnax) and a learning curve on this world (minutes to hours of training, not a
+#: throughput figure).
+TOOLS = ("gymnax_validation", "learning_curve")
 
 
 def _run_benchmark(name: str, args: Sequence[str]) -> int:

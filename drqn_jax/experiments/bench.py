@@ -87,9 +87,11 @@ def _learner_text(config: Config) -> str:
     )
 
 
-def train_figures(config: Config, iterations: int, seeds: int = 1) -> dict[str, Any] | str:
+def train_figures(
+    config: Config, iterations: int, seeds: int = 1, repeats: int = 3
+) -> dict[str, Any] | str:
     """Training throughput once learning runs: ``iterations`` of ``run`` timed (best of
-    3), with the env steps and gradient updates they took counted from the state
+    ``repeats``), with the env steps and gradient updates they took counted from the state
     (``env_steps``, ``grad_steps``, summed over seeds), so that every learner's
     iteration is measured in what it does (the DQN: one step of every env and its
     updates; PPO and PQN: a rollout and its epochs). ``seeds`` > 1 runs that many
@@ -125,7 +127,7 @@ def train_figures(config: Config, iterations: int, seeds: int = 1) -> dict[str, 
         "num_envs": config["train"]["num_envs"],
         "env_steps": int(after.env_steps.sum()) - int(state.env_steps.sum()),
         "grad_steps": int(after.grad_steps.sum()) - int(state.grad_steps.sum()),
-        "seconds": _best_of(lambda: run(state), warm_up=False),  # ``after`` warmed it up
+        "seconds": _best_of(lambda: run(state), repeats, warm_up=False),  # ``after`` warmed it up
         "compile_s": compile_s,
     }
 

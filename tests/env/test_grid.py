@@ -119,8 +119,8 @@ def test_grid_nearest_pedestrian_wins_shared_cell(params, static, raster, nearer
 def test_nearest_wins_equals_the_numpy_oracle(num):
     # P pedestrians in 4 cells with many exact distance ties: the OR-ed rows agree
     # with the NumPy oracle's (P, P) mask reduced by ``np.any``, one winner per cell.
-    from benchmarks.numpy_env import _nearest_wins as oracle
     from drqn_jax.env.grid import _nearest_wins
+    from tests.env.numpy_env import _nearest_wins as oracle
 
     rng = np.random.default_rng(num)
     flat = rng.integers(0, 4, (50, num)).astype(np.int32)

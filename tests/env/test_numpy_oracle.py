@@ -1,4 +1,4 @@
-"""The JAX env against a plain NumPy implementation (``benchmarks/numpy_env.py``).
+"""The JAX env against a plain NumPy implementation (``tests/env/numpy_env.py``).
 
 Both envs start from the same key and take the same actions; the NumPy env
 consumes the very uniforms the JAX env draws (``jax_draws``: one (8, P) array
@@ -34,8 +34,8 @@ import numpy as np
 import pytest
 
 import drqn_jax
-from benchmarks import numpy_env as npe
 from drqn_jax.env.state import ACCELERATE
+from tests.env import numpy_env as npe
 
 RTOL = ATOL = 1e-5
 # Values that are discrete (flags, codes, counters, TTC sample times): compared exactly.

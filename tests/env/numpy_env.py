@@ -2,13 +2,11 @@
 
 This is the simulator of ``drqn_jax.env`` (SPEC §1–5) written as a user would
 write it without JAX: NumPy arrays over the P pedestrians, ordinary Python
-control flow, one environment per call. It serves two purposes:
-
-* an **oracle**: ``tests/env/test_numpy_oracle.py`` drives it and the JAX env with
-  the same actions and the same random numbers and requires equal
-  trajectories;
-* a **baseline**: :func:`numpy_steps_per_s` is the "NumPy loop" the JAX
-  env's throughput is compared with.
+control flow, one environment per call. It is the tests' **oracle**:
+``tests/env/test_numpy_oracle.py`` drives it and the JAX env with the same
+actions and the same random numbers and requires equal trajectories
+(:func:`numpy_steps_per_s` times it standalone, the plain loop a user would
+otherwise run).
 
 Every function is named after, and computes what, its JAX counterpart does,
 in float32 and in the order of operations XLA compiles (a division by a
