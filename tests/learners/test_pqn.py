@@ -15,8 +15,8 @@ import pytest
 from benchmarks.gymnax_validation import SMALL, pqn_config
 from drqn_jax.config import load_config
 from drqn_jax.learners import Hyperparams, TrainConfig, make_train
+from drqn_jax.learners.common import restarted
 from drqn_jax.learners.hyperparams import agent_name
-from drqn_jax.learners.ppo import restarted
 from drqn_jax.learners.pqn import _rollout, pqn_loss, q_lambda_targets
 from drqn_jax.networks import NetworkConfig
 
