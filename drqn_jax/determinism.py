@@ -35,7 +35,7 @@ Two more things fix the rounding of matrix products (measured, issues 6 and 51):
   2 cores (a pool of 4, not 2) trained other weights. Every other product goes
   to YNNPACK, whose sums do not depend on the pool, so the network computes
   its weight gradients from a materialised transpose
-  (:func:`drqn_jax.networks._rows_product`): results are the same whatever the
+  (:func:`drqn_jax.layers._rows_product`): results are the same whatever the
   pool, hence whatever the device count, ``PJRT_NPROC`` or core count. The
   copy costs some speed on the CPU (measured in ``benchmarks/RESULTS.md``,
   "Device-invariant weight gradients").

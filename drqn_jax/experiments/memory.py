@@ -140,8 +140,9 @@ def run_memory(config: Config) -> RunMemory:
 
     trainer = make_train(config.train_config())
     state = jax.eval_shape(trainer.init, config.keys()[0])
-    replay = _nbytes(getattr(state, "replay", None))  # PPO's state has no replay
-    params = _nbytes((state.online, getattr(state, "target", None), state.snapshots))
+    replay = _nbytes(getattr(state, "replay", None))  # PPO's and PQN's states have none
+    dqn_only = (getattr(state, "target", None), getattr(state, "snapshots", None))
+    params = _nbytes((state.online, *dqn_only))
     optimiser = _nbytes(state.opt_state)
     other = _nbytes(state) - replay - params - optimiser
     activations = activation_bytes(config) + PARAM_TEMPORARIES * _nbytes(state.online)

@@ -1,16 +1,18 @@
 """The learners (paper §V-B, Tables I–II; SPEC §7): what every learner shares, and
 one subpackage or module per algorithm.
 
-Shared: :mod:`~drqn_jax.learners.optim` (Adam by hand),
-:mod:`~drqn_jax.learners.task` (any gymnax-contract env as a learner sees it),
-:mod:`~drqn_jax.learners.hyperparams` (``TrainConfig`` and the traced
-``Hyperparams``), :mod:`~drqn_jax.learners.episodes` (per-episode bookkeeping),
+Shared (none of them imports a learner): :mod:`~drqn_jax.learners.optim` (Adam
+by hand), :mod:`~drqn_jax.learners.task` (any gymnax-contract env as a learner
+sees it), :mod:`~drqn_jax.learners.hyperparams` (``TrainConfig`` and the traced
+``Hyperparams``), :mod:`~drqn_jax.learners.common` (per-episode bookkeeping, the
+ε schedule, the on-policy rollout and minibatch epochs),
 :mod:`~drqn_jax.learners.selection` (the run's agent among its snapshots) and
 :mod:`~drqn_jax.learners.trainer` (the ``Trainer`` every learner returns).
 
-Algorithms: :mod:`drqn_jax.learners.dqn` (the paper's replay DRQN and its DQN
-ablations: acting, update, loss, replay), :mod:`drqn_jax.learners.ppo`
-(recurrent PPO) and :mod:`drqn_jax.learners.pqn` (recurrent PQN).
+Algorithms, each with its own state: :mod:`drqn_jax.learners.dqn` (the paper's
+replay DRQN and its DQN ablations: acting, update, loss, replay),
+:mod:`drqn_jax.learners.ppo` (recurrent PPO) and :mod:`drqn_jax.learners.pqn`
+(recurrent PQN); none imports another.
 :func:`make_train` picks one by ``TrainConfig.algorithm``.
 The networks themselves (Table I) are :mod:`drqn_jax.networks`, one level up:
 the agents run them too.

@@ -20,19 +20,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from drqn_jax.env.params import KMH
-from drqn_jax.learners.dqn.loss import CLIP_MODES
-from drqn_jax.learners.dqn.replay import WINDOW_STARTS
 from drqn_jax.learners.optim import OPTIMIZERS
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.pytree import check_counts, check_sums_to_one, param, pytree_dataclass, validate
 
 __all__ = [
     "ALGORITHMS",
+    "CLIP_MODES",
     "IMITATION_STATES",
     "LEARNED_AGENTS",
     "NOT_LEARNED",
     "REWARD_ALONE",
     "SELECT_BY",
+    "WINDOW_STARTS",
     "Hyperparams",
     "TrainConfig",
     "agent_name",
@@ -43,6 +43,13 @@ __all__ = [
     "teachers_of",
 ]
 
+#: The replay DQN's TD loss (``Hyperparams.clip``): Huber, or the squared error
+#: with its gradient clipped (:mod:`drqn_jax.learners.dqn.loss`).
+CLIP_MODES = ("huber", "grad")
+#: Where a replay window may start (``Hyperparams.window_start``): inside the
+#: episode (SPEC §7) or at any of its steps, padded past its end
+#: (:mod:`drqn_jax.learners.dqn.replay`).
+WINDOW_STARTS = ("inside", "anywhere")
 #: Where the imitation term applies (``Hyperparams.imitation_states``).
 IMITATION_STATES = ("brake", "all")
 IMITATION_ALL = IMITATION_STATES.index("all")

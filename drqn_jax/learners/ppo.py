@@ -9,7 +9,7 @@ iteration is one update: a rollout of ``rollout_steps`` steps on
 epochs of clipped-surrogate gradient steps over ``num_minibatches``
 minibatches of whole env sequences (global-norm clip, Adam). The run's
 budget is the project's: ``num_episodes`` training episodes, written with
-the DQN's per-episode metrics (:mod:`drqn_jax.learners.episodes`; ``mean_loss`` is
+the DQN's per-episode metrics (:mod:`drqn_jax.learners.common`; ``mean_loss`` is
 the mean loss of the updates made while the episode ran); updates after
 the budget is met change nothing, so a run split into chunks ends
 bit-identical to a one-shot run. The learning rate falls as the DQN's does,
@@ -28,26 +28,40 @@ acting and in the update's unroll (the ``resets`` of each step are the
 ``done`` flags of the step before), and each minibatch unrolls from the
 state its envs had at the rollout's start. Like PureJaxRL, a time limit ends
 the advantage's sum as a termination does.
+
+Read top to bottom: the state and a rollout step (:class:`PPOState`,
+:class:`Transition`), the network, the advantages and the loss
+(:func:`actor_critic`, :func:`gae`, :func:`ppo_loss`), then :func:`make_ppo`,
+which wires the init, the sampling policy, the rollout and the update into the
+trainer; the rollout scan and the minibatch epochs are the on-policy learners'
+(:mod:`drqn_jax.learners.common`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.learners.episodes import budget_met, init_counters, init_metrics, record_episodes
+from drqn_jax.learners.common import (
+    budget_met,
+    init_counters,
+    init_metrics,
+    minibatch_epochs,
+    restarted,
+    rollout,
+    run_updates,
+)
 from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
-from drqn_jax.learners.optim import apply_updates, clip_by_global_norm, optimizer
+from drqn_jax.learners.optim import optimizer
 from drqn_jax.learners.task import Task, make_task
 from drqn_jax.learners.trainer import Trainer, make_trainer
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
-from drqn_jax.pytree import pytree_dataclass, tree_where
+from drqn_jax.pytree import pytree_dataclass
 
 __all__ = [
     "PPOState",
@@ -55,37 +69,21 @@ __all__ = [
     "actor_critic",
     "gae",
     "make_ppo",
-    "minibatch_epochs",
-    "on_policy_init",
     "policy_network",
     "ppo_loss",
-    "restarted",
-    "run_updates",
 ]
-
-
-class Transition(NamedTuple):
-    """One rollout step of N envs (leaves (N, …)); ``reset``: the carry was zeroed
-    before it (an episode starts)."""
-
-    obs: Any
-    action: jax.Array
-    reward: jax.Array
-    done: jax.Array
-    value: jax.Array
-    log_prob: jax.Array
-    reset: jax.Array
 
 
 @pytree_dataclass
 class PPOState:
     """Everything a PPO run carries between updates (and checkpoints).
 
-    Per-env leaves have a leading N axis. ``online`` holds the network's
-    parameters (the name the DQN's state gives the parameters it trains, so
-    the host loop and agent selection read both alike); ``done`` (N,) says
-    which envs ended an episode at the last step; the episode counters and
-    ``metrics`` are :func:`~drqn_jax.learners.episodes.record_episodes`'.
+    Per-env leaves have a leading N axis. ``online`` holds the actor-critic's
+    parameters, trained and acting (the name the :class:`Trainer` protocol
+    reads); ``carry`` is the acting network's recurrent state and ``done`` (N,)
+    says which envs ended an episode at the last step (their carry restarts);
+    the episode counters and ``metrics`` are
+    :func:`~drqn_jax.learners.common.record_episodes`'.
     """
 
     key: jax.Array
@@ -108,12 +106,25 @@ class PPOState:
     env_steps: jax.Array
     step_budget: jax.Array  # () int32 TrainConfig.num_env_steps (0: none)
     metrics: dict[str, jax.Array]
-    snapshots: Any = None  # always None: snapshot selection is the DQN's (snapshots = 0)
-    validation: Any = None
+    #: The protocol's candidates' validation metrics: none, PPO selects no snapshot.
+    validation: ClassVar[None] = None
 
     @property
     def finished(self) -> jax.Array:
         return budget_met(self)
+
+
+class Transition(NamedTuple):
+    """One rollout step of N envs (leaves (N, …)); ``reset``: the carry was zeroed
+    before it (an episode starts)."""
+
+    obs: Any
+    action: jax.Array
+    reward: jax.Array
+    done: jax.Array
+    value: jax.Array
+    log_prob: jax.Array
+    reset: jax.Array
 
 
 def actor_critic(config: TrainConfig, task: Task) -> Network:
@@ -203,7 +214,12 @@ def _make_ppo(config: TrainConfig) -> Trainer:
     network = actor_critic(config, task)
     policy = policy_network(network, n_act)
 
-    init = on_policy_init(config, task, network)
+    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
+        """The state before the first update (the config's hyperparameters and the
+        task's env params by default)."""
+        hp = config.hyperparams if hparams is None else hparams
+        env_params = task.env_params if env_params is None else env_params
+        return _init_state(config, task, network, key, hp, env_params)
 
     def act(state: PPOState, key: jax.Array) -> tuple[jax.Array, Any]:
         """Actions (N,) sampled from the policy and the advanced carry."""
@@ -211,40 +227,12 @@ def _make_ppo(config: TrainConfig) -> Trainer:
         return jax.random.categorical(key, out[..., :n_act]).astype(jnp.int32), carry
 
     def update(state: PPOState) -> PPOState:
+        """One update: a rollout, GAE, then epochs of clipped-surrogate steps."""
         carry0 = state.carry
         state, traj = _rollout(config, task, network, state)
         return _learn(config, network, n_act, state, traj, carry0)
 
     return make_trainer(config, task, policy, init, act, run_updates(update))
-
-
-def run_updates(update: Callable[[PPOState], PPOState]) -> Callable[[PPOState, int], PPOState]:
-    """The ``run`` of an on-policy learner (PPO's, PQN's) whose iteration is
-    ``update``: ``run(state, num_iterations)`` scans that many updates; those
-    after the run finished change nothing."""
-
-    def run(state: PPOState, num_iterations: int) -> PPOState:
-        def body(state, _):
-            return jax.lax.cond(state.finished, lambda s: s, update, state), None
-
-        return jax.lax.scan(body, state, None, length=num_iterations)[0]
-
-    return run
-
-
-def on_policy_init(
-    config: TrainConfig, task: Task, network: Network, extra_metrics: tuple[str, ...] = ()
-) -> Callable[..., PPOState]:
-    """The ``init(key, hparams=None, env_params=None)`` of an on-policy learner
-    (PPO's, PQN's): :func:`_init_state` with the config's hyperparameters and
-    the task's env params as defaults."""
-
-    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
-        hp = config.hyperparams if hparams is None else hparams
-        env_params = task.env_params if env_params is None else env_params
-        return _init_state(config, task, network, key, hp, env_params, extra_metrics)
-
-    return init
 
 
 def _init_state(
@@ -254,10 +242,8 @@ def _init_state(
     key: jax.Array,
     hp: Hyperparams,
     env_params: Any,
-    extra_metrics: tuple[str, ...] = (),
 ) -> PPOState:
-    """The state before the first update (PPO's and PQN's): N envs reset, a fresh
-    network and Adam, empty metrics (with the learner's ``extra_metrics``)."""
+    """N envs reset, a fresh actor-critic and Adam, empty metrics."""
     n_env = config.num_envs
     key, k_net, k_env = jax.random.split(key, 3)
     params = network.init(k_net)
@@ -274,15 +260,23 @@ def _init_state(
         opt_state=optimizer(
             config.optimizer, hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps
         ).init(params),
-        metrics=init_metrics(task, config.num_episodes, extra_metrics),
+        metrics=init_metrics(task, config.num_episodes),
         **init_counters(n_env, config.num_env_steps),
     )
 
 
-def restarted(network: Network, state: PPOState) -> Any:
-    """The carry (leaves (N, …)) the next step starts from: zeros where the last
-    step ended an episode."""
-    return tree_where(state.done, network.initial_carry(state.done.shape), state.carry)
+def _sample(
+    task: Task, network: Network, state: PPOState, key: jax.Array
+) -> tuple[jax.Array, Any, dict[str, jax.Array], None]:
+    """The sampling policy (:data:`~drqn_jax.learners.common.Policy`): actions (N,)
+    int32 drawn from the logits, the advanced carry, and the value (N,) and
+    log-probability (N,) of the action taken."""
+    n_act = task.num_actions
+    out, carry = network.step(state.online, state.obs, restarted(network, state))
+    logits, value = out[..., :n_act], out[..., n_act]
+    action = jax.random.categorical(key, logits).astype(jnp.int32)
+    log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[:, None], axis=-1)[:, 0]
+    return action, carry, {"value": value, "log_prob": log_prob}, None
 
 
 def _rollout(
@@ -291,26 +285,7 @@ def _rollout(
     """``rollout_steps`` steps of the N envs with actions sampled from the policy:
     the moved state (its ended episodes recorded) and the trajectory (leaves
     (T, N, …))."""
-    n_act = task.num_actions
-    zero_f, zero_i = jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32)
-
-    def step(state, _):
-        key, k_act, k_env = jax.random.split(state.key, 3)
-        out, carry = network.step(state.online, state.obs, restarted(network, state))
-        logits, value = out[..., :n_act], out[..., n_act]
-        action = jax.random.categorical(k_act, logits).astype(jnp.int32)
-        log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[:, None], axis=-1)[:, 0]
-        env = jax.vmap(task.step, (0, 0, 0, None))(
-            jax.random.split(k_env, config.num_envs), state.env_state, action, state.env_params
-        )
-        done = env.terminated | env.truncated
-        traj = Transition(state.obs, action, env.reward, done, value, log_prob, state.done)
-        moved, metrics = record_episodes(
-            task, config.num_episodes, state, env, done, zero_f, zero_i
-        )
-        return moved.replace(key=key, carry=carry, done=done, metrics=metrics), traj
-
-    return jax.lax.scan(step, state, None, config.rollout_steps)
+    return rollout(config, task, functools.partial(_sample, task, network), Transition, state)
 
 
 def _learn(
@@ -322,8 +297,9 @@ def _learn(
     carry0: Any,
 ) -> PPOState:
     """The update of one rollout: GAE, then epochs of minibatch gradient steps
-    (global-norm clip, Adam at the annealed rate); the update's mean loss joins
-    every running episode's."""
+    (global-norm clip, Adam at the annealed rate,
+    :func:`~drqn_jax.learners.common.minibatch_epochs`); the update's mean loss
+    joins every running episode's."""
     hp = state.hparams
     out, _ = network.step(state.online, state.obs, restarted(network, state))
     advantage, target = gae(traj.value, traj.reward, traj.done, out[..., n_act], hp)
@@ -340,51 +316,6 @@ def _learn(
         )
 
     return minibatch_epochs(config, state, lr, grads_of)
-
-
-def minibatch_epochs(
-    config: TrainConfig,
-    state: Any,
-    learning_rate: jax.Array,
-    grads_of: Callable[[Any, jax.Array], tuple[Any, jax.Array]],
-) -> Any:
-    """``update_epochs`` passes over the N envs in ``num_minibatches`` random
-    minibatches of whole env sequences: ``grads_of(params, envs (N / M,))`` gives a
-    minibatch's gradients and loss; each step clips them to ``max_grad_norm`` and
-    takes a step of ``config.optimizer`` (Adam, or PQN's RAdam). The state with
-    the new parameters and optimiser, its key advanced, the gradient steps
-    counted and the mean loss added to every running episode's (PPO's and PQN's
-    update)."""
-    hp = state.hparams
-    opt = optimizer(config.optimizer, learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
-    per_mb = config.num_envs // config.num_minibatches
-
-    def minibatch(learner, envs):
-        params, opt_state = learner
-        grads, loss = grads_of(params, envs)
-        grads, _ = clip_by_global_norm(hp.max_grad_norm).update(grads, ())
-        updates, opt_state = opt.update(grads, opt_state, params)
-        return (apply_updates(params, updates), opt_state), loss
-
-    def epoch(loop, _):
-        learner, key = loop
-        key, k_perm = jax.random.split(key)
-        envs = jax.random.permutation(k_perm, config.num_envs)
-        learner, losses = jax.lax.scan(minibatch, learner, envs.reshape(-1, per_mb))
-        return (learner, key), losses
-
-    key, k_epochs = jax.random.split(state.key)
-    ((params, opt_state), _), losses = jax.lax.scan(
-        epoch, ((state.online, state.opt_state), k_epochs), None, config.update_epochs
-    )
-    return state.replace(
-        key=key,
-        online=params,
-        opt_state=opt_state,
-        ep_loss_sum=state.ep_loss_sum + jnp.mean(losses),
-        ep_loss_count=state.ep_loss_count + 1,
-        grad_steps=state.grad_steps + config.update_epochs * config.num_minibatches,
-    )
 
 
 def _total_loss(*args: Any) -> tuple[jax.Array, jax.Array]:

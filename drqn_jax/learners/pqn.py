@@ -10,10 +10,15 @@ through them), then ``update_epochs`` epochs over ``num_minibatches``
 minibatches of whole env sequences of the squared TD error (global-norm clip,
 Adam at the annealed rate). It is served through the same
 :class:`~drqn_jax.learners.trainer.Trainer` as the DQN and PPO
-(``TrainConfig.algorithm = "pqn"``) and shares PPO's state, rollout
-bookkeeping and minibatch epochs (:mod:`drqn_jax.learners.ppo`).
+(``TrainConfig.algorithm = "pqn"``); the rollout scan, episode bookkeeping and
+minibatch epochs are the on-policy learners' (:mod:`drqn_jax.learners.common`).
 
-* ε follows the DQN's schedule (:func:`~drqn_jax.learners.dqn.acting.epsilon_of`:
+Read top to bottom: the state and a rollout step (:class:`PQNState`,
+:class:`QTransition`), the targets and the loss (:func:`q_lambda_targets`,
+:func:`pqn_loss`), then :func:`make_pqn`, which wires the init, the ε-greedy
+policy, the rollout and the update into the trainer.
+
+* ε follows the DQN's schedule (:func:`~drqn_jax.learners.common.epsilon_of`:
   per training episode, or the share of the step budget, whichever is
   further); purejaxql's ``EPS_DECAY`` is ``epsilon_fraction``.
 * The recurrent state is zeroed before the first step of every episode, in
@@ -31,27 +36,73 @@ bookkeeping and minibatch epochs (:mod:`drqn_jax.learners.ppo`).
 from __future__ import annotations
 
 import functools
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.learners.dqn.acting import epsilon_of
-from drqn_jax.learners.episodes import record_episodes
-from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
-from drqn_jax.learners.ppo import (
-    PPOState,
+from drqn_jax.learners.common import (
+    budget_met,
+    epsilon_of,
+    init_counters,
+    init_metrics,
     minibatch_epochs,
-    on_policy_init,
     restarted,
+    rollout,
     run_updates,
 )
+from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
+from drqn_jax.learners.optim import optimizer
 from drqn_jax.learners.task import Task, make_task
 from drqn_jax.learners.trainer import Trainer, make_trainer
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
+from drqn_jax.pytree import pytree_dataclass
 
-__all__ = ["QTransition", "make_pqn", "pqn_loss", "q_lambda_targets"]
+__all__ = ["PQNState", "QTransition", "make_pqn", "pqn_loss", "q_lambda_targets"]
+
+#: The per-episode metrics PQN adds to the shared ones: the ε the episode ran with.
+PQN_METRICS = ("epsilon",)
+
+
+@pytree_dataclass
+class PQNState:
+    """Everything a PQN run carries between updates (and checkpoints).
+
+    Per-env leaves have a leading N axis. ``online`` holds the Q-network's
+    parameters, trained and acting (the name the :class:`Trainer` protocol
+    reads); ``carry`` is the acting network's recurrent state and ``done`` (N,)
+    says which envs ended an episode at the last step (their carry restarts);
+    the episode counters and ``metrics`` (with ``epsilon``) are
+    :func:`~drqn_jax.learners.common.record_episodes`'.
+    """
+
+    key: jax.Array
+    hparams: Hyperparams
+    env_params: Any
+    env_state: Any
+    obs: Any
+    carry: Any
+    done: jax.Array
+    online: Any
+    opt_state: Any
+    episode: jax.Array
+    ep_return: jax.Array
+    ep_length: jax.Array
+    ep_loss_sum: jax.Array
+    ep_loss_count: jax.Array
+    episodes_started: jax.Array
+    recorded: jax.Array
+    grad_steps: jax.Array
+    env_steps: jax.Array
+    step_budget: jax.Array  # () int32 TrainConfig.num_env_steps (0: none)
+    metrics: dict[str, jax.Array]
+    #: The protocol's candidates' validation metrics: none, PQN selects no snapshot.
+    validation: ClassVar[None] = None
+
+    @property
+    def finished(self) -> jax.Array:
+        return budget_met(self)
 
 
 class QTransition(NamedTuple):
@@ -124,14 +175,20 @@ def _make_pqn(config: TrainConfig) -> Trainer:
     task = make_task(config.env_id, config.env_overrides)
     network = make_network(task.network(config.network))
 
-    init = on_policy_init(config, task, network, ("epsilon",))
+    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
+        """The state before the first update (the config's hyperparameters and the
+        task's env params by default)."""
+        hp = config.hyperparams if hparams is None else hparams
+        env_params = task.env_params if env_params is None else env_params
+        return _init_state(config, task, network, key, hp, env_params)
 
-    def act(state: PPOState, key: jax.Array) -> tuple[jax.Array, Any]:
+    def act(state: PQNState, key: jax.Array) -> tuple[jax.Array, Any]:
         """ε-greedy actions (N,) and the advanced carry."""
-        action, _, carry, _ = _explore(config, task, network, state, key)
+        action, carry, _, _ = _explore(config, task, network, state, key)
         return action, carry
 
-    def update(state: PPOState) -> PPOState:
+    def update(state: PQNState) -> PQNState:
+        """One update: a rollout, then epochs of minibatch steps on its TD errors."""
         carry0 = state.carry
         state, traj = _rollout(config, task, network, state)
         return _learn(config, network, state, traj, carry0)
@@ -139,12 +196,42 @@ def _make_pqn(config: TrainConfig) -> Trainer:
     return make_trainer(config, task, network, init, act, run_updates(update))
 
 
+def _init_state(
+    config: TrainConfig,
+    task: Task,
+    network: Network,
+    key: jax.Array,
+    hp: Hyperparams,
+    env_params: Any,
+) -> PQNState:
+    """N envs reset, a fresh Q-network and optimiser, empty metrics."""
+    n_env = config.num_envs
+    key, k_net, k_env = jax.random.split(key, 3)
+    params = network.init(k_net)
+    obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
+    return PQNState(
+        key=key,
+        hparams=hp,
+        env_params=env_params,
+        env_state=env_state,
+        obs=obs,
+        carry=network.initial_carry((n_env,)),
+        done=jnp.zeros((n_env,), bool),
+        online=params,
+        opt_state=optimizer(
+            config.optimizer, hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps
+        ).init(params),
+        metrics=init_metrics(task, config.num_episodes, PQN_METRICS),
+        **init_counters(n_env, config.num_env_steps),
+    )
+
+
 def _explore(
-    config: TrainConfig, task: Task, network: Network, state: PPOState, key: jax.Array
-) -> tuple[jax.Array, jax.Array, Any, jax.Array]:
-    """ε-greedy actions (N,) int32 from the online Q-network, its Q-values (N, A),
-    the advanced carry and each env's ε (N,) (its training episode's,
-    :func:`epsilon_of`)."""
+    config: TrainConfig, task: Task, network: Network, state: PQNState, key: jax.Array
+) -> tuple[jax.Array, Any, dict[str, jax.Array], dict[str, jax.Array]]:
+    """The ε-greedy policy (:data:`~drqn_jax.learners.common.Policy`): actions (N,)
+    int32 from the online Q-network, the advanced carry, the Q-values acted on
+    (N, A) and each env's ε (N,) (its training episode's, :func:`epsilon_of`)."""
     hp = state.hparams
     k_explore, k_random = jax.random.split(key)
     q, carry = network.step(state.online, state.obs, restarted(network, state))
@@ -153,37 +240,23 @@ def _explore(
     random_action = jax.random.randint(k_random, shape, 0, task.num_actions, jnp.int32)
     greedy = jnp.argmax(q, axis=-1).astype(jnp.int32)
     action = jnp.where(jax.random.uniform(k_explore, shape) < eps, random_action, greedy)
-    return action, q, carry, eps
+    return action, carry, {"q": q}, {"epsilon": eps}
 
 
 def _rollout(
-    config: TrainConfig, task: Task, network: Network, state: PPOState
-) -> tuple[PPOState, QTransition]:
+    config: TrainConfig, task: Task, network: Network, state: PQNState
+) -> tuple[PQNState, QTransition]:
     """``rollout_steps`` ε-greedy steps of the N envs: the moved state (its ended
     episodes recorded, with their ε) and the trajectory (leaves (T, N, …))."""
-    zero_f, zero_i = jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32)
-
-    def step(state, _):
-        key, k_act, k_env = jax.random.split(state.key, 3)
-        action, q, carry, eps = _explore(config, task, network, state, k_act)
-        env = jax.vmap(task.step, (0, 0, 0, None))(
-            jax.random.split(k_env, config.num_envs), state.env_state, action, state.env_params
-        )
-        done = env.terminated | env.truncated
-        traj = QTransition(state.obs, q, action, env.reward, done, state.done)
-        moved, metrics = record_episodes(
-            task, config.num_episodes, state, env, done, zero_f, zero_i, {"epsilon": eps}
-        )
-        return moved.replace(key=key, carry=carry, done=done, metrics=metrics), traj
-
-    return jax.lax.scan(step, state, None, config.rollout_steps)
+    policy = functools.partial(_explore, config, task, network)
+    return rollout(config, task, policy, QTransition, state)
 
 
 def _learn(
-    config: TrainConfig, network: Network, state: PPOState, traj: QTransition, carry0: Any
-) -> PPOState:
+    config: TrainConfig, network: Network, state: PQNState, traj: QTransition, carry0: Any
+) -> PQNState:
     """The update of one rollout: epochs of minibatch steps on :func:`pqn_loss`
-    (:func:`~drqn_jax.learners.ppo.minibatch_epochs`) at the annealed rate."""
+    (:func:`~drqn_jax.learners.common.minibatch_epochs`) at the annealed rate."""
     hp = state.hparams
     last = jax.tree.map(lambda x: x[0], traj)._replace(obs=state.obs, reset=state.done)
     lr = annealed(

@@ -2,13 +2,16 @@
 
 :func:`drqn_jax.learners.make_train` builds one for a
 :class:`~drqn_jax.learners.hyperparams.TrainConfig`: the paper's Double-DQN on an
-episode replay (``algorithm = "dqn"``, :mod:`drqn_jax.learners.dqn.train`) or recurrent
-PPO (``"ppo"``, :mod:`drqn_jax.learners.ppo`). The host loop (:mod:`drqn_jax.experiments.runner`),
+episode replay (``algorithm = "dqn"``, :mod:`drqn_jax.learners.dqn.train`), recurrent
+PPO (``"ppo"``, :mod:`drqn_jax.learners.ppo`) or recurrent PQN (``"pqn"``,
+:mod:`drqn_jax.learners.pqn`). The host loop (:mod:`drqn_jax.experiments.runner`),
 sweeps, checkpoints, evaluation and the study use nothing else, so they treat
-both alike. A state of either has ``key``, ``hparams``, ``env_params``,
-``online`` (the parameters trained), ``recorded`` / ``finished`` (the
-episode budget), ``env_steps``, ``grad_steps``, ``ep_loss_sum`` and
-``metrics`` (per training episode, :mod:`drqn_jax.learners.episodes`).
+every learner alike. Each learner's state is its own class; every one has
+``key``, ``hparams``, ``env_params``, ``online`` (the parameters trained),
+``opt_state``, ``recorded`` / ``finished`` (the episode budget), ``env_steps``,
+``grad_steps``, ``ep_loss_sum``, ``metrics`` (per training episode,
+:mod:`drqn_jax.learners.common`) and ``validation`` (the candidates' validation
+metrics; None for a learner that keeps no snapshots).
 """
 
 from __future__ import annotations
@@ -29,10 +32,10 @@ class Trainer(NamedTuple):
     * ``init(key, hparams=None, env_params=None) -> state``;
     * ``act(state, key) -> (actions (N,), carry)``: the learner's behaviour;
     * ``run(state, num_iterations) -> state``: ``lax.scan`` over iterations
-      (env steps of the DQN, updates of PPO); those after the run finished
+      (env steps of the DQN, updates of PPO and PQN); those after the run finished
       change nothing, so any chunking ends bit-identical;
     * ``train(key, hparams=None, env_params=None) -> (agent params, metrics)``;
-    * ``gradient_update``: the DQN's single gradient step (benchmarks); None for PPO;
+    * ``gradient_update``: the DQN's single gradient step (benchmarks); None for PPO, PQN;
     * ``validation_metrics(state)``: the candidates' (``snapshots`` > 0);
     * ``agent_params(state)``: the run's agent, for ``network`` (greedy argmax).
     """

@@ -15,8 +15,8 @@ import pytest
 from benchmarks.gymnax_validation import SMALL, pqn_config
 from drqn_jax.config import load_config
 from drqn_jax.learners import Hyperparams, TrainConfig, make_train
+from drqn_jax.learners.common import restarted
 from drqn_jax.learners.hyperparams import agent_name
-from drqn_jax.learners.ppo import restarted
 from drqn_jax.learners.pqn import _rollout, pqn_loss, q_lambda_targets
 from drqn_jax.networks import NetworkConfig
 
@@ -150,7 +150,8 @@ def test_layer_norm_normalises_each_dense_layer_before_its_relu():
     """With ``layer_norm``, the MLP torso's and the FC layer's pre-activations
     have zero mean and unit variance over their units at initialisation (scale
     1, bias 0); the parameters carry a scale and a bias for each."""
-    from drqn_jax.networks import dense_relu, make_network
+    from drqn_jax.layers import dense_relu
+    from drqn_jax.networks import make_network
 
     config = NetworkConfig(kind="drqn", torso="mlp", obs_size=4, layer_norm=True, **SMALL)
     params = make_network(config).init(jax.random.key(0))

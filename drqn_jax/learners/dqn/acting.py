@@ -1,8 +1,9 @@
-"""Acting while learning: the ε schedule and ε-greedy exploration (paper §V-B; SPEC §7).
+"""Acting while learning: ε-greedy exploration (paper §V-B; SPEC §7).
 
-ε falls linearly from ``epsilon_start`` to ``epsilon_end`` over the training
-episodes (an episode keeps the ε it started with), or over their first
-``epsilon_fraction`` (the project's option; 1 = the paper). During the first
+ε (:func:`~drqn_jax.learners.common.epsilon_of`) falls linearly from
+``epsilon_start`` to ``epsilon_end`` over the training episodes (an episode
+keeps the ε it started with), or over their first ``epsilon_fraction`` (the
+project's option; 1 = the paper). During the first
 ``explore_bias_fraction`` of episodes a random action is drawn from the
 task's biased distribution (the paper's env: accelerate 0.4, slow_down 0.1,
 brake 0.1, steer 0.4), uniformly afterwards. With ``explore_guide`` = g > 0
@@ -21,31 +22,15 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.learners.dqn.state import TrainState
-from drqn_jax.learners.hyperparams import Hyperparams
 from drqn_jax.learners.task import Task
 from drqn_jax.networks import Network
 
-__all__ = ["GUIDE_STREAM", "epsilon_of", "explore"]
+__all__ = ["GUIDE_STREAM", "explore"]
 
 #: ``fold_in`` index of the draw that picks a guided exploratory action: a
 #: stream of its own, so that ``explore_guide = 0`` leaves every other draw,
 #: and hence every run, as it was.
 GUIDE_STREAM = 1
-
-
-def epsilon_of(
-    episode: jax.Array, hp: Hyperparams, num_episodes: int, steps: jax.Array | None = None
-) -> jax.Array:
-    """ε (same shape as ``episode``, float32) of training episode ``episode``:
-    linear from ``epsilon_start`` (episode 0) to ``epsilon_end`` (the last, or
-    the ``epsilon_fraction`` share of them), then constant. With a step budget,
-    ``steps`` is the share of it taken when the episode starts
-    (:func:`~drqn_jax.learners.hyperparams.step_share`), and the further of the two counts."""
-    frac = episode * (1.0 / max(num_episodes - 1, 1))
-    if steps is not None:
-        frac = jnp.maximum(frac, steps)
-    frac = jnp.clip(frac / hp.epsilon_fraction, 0.0, 1.0)
-    return (hp.epsilon_start + (hp.epsilon_end - hp.epsilon_start) * frac).astype(jnp.float32)
 
 
 def explore(

@@ -46,15 +46,15 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.learners.dqn.replay import Windows
+from drqn_jax.learners.hyperparams import CLIP_MODES
 from drqn_jax.networks import Network
 
-CLIP_MODES = ("huber", "grad")
-CLIP_HUBER, CLIP_GRAD = 0, 1
+#: ``Hyperparams.clip`` of the Huber loss and of the squared error (gradient clipping).
+CLIP_HUBER, CLIP_GRAD = CLIP_MODES.index("huber"), CLIP_MODES.index("grad")
 #: ε of the value rescaling h (R2D2's 10⁻³).
 RESCALE_EPS = 1e-3
 
 __all__ = [
-    "CLIP_MODES",
     "double_dqn_targets",
     "huber",
     "large_margin",

@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.env.state import NO_ACTION
+from drqn_jax.learners.hyperparams import WINDOW_STARTS
 from drqn_jax.pytree import pytree_dataclass
 
 #: ``observe(records, last_action) -> observations``: the network's inputs of
@@ -38,7 +39,6 @@ from drqn_jax.pytree import pytree_dataclass
 Observe = Callable[[Any, jax.Array], Any]
 
 __all__ = [
-    "WINDOW_STARTS",
     "EpisodeReplay",
     "Windows",
     "add_transition",
@@ -49,10 +49,8 @@ __all__ = [
     "sample_windows",
 ]
 
-#: Where a replay window may start (``train.window_start``): inside the episode
-#: (SPEC §7) or at any of its steps, padded past its end.
-WINDOW_STARTS = ("inside", "anywhere")
-WINDOW_INSIDE, WINDOW_ANYWHERE = 0, 1
+#: ``Hyperparams.window_start`` of a window inside the episode, and anywhere in it.
+WINDOW_INSIDE, WINDOW_ANYWHERE = WINDOW_STARTS.index("inside"), WINDOW_STARTS.index("anywhere")
 
 
 @pytree_dataclass

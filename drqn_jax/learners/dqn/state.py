@@ -11,8 +11,8 @@ from typing import Any
 
 import jax
 
+from drqn_jax.learners.common import BASE_METRICS, budget_met
 from drqn_jax.learners.dqn.replay import EpisodeReplay
-from drqn_jax.learners.episodes import BASE_METRICS, budget_met
 from drqn_jax.learners.hyperparams import Hyperparams
 from drqn_jax.pytree import pytree_dataclass
 

@@ -40,7 +40,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.learners.dqn.acting import epsilon_of, explore
+from drqn_jax.learners.common import epsilon_of, init_counters, init_metrics, record_episodes
+from drqn_jax.learners.dqn.acting import explore
 from drqn_jax.learners.dqn.replay import (
     EpisodeReplay,
     add_transition,
@@ -50,11 +51,6 @@ from drqn_jax.learners.dqn.replay import (
 )
 from drqn_jax.learners.dqn.state import TrainState
 from drqn_jax.learners.dqn.update import Learner, gradient_update, learn
-from drqn_jax.learners.episodes import (
-    init_counters,
-    init_metrics,
-    record_episodes,
-)
 from drqn_jax.learners.hyperparams import (
     Hyperparams,
     TrainConfig,

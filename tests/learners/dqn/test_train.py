@@ -15,7 +15,7 @@ from drqn_jax.env.road_map import lane_centre_y
 from drqn_jax.env.state import BRAKE
 from drqn_jax.experiments.runner import init_program
 from drqn_jax.learners import Hyperparams, TrainConfig, make_train
-from drqn_jax.learners.dqn.acting import epsilon_of
+from drqn_jax.learners.common import epsilon_of
 from drqn_jax.learners.dqn.loss import sequence_loss
 from drqn_jax.learners.dqn.replay import WINDOW_ANYWHERE, sample_windows
 from drqn_jax.learners.hyperparams import IMITATION_STATES, annealed, step_share, teacher_label

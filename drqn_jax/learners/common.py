@@ -1,0 +1,260 @@
+"""What the learners share, and nothing of any one learner (SPEC §7).
+
+* Per-episode bookkeeping: the learners step N environments at once, so
+  episodes end out of order. Each env keeps the index of its current training
+  episode and running sums; when an episode ends its metrics are written at its
+  index of (num_episodes,) buffers, and the env's next episode takes the next
+  free index. ``recorded`` counts the training episodes written: the run's
+  budget is ``num_episodes`` of them (an episode beyond it is played but not
+  written), or, with ``num_env_steps`` > 0, that many env steps if they come
+  first (:func:`budget_met`).
+* The ε schedule of the ε-greedy learners (:func:`epsilon_of`: the replay DQN's
+  and PQN's; paper §V-B).
+* What the on-policy learners (PPO, PQN) share: the rollout of
+  ``rollout_steps`` steps on the N envs (:func:`rollout`), with the recurrent
+  state zeroed before the first step of every episode (:func:`restarted`), the
+  epochs of minibatch gradient steps over whole env sequences
+  (:func:`minibatch_epochs`) and the scan of updates (:func:`run_updates`).
+
+A learner's state is its own; what is read of it here is named in each
+function's docstring.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig
+from drqn_jax.learners.optim import apply_updates, clip_by_global_norm, optimizer
+from drqn_jax.learners.task import Step, Task
+from drqn_jax.networks import Network
+from drqn_jax.pytree import tree_where
+
+__all__ = [
+    "BASE_METRICS",
+    "budget_met",
+    "epsilon_of",
+    "init_counters",
+    "init_metrics",
+    "minibatch_epochs",
+    "record_episodes",
+    "restarted",
+    "rollout",
+    "run_updates",
+]
+
+#: Per-episode metrics of every learner and task; a learner adds its own (the
+#: DQN: ε), a task its own (the paper's env: collision, goal, distance, speed).
+BASE_METRICS = ("episode_return", "length", "mean_loss")
+
+
+def budget_met(state: Any) -> jax.Array:
+    """() bool: every one of the ``num_episodes`` training episodes is recorded, or
+    the state's ``step_budget`` (``TrainConfig.num_env_steps``; 0 = none) of env
+    steps is taken."""
+    by_steps = (state.step_budget > 0) & (state.env_steps >= state.step_budget)
+    return (state.recorded >= state.metrics["length"].shape[-1]) | by_steps
+
+
+def init_counters(num_envs: int, num_env_steps: int) -> dict[str, jax.Array]:
+    """The counters a state starts with: env i in training episode i, running sums
+    (N,) at zero, none recorded, no step or gradient step taken, and the step
+    budget (0: none)."""
+    zeros_f, zeros_i = jnp.zeros((num_envs,), jnp.float32), jnp.zeros((num_envs,), jnp.int32)
+    return {
+        "episode": jnp.arange(num_envs, dtype=jnp.int32),
+        "ep_return": zeros_f,
+        "ep_length": zeros_i,
+        "ep_loss_sum": zeros_f,
+        "ep_loss_count": zeros_i,
+        "episodes_started": jnp.asarray(num_envs, jnp.int32),
+        "recorded": jnp.zeros((), jnp.int32),
+        "grad_steps": jnp.zeros((), jnp.int32),
+        "env_steps": jnp.zeros((), jnp.int32),
+        "step_budget": jnp.asarray(num_env_steps, jnp.int32),
+    }
+
+
+def init_metrics(task: Task, num_episodes: int, extra: tuple[str, ...] = ()) -> dict:
+    """Empty metric buffers, (num_episodes,) each: ``BASE_METRICS``, the learner's
+    float32 ``extra`` ones and the task's."""
+    dtypes = {**dict.fromkeys((*BASE_METRICS, *extra), jnp.float32), "length": jnp.int32}
+    dtypes.update(dict(task.metrics))
+    return {name: jnp.zeros((num_episodes,), dtype) for name, dtype in dtypes.items()}
+
+
+def record_episodes(
+    task: Task,
+    num_episodes: int,
+    state: Any,
+    step: Step,
+    done: jax.Array,
+    loss_sum: jax.Array,
+    n_updates: jax.Array,
+    extra: dict[str, jax.Array] | None = None,
+) -> tuple[Any, dict[str, jax.Array]]:
+    """The bookkeeping of one vector env step (leaves (N,)).
+
+    ``state`` holds the env and observation, the per-env counters (``episode``,
+    ``ep_return``, ``ep_length``, ``ep_loss_sum``, ``ep_loss_count``) and the
+    run's (``episodes_started``, ``recorded``, ``env_steps``, ``metrics``);
+    ``done`` (N,) says which episodes ended at ``step``; ``loss_sum`` and
+    ``n_updates`` are the losses summed over and the number of gradient
+    updates made at this step; ``extra`` the learner's own per-env values
+    written with an ended episode (the DQN's ε). Returns the state moved on
+    (counters of ended episodes reset, their envs' next episode indices) and
+    the metrics with each ended training episode's values written.
+    """
+    ep_return = state.ep_return + step.reward
+    ep_length = state.ep_length + 1
+    ep_loss_sum = state.ep_loss_sum + loss_sum
+    ep_loss_count = state.ep_loss_count + n_updates
+    record = done & (state.episode < num_episodes)
+    index = jnp.where(record, state.episode, num_episodes)  # out of range: dropped
+    values = {
+        "episode_return": ep_return,
+        "length": ep_length,
+        **task.episode_metrics(step, ep_length, state.env_params),
+        **(extra or {}),
+        "mean_loss": ep_loss_sum / jnp.maximum(ep_loss_count, 1).astype(jnp.float32),
+    }
+    metrics = {
+        name: state.metrics[name].at[index].set(values[name].astype(buf.dtype), mode="drop")
+        for name, buf in state.metrics.items()
+    }
+    new_episode = state.episodes_started + jnp.cumsum(done.astype(jnp.int32)) - 1
+    zero_f, zero_i = jnp.zeros_like(ep_return), jnp.zeros_like(ep_length)
+    moved = state.replace(
+        env_state=step.state,
+        obs=step.obs,
+        episode=jnp.where(done, new_episode, state.episode),
+        ep_return=jnp.where(done, zero_f, ep_return),
+        ep_length=jnp.where(done, zero_i, ep_length),
+        ep_loss_sum=jnp.where(done, zero_f, ep_loss_sum),
+        ep_loss_count=jnp.where(done, zero_i, ep_loss_count),
+        episodes_started=state.episodes_started + jnp.sum(done, dtype=jnp.int32),
+        recorded=state.recorded + jnp.sum(record, dtype=jnp.int32),
+        env_steps=state.env_steps + done.shape[0],
+    )
+    return moved, metrics
+
+
+def epsilon_of(
+    episode: jax.Array, hp: Hyperparams, num_episodes: int, steps: jax.Array | None = None
+) -> jax.Array:
+    """ε (same shape as ``episode``, float32) of training episode ``episode``:
+    linear from ``epsilon_start`` (episode 0) to ``epsilon_end`` (the last, or
+    the ``epsilon_fraction`` share of them), then constant. With a step budget,
+    ``steps`` is the share of it taken when the episode starts
+    (:func:`~drqn_jax.learners.hyperparams.step_share`), and the further of the two counts."""
+    frac = episode * (1.0 / max(num_episodes - 1, 1))
+    if steps is not None:
+        frac = jnp.maximum(frac, steps)
+    frac = jnp.clip(frac / hp.epsilon_fraction, 0.0, 1.0)
+    return (hp.epsilon_start + (hp.epsilon_end - hp.epsilon_start) * frac).astype(jnp.float32)
+
+
+def restarted(network: Network, state: Any) -> Any:
+    """The carry (leaves (N, …)) the next step starts from: ``state.carry``, zeros
+    where the last step ended an episode (``state.done`` (N,))."""
+    return tree_where(state.done, network.initial_carry(state.done.shape), state.carry)
+
+
+#: ``policy(state, key) -> (actions (N,) int32, carry, acted, extra)``: how an
+#: on-policy learner acts; ``acted`` its own fields of the rollout's transition
+#: (PPO: the value and log-probability; PQN: the Q-values), ``extra`` its own
+#: per-env values written with an ended episode (PQN: ε), or None.
+Policy = Callable[[Any, jax.Array], tuple[jax.Array, Any, dict[str, Any], Any]]
+
+
+def rollout(
+    config: TrainConfig, task: Task, policy: Policy, transition: Callable[..., Any], state: Any
+) -> tuple[Any, Any]:
+    """``rollout_steps`` steps of the N envs acting by ``policy``: the moved state
+    (its ended episodes recorded, :func:`record_episodes`) and the trajectory, a
+    ``transition`` (leaves (T, N, …)) of ``obs``, ``action``, ``reward``, ``done``
+    (the episode ended at the step), ``reset`` (the carry was zeroed before it)
+    and the policy's ``acted`` fields.
+
+    Reads and moves ``state.key``, ``carry`` and ``done`` besides the bookkeeping.
+    """
+    zero_f, zero_i = jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32)
+
+    def step(state, _):
+        key, k_act, k_env = jax.random.split(state.key, 3)
+        action, carry, acted, extra = policy(state, k_act)
+        env = jax.vmap(task.step, (0, 0, 0, None))(
+            jax.random.split(k_env, config.num_envs), state.env_state, action, state.env_params
+        )
+        done = env.terminated | env.truncated
+        traj = transition(
+            obs=state.obs, action=action, reward=env.reward, done=done, reset=state.done, **acted
+        )
+        moved, metrics = record_episodes(
+            task, config.num_episodes, state, env, done, zero_f, zero_i, extra
+        )
+        return moved.replace(key=key, carry=carry, done=done, metrics=metrics), traj
+
+    return jax.lax.scan(step, state, None, config.rollout_steps)
+
+
+def minibatch_epochs(
+    config: TrainConfig,
+    state: Any,
+    learning_rate: jax.Array,
+    grads_of: Callable[[Any, jax.Array], tuple[Any, jax.Array]],
+) -> Any:
+    """``update_epochs`` passes over the N envs in ``num_minibatches`` random
+    minibatches of whole env sequences: ``grads_of(params, envs (N / M,))`` gives a
+    minibatch's gradients and loss; each step clips them to ``max_grad_norm`` and
+    takes a step of ``config.optimizer`` (Adam, or PQN's RAdam). The state with
+    the new parameters (``online``) and optimiser, its key advanced, the gradient
+    steps counted and the mean loss added to every running episode's."""
+    hp = state.hparams
+    opt = optimizer(config.optimizer, learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+    per_mb = config.num_envs // config.num_minibatches
+
+    def minibatch(learner, envs):
+        params, opt_state = learner
+        grads, loss = grads_of(params, envs)
+        grads, _ = clip_by_global_norm(hp.max_grad_norm).update(grads, ())
+        updates, opt_state = opt.update(grads, opt_state, params)
+        return (apply_updates(params, updates), opt_state), loss
+
+    def epoch(loop, _):
+        learner, key = loop
+        key, k_perm = jax.random.split(key)
+        envs = jax.random.permutation(k_perm, config.num_envs)
+        learner, losses = jax.lax.scan(minibatch, learner, envs.reshape(-1, per_mb))
+        return (learner, key), losses
+
+    key, k_epochs = jax.random.split(state.key)
+    ((params, opt_state), _), losses = jax.lax.scan(
+        epoch, ((state.online, state.opt_state), k_epochs), None, config.update_epochs
+    )
+    return state.replace(
+        key=key,
+        online=params,
+        opt_state=opt_state,
+        ep_loss_sum=state.ep_loss_sum + jnp.mean(losses),
+        ep_loss_count=state.ep_loss_count + 1,
+        grad_steps=state.grad_steps + config.update_epochs * config.num_minibatches,
+    )
+
+
+def run_updates(update: Callable[[Any], Any]) -> Callable[[Any, int], Any]:
+    """The ``run`` of an on-policy learner whose iteration is ``update``:
+    ``run(state, num_iterations)`` scans that many updates; those after the run
+    finished change nothing."""
+
+    def run(state: Any, num_iterations: int) -> Any:
+        def body(state, _):
+            return jax.lax.cond(state.finished, lambda s: s, update, state), None
+
+        return jax.lax.scan(body, state, None, length=num_iterations)[0]
+
+    return run
