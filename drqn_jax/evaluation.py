@@ -247,8 +247,7 @@ def padded_keys(keys: jax.Array, batch_size: int | None = None) -> jax.Array:
 
     YNNPACK, which runs XLA:CPU's matrix products, picks its kernel by the number
     of rows: the paper network's products round differently with fewer than 61–81
-    rows (by shape) than with more (measured, ``benchmarks/RESULTS.md``,
-    "Evaluation rows"), and a batch of one goes to matrix-vector kernels, so
+    rows (by shape) than with more, and a batch of one goes to matrix-vector kernels, so
     without the padding episode i would not be bit-identical whatever the number
     of episodes beside it. Rows are independent, so padding changes nothing else.
 

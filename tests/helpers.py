@@ -39,7 +39,7 @@ base = "smoke"
 
 #: XLA:CPU compiler options without LLVM's optimisation: a program compiles in half to
 #: two thirds of the time and runs slower. Its floating point rounds differently from
-#: the default level's (benchmarks/RESULTS.md), so only a test that compares a
+#: the default level's, so only a test that compares a
 #: program's outputs with each other, or with a reference within a tolerance, may
 #: compile with it: never one that checks the bits a user's program gives.
 FAST_COMPILE = {"xla_backend_optimization_level": 0}

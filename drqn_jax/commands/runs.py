@@ -126,8 +126,7 @@ def _beside_the_paper(
 
     The frontier sweeps in a second thread while the agents play: XLA compiles on
     one core and an evaluation keeps two cores only partly busy, so the programs fill
-    each other's idle time (``benchmarks/RESULTS.md``, "``drqn-jax reproduce`` wall
-    time"); each program's output is what it gives alone.
+    each other's idle time; each program's output is what it gives alone.
     """
     from drqn_jax.experiments.baselines import config_frontier
 

@@ -186,8 +186,8 @@ def call_bytes(per_run: RunMemory, runs: int, *, batched: bool = True) -> int:
     ``batched`` (``vmap``): every run's state and update temporaries at once.
     Otherwise (``lax.map``, one run after another): the runs' states twice
     (the map writes a new stack of states beside its input) and one run's
-    temporaries — XLA's own analysis of the 64-run paper program says 3.7 GB
-    against 3.7 GB here (benchmarks/RESULTS.md).
+    temporaries (``tests/experiments/test_memory.py`` checks the estimate against
+    XLA's own analysis).
     """
     if batched:
         return runs * per_run.total

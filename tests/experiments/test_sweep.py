@@ -113,7 +113,7 @@ def _other_thread_pool() -> str:
     this process's, whatever the machine (at least twice as big, at least 4): the
     pool has max(PJRT_NPROC, forced devices) threads, and Eigen splits a product's
     sums by it (the network's products avoid Eigen,
-    :func:`drqn_jax.networks._rows_product`, so results must not depend on it).
+    :func:`drqn_jax.layers._rows_product`, so results must not depend on it).
     On a 2-core machine that is the pool of 4 that 4 forced devices get anyway."""
     from drqn_jax.determinism import cpu_thread_pool_size
 
