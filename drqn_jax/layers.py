@@ -176,7 +176,8 @@ def patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
 
 def gathered_patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
     """:func:`patches` as one gather of the same copies: on XLA:CPU much faster than the
-    paper network's 48 slices, but its gradient (a scatter-add) sums in another order: acting only."""
+    paper network's 48 slices, but its gradient (a scatter-add) sums in another order:
+    acting only."""
     n, h, w, c = x.shape
     h_out, w_out = (h - kh) // stride + 1, (w - kw) // stride + 1
     rows = np.arange(h_out)[:, None, None, None] * stride + np.arange(kh)[None, None, :, None]
