@@ -8,7 +8,8 @@
 # go into docs/results.json, section table3-<backend> (table3-gpu, table3-cpu), and
 # `drqn-jax report README.md docs/results.md` quotes them; its learning curves and
 # safety/speed figure go into docs/figures/table3-<backend>-*.png. Running it again continues an
-# interrupted study; in a fresh clone too, from the finished runs the results file keeps.
+# interrupted study; in a fresh clone too, from the finished runs its runs store keeps
+# (docs/finished-runs/table3-<backend>.json, removed once the study finishes).
 #
 # Budget per seed: TABLE3_STEPS env steps. The default is 24,000,000 on an accelerator
 # (issue 53's floor of 20M; the length of benchmarks/gpu.sh's learning curve) and
@@ -42,7 +43,8 @@ fi
 if [ "${TABLE3_ESTIMATE:-1}" = 1 ]; then
   "${study[@]}" --estimate
 fi
-"${study[@]}" --results docs/results.json --section "table3-$backend"
+"${study[@]}" --results docs/results.json --section "table3-$backend" \
+  --runs-store "docs/finished-runs/table3-$backend.json"
 # The report's figures: the learning curves against env steps to the full budget and the
 # safety/speed figure (the study draws both into OUT when every run has finished).
 for figure in curves safety_speed; do
