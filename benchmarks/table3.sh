@@ -8,7 +8,8 @@
 # docs/results.json, section table3-<backend> (table3-gpu, table3-cpu), which
 # `drqn-jax report README.md docs/results.md` quotes; its learning curves and safety/speed
 # figure go into docs/figures/table3-<backend>-*.png. Running it again continues an
-# interrupted study, in a fresh clone too, from the finished runs the results file keeps.
+# interrupted study, in a fresh clone too, from the finished runs its runs store keeps
+# (docs/finished-runs/table3-<backend>.json, removed once the study finishes).
 #
 # Budget per seed: TABLE3_STEPS env steps; by default 24,000,000 on an accelerator (the
 # length of benchmarks/gpu.sh's learning curve, above the 20M floor of docs/spec.md) and
@@ -31,9 +32,6 @@ export PYTHONUNBUFFERED=1
 
 study=("$py" -m drqn_jax.cli study --configs pqn,pqn-dqn,pqn-stack,ppo --seeds 5
        --episodes 1000 --set "train.num_env_steps=$steps" --out "$out")
-if ! "$py" -c "import matplotlib" 2>/dev/null; then
-  study+=(--no-png)  # e.g. a device image without matplotlib: the table needs none
-fi
 echo "Table III at scale on $backend: $steps env steps per seed, into $out"
 if [ "${TABLE3_DRY_RUN:-0}" = 1 ]; then
   "${study[@]}" --dry-run
@@ -42,7 +40,8 @@ fi
 if [ "${TABLE3_ESTIMATE:-1}" = 1 ]; then
   "${study[@]}" --estimate
 fi
-"${study[@]}" --results docs/results.json --section "table3-$backend"
+"${study[@]}" --results docs/results.json --section "table3-$backend" \
+  --runs-store "docs/finished-runs/table3-$backend.json"
 # The report's figures: the learning curves against env steps to the full budget and the
 # safety/speed figure (the study draws both into OUT when every run has finished).
 for figure in curves safety_speed; do

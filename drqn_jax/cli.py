@@ -301,9 +301,7 @@ def _study_parser(sub: Any) -> None:
     study.add_argument(
         "--smooth", type=int, default=10, help="running mean (episodes) of the curves"
     )
-    study.add_argument(
-        "--no-png", action="store_true", help="skip curves.png (no matplotlib needed)"
-    )
+    study.add_argument("--no-png", action="store_true", help="skip curves.png and safety_speed.png")
     study.add_argument(
         "--dry-run", action="store_true", help="validate and describe the study; run nothing"
     )
@@ -326,6 +324,15 @@ def _study_parser(sub: Any) -> None:
     )
     study.add_argument(
         "--section", help="the section of --results (default: the study directory's name)"
+    )
+    study.add_argument(
+        "--runs-store",
+        metavar="PATH",
+        help="keep an interrupted study's finished runs (evaluation records, metrics.csv) "
+        "in this file, so that the same command in a fresh --out (another clone or machine) "
+        "trains only the others; removed once the study finishes (default with --results: "
+        "finished-runs/SECTION.json beside the results file, e.g. "
+        "docs/finished-runs/table3-cpu.json)",
     )
     study.add_argument("--quiet", action="store_true", help="no progress bars")
 
@@ -460,7 +467,7 @@ Table III beside ours with each agent's margin to the frontier, the verdict on t
 claim, the safety/speed figure's path and the wall time; no training. --train trains the
 agent again first (its config, or --config; an estimate of the training time on this
 device comes first) and evaluates that one. Writes evaluation.json, results.md and
-safety_speed.png (the plots extra) to the run directory."""
+safety_speed.png to the run directory."""
 _REPLAY_DOC = """Record episodes of a run directory's greedy DRQN (with its four Q-values per
 step) or of a built-in agent as a rerun recording: the map, the ego, the pedestrians coloured by
 behaviour, the four grid channels, speed, action, reward and TTC on the timeline "step". Episode
@@ -483,8 +490,9 @@ and OUT/curves.rrd. Each run's trained agent is OUT/<config>/agents/run-NNNN; --
 evaluates them among other pedestrians too (one more row per env). Ctrl-C saves checkpoints
 (status 130); running the same command again continues the study, and with a larger
 --seeds adds the new seeds to it; --eval-envs on a finished study only evaluates. With
---results, an interrupted study keeps its finished runs in its section of that file, and
-the same command in a fresh --out (a new clone) trains only the others."""
+--runs-store (by default with --results), an interrupted study keeps its finished runs in
+a file of their own, and the same command in a fresh --out (a new clone) trains only the
+others; the results file holds the finished study's rows only."""
 _FRONTIER_DOC = """Sweep the rule-based agent over its parameters (v_max from 1 km/h to the
 speed limit, lookahead, horizon, corridor margin) on the config's evaluation episodes, as
 one compiled program, and keep its Pareto-efficient points (collision-free rate against

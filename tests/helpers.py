@@ -14,7 +14,7 @@ from drqn_jax.config import load_config
 from drqn_jax.env.road_map import WALKWAY, semantic_class
 from drqn_jax.env.state import SIDEWALK
 from drqn_jax.experiments.frontier import with_margin
-from drqn_jax.experiments.study import baseline_row
+from drqn_jax.experiments.rows import baseline_row
 from drqn_jax.learners import Hyperparams, TrainConfig, make_train
 
 #: The smoke config as test_sweep's sweep sets it. test_study and test_memory

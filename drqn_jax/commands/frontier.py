@@ -60,10 +60,6 @@ def _frontier_config(args: argparse.Namespace) -> tuple[Config, list[float]]:
         raise ConfigError(f"--caps {args.caps!r}: must be numbers (km/h), e.g. 5,10,15") from None
     if args.check < 0:
         raise ConfigError(f"--check {args.check}: must be an integer >= 0")
-    if not args.no_png:
-        from drqn_jax.experiments.figures import require_matplotlib
-
-        require_matplotlib()
     if args.results:
         check_section_option(args.section)
     return config, caps
@@ -80,7 +76,7 @@ def _frontier_outputs(
     (the frontiers' rows, the check, the wall times); the table on stdout."""
     from drqn_jax.experiments.baselines import frontier_key
     from drqn_jax.experiments.report import study_table
-    from drqn_jax.experiments.study import frontier_rows, paper_rows
+    from drqn_jax.experiments.rows import frontier_rows, paper_rows
 
     rows = paper_rows() + frontier_rows(record, record["speed_limit_kmh"])
     out = Path(args.out or default_run_dir("frontier", args.config))
@@ -106,7 +102,7 @@ def _frontier_outputs(
             "frontiers": {frontier_key(config): {**record, "rule_based": rule}},
         }
         write_results(args.results, args.section, rows, checks, about)
-    print(study_table(rows) + "".join(f"\n* {line}" for line in checks))
+    print(study_table(rows, checks))
     print(
         f"\n{record['rule_based']['swept']} rule-based settings"
         + (f" and {len(record['planner']['points'])} planner caps" if "planner" in record else "")

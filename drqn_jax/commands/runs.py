@@ -129,6 +129,7 @@ def _beside_the_paper(
     each other's idle time; each program's output is what it gives alone.
     """
     from drqn_jax.experiments.baselines import config_frontier
+    from drqn_jax.experiments.figures import plot_safety_speed
 
     agents = [agent, builtin_agent("rule-based", config)]
     if not quiet:
@@ -140,24 +141,14 @@ def _beside_the_paper(
         frontier = swept.result()
     rows, table = paper_comparison([{**results[0], **training}, results[1]], frontier)
     run_dir.mkdir(parents=True, exist_ok=True)
-    figure = _safety_speed_figure(rows, frontier, run_dir / "safety_speed.png")
+    figure = run_dir / "safety_speed.png"
+    plot_safety_speed(rows, frontier, figure)
     wall = time.perf_counter() - start
     write_evaluation(run_dir, results, {**summary, "total_wall_time_s": wall}, table)
     print(table)
     print(f"\nsafety/speed figure: {figure}")
     print(f"wall time {wall:.1f} s ({about})\nrun directory: {run_dir}")
     return EXIT_OK
-
-
-def _safety_speed_figure(rows: list[dict[str, Any]], frontier: dict[str, Any], path: Path) -> str:
-    """Draw the figure at ``path`` and return its path, or why there is none."""
-    from drqn_jax.experiments.figures import plot_safety_speed
-
-    try:
-        plot_safety_speed(rows, frontier, path)
-    except ConfigError as err:  # matplotlib is an extra
-        return f"none ({err})"
-    return str(path)
 
 
 def _say_evaluating(config: Config, agents: Sequence[Any]) -> None:
@@ -259,8 +250,8 @@ def paper_comparison(
     frontier of ``frontier`` (:func:`~drqn_jax.experiments.frontier.world_frontier`), and
     the verdict on the paper's claim: the rows and the text."""
     from drqn_jax.experiments.frontier import with_margin
-    from drqn_jax.experiments.report import study_table
-    from drqn_jax.experiments.study import baseline_row, paper_rows
+    from drqn_jax.experiments.report import column_legend, study_table
+    from drqn_jax.experiments.rows import baseline_row, paper_rows
     from drqn_jax.experiments.verdicts import claim_verdict
 
     world = frontier["world"]
@@ -271,10 +262,11 @@ def paper_comparison(
     rows = paper_rows() + ours
     text = "\n\n".join(
         [
-            study_table(rows),
+            study_table(rows, legend=False),
             claim_verdict(ours[0])
             + " One training seed: its interval holds the episodes' variation, not the"
             " training's (drqn-jax study trains several).",
+            column_legend(),
         ]
     )
     return rows, text

@@ -9,6 +9,7 @@ import functools
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from drqn_jax.commands import check_section_option, duration_text
 from drqn_jax.config import ConfigError
@@ -17,7 +18,7 @@ from drqn_jax.experiments.runner import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 
 
 def cmd_study(args: argparse.Namespace) -> int:
-    from drqn_jax.experiments.figures import require_matplotlib
+    from drqn_jax.experiments.portable import drop_store, load_store
     from drqn_jax.experiments.study import plan_study, run_study
 
     configs = [c.strip() for c in args.configs.split(",") if c.strip()]
@@ -26,27 +27,20 @@ def cmd_study(args: argparse.Namespace) -> int:
     eval_envs = [e.strip() for e in args.eval_envs.split(",") if e.strip()]
     arms = plan_study(configs, args.seeds, args.episodes, args.overrides, eval_envs)
     out = Path(args.out or Path("runs") / f"study-{'-'.join(a.name for a in arms)}")
+    section = args.section or out.name
     if args.results:
-        check_section_option(args.section or out.name)
+        check_section_option(section)
+    store = _runs_store(args, section)
     for arm in arms:
         print(f"{arm.name}: {arm.sweep.describe()}", file=sys.stderr)
-    if not args.no_png:
-        require_matplotlib()  # before hours of training, not after
     if args.estimate:
         print(_estimate(arms))
         return EXIT_OK
     if args.dry_run:
         return EXIT_OK
     start = time.perf_counter()
-    section = args.section or out.name
-    keep = None
-    if args.results:  # each finished run outlives --out, even if the machine goes away
-        from drqn_jax.experiments.report import store_finished_runs
-
-        keep = functools.partial(
-            store_finished_runs, args.results, section, command=args.command_line
-        )
-
+    # each finished run outlives --out, even if the machine goes away
+    keep = None if store is None else functools.partial(_keep, args, section, store)
     outcome = run_study(
         arms,
         out,
@@ -54,7 +48,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         png=not args.no_png,
         quiet=args.quiet,
         train=not args.report_only,
-        carried=_carried(args.results, section) if args.results else None,
+        carried=None if store is None else load_store(store),
         keep=keep,
     )
     if outcome.status == "interrupted":
@@ -66,36 +60,71 @@ def cmd_study(args: argparse.Namespace) -> int:
             keep(outcome.finished_runs)
             count = sum(len(r) for r in outcome.finished_runs.values())
             print(
-                f"{count} finished run(s) kept in section {section!r} of {args.results}: "
-                "the same command continues from them in a fresh --out",
+                f"{count} finished run(s) kept in {store}: the same command continues "
+                "from them in a fresh --out",
                 file=sys.stderr,
             )
         return EXIT_INTERRUPTED
     wall = time.perf_counter() - start
     if args.results:
-        from drqn_jax.experiments.machine import machine_info
-        from drqn_jax.experiments.report import load_results, write_results
-
-        about = {
-            "command": args.command_line,
-            "wall_time_s": wall,
-            "continued": outcome.continued,
-            "machine": machine_info(),
-        }
-        earlier = load_results(args.results)["sections"].get(section)
-        if args.report_only and earlier:  # the runs' provenance stays the command that made them
-            about = {**earlier, "report_command": args.command_line}
-        about["frontiers"] = outcome.frontiers
-        write_results(args.results, section, outcome.rows, outcome.comparisons, about)
-        print(f"rows stored as section {section!r} of {args.results}", file=sys.stderr)
-        if not args.no_png and (out / "safety_speed.png").is_file():
-            figure = Path(args.results).parent / "figures" / f"{section}-safety-speed.png"
-            figure.parent.mkdir(parents=True, exist_ok=True)
-            figure.write_bytes((out / "safety_speed.png").read_bytes())
-            print(f"safety/speed figure: {figure}", file=sys.stderr)
+        _store_rows(args, section, out, outcome, wall)
+    if store is not None and not args.report_only:  # every run is in the rows now
+        drop_store(store)
     print(outcome.table)
     print(f"\nwall time {wall:.1f} s; study in {out}")
     return EXIT_OK
+
+
+def _runs_store(args: argparse.Namespace, section: str) -> Path | None:
+    """The runs store of the study (``--runs-store``; with ``--results`` by default
+    :func:`~drqn_jax.experiments.portable.runs_store_path`), or None for none."""
+    from drqn_jax.experiments.portable import runs_store_path
+
+    if args.runs_store:
+        return Path(args.runs_store)
+    return runs_store_path(args.results, section) if args.results else None
+
+
+def _keep(
+    args: argparse.Namespace, section: str, store: Path, finished: dict[str, list[dict]]
+) -> None:
+    """Keep the study's ``finished`` runs in ``store``, and with ``--results`` mark its
+    section in progress (how many runs of each arm have finished)."""
+    from drqn_jax.experiments.portable import save_store
+    from drqn_jax.experiments.report import note_progress
+
+    save_store(store, finished, args.command_line)
+    if args.results:
+        counts = {arm: len(runs) for arm, runs in finished.items()}
+        note_progress(args.results, section, counts, args.command_line, str(store))
+
+
+def _store_rows(
+    args: argparse.Namespace, section: str, out: Path, outcome: Any, wall: float
+) -> None:
+    """The finished study's rows, comparisons, frontiers, command, wall time and
+    machine as ``section`` of ``--results``, and its safety/speed figure beside it
+    (``figures/<section>-safety-speed.png``)."""
+    from drqn_jax.experiments.machine import machine_info
+    from drqn_jax.experiments.report import load_results, write_results
+
+    about = {
+        "command": args.command_line,
+        "wall_time_s": wall,
+        "continued": outcome.continued,
+        "machine": machine_info(),
+    }
+    earlier = load_results(args.results)["sections"].get(section)
+    if args.report_only and earlier:  # the runs' provenance stays the command that made them
+        about = {**earlier, "report_command": args.command_line}
+    about["frontiers"] = outcome.frontiers
+    write_results(args.results, section, outcome.rows, outcome.comparisons, about)
+    print(f"rows stored as section {section!r} of {args.results}", file=sys.stderr)
+    if not args.no_png and (out / "safety_speed.png").is_file():
+        figure = Path(args.results).parent / "figures" / f"{section}-safety-speed.png"
+        figure.parent.mkdir(parents=True, exist_ok=True)
+        figure.write_bytes((out / "safety_speed.png").read_bytes())
+        print(f"safety/speed figure: {figure}", file=sys.stderr)
 
 
 def _estimate(arms) -> str:
@@ -129,13 +158,6 @@ def _estimate(arms) -> str:
         "config timed once learning runs; evaluation and compiles not included)"
     )
     return "\n".join(lines)
-
-
-def _carried(results: str, section: str) -> dict[str, list[dict]]:
-    """The finished runs an interrupted study kept in ``section`` of ``results``."""
-    from drqn_jax.experiments.report import load_results
-
-    return load_results(results)["sections"].get(section, {}).get("finished_runs", {})
 
 
 def cmd_report(args: argparse.Namespace) -> int:

@@ -101,8 +101,9 @@ def cross_results(
     ``OUT/<arm>/cross/<env_id>/run-NNNN.json``.
 
     Raises:
-        CheckpointError: a run's agent is missing (a study run before sweeps kept
-            their agents: train it again in a new directory).
+        CheckpointError: a run's agent is missing (a run restored from a runs store
+            keeps no parameters, :mod:`drqn_jax.experiments.portable`: train it again
+            in a new directory).
     """
     from drqn_jax.agents import drqn_agent
     from drqn_jax.experiments.runner import (
@@ -119,8 +120,8 @@ def cross_results(
         directory = agent_dir(out / arm, run["index"])
         if not (directory / "config.toml").is_file():
             raise CheckpointError(
-                f"{directory}: no trained agent to evaluate on {env_id} (the run ended before "
-                "sweeps kept their agents); run the study in a new --out"
+                f"{directory}: no trained agent to evaluate on {env_id} (a run restored "
+                "from a runs store keeps none); run the study in a new --out"
             )
         trained = load_run(directory)
         network, params, _ = load_trained_network(trained, directory)

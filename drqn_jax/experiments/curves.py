@@ -21,7 +21,7 @@ import numpy as np
 from drqn_jax.agents import drqn_agent
 from drqn_jax.config import Config
 from drqn_jax.evaluation import evaluate
-from drqn_jax.experiments.figures import require_matplotlib
+from drqn_jax.experiments.figures import figure, save_png
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, run_chunks
 from drqn_jax.experiments.runner import compiled_run, init_program
 from drqn_jax.interop.training_recording import running_mean
@@ -43,7 +43,7 @@ CURVE_POINTS = 200
 
 @dataclasses.dataclass(frozen=True)
 class Curve:
-    """A training curve over seeds against env steps (issue 41: a learner that ends
+    """A training curve over seeds against env steps (a learner that ends
     episodes early or runs many envs gets no credit from an episode axis).
 
     ``env_steps`` (G,): a common grid from 0 to the fewest env steps any seed's first
@@ -113,10 +113,10 @@ def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Cu
 def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smooth: int) -> None:
     """The paper's "Training performance" figure for every config: a PNG at ``path``.
 
-    ``curves``: config name → :func:`load_curves`. Needs matplotlib (the ``plots`` extra).
+    ``curves``: config name → :func:`load_curves`.
     """
-    plt = require_matplotlib()
-    fig, axes = plt.subplots(1, len(CURVES), figsize=(11, 4), constrained_layout=True)
+    fig = figure(11, 4)
+    axes = fig.subplots(1, len(CURVES))
     for ax, (column, label) in zip(axes, CURVES, strict=True):
         for name, by_metric in curves.items():
             c = by_metric[column]
@@ -133,9 +133,7 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
         fontsize=10,
     )
     axes[0].legend(fontsize=8)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_png(fig, path)
 
 
 #: What a point of :func:`greedy_curve` keeps of its evaluation (SPEC §8 names).

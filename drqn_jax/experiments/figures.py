@@ -1,4 +1,4 @@
-"""The study's safety/speed figure (SPEC §9), and matplotlib for every PNG of the package.
+"""The study's safety/speed figure (SPEC §9).
 
 :func:`plot_safety_speed` draws collision-free rate against average speed: the
 rule-based family's frontier, the privileged planner's (a ceiling: it sees the
@@ -6,6 +6,10 @@ true state and the simulator), the paper's two points with their 10-episode
 intervals, and every agent of a results table (seeds as dots, the mean with its
 interval). It reads only a results section's rows and its frontier record, so
 ``docs/results.json`` alone redraws it.
+
+Every PNG of the package is drawn on a :func:`figure`: a matplotlib ``Figure`` of its
+own, saved by the Agg renderer, with no pyplot state (a caller's interactive backend
+stays as it is).
 """
 
 from __future__ import annotations
@@ -14,27 +18,24 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from drqn_jax.config import ConfigError
+from matplotlib.figure import Figure
+
 from drqn_jax.experiments.frontier import frontier_vertices
 from drqn_jax.experiments.report import PAPER_WORLD
 from drqn_jax.learners.hyperparams import NOT_LEARNED
 
-__all__ = ["plot_safety_speed", "require_matplotlib"]
+__all__ = ["figure", "plot_safety_speed", "save_png"]
 
 
-def require_matplotlib() -> Any:
-    """``matplotlib.pyplot`` on the Agg backend; a ConfigError naming the extra if missing."""
-    try:
-        import matplotlib
+def figure(width: float, height: float) -> Figure:
+    """A matplotlib figure of ``width`` × ``height`` inches with the constrained layout."""
+    return Figure(figsize=(width, height), layout="constrained")
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise ConfigError(
-            "the study's PNG figures need matplotlib: pip install 'drqn-jax[plots]' "
-            "(or run the study with --no-png; the .rrd recording needs no extra)"
-        ) from None
-    return plt
+
+def save_png(fig: Figure, path: str | Path) -> None:
+    """Write ``fig`` as a PNG at ``path`` (120 dpi, Agg), creating its directory."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120, format="png")
 
 
 def _points(ax: Any, points: Sequence[Mapping[str, Any]], style: Mapping[str, Any]) -> None:
@@ -71,8 +72,8 @@ def plot_safety_speed(
             (another world: CARLA) are drawn.
         frontier: :func:`drqn_jax.experiments.frontier.world_frontier`'s record of that world.
     """
-    plt = require_matplotlib()
-    fig, ax = plt.subplots(figsize=(8, 5.5), constrained_layout=True)
+    fig = figure(8, 5.5)
+    ax = fig.subplots()
     rule = frontier["rule_based"]["points"]
     vertices = frontier_vertices(rule)
     ax.plot(
@@ -111,6 +112,4 @@ def plot_safety_speed(
         fontsize=9,
     )
     ax.legend(fontsize=7, loc="upper right")
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_png(fig, path)

@@ -1,18 +1,26 @@
-"""A study's finished runs in its results file, so that a study outlives its directory.
+"""A study's runs store: its finished runs in a file of their own, so that a study
+outlives its directory.
 
 A study of the paper's protocol trains for hours on a CPU; stopped, it continues
 from ``OUT`` (its checkpoints and finished calls). When ``OUT`` is lost (a fresh
-clone, another machine), the finished runs need not be: with ``--results``, an
-interrupted study stores each arm's finished runs in its section of the results
-file (``sections[section]["finished_runs"][arm]``): each run's evaluation record as
-the sweep saved it, the training hash of its config, the commit that first stored
-it, and its training metrics (``metrics.csv``). The same command in a directory
+clone, another machine, a preemptible machine taken away), the finished runs need
+not be: with a runs store (``drqn-jax study --runs-store FILE``; with ``--results``
+its default is ``finished-runs/<section>.json`` beside the results file,
+:func:`runs_store_path`: ``docs/finished-runs/table3-cpu.json`` for
+``docs/results.json``; commit it to carry it to another clone), an interrupted study
+keeps each arm's finished runs there (:func:`save_store`): each
+run's evaluation record as the sweep saved it, the training hash of its config, and
+its training wall time and metrics (``metrics.csv``). The same command in a directory
 that holds no such arm writes them back (:func:`restore_runs`) and trains only the
 other runs; the table is then the same, bit for bit, as if nothing had stopped
 (each run is independent of the others, ``tests/experiments/test_sweep.py``).
 A restored run has no trained agent on disk (its parameters are not stored), so
-``--eval-envs`` cannot evaluate it. A finished study drops ``finished_runs``: its
-rows hold the results.
+``--eval-envs`` cannot evaluate it. A finished study removes its store
+(:func:`drop_store`): the results file's rows hold its results, and the results
+file never holds runs.
+
+Store file: ``{"command": the study's command, "finished_runs": {arm: [run, ...]}}``,
+each run as :func:`portable_runs` gives it.
 """
 
 from __future__ import annotations
@@ -25,7 +33,6 @@ from typing import Any
 import jax
 
 from drqn_jax.experiments.checkpoint import atomic_write_text
-from drqn_jax.experiments.machine import NOT_RECORDED
 from drqn_jax.experiments.sweep import Sweep
 from drqn_jax.experiments.sweep_outputs import (
     finished_results,
@@ -36,15 +43,51 @@ from drqn_jax.experiments.sweep_outputs import (
 )
 from drqn_jax.experiments.sweep_plan import plan_calls
 
-__all__ = ["differing_runs", "portable_runs", "restore_runs"]
+__all__ = [
+    "differing_runs",
+    "drop_store",
+    "load_store",
+    "portable_runs",
+    "restore_runs",
+    "runs_store_path",
+    "save_store",
+]
+
+
+def runs_store_path(results: str | Path, section: str) -> Path:
+    """The default runs store of ``section`` of the results file ``results``:
+    ``finished-runs/<section>.json`` in the results file's directory."""
+    return Path(results).parent / "finished-runs" / f"{section}.json"
+
+
+def load_store(path: str | Path) -> dict[str, list[dict[str, Any]]]:
+    """The finished runs (arm name → runs) a study kept at ``path``; none where no file."""
+    path = Path(path)
+    if not path.is_file():
+        return {}
+    return json.loads(path.read_text())["finished_runs"]
+
+
+def save_store(
+    path: str | Path, finished: Mapping[str, Sequence[Mapping[str, Any]]], command: str
+) -> None:
+    """Keep ``finished`` (arm name → :func:`portable_runs`) and the study's ``command``
+    as the runs store at ``path`` (replacing what it held)."""
+    record = {"command": command, "finished_runs": {k: list(v) for k, v in finished.items()}}
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(Path(path), json.dumps(record, indent=1) + "\n")
+
+
+def drop_store(path: str | Path) -> None:
+    """Remove the runs store at ``path`` (a finished study's: its rows hold the results)."""
+    Path(path).unlink(missing_ok=True)
 
 
 def portable_runs(directory: Path, sweep: Sweep) -> list[dict[str, Any]]:
-    """The finished runs of ``sweep`` in ``directory`` (``OUT/<arm>``), by index, each
-    with its training hash, the commit that trained it (:data:`NOT_RECORDED` for a run
-    finished before records kept it: never the commit that stores it), its training
-    wall time (``train_wall_s``, :func:`run_timings`; None where not counted) and its
-    ``metrics.csv`` text; runs whose metrics are missing are left out."""
+    """The finished runs of ``sweep`` in ``directory`` (``OUT/<arm>``), by index: each
+    run's record (with the commit and device that trained it) with its training hash,
+    its training wall time (``train_wall_s``, :func:`run_timings`; None where not
+    counted) and its ``metrics.csv`` text; runs whose metrics are missing are left out."""
     hashes = {p.index: p.config.training_hash() for p in sweep.points}
     timings = run_timings(directory)
     runs = []
@@ -56,7 +99,6 @@ def portable_runs(directory: Path, sweep: Sweep) -> list[dict[str, Any]]:
             {
                 **record,
                 "training_hash": hashes[record["index"]],
-                "commit": record.get("commit", NOT_RECORDED),
                 "train_wall_s": timings.get(record["index"]),
                 "metrics_csv": metrics.read_text(),
             }
@@ -107,10 +149,10 @@ def restore_runs(directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, An
 
 
 def differing_runs(directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, Any]]) -> list[int]:
-    """Indices of the finished runs in ``directory`` whose record ``stored`` (the
-    results file's, same index and training hash) holds otherwise. A continued study
-    keeps the directory's and stores them again, so a results file edited alone would
-    be overwritten: the study says so (:func:`~drqn_jax.experiments.study.run_study`)."""
+    """Indices of the finished runs in ``directory`` whose record ``stored`` (the runs
+    store's, same index and training hash) holds otherwise. A continued study keeps the
+    directory's and stores them again, so a runs store edited alone would be
+    overwritten: the study says so (:func:`~drqn_jax.experiments.study.run_study`)."""
     kept = {run.get("index"): run for run in stored}
     return [
         run["index"]

@@ -1,24 +1,34 @@
-"""One machine-readable results file, and the documents that quote it (issue 41).
+"""One machine-readable results file, and the documents that quote it.
 
 A study run with ``--results docs/results.json --section NAME`` stores its table's
 rows there (:func:`write_results`), beside the command that produced them, its
-wall time and the machine. Documents never retype those numbers: a block ::
+wall time and the machine; the file holds results only (an interrupted study's
+finished runs go to a runs store of their own, :mod:`drqn_jax.experiments.portable`).
+Documents never retype those numbers: a block ::
 
-    <!-- results:NAME -->
-    (generated: the section's table, its comparisons and its command)
+    <!-- results:NAME FORM -->
+    (generated from section NAME)
     <!-- /results -->
 
 is filled from the file by ``drqn-jax report FILE.md …`` (:func:`update_document`),
 and ``drqn-jax report --check`` (and the test suite) fails when a document and the
-file disagree.
+file disagree. ``FORM`` (:data:`FORMS`) chooses what the block shows:
+
+* none: the section's tables (:func:`study_table`: safety and speed, driving,
+  training; at most 8 columns each), its comparisons and its command;
+* ``legend``: the same, then the definition of every column (:func:`column_legend`),
+  so that a document defines each column once, in its first block;
+* ``brief``: the headline table (:data:`BRIEF`, 8 columns), the verdicts on the
+  paper's claim and on the goal, and where the columns are defined (a README's form).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,17 +38,24 @@ from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.machine import NOT_RECORDED
 
 __all__ = [
+    "BRIEF",
+    "CLAIM",
+    "COLUMNS",
+    "FORMS",
+    "GOAL",
     "PAPER_DRQN_SPEED_KMH",
     "PAPER_EPISODES",
     "PAPER_TABLE_III",
     "PAPER_WORLD",
     "SECTION_NAME",
+    "TABLES",
     "check_section",
+    "column_legend",
     "load_results",
     "margin_cell",
+    "note_progress",
     "render_section",
     "stale_documents",
-    "store_finished_runs",
     "strict_json",
     "study_table",
     "update_document",
@@ -47,12 +64,20 @@ __all__ = [
 
 #: A section's name: letters, digits, '_', '.' and '-'.
 SECTION_NAME = re.compile(r"[\w.-]+")
-#: A generated block of a document: its section name and its current body.
+#: The forms of a generated block (module docstring); "" is the default.
+FORMS = ("", "legend", "brief")
+#: A generated block of a document: its section name, its form and its current body.
 BLOCK = re.compile(
-    rf"(?P<open><!-- results:(?P<section>{SECTION_NAME.pattern}) -->\n)(?P<body>.*?)"
-    r"(?P<close><!-- /results -->)",
+    rf"(?P<open><!-- results:(?P<section>{SECTION_NAME.pattern})(?: (?P<form>\w+))? -->\n)"
+    r"(?P<body>.*?)(?P<close><!-- /results -->)",
     re.S,
 )
+#: Where a brief block (a README's) points for the columns' definitions.
+DEFINITIONS = "[docs/results.md](docs/results.md)"
+#: How the verdict on the paper's claim and the one on Table III at scale's goal begin
+#: (:mod:`drqn_jax.experiments.verdicts` writes them; a brief block quotes them).
+CLAIM = "The paper's claim"
+GOAL = "Table III at scale's goal"
 
 
 def strict_json(value: Any) -> Any:
@@ -89,7 +114,7 @@ def write_results(
 ) -> dict[str, Any]:
     """Replace ``section``'s rows of the results file at ``path`` (other sections stay).
 
-    Each row (:func:`drqn_jax.experiments.study.study_row`) gains ``"section"``; ``about`` (the
+    Each row (:func:`drqn_jax.experiments.rows.study_row`) gains ``"section"``; ``about`` (the
     command, its wall time, the machine) and ``comparisons`` are stored under
     ``sections[section]``. Returns the whole record written.
     """
@@ -109,16 +134,19 @@ def _save_record(path: str | Path, record: dict[str, Any]) -> dict[str, Any]:
     return record
 
 
-def store_finished_runs(
-    path: str | Path, section: str, finished: Mapping[str, Any], command: str
+def note_progress(
+    path: str | Path, section: str, finished: Mapping[str, int], command: str, store: str
 ) -> None:
-    """Keep an interrupted study's finished runs as ``sections[section]["finished_runs"]``
-    of the results file at ``path`` (:mod:`drqn_jax.experiments.portable`); the section's
-    rows and the rest of it stay (a new section gets ``command``)."""
+    """Mark ``section`` of the results file at ``path`` in progress: how many runs of
+    each arm have ``finished``, the ``command`` that continues the study and the runs
+    ``store`` that keeps them (:mod:`drqn_jax.experiments.portable`). A section that
+    holds a table keeps it until the study finishes and replaces it."""
     check_section(section)
     record = load_results(path)
-    about = record["sections"].setdefault(section, {"command": command})
-    about["finished_runs"] = dict(finished)
+    if "wall_time_s" in record["sections"].get(section, {}):
+        return
+    progress = {"command": command, "runs_finished": dict(finished), "runs_store": store}
+    record["sections"][section] = progress
     _save_record(path, record)
 
 
@@ -127,8 +155,10 @@ def _nan(row: Mapping[str, Any]) -> dict[str, Any]:
     return {k: math.nan if v is None else v for k, v in row.items()}
 
 
-def render_section(record: Mapping[str, Any], section: str) -> str:
-    """Markdown of one section: its table, its comparisons and the command beside them."""
+def render_section(record: Mapping[str, Any], section: str, form: str = "") -> str:
+    """Markdown of one section in ``form`` (:data:`FORMS`, module docstring)."""
+    if form not in FORMS:
+        raise ValueError(f"results block {section} {form}: the form must be one of brief, legend")
     if section not in record["sections"]:
         known = ", ".join(record["sections"]) or "none"
         raise ValueError(f"results section {section!r}: not in the results file (has: {known})")
@@ -136,9 +166,10 @@ def render_section(record: Mapping[str, Any], section: str) -> str:
     if "wall_time_s" not in about:  # interrupted before its table: what has finished
         return _in_progress(about)
     rows = [_nan(r) for r in record["rows"] if r.get("section") == section]
-    lines = [study_table(rows), ""]
-    lines += [f"* {c}" for c in about.get("comparisons", [])]
-    machine = about.get("machine", {})
+    if form == "brief":
+        return _brief(rows, about["comparisons"])
+    lines = [study_table(rows, about["comparisons"], legend=False)]
+    machine = about["machine"]
     went_on = (
         "; earlier invocations trained its runs, the wall time is the last one's"
         if about.get("continued")
@@ -154,18 +185,30 @@ def render_section(record: Mapping[str, Any], section: str) -> str:
         about["command"],
         "```",
     ]
+    if form == "legend":
+        lines += ["", column_legend()]
+    return "\n".join(lines) + "\n"
+
+
+def _brief(rows: Sequence[Mapping[str, Any]], comparisons: Sequence[str]) -> str:
+    """A section's headline table (:data:`BRIEF`), its verdicts on the paper's claim and
+    on the goal, and where its columns are defined."""
+    verdicts = [f"* {c}" for c in comparisons if c.startswith((CLAIM, GOAL))]
+    lines = [_markdown_table(BRIEF, rows, {}), "", *verdicts, *([""] if verdicts else [])]
+    lines.append(
+        f"Every column is defined, and every row shown in full with its command, in {DEFINITIONS}."
+    )
     return "\n".join(lines) + "\n"
 
 
 def _in_progress(about: Mapping[str, Any]) -> str:
     """Markdown of an interrupted study's section (no table yet): its finished runs per
     arm and the command that continues it."""
-    finished = about.get("finished_runs", {})
-    counts = ", ".join(f"`{arm}` {len(runs)}" for arm, runs in finished.items()) or "none"
+    counts = ", ".join(f"`{arm}` {n}" for arm, n in about["runs_finished"].items()) or "none"
     lines = [
         f"**In progress**: no table until every run has finished. Runs finished so far: "
         f"{counts}. The same command continues it, in a fresh clone too (the finished "
-        "runs are kept in this section of the results file):",
+        f"runs are kept in `{about['runs_store']}`):",
         "",
         "```bash",
         about["command"],
@@ -175,10 +218,10 @@ def _in_progress(about: Mapping[str, Any]) -> str:
 
 
 def update_document(text: str, record: Mapping[str, Any]) -> str:
-    """``text`` with every ``results:NAME`` block regenerated from ``record``."""
+    """``text`` with every ``results:NAME [FORM]`` block regenerated from ``record``."""
 
     def filled(match: re.Match[str]) -> str:
-        body = render_section(record, match["section"])
+        body = render_section(record, match["section"], match["form"] or "")
         return match["open"] + body + match["close"]
 
     return BLOCK.sub(filled, text)
@@ -208,14 +251,15 @@ def _cell(value: float | None, spec: str, scale: float = 1.0) -> str:
     return "–" if value is None or not math.isfinite(value) else format(scale * value, spec)
 
 
-def _steps_cell(steps: float | None) -> str:
-    """``6.00M``: env steps in millions; – where there are none."""
+def _steps_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
+    """``6.00M``: env steps in millions; – where none were counted."""
+    steps = row.get("env_steps_per_seed")
     return "–" if steps is None or not math.isfinite(steps) else f"{steps / 1e6:.2f}M"
 
 
-def _wall_cell(row: Mapping[str, Any]) -> str:
+def _wall_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
     """``31.2``: the mean training minutes of a seed; ``31.2 (2 of 5)`` where only some
-    seeds counted theirs (runs from before wall times were kept); – for none."""
+    seeds counted theirs; – for none."""
     cell = _cell(row.get("train_wall_s_per_seed"), ".1f", 1 / 60)
     counted = row.get("train_wall_seeds")
     if cell != "–" and counted is not None and counted < row["seeds"]:
@@ -225,16 +269,17 @@ def _wall_cell(row: Mapping[str, Any]) -> str:
 
 def _device_legend(rows: Sequence[Mapping[str, Any]]) -> dict[str, str]:
     """Each device the rows' runs trained on → ``[k]``, numbered in the order first seen
-    (the table cell names the number; the legend under the table the device)."""
+    (the table cell names the number; the line under the tables the device)."""
     names = dict.fromkeys(d for r in rows for d in r.get("devices") or {} if d != NOT_RECORDED)
     return {d: f"[{k}]" for k, d in enumerate(names, 1)}
 
 
-def _device_cell(devices: Mapping[str, int] | None, legend: Mapping[str, str]) -> str:
+def _device_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
     """``[1] ×3, [2] ×2``: how many seeds trained on each device; – for none."""
-    if not devices:
+    counts = row.get("devices")
+    if not counts:
         return "–"
-    return ", ".join(f"{legend.get(d, '?')} ×{n}" for d, n in devices.items())
+    return ", ".join(f"{devices.get(d, '?')} ×{n}" for d, n in counts.items())
 
 
 def margin_cell(row: Mapping[str, Any]) -> str:
@@ -250,60 +295,196 @@ def margin_cell(row: Mapping[str, Any]) -> str:
     return f"{100 * margin:+.1f} ({low:+.1f} to {high:+.1f})"
 
 
-def study_table(rows: Sequence[Mapping[str, Any]]) -> str:
-    """Markdown: one row per agent; ``± std`` is across seeds."""
-    legend = _device_legend(rows)
-    header = (
-        "| source | agent | teacher | seeds × episodes | env steps / seed "
-        "| train wall / seed (min) | device | collision-free % (95 % interval) "
-        "| margin to the rule-based frontier, points (95 %) | struck while stopped % "
-        "| avg speed (km/h) | authors' speed (km/h) | distance (m) "
-        "| distance, collision-free (m) | goal % | collisions / km |"
-    )
-    lines = [
-        header,
-        "| --- | --- | --- | ---: | ---: | ---: | --- | --- | --- | ---: | ---: | ---: | ---: "
-        "| ---: | ---: | ---: |",
-    ]
-    for r in rows:
-        low, high = r["collision_free_ci"]
-        speed = _cell(r["avg_speed_kmh"], ".2f")
-        if math.isfinite(r["avg_speed_kmh_std"]):
-            speed += f" ± {r['avg_speed_kmh_std']:.2f}"
-        seeds = f"{r['seeds']} × {r['episodes']}"
-        if r["diverged"]:
-            seeds += f" ({r['diverged']} diverged)"
-        lines.append(
-            f"| {r['label']} | {r['agent']} | {r.get('learned', '–')} | {seeds} "
-            f"| {_steps_cell(r.get('env_steps_per_seed'))} "
-            f"| {_wall_cell(r)} "
-            f"| {_device_cell(r.get('devices'), legend)} "
-            f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
-            f"| {margin_cell(r)} "
-            f"| {_cell(r.get('struck_while_stopped_rate'), '.1f', 100.0)} "
-            f"| {speed} | {_cell(r.get('avg_speed_authors_kmh'), '.2f')} "
-            f"| {_cell(r['avg_distance_m'], '.1f')} "
-            f"| {_cell(r['avg_distance_collision_free_m'], '.1f')} "
-            f"| {_cell(r['goal_rate'], '.1f', 100.0)} | {_cell(r['collisions_per_km'], '.2f')} |"
-        )
-    lines += [
-        "",
-        "Collision-free interval: 95 % Student t of the mean across seeds for a trained "
-        "config (training and episodes vary; cut to 0–100 %); Wilson over the episodes "
-        "for one policy (the rule-based agent, the paper's 10-episode rows). Margin: the "
-        "collision-free rate minus the rule-based family's frontier at the agent's own "
+def _seeds_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
+    seeds = f"{row['seeds']} × {row['episodes']}"
+    return seeds + (f" ({row['diverged']} diverged)" if row["diverged"] else "")
+
+
+def _free_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
+    low, high = row["collision_free_ci"]
+    return f"{100 * row['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f})"
+
+
+def _speed_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
+    speed = _cell(row["avg_speed_kmh"], ".2f")
+    std = row["avg_speed_kmh_std"]
+    return speed + (f" ± {std:.2f}" if math.isfinite(std) else "")
+
+
+def _metric(key: str, spec: str, scale: float = 1.0) -> Callable[..., str]:
+    """The cell of metric ``key`` of a row (– where it has none)."""
+    return lambda row, devices: _cell(row.get(key), spec, scale)
+
+
+@dataclasses.dataclass(frozen=True)
+class Column:
+    """A column of the results tables: its ``header``, whether its cells align right,
+    its ``cell`` (of a row, given the device numbers :func:`_device_legend` gives) and
+    its ``definition``, said once in a legend."""
+
+    header: str
+    right: bool
+    cell: Callable[[Mapping[str, Any], Mapping[str, str]], str]
+    definition: str
+
+
+_COLUMNS = (
+    Column(
+        "source",
+        False,
+        lambda row, devices: row["label"],
+        "the paper's Table III (CARLA, 10 episodes), or `drqn_jax:` a config trained here "
+        "(`on ENV`: its agents evaluated among another env's pedestrians), a world's "
+        "rule-based agent (its env id), or a setting of the rule-based frontier or the "
+        "privileged planner",
+    ),
+    Column(
+        "agent",
+        False,
+        lambda row, devices: row["agent"],
+        "the learner and its network (`drqn`, `dqn`, `pqn` and `ppo` recurrent, "
+        "`pqn-ff` and `ppo-ff` feed-forward) or a policy not learned (`rule-based`, `planner`)",
+    ),
+    Column(
+        "teacher",
+        False,
+        lambda row, devices: row["learned"],
+        "what the agent learned from besides the reward: none, guided exploration or "
+        "imitation of the rule-based agent; – for a policy not learned",
+    ),
+    Column(
+        "seeds × episodes",
+        True,
+        _seeds_cell,
+        "training seeds (1 for a single policy) × greedy evaluation episodes of each, every "
+        "agent of a section on the same episodes; diverged: seeds whose loss went non-finite",
+    ),
+    Column(
+        "collision-free % (95 % interval)",
+        False,
+        _free_cell,
+        "episodes without a collision; the interval is the 95 % Student t of the mean "
+        "across seeds for a trained config (training and episodes vary; cut to 0–100 %), "
+        "Wilson over the episodes for one policy (the rule-based agent, the paper's rows)",
+    ),
+    Column(
+        "margin to the rule-based frontier, points (95 %)",
+        False,
+        lambda row, devices: margin_cell(row),
+        "the collision-free rate minus the rule-based family's frontier at the agent's own "
         "average speed (SPEC §9; each seed at its own speed, Student t across seeds; the "
         "Wilson interval shifted for one policy); – where the world has no frontier here "
-        "(the paper's CARLA). ± is the standard deviation across seeds. The authors' speed is "
-        "the mean over the steps faster than 0.5 km/h (carla-gym tester.py); a pedestrian "
-        "striking the standing car is not a collision (struck while stopped). Env steps / "
-        "seed: the mean of what each seed trained on, in millions; – for a policy not "
-        "learned here and in tables computed before they were counted. Train wall / seed: "
+        "(the paper's CARLA) or the agent drives faster than the speed limit",
+    ),
+    Column(
+        "struck while stopped %",
+        True,
+        _metric("struck_while_stopped_rate", ".1f", 100.0),
+        "episodes in which a pedestrian met the collision test while the car stood (not "
+        "counted as a collision)",
+    ),
+    Column(
+        "avg speed (km/h)",
+        True,
+        _speed_cell,
+        "the mean over episodes of distance over time; ± is the standard deviation across seeds",
+    ),
+    Column(
+        "authors' speed (km/h)",
+        True,
+        _metric("avg_speed_authors_kmh", ".2f"),
+        "the authors' average speed: the mean over every step faster than 0.5 km/h "
+        "(carla-gym tester.py, SPEC §8)",
+    ),
+    Column("distance (m)", True, _metric("avg_distance_m", ".1f"), "the mean distance driven"),
+    Column(
+        "distance, collision-free (m)",
+        True,
+        _metric("avg_distance_collision_free_m", ".1f"),
+        "the mean distance of the collision-free episodes, pooled over seeds",
+    ),
+    Column("goal %", True, _metric("goal_rate", ".1f", 100.0), "episodes that reach the goal"),
+    Column(
+        "collisions / km",
+        True,
+        _metric("collisions_per_km", ".2f"),
+        "all collisions over all distance driven, pooled over seeds",
+    ),
+    Column(
+        "env steps / seed",
+        True,
+        _steps_cell,
+        "the mean of the env steps each seed trained on, in millions; – where not counted",
+    ),
+    Column(
+        "train wall / seed (min)",
+        True,
+        _wall_cell,
         "the mean training wall time of a seed, compile and checkpoints included (seeds "
-        "trained together share their call's; k of n: over the seeds that counted it); "
-        "device: how many seeds trained on which device (? for runs from before devices "
-        "were kept).",
-    ]
-    if legend:
-        lines += ["", "Devices: " + "; ".join(f"{k} {d}" for d, k in legend.items()) + "."]
+        "trained together share their call's); k of n: over the seeds that counted it",
+    ),
+    Column(
+        "device",
+        False,
+        _device_cell,
+        "how many seeds trained on each device, numbered as the line under the tables "
+        "names them; ? where a run's device was not recorded",
+    ),
+)
+#: Every column of the results tables, by header.
+COLUMNS = {c.header: c for c in _COLUMNS}
+_KEYS = ("source", "agent", "teacher", "seeds × episodes")
+#: The tables of a section: caption, the columns that say what a row is, and the columns
+#: it shows of them (a row with – in all of these is left out, and a table without rows).
+TABLES = (
+    ("Safety and speed", _KEYS, tuple(c.header for c in _COLUMNS[4:8])),
+    ("Driving", _KEYS[:2], tuple(c.header for c in _COLUMNS[8:13])),
+    ("Training", _KEYS, tuple(c.header for c in _COLUMNS[13:])),
+)
+#: The headline table's columns (a brief block's, :func:`render_section`).
+BRIEF = (
+    *_KEYS,
+    "env steps / seed",
+    "collision-free % (95 % interval)",
+    "margin to the rule-based frontier, points (95 %)",
+    "avg speed (km/h)",
+)
+
+
+def _markdown_table(
+    headers: Sequence[str], rows: Sequence[Mapping[str, Any]], devices: Mapping[str, str]
+) -> str:
+    """The ``headers`` columns (:data:`COLUMNS`) of ``rows`` as a Markdown table."""
+    columns = [COLUMNS[h] for h in headers]
+    lines = ["| " + " | ".join(headers) + " |"]
+    lines.append("| " + " | ".join("---:" if c.right else "---" for c in columns) + " |")
+    lines += ["| " + " | ".join(c.cell(r, devices) for c in columns) + " |" for r in rows]
     return "\n".join(lines)
+
+
+def study_table(
+    rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = (), legend: bool = True
+) -> str:
+    """Markdown of a results table's ``rows`` as the :data:`TABLES` (at most 8 columns
+    each), the devices the rows trained on, ``notes`` (the sentences under the table,
+    as a list) and, with ``legend``, every column's definition (:func:`column_legend`)."""
+    devices = _device_legend(rows)
+    parts = []
+    for caption, keys, shown in TABLES:
+        kept = [r for r in rows if any(COLUMNS[h].cell(r, devices) != "–" for h in shown)]
+        if kept:
+            parts += [f"{caption}:", _markdown_table((*keys, *shown), kept, devices)]
+    if devices:
+        parts.append("Devices: " + "; ".join(f"{k} {d}" for d, k in devices.items()) + ".")
+    if notes:
+        parts.append("\n".join(f"* {note}" for note in notes))
+    if legend:
+        parts.append(column_legend())
+    return "\n\n".join(parts)
+
+
+def column_legend() -> str:
+    """Markdown: what every column of the results tables (:data:`COLUMNS`) means."""
+    definitions = [f"* **{c.header}**: {c.definition}." for c in _COLUMNS]
+    lead = "The columns (a table leaves out a row whose cells in it would all be –):"
+    return "\n\n".join([lead, "\n".join(definitions)])

@@ -1,6 +1,6 @@
 """Statistics across seeds: Student-t interval of the mean and interquartile mean.
 
-The paper reports single runs; a sweep (and issue 8's tables) pools several
+The paper reports single runs; a sweep (and a study's tables) pools several
 seeds per setting. The IQM (the 25 %-trimmed mean) follows Agarwal et al.,
 "Deep RL at the edge of the statistical precipice" (NeurIPS 2021).
 """

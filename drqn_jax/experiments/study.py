@@ -1,4 +1,4 @@
-"""A study (issue 8): configs × seeds, each evaluated greedily, beside the rule-based agent.
+"""A study: configs × seeds, each evaluated greedily, beside the rule-based agent.
 
 The paper compared one DRQN with the rule-based agent on 10 episodes each
 (Table III) and plotted one training run ("Training performance", §V-F).
@@ -17,7 +17,8 @@ same episodes, and so is its family's frontier (SPEC §9,
 :mod:`drqn_jax.experiments.frontier`; the privileged planner's too, in the first
 config's world). Then:
 
-* ``OUT/study.md``: the paper's rows beside ours — collision-free % with a 95 %
+* ``OUT/study.md``: the paper's rows beside ours (:mod:`drqn_jax.experiments.rows`,
+  :func:`~drqn_jax.experiments.report.study_table`) — collision-free % with a 95 %
   interval (across seeds: Student t; a single policy: Wilson over its
   episodes), the margin to the rule-based frontier at the agent's own speed,
   average speed, distance (all and collision-free), goal %, collisions per km, and
@@ -30,26 +31,20 @@ config's world). Then:
   (``OUT/<config>/agents/run-NNNN``) evaluated among other envs' pedestrians
   too, on the same episodes, one row per env (``<config> on <env id>``) beside
   that env's rule-based agent (cached in ``OUT/<config>/cross/<env id>/``);
-* ``OUT/curves.png`` (matplotlib, the ``plots`` extra) and ``OUT/curves.rrd``:
-  average reward and steps per episode against training episode, mean and
-  min–max over seeds, as the paper's figure.
+* ``OUT/curves.png`` and ``OUT/curves.rrd``: average reward and steps per episode
+  against env steps, mean and min–max over seeds, as the paper's figure.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import sys
-from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from drqn_jax.config import Config, ConfigError, load_config
-from drqn_jax.evaluation import wilson_interval
 from drqn_jax.experiments.baselines import (
     cross_results,
     frontier_key,
@@ -60,37 +55,14 @@ from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.curves import load_curves, plot_curves
 from drqn_jax.experiments.figures import plot_safety_speed
 from drqn_jax.experiments.frontier import with_margin
-from drqn_jax.experiments.machine import NOT_RECORDED
-from drqn_jax.experiments.report import (
-    PAPER_EPISODES,
-    PAPER_TABLE_III,
-    PAPER_WORLD,
-    strict_json,
-    study_table,
-)
-from drqn_jax.experiments.stats import t_interval
+from drqn_jax.experiments.report import strict_json, study_table
+from drqn_jax.experiments.rows import baseline_row, paper_rows, study_row
 from drqn_jax.experiments.sweep import Sweep, build_sweep
 from drqn_jax.experiments.verdicts import study_comparisons
-from drqn_jax.learners.hyperparams import (
-    NOT_LEARNED,
-    REWARD_ALONE,
-    agent_name,
-    has_teacher,
-    teachers_of,
-)
+from drqn_jax.learners.hyperparams import agent_name
 from drqn_jax.registry import registered_envs
 
-__all__ = [
-    "PAPER_TABLE_III",
-    "Arm",
-    "StudyOutcome",
-    "baseline_row",
-    "frontier_rows",
-    "paper_rows",
-    "plan_study",
-    "run_study",
-    "study_row",
-]
+__all__ = ["Arm", "StudyOutcome", "plan_study", "run_study"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,25 +131,7 @@ def plan_study(
     return arms
 
 
-# ----------------------------------------------------------------------------- the table
-
-
-def _mean(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
-    values = [r[metric] for r in runs if r.get(metric) is not None]
-    return float(np.mean(values)) if values else math.nan
-
-
-def _std(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
-    values = [r[metric] for r in runs if r.get(metric) is not None]
-    return float(np.std(values, ddof=1)) if len(values) > 1 else math.nan
-
-
-def _devices(runs: Sequence[Mapping[str, Any]]) -> dict[str, int]:
-    """How many runs trained on each device, in the order first seen (a policy not
-    trained here has none; a run from before devices were kept counts as not recorded)."""
-    trained = [r for r in runs if "env_steps" in r or "trained_on" in r]
-    return dict(Counter(r.get("trained_on", NOT_RECORDED) for r in trained))
-
+# ----------------------------------------------------------------------------- how runs trained
 
 _TRAINING_FACTS = ("env_steps", "trained_on")
 
@@ -197,139 +151,6 @@ def _training_facts(
     }
 
 
-def study_row(
-    label: str, agent: str, runs: Sequence[Mapping[str, Any]], *, world: str
-) -> dict[str, Any]:
-    """One table row from the evaluations of an agent's runs (one per seed).
-
-    ``runs``: :func:`drqn_jax.evaluation.evaluate` results as JSON (``json_ready``);
-    ``world``: the env id they were evaluated in.
-    The collision-free interval is the 95 % Student-t interval of the mean
-    across seeds (it holds the training's variation as well as the episodes'),
-    cut to [0, 1]; with one run, the Wilson interval over its episodes. Collisions per km are
-    pooled: all collisions over all distance. ``per_seed`` keeps each run's seed,
-    collision-free rate and average speed (the frontier margin reads each seed at its
-    own speed, :func:`drqn_jax.experiments.frontier.frontier_margin`).
-    ``env_steps_per_seed``: the mean of the runs' training env steps (over the runs
-    that counted them; NaN for a policy that was not trained). ``devices``: how many
-    runs trained on each device (runs of one study may come from several machines);
-    ``train_wall_s_per_seed``: the mean of the runs' training wall times over the
-    ``train_wall_seeds`` runs that counted theirs (NaN for none).
-    """
-    if not runs:
-        raise ValueError(f"study_row {label!r}: no runs")
-    rates = np.array([r["collision_free_rate"] for r in runs], np.float64)
-    if len(runs) > 1:
-        low, high = t_interval(rates)
-        interval, interval_kind = (max(low, 0.0), min(high, 1.0)), "t over seeds"
-    else:
-        interval, interval_kind = tuple(runs[0]["collision_free_ci"]), "Wilson over episodes"
-    episodes = [r["num_episodes"] for r in runs]
-    collisions = sum(round(n * (1.0 - r)) for n, r in zip(episodes, rates, strict=True))
-    km = sum(n * r["avg_distance_m"] for n, r in zip(episodes, runs, strict=True)) / 1000.0
-    free = [round(n * r) for n, r in zip(episodes, rates, strict=True)]
-    free_distance = [r.get("avg_distance_collision_free_m") for r in runs]
-    pooled_free = [(k, d) for k, d in zip(free, free_distance, strict=True) if k and d is not None]
-    return {
-        "label": label,
-        "agent": agent,
-        "world": world,
-        "teacher": any(has_teacher(r.get("teacher")) for r in runs),
-        "learned": teachers_of(runs),
-        "seeds": len(runs),
-        "episodes": int(episodes[0]),
-        "diverged": sum(bool(r.get("diverged")) for r in runs),
-        "collision_free_rate": float(rates.mean()),
-        "collision_free_ci": (float(interval[0]), float(interval[1])),
-        "interval": interval_kind,
-        "avg_speed_kmh": _mean(runs, "avg_speed_kmh"),
-        "avg_speed_kmh_std": _std(runs, "avg_speed_kmh"),
-        "avg_speed_authors_kmh": _mean(runs, "avg_speed_authors_kmh"),
-        "struck_while_stopped_rate": _mean(runs, "struck_while_stopped_rate"),
-        "avg_distance_m": _mean(runs, "avg_distance_m"),
-        "avg_distance_collision_free_m": (
-            sum(k * d for k, d in pooled_free) / sum(k for k, _ in pooled_free)
-            if pooled_free
-            else math.nan
-        ),
-        "goal_rate": _mean(runs, "goal_rate"),
-        "env_steps_per_seed": _mean(runs, "env_steps"),
-        "devices": _devices(runs),
-        "train_wall_s_per_seed": _mean(runs, "train_wall_s"),
-        "train_wall_seeds": sum(r.get("train_wall_s") is not None for r in runs),
-        "collisions_per_km": collisions / km if km > 0 else math.nan,
-        "per_seed": [
-            {
-                "seed": r.get("values", {}).get("run.seed"),
-                "collision_free_rate": r["collision_free_rate"],
-                "avg_speed_kmh": r["avg_speed_kmh"],
-            }
-            for r in runs
-        ],
-    }
-
-
-def baseline_row(label: str, result: Mapping[str, Any], *, world: str) -> dict[str, Any]:
-    """A row for a single policy evaluated once (the rule-based agent): Wilson interval."""
-    return study_row(label, result["agent"], [result], world=world)
-
-
-def _setting_text(params: Mapping[str, float]) -> str:
-    names = {"v_max_kmh": "v_max", "v_cap_kmh": "cap", "corridor_margin": "margin"}
-    units = {"v_max_kmh": " km/h", "v_cap_kmh": " km/h", "lookahead": " m", "horizon": " s"}
-    return ", ".join(f"{names.get(k, k)} {v:g}{units.get(k, '')}" for k, v in params.items())
-
-
-def frontier_rows(record: Mapping[str, Any], limit_kmh: float) -> list[dict[str, Any]]:
-    """A :func:`~drqn_jax.experiments.frontier.world_frontier` record (of a world whose
-    speed limit is ``limit_kmh``) as table rows, each with its ``params`` and its
-    margin: the rule-based frontier's points (margin 0 by definition) and the
-    privileged planner's, labelled as privileged."""
-    world = record["world"]
-    kinds = [("rule_based", "rule-based frontier", "rule-based")]
-    kinds += [("planner", "privileged planner (true state + simulator)", "planner")]
-    rows = []
-    for kind, label, agent in kinds:
-        for point in record.get(kind, {}).get("points", []):
-            result = {**point, "agent": agent, "teacher": NOT_LEARNED}
-            row = baseline_row(f"{label}: {_setting_text(point['params'])}", result, world=world)
-            rows.append({**with_margin(row, record, limit_kmh), "params": point["params"]})
-    return rows
-
-
-def paper_rows() -> list[dict[str, Any]]:
-    """The paper's Table III as rows, with the Wilson interval its 10 episodes allow."""
-    rows = []
-    for agent, free, speed, distance in PAPER_TABLE_III:
-        rows.append(
-            {
-                "label": "paper (CARLA)",
-                "agent": agent,
-                "world": PAPER_WORLD,
-                "teacher": False,
-                "learned": NOT_LEARNED if agent == "rule-based" else REWARD_ALONE,
-                "seeds": 1,
-                "episodes": PAPER_EPISODES,
-                "diverged": 0,
-                "collision_free_rate": free / PAPER_EPISODES,
-                "collision_free_ci": wilson_interval(free, PAPER_EPISODES),
-                "interval": "Wilson over episodes",
-                "avg_speed_kmh": speed,
-                "avg_speed_kmh_std": math.nan,
-                "avg_speed_authors_kmh": math.nan,
-                "struck_while_stopped_rate": math.nan,
-                "avg_distance_m": distance,
-                "avg_distance_collision_free_m": math.nan,
-                "goal_rate": math.nan,
-                "collisions_per_km": math.nan,
-            }
-        )
-    return rows
-
-
-# ----------------------------------------------------------------------------- curves
-
-
 # ----------------------------------------------------------------------------- running it
 
 
@@ -342,7 +163,7 @@ class StudyOutcome:
     (checkpoints saved; the same command continues). ``continued``: some runs were
     trained, wholly or in part, by an earlier invocation (or not at all here: a report
     only), so this one's wall time does not cover them. ``finished_runs``: on
-    interruption, each arm's finished runs as the results file carries them
+    interruption, each arm's finished runs as a runs store keeps them
     (:func:`~drqn_jax.experiments.portable.portable_runs`)."""
 
     status: str
@@ -372,7 +193,7 @@ def run_study(
     With ``train=False`` nothing trains: the report covers the runs that have
     finished so far (a config with none is left out), e.g. of a long study
     interrupted to go on later. ``carried``: arm name → finished runs an interrupted
-    study stored in its results file, written back into an arm's directory that holds
+    study kept in its runs store, written back into an arm's directory that holds
     no sweep yet (:func:`~drqn_jax.experiments.portable.restore_runs`), so that only
     the other runs train; where the directory holds the same runs otherwise, its own
     are kept and a line says which. ``keep``: called with every arm's finished runs (as
@@ -388,7 +209,7 @@ def run_study(
     done = [arm for arm in arms if runs[arm.name]]
     rows, trained, cross, frontiers = _study_rows(arms, done, runs, out, quiet)
     comparisons = study_comparisons(trained, [a.name for a in done], runs, frontiers)
-    table = "\n\n".join([study_table(rows), "\n".join(f"* {c}" for c in comparisons)])
+    table = study_table(rows, comparisons)
     atomic_write_text(out / "study.md", table + "\n")
     record = {"rows": rows, "comparisons": comparisons, "runs": runs, "cross": cross}
     record = strict_json({**record, "smooth": smooth, "frontiers": frontiers})
@@ -425,12 +246,12 @@ def _train_arms(
         stored = (carried or {}).get(arm.name, ())
         restored = restore_runs(directory, arm.sweep, stored)
         if restored and not quiet:
-            print(f"{arm.name}: {restored} finished run(s) from the results file", file=sys.stderr)
+            print(f"{arm.name}: {restored} finished run(s) from the runs store", file=sys.stderr)
         changed = [] if restored or not stored else differing_runs(directory, arm.sweep, stored)
         if changed:
             print(
-                f"{arm.name}: run(s) {changed} in {directory} differ from the results file's "
-                f"records; the directory's are kept (remove {directory} to use the file's)",
+                f"{arm.name}: run(s) {changed} in {directory} differ from the runs store's "
+                f"records; the directory's are kept (remove {directory} to use the store's)",
                 file=sys.stderr,
             )
         if not train:

@@ -34,7 +34,7 @@ from drqn_jax.experiments.frontier import (
     frontier_rate,
     frontier_vertices,
 )
-from drqn_jax.experiments.report import PAPER_DRQN_SPEED_KMH, margin_cell
+from drqn_jax.experiments.report import CLAIM, GOAL, PAPER_DRQN_SPEED_KMH, margin_cell
 from drqn_jax.experiments.stats import t_interval
 
 __all__ = [
@@ -116,7 +116,7 @@ def claim_verdict(drqn: Mapping[str, Any]) -> str:
             "at its own speed"
         )
     return (
-        f"The paper's claim (a DRQN safer than the rule-based agent, at the paper's DRQN's "
+        f"{CLAIM} (a DRQN safer than the rule-based agent, at the paper's DRQN's "
         f"{PAPER_DRQN_SPEED_KMH} km/h or faster) is {verdict} (margin {margin_cell(drqn)} "
         f"points at {speed:.2f} km/h)."
     )
@@ -253,7 +253,7 @@ def goal_verdict(
         )
     met = all(ok for ok, _ in parts)
     return (
-        f"Table III at scale's goal (at {PAPER_DRQN_SPEED_KMH} km/h or faster, a margin "
+        f"{GOAL} (at {PAPER_DRQN_SPEED_KMH} km/h or faster, a margin "
         f"above 0, within {GOAL_CEILING_POINTS:g} points of the planner's ceiling at its "
         f"own speed, above each memoryless twin paired over seeds) is "
         f"{'met' if met else 'not met'} by {drqn['label']}: "

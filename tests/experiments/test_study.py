@@ -1,4 +1,4 @@
-"""Studies (issue 8): rows pooled over seeds with intervals, curves over seeds, the command."""
+"""Studies: rows pooled over seeds with intervals, curves over seeds, the command."""
 
 from __future__ import annotations
 
@@ -13,13 +13,9 @@ from drqn_jax.config import ConfigError
 from drqn_jax.experiments.curves import CURVES, load_curves
 from drqn_jax.experiments.machine import NOT_RECORDED, device_identity, git_commit
 from drqn_jax.experiments.report import study_table
+from drqn_jax.experiments.rows import baseline_row, paper_rows, study_row
 from drqn_jax.experiments.stats import t_interval
-from drqn_jax.experiments.study import (
-    baseline_row,
-    paper_rows,
-    plan_study,
-    study_row,
-)
+from drqn_jax.experiments.study import plan_study
 from drqn_jax.experiments.sweep_outputs import agent_dir, metrics_path
 from tests.helpers import SMOKE_SWEEP_SET
 
@@ -72,21 +68,22 @@ def test_a_row_pools_seeds():
 
 
 def test_a_row_says_where_and_how_long_its_seeds_trained():
-    """Seeds of one study may train on several machines, some before wall times were
-    kept: the device column counts each device's seeds, the wall time is the mean over
-    the seeds that counted theirs, and says how many did."""
+    """Seeds of one study may train on several machines, some without a wall time or a
+    device in their record: the device column counts each device's seeds, the wall time
+    is the mean over the seeds that counted theirs, and says how many did."""
     runs = [
         {**_run(0.9), "env_steps": 10, "trained_on": "CPU A", "train_wall_s": 60.0},
         {**_run(0.8), "env_steps": 10, "trained_on": "GPU B", "train_wall_s": 180.0},
         {**_run(0.7), "env_steps": 10, "trained_on": "CPU A"},
-        {**_run(0.6), "env_steps": 10},  # from before devices were kept
+        {**_run(0.6), "env_steps": 10},  # its device not recorded
     ]
     row = study_row("drqn_jax: x", "drqn", runs, world="W")
     assert row["devices"] == {"CPU A": 2, "GPU B": 1, NOT_RECORDED: 1}
     assert row["train_wall_s_per_seed"] == 120.0 and row["train_wall_seeds"] == 2
     table = study_table([row, baseline_row("rule-based", _run(0.5), world="W")])
     assert "| 4 × 100 | 0.00M | 2.0 (2 of 4) | [1] ×2, [2] ×1, ? ×1 |" in table
-    assert "| 1 × 100 | – | – | – |" in table  # a policy not trained here
+    training = table[table.index("Training:") :]
+    assert "| rule-based |" in table and "| rule-based |" not in training  # not trained here
     assert "Devices: [1] CPU A; [2] GPU B." in table
     every = [{**r, "train_wall_s": 60.0} for r in runs]
     assert "| 0.00M | 1.0 | [1] ×2" in study_table([study_row("y", "drqn", every, world="W")])
@@ -97,16 +94,15 @@ def test_a_single_policy_keeps_its_wilson_interval():
     assert row["collision_free_ci"] == pytest.approx((0.9, 1.0))
     assert row["interval"] == "Wilson over episodes" and math.isnan(row["avg_speed_kmh_std"])
     table = study_table([*paper_rows(), row])
-    paper = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | – | – | – |"
-    paper += " 40.0 (16.8–68.7) | – |"
-    assert paper + " – | 7.79 | – |" in table
-    ours = "| drqn_jax: env | drqn | imitation | 1 × 100 | – | – | – |"
-    ours += " 95.0 (90.0–100.0) | – | 5.0 |"
-    assert ours + " 9.50 | 11.40 |" in table
-    # a run evaluated before the struck-while-stopped rate and the authors' speed existed
-    old = {k: v for k, v in _run(0.95).items() if k not in ("struck_while_stopped_rate",)}
-    assert "| 95.0 (90.0–100.0) | – | – | 9.50 | 11.40 |" in study_table(
-        [baseline_row("old", old, world="W")]
+    paper = "| paper (CARLA) | rule-based | – (not learned) | 1 × 10 | 40.0 (16.8–68.7) | – |"
+    assert paper + " – | 7.79 |" in table
+    assert "| paper (CARLA) | rule-based | – | 82.6 | – | – | – |" in table  # driving
+    ours = "| drqn_jax: env | drqn | imitation | 1 × 100 | 95.0 (90.0–100.0) | – | 5.0 |"
+    assert ours + " 9.50 |" in table and "| drqn_jax: env | drqn | 11.40 | 100.0 |" in table
+    # a result without the struck-while-stopped rate: – in its cell
+    unstruck = {k: v for k, v in _run(0.95).items() if k != "struck_while_stopped_rate"}
+    assert "| 95.0 (90.0–100.0) | – | – | 9.50 |" in study_table(
+        [baseline_row("unstruck", unstruck, world="W")]
     )
     assert row["per_seed"] == [
         {"seed": None, "collision_free_rate": 0.95, "avg_speed_kmh": pytest.approx(9.5)}
@@ -203,7 +199,7 @@ def study(tmp_path_factory):
 
 
 def test_the_study_stores_its_rows_in_the_results_file(study):
-    """Issue 41: docs/results.json's rows come from the study command, with the world,
+    """docs/results.json's rows come from the study command, with the world,
     whether a teacher was used, and the command that reproduces them."""
     record = json.loads((study.parent / "results.json").read_text())
     table = json.loads((study / "study.json").read_text())
@@ -255,7 +251,9 @@ def test_the_study_writes_the_table_and_the_curves(study):
     assert f"| drqn_jax: smoke | drqn | none (reward alone) {steps_cell}" in table
     assert f"Devices: [1] {device_identity()}." in table
     assert "* drqn_jax: smoke (drqn) at " in table
-    assert record["comparisons"] == [line[2:] for line in table.splitlines() if line[:2] == "* "]
+    sentences = [line[2:] for line in table.splitlines() if line[:2] == "* " and line[2] != "*"]
+    assert record["comparisons"] == sentences
+    assert "* **collision-free % (95 % interval)**: " in table  # the columns' legend
     assert record["comparisons"][0].startswith("The paper's claim (a DRQN safer than")  # headline
     assert (study / "curves.rrd").stat().st_size > 0
     for png in ("curves.png", "safety_speed.png"):
@@ -358,12 +356,14 @@ def test_a_report_covers_the_runs_that_have_finished(study, tmp_path, monkeypatc
     assert row in (partial / "study.md").read_text()
 
 
-def test_an_interrupted_study_keeps_its_finished_runs_in_the_results_file(
+def test_an_interrupted_study_keeps_its_finished_runs_in_its_runs_store(
     study, tmp_path, monkeypatch
 ):
     """The study's directory may be lost (a fresh clone): interrupted with --results, it
-    keeps each finished run in its section of the results file, and the same command in
-    a fresh --out trains only the other runs, to the same rows bit for bit."""
+    keeps each finished run in its runs store (``finished-runs/<section>.json`` beside the results
+    file, which marks the section in progress and holds no runs), and the same command
+    in a fresh --out trains only the other runs, to the same rows bit for bit; finished,
+    it removes the store. ``--runs-store`` names another store, with no results file."""
     import shutil
 
     import drqn_jax.experiments.sweep_runner as sweep_runner
@@ -376,12 +376,17 @@ def test_an_interrupted_study_keeps_its_finished_runs_in_the_results_file(
     monkeypatch.setattr(
         sweep_runner, "train_call", lambda *a, **k: sweep_runner.CallOutcome("interrupted", *a)
     )
-    results = tmp_path / "results.json"
+    results, store = tmp_path / "results.json", tmp_path / "finished-runs" / "s.json"
     argv = ["study", *STUDY, "--no-png", "--results", str(results), "--section", "s"]
     assert cli.main([*argv, "--out", str(partial)]) == 130
-    kept = json.loads(results.read_text())["sections"]["s"]["finished_runs"]["smoke"]
+    kept = json.loads(store.read_text())["finished_runs"]["smoke"]
     assert [r["index"] for r in kept] == [0]
     assert kept[0]["metrics_csv"] == metrics_path(study / "smoke", 0).read_text()
+    assert json.loads(results.read_text())["sections"]["s"] == {
+        "command": json.loads(store.read_text())["command"],
+        "runs_finished": {"smoke": 1},
+        "runs_store": str(store),
+    }
 
     def counting(call, devices, **kwargs):
         trained.append([p.index for p in call.points])
@@ -389,7 +394,7 @@ def test_an_interrupted_study_keeps_its_finished_runs_in_the_results_file(
 
     monkeypatch.setattr(sweep_runner, "train_call", counting)
     assert cli.main([*argv, "--out", str(tmp_path / "fresh")]) == 0
-    assert trained == [[1]]  # run 0 came from the results file
+    assert trained == [[1]]  # run 0 came from the runs store
     assert (
         kept[0]["train_wall_s"]
         == json.loads(next(partial.glob("smoke/calls/*0000/timing.json")).read_text())[
@@ -407,18 +412,19 @@ def test_an_interrupted_study_keeps_its_finished_runs_in_the_results_file(
         "train_wall_s": kept[0]["train_wall_s"],
         "runs": [0],
     }
-    assert "finished_runs" not in json.loads(results.read_text())["sections"]["s"]  # finished
+    assert not store.exists()  # finished: the rows hold its results
+    assert "wall_time_s" in json.loads(results.read_text())["sections"]["s"]
+    elsewhere = tmp_path / "elsewhere.json"
     stale = {**kept[0], "training_hash": "another config"}  # restored only to its own config
-    results.write_text(
-        json.dumps({"rows": [], "sections": {"s": {"finished_runs": {"smoke": [stale]}}}})
-    )
+    elsewhere.write_text(json.dumps({"command": "x", "finished_runs": {"smoke": [stale]}}))
     trained.clear()
-    assert cli.main([*argv, "--out", str(tmp_path / "other")]) == 0
-    assert trained == [[0], [1]]
+    alone = ["study", *STUDY, "--no-png", "--runs-store", str(elsewhere)]
+    assert cli.main([*alone, "--out", str(tmp_path / "other")]) == 0
+    assert trained == [[0], [1]] and not elsewhere.exists()
 
 
 def _kept_when_shut_down_in_run_1(study, tmp_path, monkeypatch, edit_run_0=None):
-    """The study's runs kept in a results file when the machine goes while run 1 trains
+    """The study's runs kept in its runs store when the machine goes while run 1 trains
     (no SIGTERM, no interruption); ``edit_run_0`` may rewrite run 0's record first."""
     import shutil
 
@@ -440,28 +446,15 @@ def _kept_when_shut_down_in_run_1(study, tmp_path, monkeypatch, edit_run_0=None)
     argv = ["study", *STUDY, "--no-png", "--results", str(results), "--section", "s"]
     with pytest.raises(SystemExit, match="shut down"):
         cli.main([*argv, "--out", str(partial)])
-    return json.loads(results.read_text())["sections"]["s"]["finished_runs"]["smoke"]
+    return json.loads((tmp_path / "finished-runs" / "s.json").read_text())["finished_runs"]["smoke"]
 
 
 def test_a_study_keeps_each_finished_run_before_the_next_one_trains(study, tmp_path, monkeypatch):
     """A machine shut down without warning still leaves every run that had finished in
-    the results file: they are kept as each one ends."""
+    the runs store: they are kept as each one ends, with the commit that trained them."""
     kept = _kept_when_shut_down_in_run_1(study, tmp_path, monkeypatch)
     assert [r["index"] for r in kept] == [0]
     assert kept[0]["commit"] == git_commit()
-
-
-def test_a_run_finished_before_commits_were_kept_is_not_given_the_storing_one(
-    study, tmp_path, monkeypatch
-):
-    """A run whose record has no commit (it finished before records kept one) is stored
-    as :data:`NOT_RECORDED`, never as the commit of the checkout that stores it."""
-
-    def older(record):
-        return {k: v for k, v in record.items() if k != "commit"}
-
-    kept = _kept_when_shut_down_in_run_1(study, tmp_path, monkeypatch, older)
-    assert [r["commit"] for r in kept] == [NOT_RECORDED]
 
 
 def test_the_estimate_is_the_runs_env_steps_over_the_timed_rate(monkeypatch):
@@ -572,24 +565,25 @@ def test_eval_envs_are_validated_before_anything_runs():
     assert arm.cross_envs == ()  # its own env
 
 
-def test_a_results_file_edited_apart_from_the_study_directory_is_named(
+def test_a_runs_store_edited_apart_from_the_study_directory_is_named(
     study, tmp_path, monkeypatch, capsys
 ):
     """Continued in its own --out, a study keeps that directory's runs and stores them
-    again: a record edited in the results file alone would silently go back, so the
+    again: a record edited in the runs store alone would silently go back, so the
     study names the runs whose records differ."""
     kept = _kept_when_shut_down_in_run_1(study, tmp_path, monkeypatch)
-    results = tmp_path / "results.json"
-    argv = ["study", *STUDY, "--no-png", "--results", str(results), "--section", "s"]
+    store = tmp_path / "finished-runs" / "s.json"
+    argv = ["study", *STUDY, "--no-png", "--results", str(tmp_path / "results.json")]
+    argv += ["--section", "s"]
     capsys.readouterr()
     with pytest.raises(SystemExit, match="shut down"):  # the same records: nothing to say
         cli.main([*argv, "--out", str(tmp_path / "partial")])
-    assert "differ from the results file" not in capsys.readouterr().err
-    record = json.loads(results.read_text())
-    record["sections"]["s"]["finished_runs"]["smoke"][0] = {**kept[0], "final_train_return": 0.5}
-    results.write_text(json.dumps(record))
+    assert "differ from the runs store" not in capsys.readouterr().err
+    record = json.loads(store.read_text())
+    record["finished_runs"]["smoke"][0] = {**kept[0], "final_train_return": 0.5}
+    store.write_text(json.dumps(record))
     with pytest.raises(SystemExit, match="shut down"):  # run 1 still cannot train
         cli.main([*argv, "--out", str(tmp_path / "partial")])
     assert "smoke: run(s) [0] in" in capsys.readouterr().err
-    again = json.loads(results.read_text())["sections"]["s"]["finished_runs"]["smoke"]
+    again = json.loads(store.read_text())["finished_runs"]["smoke"]
     assert again == kept  # the directory's record, stored again

@@ -1,0 +1,175 @@
+"""A results table's rows: an agent's runs pooled over seeds (:func:`study_row`), a single
+policy (:func:`baseline_row`), the paper's Table III (:func:`paper_rows`) and the points
+of a world's rule-based frontier and privileged planner (:func:`frontier_rows`).
+
+Every row holds what :func:`drqn_jax.experiments.report.study_table` shows (SPEC §8's
+metrics, the collision-free interval, how its seeds trained) and ``per_seed``, from
+which :func:`drqn_jax.experiments.frontier.with_margin` reads the margin to the
+frontier at each seed's own speed (SPEC §9).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from drqn_jax.evaluation import wilson_interval
+from drqn_jax.experiments.frontier import with_margin
+from drqn_jax.experiments.machine import NOT_RECORDED
+from drqn_jax.experiments.report import PAPER_EPISODES, PAPER_TABLE_III, PAPER_WORLD
+from drqn_jax.experiments.stats import t_interval
+from drqn_jax.learners.hyperparams import NOT_LEARNED, REWARD_ALONE, has_teacher, teachers_of
+
+__all__ = ["baseline_row", "frontier_rows", "paper_rows", "study_row"]
+
+
+def _mean(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
+    values = [r[metric] for r in runs if r.get(metric) is not None]
+    return float(np.mean(values)) if values else math.nan
+
+
+def _std(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
+    values = [r[metric] for r in runs if r.get(metric) is not None]
+    return float(np.std(values, ddof=1)) if len(values) > 1 else math.nan
+
+
+def _devices(runs: Sequence[Mapping[str, Any]]) -> dict[str, int]:
+    """How many runs trained on each device, in the order first seen (a policy not
+    trained here has none; a trained run whose record names no device counts as
+    :data:`NOT_RECORDED`)."""
+    trained = [r for r in runs if "env_steps" in r or "trained_on" in r]
+    return dict(Counter(r.get("trained_on", NOT_RECORDED) for r in trained))
+
+
+def study_row(
+    label: str, agent: str, runs: Sequence[Mapping[str, Any]], *, world: str
+) -> dict[str, Any]:
+    """One table row from the evaluations of an agent's runs (one per seed).
+
+    ``runs``: :func:`drqn_jax.evaluation.evaluate` results as JSON (``json_ready``);
+    ``world``: the env id they were evaluated in.
+    The collision-free interval is the 95 % Student-t interval of the mean
+    across seeds (it holds the training's variation as well as the episodes'),
+    cut to [0, 1]; with one run, the Wilson interval over its episodes. Collisions per km are
+    pooled: all collisions over all distance. ``per_seed`` keeps each run's seed,
+    collision-free rate and average speed (the frontier margin reads each seed at its
+    own speed, :func:`drqn_jax.experiments.frontier.frontier_margin`).
+    ``env_steps_per_seed``: the mean of the runs' training env steps (over the runs
+    that counted them; NaN for a policy that was not trained). ``devices``: how many
+    runs trained on each device (runs of one study may come from several machines);
+    ``train_wall_s_per_seed``: the mean of the runs' training wall times over the
+    ``train_wall_seeds`` runs that counted theirs (NaN for none).
+    """
+    if not runs:
+        raise ValueError(f"study_row {label!r}: no runs")
+    rates = np.array([r["collision_free_rate"] for r in runs], np.float64)
+    if len(runs) > 1:
+        low, high = t_interval(rates)
+        interval, interval_kind = (max(low, 0.0), min(high, 1.0)), "t over seeds"
+    else:
+        interval, interval_kind = tuple(runs[0]["collision_free_ci"]), "Wilson over episodes"
+    episodes = [r["num_episodes"] for r in runs]
+    collisions = sum(round(n * (1.0 - r)) for n, r in zip(episodes, rates, strict=True))
+    km = sum(n * r["avg_distance_m"] for n, r in zip(episodes, runs, strict=True)) / 1000.0
+    free = [round(n * r) for n, r in zip(episodes, rates, strict=True)]
+    free_distance = [r.get("avg_distance_collision_free_m") for r in runs]
+    pooled_free = [(k, d) for k, d in zip(free, free_distance, strict=True) if k and d is not None]
+    return {
+        "label": label,
+        "agent": agent,
+        "world": world,
+        "teacher": any(has_teacher(r.get("teacher")) for r in runs),
+        "learned": teachers_of(runs),
+        "seeds": len(runs),
+        "episodes": int(episodes[0]),
+        "diverged": sum(bool(r.get("diverged")) for r in runs),
+        "collision_free_rate": float(rates.mean()),
+        "collision_free_ci": (float(interval[0]), float(interval[1])),
+        "interval": interval_kind,
+        "avg_speed_kmh": _mean(runs, "avg_speed_kmh"),
+        "avg_speed_kmh_std": _std(runs, "avg_speed_kmh"),
+        "avg_speed_authors_kmh": _mean(runs, "avg_speed_authors_kmh"),
+        "struck_while_stopped_rate": _mean(runs, "struck_while_stopped_rate"),
+        "avg_distance_m": _mean(runs, "avg_distance_m"),
+        "avg_distance_collision_free_m": (
+            sum(k * d for k, d in pooled_free) / sum(k for k, _ in pooled_free)
+            if pooled_free
+            else math.nan
+        ),
+        "goal_rate": _mean(runs, "goal_rate"),
+        "env_steps_per_seed": _mean(runs, "env_steps"),
+        "devices": _devices(runs),
+        "train_wall_s_per_seed": _mean(runs, "train_wall_s"),
+        "train_wall_seeds": sum(r.get("train_wall_s") is not None for r in runs),
+        "collisions_per_km": collisions / km if km > 0 else math.nan,
+        "per_seed": [
+            {
+                "seed": r.get("values", {}).get("run.seed"),
+                "collision_free_rate": r["collision_free_rate"],
+                "avg_speed_kmh": r["avg_speed_kmh"],
+            }
+            for r in runs
+        ],
+    }
+
+
+def baseline_row(label: str, result: Mapping[str, Any], *, world: str) -> dict[str, Any]:
+    """A row for a single policy evaluated once (the rule-based agent): Wilson interval."""
+    return study_row(label, result["agent"], [result], world=world)
+
+
+def _setting_text(params: Mapping[str, float]) -> str:
+    names = {"v_max_kmh": "v_max", "v_cap_kmh": "cap", "corridor_margin": "margin"}
+    units = {"v_max_kmh": " km/h", "v_cap_kmh": " km/h", "lookahead": " m", "horizon": " s"}
+    return ", ".join(f"{names.get(k, k)} {v:g}{units.get(k, '')}" for k, v in params.items())
+
+
+def frontier_rows(record: Mapping[str, Any], limit_kmh: float) -> list[dict[str, Any]]:
+    """A :func:`~drqn_jax.experiments.frontier.world_frontier` record (of a world whose
+    speed limit is ``limit_kmh``) as table rows, each with its ``params`` and its
+    margin: the rule-based frontier's points (margin 0 by definition) and the
+    privileged planner's, labelled as privileged."""
+    world = record["world"]
+    kinds = [("rule_based", "rule-based frontier", "rule-based")]
+    kinds += [("planner", "privileged planner (true state + simulator)", "planner")]
+    rows = []
+    for kind, label, agent in kinds:
+        for point in record.get(kind, {}).get("points", []):
+            result = {**point, "agent": agent, "teacher": NOT_LEARNED}
+            row = baseline_row(f"{label}: {_setting_text(point['params'])}", result, world=world)
+            rows.append({**with_margin(row, record, limit_kmh), "params": point["params"]})
+    return rows
+
+
+def paper_rows() -> list[dict[str, Any]]:
+    """The paper's Table III as rows, with the Wilson interval its 10 episodes allow."""
+    rows = []
+    for agent, free, speed, distance in PAPER_TABLE_III:
+        rows.append(
+            {
+                "label": "paper (CARLA)",
+                "agent": agent,
+                "world": PAPER_WORLD,
+                "teacher": False,
+                "learned": NOT_LEARNED if agent == "rule-based" else REWARD_ALONE,
+                "seeds": 1,
+                "episodes": PAPER_EPISODES,
+                "diverged": 0,
+                "collision_free_rate": free / PAPER_EPISODES,
+                "collision_free_ci": wilson_interval(free, PAPER_EPISODES),
+                "interval": "Wilson over episodes",
+                "avg_speed_kmh": speed,
+                "avg_speed_kmh_std": math.nan,
+                "avg_speed_authors_kmh": math.nan,
+                "struck_while_stopped_rate": math.nan,
+                "avg_distance_m": distance,
+                "avg_distance_collision_free_m": math.nan,
+                "goal_rate": math.nan,
+                "collisions_per_km": math.nan,
+            }
+        )
+    return rows
