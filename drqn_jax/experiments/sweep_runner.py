@@ -210,7 +210,7 @@ class CallOutcome:
     status: str
     trainer: Trainer
     state: TrainState  # batched, padding included
-    wall_time_s: float  # s, over every invocation, compile and validation included
+    wall_time_s: float = 0.0  # s, over every invocation, compile and validation included
 
     def agent_params(self) -> Any:
         """Every run's agent (``Trainer.agent_params``), padding included."""
