@@ -18,6 +18,8 @@ file disagree. ``FORM`` (:data:`FORMS`) chooses what the block shows:
   training; at most 8 columns each), its comparisons and its command;
 * ``legend``: the same, then the definition of every column (:func:`column_legend`),
   so that a document defines each column once, in its first block;
+* ``safety``: the safety-and-speed table alone, its comparisons and its command (a
+  long section; the other columns stay in the results file);
 * ``brief``: the headline table (:data:`BRIEF`, 8 columns), the verdicts on the
   paper's claim and on the goal, and where the columns are defined (a README's form).
 """
@@ -65,7 +67,7 @@ __all__ = [
 #: A section's name: letters, digits, '_', '.' and '-'.
 SECTION_NAME = re.compile(r"[\w.-]+")
 #: The forms of a generated block (module docstring); "" is the default.
-FORMS = ("", "legend", "brief")
+FORMS = ("", "legend", "safety", "brief")
 #: A generated block of a document: its section name, its form and its current body.
 BLOCK = re.compile(
     rf"(?P<open><!-- results:(?P<section>{SECTION_NAME.pattern})(?: (?P<form>\w+))? -->\n)"
@@ -158,7 +160,7 @@ def _nan(row: Mapping[str, Any]) -> dict[str, Any]:
 def render_section(record: Mapping[str, Any], section: str, form: str = "") -> str:
     """Markdown of one section in ``form`` (:data:`FORMS`, module docstring)."""
     if form not in FORMS:
-        raise ValueError(f"results block {section} {form}: the form must be one of brief, legend")
+        raise ValueError(f"results block {section} {form}: the form must be one of {', '.join(FORMS[1:])}")
     if section not in record["sections"]:
         known = ", ".join(record["sections"]) or "none"
         raise ValueError(f"results section {section!r}: not in the results file (has: {known})")
@@ -168,7 +170,8 @@ def render_section(record: Mapping[str, Any], section: str, form: str = "") -> s
     rows = [_nan(r) for r in record["rows"] if r.get("section") == section]
     if form == "brief":
         return _brief(rows, about["comparisons"])
-    lines = [study_table(rows, about["comparisons"], legend=False)]
+    tables = TABLES[:1] if form == "safety" else TABLES
+    lines = [study_table(rows, about["comparisons"], legend=False, tables=tables)]
     machine = about["machine"]
     went_on = (
         "; earlier invocations trained its runs, the wall time is the last one's"
@@ -463,18 +466,21 @@ def _markdown_table(
 
 
 def study_table(
-    rows: Sequence[Mapping[str, Any]], notes: Sequence[str] = (), legend: bool = True
+    rows: Sequence[Mapping[str, Any]],
+    notes: Sequence[str] = (),
+    legend: bool = True,
+    tables: Sequence[tuple[str, tuple[str, ...], tuple[str, ...]]] = TABLES,
 ) -> str:
-    """Markdown of a results table's ``rows`` as the :data:`TABLES` (at most 8 columns
-    each), the devices the rows trained on, ``notes`` (the sentences under the table,
+    """Markdown of a results table's ``rows`` as ``tables`` (:data:`TABLES` by default:
+    at most 8 columns each), the devices the rows trained on, ``notes`` (the sentences under the table,
     as a list) and, with ``legend``, every column's definition (:func:`column_legend`)."""
     devices = _device_legend(rows)
     parts = []
-    for caption, keys, shown in TABLES:
+    for caption, keys, shown in tables:
         kept = [r for r in rows if any(COLUMNS[h].cell(r, devices) != "–" for h in shown)]
         if kept:
             parts += [f"{caption}:", _markdown_table((*keys, *shown), kept, devices)]
-    if devices:
+    if devices and any(caption == "Training" for caption, _, _ in tables):
         parts.append("Devices: " + "; ".join(f"{k} {d}" for d, k in devices.items()) + ".")
     if notes:
         parts.append("\n".join(f"* {note}" for note in notes))

@@ -105,7 +105,8 @@ def test_an_interrupted_study_renders_its_progress_not_a_table(tmp_path):
 
 def test_a_block_s_form_chooses_the_tables_the_legend_or_the_headline(tmp_path):
     """No table has more than 8 columns; the legend form defines every column once,
-    under the tables and the command; the brief form is the headline table (8 columns),
+    under the tables and the command; the safety form shows the first table alone; the
+    brief form is the headline table (8 columns),
     the verdicts on the paper's claim and the goal alone, and where the columns are
     defined; an unknown form is an error."""
     claim = "The paper's claim (a DRQN safer than the rule-based agent) is not shown."
@@ -126,10 +127,13 @@ def test_a_block_s_form_chooses_the_tables_the_legend_or_the_headline(tmp_path):
     assert len(table_rows) == len(rows)
     assert f"* {claim}\n* {goal}\n" in brief and other not in brief
     assert "drqn-jax study" not in brief and "[docs/results.md](docs/results.md)" in brief
-    for text in (legend, brief):
+    safety = render_section(record, "t", "safety")
+    assert "Safety and speed:" in safety and "Driving:" not in safety and "Training:" not in safety
+    assert f"* {claim}" in safety and "drqn-jax study --configs x" in safety
+    for text in (legend, brief, safety):
         widths = [line.count(" | ") + 1 for line in text.splitlines() if line.startswith("| ")]
         assert widths and max(widths) <= 8
-    with pytest.raises(ValueError, match="the form must be one of brief, legend"):
+    with pytest.raises(ValueError, match="the form must be one of legend, safety, brief"):
         update_document("<!-- results:t wide -->\n<!-- /results -->\n", record)
 
 
