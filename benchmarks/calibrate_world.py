@@ -8,8 +8,8 @@ The paper's rule-based agent was collision-free in 4 of 10 episodes (40 %,
 Wilson 95 % interval 16.8-68.7 %) at 7.79 km/h (Table III). Each candidate
 world below changes only settings with evidence behind them (docs/spec.md §3,
 §5): how pedestrians behave toward the car and the collision test; the yield
-timeout is CARLA's 5 s, and one row keeps the pre-revision world's endless
-wait for reference. Every row evaluates SPEC §6's rule-based agent on the same
+timeout is CARLA's 5 s, and one row keeps pedestrians that wait for ever,
+for reference. Every row evaluates SPEC §6's rule-based agent on the same
 ``--episodes`` episodes of seed 0's evaluation key, exactly what
 ``drqn-jax evaluate --agent rule-based --set ...`` prints for that world.
 
@@ -72,7 +72,7 @@ CANDIDATES: tuple[tuple[str, tuple[str, ...], str], ...] = (
             "env.collision_model=contact",
             "env.ped_wait_max_s=1000",
         ),
-        "the pre-revision world, with standoffs (reference only)",
+        "pedestrians that wait for ever, with standoffs (reference only)",
     ),
 )
 

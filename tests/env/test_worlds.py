@@ -70,7 +70,7 @@ def test_no_standoff_in_any_registered_world(env_id):
 
 
 def test_the_standoff_check_finds_pedestrians_that_wait_for_ever():
-    """The check can fail: with no timeout (the world before the revision) a pedestrian
+    """The check can fail: with no timeout a pedestrian
     and the braking ego wait for each other for ever in a share of the episodes."""
     _, params = drqn_jax.make("UrbanPedestriansYielding-v0", ped_wait_max_s=1000.0)
     assert standoff_count(params) >= EPISODES // 20
