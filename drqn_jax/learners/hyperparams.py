@@ -247,7 +247,7 @@ def has_teacher(label: str | None) -> bool:
 
 def teachers_of(results: Any) -> str:
     """The teacher column of a row pooling several runs' results (their distinct
-    ``teacher`` labels; – for results written before the column existed)."""
+    ``teacher`` labels; – for a result that names none)."""
     return " / ".join(sorted({r.get("teacher") or "–" for r in results}))
 
 
