@@ -23,6 +23,18 @@ from drqn_jax import __version__
 from drqn_jax.agents.shipped import shipped_agents
 from drqn_jax.commands.bench import SUITE, TOOLS, cmd_bench
 from drqn_jax.commands.frontier import cmd_frontier
+from drqn_jax.commands.help import (
+    BENCH_DOC,
+    EVALUATE_DOC,
+    EXPORT_DOC,
+    FRONTIER_DOC,
+    REPLAY_DOC,
+    REPORT_DOC,
+    REPRODUCE_DOC,
+    STUDY_DOC,
+    SWEEP_DOC,
+    TRAIN_DOC,
+)
 from drqn_jax.commands.runs import (
     cmd_evaluate,
     cmd_export,
@@ -127,7 +139,7 @@ def _command(sub: Any, name: str, help_text: str, doc: str) -> argparse.Argument
 
 
 def _train_parser(sub: Any) -> None:
-    train = _command(sub, "train", "train the DRQN", _TRAIN_DOC)
+    train = _command(sub, "train", "train the DRQN", TRAIN_DOC)
     _config_options(train, "default")
     _run_dir_option(train, "train")
     train.add_argument(
@@ -141,11 +153,9 @@ def _train_parser(sub: Any) -> None:
 
 
 def _evaluate_parser(sub: Any) -> None:
-    ev = _command(sub, "evaluate", "evaluate a trained run or a built-in agent", _EVALUATE_DOC)
+    ev = _command(sub, "evaluate", "evaluate a trained run or a built-in agent", EVALUATE_DOC)
     _agent_options(ev, "evaluate")
-    ev.add_argument(
-        "--episodes", type=int, default=None, help="episodes (default: evaluate.episodes)"
-    )
+    ev.add_argument("--episodes", type=int, help="episodes (default: evaluate.episodes)")
     ev.add_argument("--seed", type=int, default=None, help="run.seed for the evaluation key")
     ev.add_argument(
         "--json", default=None, metavar="PATH", help="write the metrics as JSON ('-': stdout)"
@@ -159,7 +169,7 @@ def _reproduce_parser(sub: Any) -> None:
         sub,
         "reproduce",
         "train, evaluate and print the paper's Table III beside ours",
-        _REPRODUCE_DOC,
+        REPRODUCE_DOC,
     )
     rep.add_argument(
         "--train",
@@ -184,7 +194,7 @@ def _export_parser(sub: Any) -> None:
         sub,
         "export",
         "write a finished run's trained agent alone (a few MB) to a directory",
-        _EXPORT_DOC,
+        EXPORT_DOC,
     )
     export.add_argument(
         "run_dir", help="a finished run directory (drqn-jax train) or a sweep's OUT/agents/run-NNNN"
@@ -205,7 +215,7 @@ def _replay_parser(sub: Any) -> None:
         sub,
         "replay",
         "record episodes of a trained run or a built-in agent for the rerun viewer",
-        _REPLAY_DOC,
+        REPLAY_DOC,
     )
     _agent_options(replay, "record")
     replay.add_argument("--episodes", type=int, default=5, help="episodes to record")
@@ -226,13 +236,11 @@ def _sweep_parser(sub: Any) -> None:
         sub,
         "sweep",
         "train and evaluate a grid of seeds x hyperparameters as one program per shape",
-        _SWEEP_DOC,
+        SWEEP_DOC,
     )
     sweep.add_argument("sweep_file", help="the sweep TOML (base config, [set], [axes])")
     _set_option(sweep, "override one field of every point (repeatable)")
-    sweep.add_argument(
-        "--out", default=None, help="results directory (default: runs/sweep-<file>-<UTC time>)"
-    )
+    sweep.add_argument("--out", help="results directory (default: runs/sweep-<file>-<time>)")
     sweep.add_argument(
         "--dry-run", action="store_true", help="validate, plan and describe; run nothing"
     )
@@ -273,7 +281,7 @@ def _study_parser(sub: Any) -> None:
         "study",
         "configs x seeds trained and evaluated on the same episodes, beside the "
         "rule-based agent: Table III with intervals, and training curves",
-        _STUDY_DOC,
+        STUDY_DOC,
     )
     study.add_argument(
         "--configs",
@@ -281,9 +289,7 @@ def _study_parser(sub: Any) -> None:
         help="comma-separated config names in configs/ or TOML paths (one row each)",
     )
     study.add_argument("--seeds", type=int, default=5, help="seeds 0 … N-1 per config")
-    study.add_argument(
-        "--episodes", type=int, default=1000, help="greedy evaluation episodes per run"
-    )
+    study.add_argument("--episodes", type=int, default=1000, help="evaluation episodes per run")
     _set_option(study, "override one field of every config (repeatable)")
     study.add_argument(
         "--eval-envs",
@@ -292,15 +298,8 @@ def _study_parser(sub: Any) -> None:
         help="also evaluate every config's trained agents among these envs' pedestrians, "
         "on the same episodes (one more row each, beside that env's rule-based agent)",
     )
-    study.add_argument(
-        "--out",
-        default=None,
-        help="study directory (default: runs/study-<config names>, so that running the "
-        "command again continues it)",
-    )
-    study.add_argument(
-        "--smooth", type=int, default=10, help="running mean (episodes) of the curves"
-    )
+    study.add_argument("--out", default=None, help="study directory (runs/study-<configs>)")
+    study.add_argument("--smooth", type=int, default=10, help="running mean of the curves")
     study.add_argument("--no-png", action="store_true", help="skip curves.png and safety_speed.png")
     study.add_argument(
         "--dry-run", action="store_true", help="validate and describe the study; run nothing"
@@ -322,17 +321,13 @@ def _study_parser(sub: Any) -> None:
         help="also store the table's rows, this command and its wall time as section "
         "--section of this results file (e.g. docs/results.json; other sections stay)",
     )
-    study.add_argument(
-        "--section", help="the section of --results (default: the study directory's name)"
-    )
+    study.add_argument("--section", help="the section of --results (default: OUT's name)")
     study.add_argument(
         "--runs-store",
         metavar="PATH",
-        help="keep an interrupted study's finished runs (evaluation records, metrics.csv) "
-        "in this file, so that the same command in a fresh --out (another clone or machine) "
-        "trains only the others; removed once the study finishes (default with --results: "
-        "finished-runs/SECTION.json beside the results file, e.g. "
-        "docs/finished-runs/table3-cpu.json)",
+        help="keep an interrupted study's finished runs here, for the same command in a "
+        "fresh --out; removed once it finishes (default with --results: "
+        "finished-runs/SECTION.json beside the results file)",
     )
     study.add_argument("--quiet", action="store_true", help="no progress bars")
 
@@ -343,12 +338,10 @@ def _frontier_parser(sub: Any) -> None:
         "frontier",
         "the rule-based family's safety/speed frontier and the privileged planner's ceiling "
         "(SPEC §9) on a config's evaluation episodes",
-        _FRONTIER_DOC,
+        FRONTIER_DOC,
     )
     _config_options(frontier, "default")
-    frontier.add_argument(
-        "--episodes", type=int, default=None, help="episodes (default: evaluate.episodes)"
-    )
+    frontier.add_argument("--episodes", type=int, help="episodes (default: evaluate.episodes)")
     frontier.add_argument("--seed", type=int, default=None, help="run.seed for the evaluation key")
     frontier.add_argument(
         "--wide",
@@ -371,9 +364,7 @@ def _frontier_parser(sub: Any) -> None:
         help="also evaluate N random rule-based settings (a reviewer's) and say how many lie "
         "above the frontier (stored as the section's comparison)",
     )
-    frontier.add_argument(
-        "--out", default=None, help="where to write frontier.json and frontier.png"
-    )
+    frontier.add_argument("--out", default=None, help="where to write frontier.json/.png")
     frontier.add_argument(
         "--results",
         metavar="PATH",
@@ -389,12 +380,10 @@ def _report_parser(sub: Any) -> None:
         sub,
         "report",
         "fill the results blocks of documents from the results file a study wrote",
-        _REPORT_DOC,
+        REPORT_DOC,
     )
     report.add_argument("documents", nargs="+", help="Markdown files with results blocks")
-    report.add_argument(
-        "--results", default="docs/results.json", help="the results file (study --results)"
-    )
+    report.add_argument("--results", default="docs/results.json", help="the results file")
     report.add_argument("--quiet", action="store_true", help="no status messages")
     report.add_argument(
         "--check",
@@ -408,7 +397,7 @@ def _bench_parser(sub: Any) -> None:
         sub,
         "bench",
         "run the benchmark suite (or one of its benchmarks) on this machine",
-        _BENCH_DOC,
+        BENCH_DOC,
     )
     bench.add_argument(
         "name",
@@ -447,74 +436,6 @@ def build_parser() -> argparse.ArgumentParser:
     ):
         add_parser(sub)
     return parser
-
-
-_REPORT_DOC = """Regenerate every block between '<!-- results:NAME -->' and '<!-- /results -->'
-in the documents from section NAME of the results file (drqn-jax study --results FILE
---section NAME writes it): its table, comparisons, command and wall time, so that no
-document retypes a number."""
-_TRAIN_DOC = """Train the DRQN of a config; writes config.toml, metrics.csv, checkpoints,
-evaluation.json and results.md to the run directory. Ctrl-C (or SIGTERM) saves a
-checkpoint and exits with status 130; --resume continues bit-identically."""
-_EVALUATE_DOC = """Evaluate a run directory's DRQN (or a sweep's or study's trained agent,
-OUT/agents/run-NNNN) or a built-in agent greedily on the evaluation key and print the SPEC §8
-metrics. --set changes the episodes, not the agent: e.g. --set env.id=... evaluates it among
-other pedestrians, --seed 0 on a study's episodes."""
-_REPRODUCE_DOC = """Evaluate the trained agent shipped with drqn_jax (--agent headline, its
-provenance printed) and the paper's rule-based agent on evaluate.episodes episodes each
-(1000), sweep the rule-based family's frontier on the same episodes, and print the paper's
-Table III beside ours with each agent's margin to the frontier, the verdict on the paper's
-claim, the safety/speed figure's path and the wall time; no training. --train trains the
-agent again first (its config, or --config; an estimate of the training time on this
-device comes first) and evaluates that one. Writes evaluation.json, results.md and
-safety_speed.png to the run directory."""
-_REPLAY_DOC = """Record episodes of a run directory's greedy DRQN (with its four Q-values per
-step) or of a built-in agent as a rerun recording: the map, the ego, the pedestrians coloured by
-behaviour, the four grid channels, speed, action, reward and TTC on the timeline "step". Episode
-i is episode i of `evaluate` (the config's evaluation key). View it with: rerun PATH"""
-_SWEEP_DOC = """Run every point of a sweep file: points that share shapes train together in
-compiled jit(vmap) calls, the runs sharded over all local devices, as many per call as the
-memory plan allows; each run is evaluated on the same episodes. Writes results.md and
-results.csv (mean, std, 95 % t-interval and IQM across seeds per setting) and runs.json
-(every run), and every run's trained agent in OUT/agents/run-NNNN (for evaluate and
-replay). Ctrl-C saves checkpoints (status 130); --resume continues, also a sweep
-file given more points after the saved ones (more seeds). With several
-processes each trains its slice of the runs and process 0 writes the results."""
-_STUDY_DOC = """Train every config for seeds 0 … N-1 (one sweep over run.seed per
-config, in OUT/<config>/), evaluate every run greedily on the same episodes (the first
-seed's evaluation key), evaluate the rule-based agent on them, and write OUT/study.md
-(the paper's Table III beside ours: collision-free % with a 95 % interval across seeds,
-speed, distance, goal %, collisions per km), OUT/study.json, and the training curves
-(average reward and steps per episode, mean and min-max over seeds) as OUT/curves.png
-and OUT/curves.rrd. Each run's trained agent is OUT/<config>/agents/run-NNNN; --eval-envs
-evaluates them among other pedestrians too (one more row per env). Ctrl-C saves checkpoints
-(status 130); running the same command again continues the study, and with a larger
---seeds adds the new seeds to it; --eval-envs on a finished study only evaluates. With
---runs-store (by default with --results), an interrupted study keeps its finished runs in
-a file of their own, and the same command in a fresh --out (a new clone) trains only the
-others; the results file holds the finished study's rows only."""
-_FRONTIER_DOC = """Sweep the rule-based agent over its parameters (v_max from 1 km/h to the
-speed limit, lookahead, horizon, corridor margin) on the config's evaluation episodes, as
-one compiled program, and keep its Pareto-efficient points (collision-free rate against
-average speed): the frontier every agent's margin is measured against. Then play the
-privileged planner (it sees the true state and plays the simulator forward: a ceiling,
-never a learner's competitor) at each speed cap. Prints both, with the wall time of each;
-writes OUT/frontier.json (every swept point) and OUT/frontier.png, and with --results the
-points as a section of the results file."""
-_EXPORT_DOC = """Write the agent of a finished run directory as OUT/config.toml and
-OUT/agent.npz (its parameters alone, no training state: a few MB, with the config's
-training hash) and OUT/provenance.json (the training command, episodes, env steps,
-gradient steps and wall time, the commit and device that trained it, and this machine:
-a sweep's run, OUT/agents/run-NNNN, names its own commit and device; a drqn-jax train
-run is taken to have trained here, so export it where it trained). evaluate and
-replay read OUT like a run directory; a directory under drqn_jax/agents/trained/NAME
-is shipped with the package as --agent NAME."""
-_BENCH_DOC = """Run the benchmark suite of benchmarks/ (a clone of the repository is
-needed): each benchmark prints a Markdown table with the machine it ran on, and
---out DIR writes DIR/NAME.json and DIR/NAME.md. 'all' runs every benchmark with
-the options --repeats, --out and --quick passed on to each. 'quick' prints
-env steps/s and training throughput of one config (options --config, --set,
---num-envs, --steps, --iterations) and needs no clone."""
 
 
 def _quick_parser() -> argparse.ArgumentParser:
