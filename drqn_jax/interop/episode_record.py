@@ -87,16 +87,17 @@ def _q_values_beside(init_fn: InitFn, act_fn: ActFn, network: Network) -> tuple[
     return init, act
 
 
+_STEP_FIELDS = ("reward", "truncated", "ttc", "collision", "struck_while_stopped", "goal")
+
+
 def _record_decision(d: Decision) -> dict[str, Any]:
+    info = {k: d.info[k] for k in _STEP_FIELDS[2:]}
     return {
         "state": d.state,
         "grid": d.obs.grid,
         "reward": d.reward,
-        "ttc": d.info["ttc"],
-        "collision": d.info["collision"],
-        "struck_while_stopped": d.info["struck_while_stopped"],
-        "goal": d.info["goal"],
         "truncated": d.truncated,
+        **info,
     }
 
 
@@ -148,14 +149,9 @@ def _rollouts(
             ego_half=half,
             action=actions,
             q_values=None,
-            reward=out["reward"],
-            ttc=out["ttc"],
-            collision=out["collision"],
-            struck_while_stopped=out["struck_while_stopped"],
-            goal=out["goal"],
-            truncated=out["truncated"],
             length=metrics.length,
             episode_return=metrics.episode_return,
+            **{k: out[k] for k in _STEP_FIELDS},
         )
 
     return jax.vmap(one)(actions, keys)
