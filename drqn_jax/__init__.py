@@ -1,16 +1,8 @@
-"""drqn_jax: a JAX-native urban-pedestrian simulator and DRQN trainer.
+"""drqn_jax: a JAX-native urban-pedestrian simulator and DRQN trainer, after Deshpande,
+Vaufreydaz and Spalanzani, *Behavioral decision-making for urban autonomous driving in
+the presence of pedestrians using Deep Recurrent Q-Network*.
 
-Reproduces Deshpande, Vaufreydaz and Spalanzani, *Behavioral decision-making
-for urban autonomous driving in the presence of pedestrians using Deep
-Recurrent Q-Network* as pure ``jit``/``vmap``-able JAX functions.
-
-    >>> import jax, drqn_jax
-    >>> env, params = drqn_jax.make("UrbanPedestrians-v0")
-    >>> obs, state = env.reset(jax.random.key(0), params)
-
-Importing the package caps XLA:CPU code generation at AVX (no fused
-multiply-add) so that results are bit-identical whatever the batch size;
-see :mod:`drqn_jax.determinism`.
+Importing it caps XLA:CPU code generation at AVX (:mod:`drqn_jax.determinism`).
 """
 
 from drqn_jax.determinism import configure_xla_flags

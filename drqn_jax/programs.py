@@ -1,25 +1,14 @@
 """The one cache of built programs: trainers, jitted env functions, agent functions.
 
-``jit`` compiles once per function object and argument shapes, so a program is
-compiled once only if the function behind it is built once. Everything the
-package builds from static (hashable) descriptions — a :class:`~drqn_jax.learners.trainer.Trainer`
-per ``TrainConfig``, the Gymnasium env's jitted reset/step/render per static env,
-a DRQN agent's ``init``/``act`` per network, a compiled training chunk per
-program key — goes through :func:`cached_program` (or :func:`cached`),
-into one least-recently-used store of at most :data:`MAX_PROGRAMS` entries.
-:func:`program_counts` says what it holds; :func:`clear_programs` empties it (the
-next use rebuilds and recompiles, with identical results).
+``jit`` compiles once per function object, so a program compiles once only if the
+function behind it is built once: everything built from a hashable description
+goes through :func:`cached_program` (or :func:`cached`) into one LRU store of at
+most :data:`MAX_PROGRAMS` entries.
 
-The store is also bounded by memory maps. Each live XLA:CPU executable maps
-about three regions (code, constants, data) per kernel it was compiled into:
-a tiny trainer's training program holds about 2,400 maps, a paper-preset one
-more. Linux ends a process that reaches ``vm.max_map_count`` (65,530 by default)
-with a crash inside XLA, and 64 trainers would pass it. So before each build,
-while the process holds more than :func:`map_budget` maps, the least recently
-used half of the store is dropped (an executable's maps go with its last
-reference), after JAX's own caches, which hold the executables of every function
-jitted outside the store. A program used again is rebuilt, and its executable
-loaded from JAX's persistent cache when that is on; results are the same bits.
+The store is also bounded by memory maps: each live XLA:CPU executable maps a few
+regions per kernel, and Linux kills a process at ``vm.max_map_count``. Over
+:func:`map_budget`, JAX's own caches and then the least recently used half of the
+store are dropped before a build; a program used again is rebuilt, same bits.
 """
 
 from __future__ import annotations
@@ -44,8 +33,7 @@ __all__ = [
     "program_counts",
 ]
 
-#: Entries kept before the least recently used is dropped (each may hold compiled
-#: executables of several MB; the memory maps they hold bound the store too).
+#: Entries kept before the least recently used is dropped.
 MAX_PROGRAMS = 64
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -54,8 +42,7 @@ _STORE: collections.OrderedDict[tuple[str, Hashable], Any] = collections.Ordered
 
 
 def cached(name: str, key: Hashable, build: Callable[[], Any]) -> Any:
-    """The program ``name`` for ``key``: ``build()``'s result, built on first use (for
-    programs built from unhashable inputs, e.g. lowered for a given state)."""
+    """The program ``name`` for ``key``: ``build()``'s result, built on first use."""
     entry = (name, key)
     if entry in _STORE:
         _STORE.move_to_end(entry)
@@ -68,9 +55,8 @@ def cached(name: str, key: Hashable, build: Callable[[], Any]) -> Any:
 
 
 def cached_program(builder: F) -> F:
-    """Decorate ``builder`` (hashable arguments only) so that each set of arguments
-    builds once, kept in the one store under the builder's qualified name. Arguments
-    count as given: ``f(x)`` and ``f(config=x)`` are two entries."""
+    """``builder`` (hashable arguments) built once per set of arguments, in the store;
+    ``f(x)`` and ``f(config=x)`` are two entries."""
     name = f"{builder.__module__}.{builder.__qualname__}"
 
     @functools.wraps(builder)
@@ -92,9 +78,8 @@ def memory_maps() -> int:
 
 @functools.cache
 def map_budget() -> int:
-    """Maps the process may hold before JAX's caches and the store's programs are
-    dropped: half of Linux's ``vm.max_map_count`` (32,765 by default), leaving the
-    other half as headroom for the programs compiled until the next build checks."""
+    """Half of Linux's ``vm.max_map_count``: the other half is headroom for what compiles
+    until the next build checks."""
     try:
         with open("/proc/sys/vm/max_map_count") as limit:
             return int(limit.read()) // 2
@@ -103,14 +88,8 @@ def map_budget() -> int:
 
 
 def _drop_while_over_map_budget() -> None:
-    """Over the budget, drop JAX's own caches, then the least recently used half of the
-    store until the maps are under budget.
-
-    JAX's caches keep an executable for every function a process ever jitted outside
-    the store (a test suite's, a notebook's, the eager ops'), most of the maps of a
-    process that compiles many. Cleared, those are recompiled (or loaded from the
-    persistent cache) on next use, with the same bits.
-    """
+    """Over budget, drop JAX's caches (every function jitted outside the store), then the
+    least recently used half of the store until under budget."""
     if memory_maps() <= map_budget():
         return
     jax.clear_caches()
@@ -122,14 +101,8 @@ def _drop_while_over_map_budget() -> None:
 
 
 def jit_in_store(*static_argnames: str) -> Callable[[F], F]:
-    """``partial(jax.jit, static_argnames=...)`` whose programs live in the store.
-
-    A module-level ``jax.jit`` keeps an executable for every value of its static
-    arguments for the life of the process, out of the store's reach. Decorated
-    with this instead, ``fun`` is jitted once per value of ``static_argnames``
-    (those values closed over, so the same program) and each jitted function is
-    a store entry, dropped with the least recently used.
-    """
+    """``partial(jax.jit, static_argnames=...)`` whose programs live in the store (a
+    module-level ``jax.jit`` would keep every executable for the process's life)."""
 
     def decorate(fun: F) -> F:
         name = f"{fun.__module__}.{fun.__qualname__}"
@@ -150,7 +123,7 @@ def jit_in_store(*static_argnames: str) -> Callable[[F], F]:
 
 
 def program_counts() -> dict[str, int]:
-    """How many entries each builder (by qualified name) holds now."""
+    """How many entries each builder (by qualified name) holds."""
     return dict(collections.Counter(name for name, _ in _STORE))
 
 

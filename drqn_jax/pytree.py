@@ -1,16 +1,9 @@
-"""Plain-pytree dataclasses and validated parameter fields.
+"""Frozen dataclasses as JAX pytrees, and parameter fields with allowed ranges.
 
-No flax: a frozen dataclass is registered as a JAX pytree whose children are
-its fields. Unflattening bypasses ``__init__`` so that JAX can rebuild a
-parameter object from tracers, ``None`` or ``in_axes`` integers without
-running the validation that guards user construction.
-
-Parameter fields carry their allowed range in the dataclass field metadata
-(:func:`param`); :func:`validate` checks every concrete value against it and
-raises a :class:`ValueError` that names the class, the field, the value and
-what is allowed. Switch fields (``choices=``) accept their names as strings
-and are stored as ``int`` codes, so a switch is a traced value that can be
-swept under ``vmap`` like any other number.
+Unflattening bypasses ``__init__``, so JAX rebuilds objects from tracers, ``None``
+or ``in_axes`` integers without the validation that guards user construction.
+Switch fields (``choices=``) take names and store ``int`` codes, so a switch can
+be swept under ``vmap`` like any number.
 """
 
 from __future__ import annotations
@@ -38,12 +31,8 @@ __all__ = [
 
 
 def pytree_dataclass(cls: type[T] | None = None, *, meta_fields: Sequence[str] = ()) -> Any:
-    """Make ``cls`` a frozen dataclass registered as a JAX pytree.
-
-    Fields named in ``meta_fields`` are static (hashable, part of the tree
-    structure); every other field is a child. ``__post_init__`` runs on user
-    construction only, never when JAX unflattens the tree.
-    """
+    """``cls`` as a frozen dataclass registered as a pytree; ``meta_fields`` are static
+    (part of the tree structure), every other field a child."""
 
     def wrap(cls: type[T]) -> type[T]:
         cls = dataclasses.dataclass(frozen=True)(cls)
@@ -84,11 +73,8 @@ def param(
     choices: Sequence[str] | None = None,
     doc: str = "",
 ) -> Any:
-    """A dataclass field with an allowed range (``[low, high]``, ends optionally open).
-
-    ``choices`` makes the field a switch: the user gives one of the names,
-    the object stores its index (an ``int``), which stays traceable.
-    """
+    """A dataclass field allowed in ``[low, high]`` (ends optionally open), or a switch
+    over ``choices`` stored as the name's index."""
     meta = {
         "low": low,
         "high": high,
@@ -114,14 +100,9 @@ def _allowed(meta: dict) -> str:
 
 
 def validate(obj: Any) -> None:
-    """Check every concrete field of ``obj`` against its :func:`param` metadata.
-
-    Stores every concrete value as a float32 (int32 for switches and integer
-    fields) NumPy array, so eager arithmetic on parameters is the same
-    float32 arithmetic as under ``jit``; switch names become their codes.
-    The object is frozen, so this goes through ``object.__setattr__``: call
-    it from ``__post_init__`` only.
-    Raises ``ValueError("Class.field = value: ...")`` on the first bad field.
+    """Check every concrete field against its :func:`param` range (``ValueError("Class.field
+    = value: ...")``) and store it as float32 (int32 for switches and integer fields),
+    so eager arithmetic is ``jit``'s; from ``__post_init__`` only (it sets frozen fields).
     """
     cls_name = type(obj).__name__
     for f in dataclasses.fields(obj):
@@ -176,8 +157,7 @@ def show_value(value: Any) -> str:
 
 
 def tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
-    """Leaf-wise ``where(cond, a, b)`` with ``cond`` (N,) broadcast over the
-    leaves' trailing axes (a per-env choice between two batched pytrees)."""
+    """Leaf-wise ``where(cond, a, b)``, ``cond`` (N,) broadcast over trailing axes."""
 
     def pick(x, y):
         return jnp.where(cond.reshape(cond.shape + (1,) * (x.ndim - cond.ndim)), x, y)
@@ -186,8 +166,7 @@ def tree_where(cond: jax.Array, a: Any, b: Any) -> Any:
 
 
 def check_counts(obj: Any, names: Sequence[str], *, low: int = 1) -> None:
-    """Raise a one-line ``ValueError`` unless each of ``obj``'s fields ``names`` is an
-    integer (not a bool) ``>= low``."""
+    """Raise unless each field in ``names`` is an integer (not a bool) ``>= low``."""
     for name in names:
         value = getattr(obj, name)
         if not isinstance(value, int) or isinstance(value, bool) or value < low:

@@ -10,31 +10,25 @@ from drqn_jax.env.urban import UrbanPedestrians
 
 # Each id maps to (static overrides, traced overrides) on top of the defaults.
 _PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
-    # The paper's world (SPEC §1-5): pedestrians at 0.5-1.5 km/h that ignore the car,
-    # the authors' collision test (docs/spec.md, "The paper's world: calibration").
+    # The paper's world (SPEC §1-5; docs/spec.md, "The paper's world: calibration").
     "UrbanPedestrians-v0": ({}, {}),
     # The paper's world with pedestrians at realistic walking speeds, 0.5-1.5 m/s.
     "UrbanPedestriansRealistic-v0": ({}, {"ped_speed_min": 0.5, "ped_speed_max": 1.5}),
-    # The paper's world with pedestrians from the paper's slowest (0.5 km/h) to the
-    # realistic fastest (1.5 m/s), for an agent trained for both.
+    # Pedestrians from the paper's slowest (0.5 km/h) to the realistic fastest (1.5 m/s).
     "UrbanPedestriansMixed-v0": ({}, {"ped_speed_max": 1.5}),
-    # Pedestrians that yield to the car (for at most ped_wait_max_s, then walk on) and
-    # box-disc contact as the collision test: the sensitivity study's yielding world.
+    # Pedestrians that yield to the car, box-disc contact as the collision test.
     "UrbanPedestriansYielding-v0": (
         {},
         {"ped_behaviour_to_car": "yield", "collision_model": "contact"},
     ),
-    # Pedestrians that ignore the car with box-disc contact as the collision test: the
-    # rule-based agent collides as in the paper (docs/spec.md, "Worlds").
+    # Pedestrians that ignore the car, box-disc contact (docs/spec.md, "Worlds").
     "UrbanPedestriansHeedless-v0": (
         {},
         {"ped_behaviour_to_car": "ignore", "collision_model": "contact"},
     ),
-    # The paper's world where each pedestrian drops out of the grid with probability
-    # 0.5 per step (partial observability: what a memory can make up for).
+    # Each pedestrian drops out of the grid with probability 0.5 per step.
     "UrbanPedestriansOccluded-v0": ({}, {"occlusion_prob": 0.5}),
-    # A map no preset trains on: 4 intersections 40 m apart (paper's world: 3, 50 m)
-    # and 15 pedestrians alive (paper: 10), for agents tested beyond their training.
+    # A map no preset trains on, for agents tested beyond their training.
     "UrbanPedestriansUnseenMap-v0": (
         {"num_pedestrians": 15, "num_intersections": 4},
         {"first_intersection_x": 40.0, "intersection_spacing": 40.0},
@@ -66,18 +60,8 @@ def preset(env_id: str) -> dict[str, Any]:
 def make(
     env_id: str = "UrbanPedestrians-v0", **overrides: Any
 ) -> tuple[UrbanPedestrians, EnvParams]:
-    """Build an environment and its default parameters.
-
-    Args:
-        env_id: one of :func:`registered_envs`.
-        **overrides: any ``StaticEnvParams`` field (changes shapes, e.g.
-            ``num_pedestrians=20``) or ``EnvParams`` field (e.g.
-            ``ped_speed_max=0.5``, ``ped_behaviour_to_car="yield"``).
-    Returns:
-        ``(env, params)``: the env (hashable, static) and its ``EnvParams``.
-    Raises:
-        ValueError: unknown id or field, or a value out of its allowed range.
-    """
+    """``(env, params)`` of a registered id; ``overrides`` set any ``StaticEnvParams``
+    (shapes) or ``EnvParams`` field. ValueError: unknown id or field, or out of range."""
     static_kw, traced_kw = _overrides(env_id)
     static_names = {f.name for f in dataclasses.fields(StaticEnvParams)}
     traced_names = {f.name for f in dataclasses.fields(EnvParams)}

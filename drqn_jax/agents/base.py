@@ -1,16 +1,8 @@
-"""The agent interface shared by the rule-based baseline, simple policies and the DRQN.
+"""The agent interface of every policy.
 
-An :class:`Agent` is a pytree: its ``params`` (network weights, thresholds…)
-are traced leaves, its functions are static. So ``jit`` compiles one program
-per kind of agent and reuses it for new weights, and an agent can be passed
-straight into ``jit``/``vmap``-ed code.
-
-* ``init_carry(key) -> carry``: the per-episode policy state (an LSTM state
-  for the DRQN, ``()`` for memoryless policies);
-* ``act(key, obs, carry, state, env, env_params) -> (action, carry)``: one
-  action () int32 for one environment. ``state`` is the true simulator
-  state, which privileged baselines (the rule-based agent, paper §V-E) read
-  and learned agents ignore.
+An :class:`Agent` is a pytree: ``params`` are traced leaves, its functions static,
+so ``jit`` compiles one program per kind of agent and reuses it for new weights.
+``act`` gets the true simulator ``state`` too, which only privileged baselines read.
 """
 
 from __future__ import annotations
@@ -40,14 +32,8 @@ def no_carry(params: Any, key: jax.Array) -> tuple[()]:
 
 @pytree_dataclass(meta_fields=("name", "init_fn", "act_fn"))
 class Agent:
-    """A policy behind one interface (see the module docstring).
-
-    Attributes:
-        params: traced pytree of the policy's parameters.
-        name: a short name for reports.
-        init_fn: ``(params, key) -> carry``.
-        act_fn: ``(params, key, obs, carry, state, env, env_params) -> (action, carry)``.
-    """
+    """A policy: ``init_fn(params, key) -> carry`` and ``act_fn(params, key, obs, carry,
+    state, env, env_params) -> (() int32 action, carry)``; ``name`` is for reports."""
 
     params: Any
     name: str
@@ -55,7 +41,7 @@ class Agent:
     act_fn: ActFn
 
     def init_carry(self, key: jax.Array) -> Carry:
-        """The policy state at the start of an episode."""
+        """The policy state at an episode's start (an RNN state, or ``()``)."""
         return self.init_fn(self.params, key)
 
     def act(

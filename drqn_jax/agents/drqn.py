@@ -1,8 +1,5 @@
-"""The trained (D)RQN as an :class:`~drqn_jax.agents.base.Agent` (paper §V-E; SPEC §8).
-
-Greedy (ε = 0): the action is ``argmax Q`` of the network's step on the
-observation; the LSTM carry is threaded through the episode and starts from
-zeros.
+"""The trained network as a greedy :class:`~drqn_jax.agents.base.Agent` (paper §V-E;
+SPEC §8): ``argmax`` of its step, the carry threaded from zeros.
 """
 
 from __future__ import annotations
@@ -20,9 +17,7 @@ __all__ = ["drqn_agent"]
 
 
 def drqn_agent(network: Network, params: Any, name: str | None = None) -> Agent:
-    """Wrap a network and its parameters as a greedy agent (argmax of its outputs:
-    Q-values, or PPO's logits); ``name`` defaults to the network kind."""
-
+    """A greedy agent (argmax of Q-values or PPO's logits); ``name``: the network kind."""
     name = name or network.config.kind
     init_fn, act_fn = _greedy_functions(network)
     return Agent(params=params, name=name, init_fn=init_fn, act_fn=act_fn)

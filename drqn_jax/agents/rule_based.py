@@ -1,18 +1,9 @@
 """The rule-based agent of paper §V-E (SPEC §6), a pure policy over the true state.
 
-``brake`` when any pedestrian that is on the road or a crosswalk lies inside
-the ego's corridor (lateral distance to the lane centre ≤ ego_width/2 +
-ped_radius + ``corridor_margin``) and within ``lookahead`` metres ahead of the
-front bumper; otherwise track ``v_max``: accelerate below ``v_max − band``,
-steer (keep speed) within ±band, slow down above ``v_max + band``.
-
-``horizon`` > 0 (not the paper's; 0 by default) makes it anticipate: it also
-brakes for a pedestrian that, walking on at its current velocity, enters the
-corridor within ``horizon`` seconds, within ``lookahead`` of the front bumper
-and before the bumper, moving on at the ego's speed, has passed it. A fast
-pedestrian stepping towards the lane is braked for before it arrives; a slow
-one, whose ``horizon`` seconds of walking are short, barely changes the rule;
-one in the corridor already is braked for as before.
+``brake`` for a pedestrian on the road in the ego's corridor within ``lookahead``
+of the front bumper, else track ``v_max``. ``horizon`` > 0 (not the paper's) also
+brakes for one that, walking on at its velocity, enters that corridor within
+``horizon`` seconds before the bumper has passed it.
 """
 
 from __future__ import annotations
@@ -58,8 +49,7 @@ class RuleBasedParams:
 def _times_between(
     a: jax.Array, b: jax.Array, low: jax.Array | float, high: jax.Array | float
 ) -> tuple[jax.Array, jax.Array]:
-    """The times t (an interval, maybe empty or unbounded) with low ≤ a + b·t ≤ high,
-    elementwise: (start, end) of the same shape as ``a`` and ``b``."""
+    """Elementwise (start, end) of the times t with low ≤ a + b·t ≤ high (maybe empty)."""
     moving = b != 0.0
     rate = jnp.where(moving, b, 1.0)
     t_low, t_high = (low - a) / rate, (high - a) / rate
@@ -79,13 +69,8 @@ def must_brake(
     velocity: jax.Array,
     v: jax.Array,
 ) -> jax.Array:
-    """() bool: a pedestrian on the road or a crosswalk is in the corridor ahead
-    (or, with ``rb.horizon`` > 0, walks into it within ``rb.horizon`` seconds).
-
-    Args:
-        s, v: () the ego's arc length (m) and speed (m/s); position, velocity:
-            (P, 2) the pedestrians' centres (m) and velocities (m/s).
-    """
+    """() bool: a pedestrian (``position``, ``velocity`` (P, 2)) on the road is in the
+    corridor ahead of the ego (``s``, ``v`` ()), or walks into it within ``rb.horizon``."""
     cls = semantic_class(position, env_params, static)
     on_road = (cls == ROAD) | (cls == CROSSING_AREA)
     half_corridor = 0.5 * env_params.ego_width + env_params.ped_radius + rb.corridor_margin
@@ -93,10 +78,8 @@ def must_brake(
     ahead = position[:, 0] - (s + 0.5 * env_params.ego_length)
     in_front = (ahead >= -env_params.ped_radius) & (ahead <= rb.lookahead)
     now = jnp.any(on_road & (jnp.abs(offset) <= half_corridor) & in_front)
-    # When each pedestrian, walking on, is in the corridor (its lateral offset is
-    # linear in t), within the look-ahead of where the bumper is now, and not yet
-    # passed by the bumper moving on at v: an interval of t each, intersected
-    # with [0, horizon].
+    # Per pedestrian, the times in [0, horizon] when it is in the corridor, within the
+    # look-ahead, and not yet passed by the bumper moving at v.
     lat = _times_between(offset, velocity[:, 1], -half_corridor, half_corridor)
     near = _times_between(ahead, velocity[:, 0], -jnp.inf, rb.lookahead)
     unpassed = _times_between(ahead, velocity[:, 0] - v, -env_params.ped_radius, jnp.inf)
@@ -136,9 +119,8 @@ def rule_based_action(
 def rule_based_labels(
     records: GridInputs, env_params: EnvParams, rb: RuleBasedParams, static
 ) -> jax.Array:
-    """The rule-based agent's action for each of ``records`` (any leading shape
-    (…,), int32): what it would have done in the replay's stored states, which
-    hold every pedestrian's position (visible or not) as the true state does."""
+    """(…,) int32 rule-based actions in replay records of any leading shape (they hold
+    every pedestrian, visible or not, as the true state does)."""
     lead = records.s.shape
     flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[len(lead) :])), records)
     actions = jax.vmap(_action, (0, 0, 0, 0, None, None, None))(

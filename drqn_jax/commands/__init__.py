@@ -1,8 +1,5 @@
-"""The ``drqn-jax`` commands, one module per thing they drive: :mod:`~drqn_jax.commands.runs`
-(train, evaluate, reproduce, replay: a run directory), :mod:`~drqn_jax.commands.sweep`,
-:mod:`~drqn_jax.commands.study` (study, report), :mod:`~drqn_jax.commands.frontier`
-and :mod:`~drqn_jax.commands.bench`. :mod:`drqn_jax.cli` parses the arguments and calls
-``cmd_<name>(args)``, which returns the exit status.
+"""The ``drqn-jax`` commands, one module per thing they drive; :mod:`drqn_jax.cli`
+parses the arguments and calls ``cmd_<name>(args)``, which returns the exit status.
 """
 
 from __future__ import annotations

@@ -66,11 +66,7 @@ def _frontier_config(args: argparse.Namespace) -> tuple[Config, list[float]]:
 
 
 def _frontier_outputs(
-    args: argparse.Namespace,
-    config: Config,
-    record: dict[str, Any],
-    checks: list[str],
-    wall: float,
+    args: argparse.Namespace, config: Config, record: dict[str, Any], checks: list[str], wall: float
 ) -> None:
     """OUT/frontier.json (every swept point) and frontier.png; the section of --results
     (the frontiers' rows, the check, the wall times); the table on stdout."""

@@ -1,10 +1,6 @@
 """Collision and time to collision (paper §IV-B "Reward Function"; SPEC §5).
 
-The ego is an axis-aligned box (its heading is always +x along the route);
-a pedestrian is a disc. :func:`box_disc_overlap` is the one geometric test
-used for the contact collision, for pedestrians that stop short of the car,
-and for the TTC projection; the ``authors`` collision model tests a zone in
-the ego's lane instead (:func:`collision_test`).
+The ego is an axis-aligned box heading +x; a pedestrian is a disc.
 """
 
 from __future__ import annotations
@@ -38,25 +34,13 @@ def ego_box(
 
 
 def squared_length(v: jax.Array) -> jax.Array:
-    """(..., 2) vectors -> (...,) ``x² + y²``.
-
-    Written out rather than as a sum over the last axis: the same bits (a sum of
-    two), but XLA:CPU fuses it with its neighbours instead of running a
-    separate reduction kernel per use.
-    """
+    """(..., 2) vectors -> (...,) ``x² + y²``, written out so XLA:CPU fuses it (no reduction)."""
     return v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1]
 
 
 def box_squared_distance(box_centre: jax.Array, box_half: jax.Array, point: jax.Array) -> jax.Array:
-    """Squared distance from axis-aligned boxes to points (0 inside or on the edge).
-
-    Args:
-        box_centre: (..., 2); box_half: (2,); point: (..., 2) broadcastable with
-            ``box_centre``.
-    Returns:
-        (...,) float32.
-    """
-    # Components written out: a reduction over a minor axis of size 2 vectorises poorly.
+    """(...,) float32 squared distance from boxes (centre (..., 2), half (2,)) to points
+    (..., 2); 0 inside or on the edge."""
     dx = jnp.maximum(jnp.abs(point[..., 0] - box_centre[..., 0]) - box_half[0], 0.0)
     dy = jnp.maximum(jnp.abs(point[..., 1] - box_centre[..., 1]) - box_half[1], 0.0)
     return dx * dx + dy * dy
@@ -65,31 +49,19 @@ def box_squared_distance(box_centre: jax.Array, box_half: jax.Array, point: jax.
 def box_disc_overlap(
     box_centre: jax.Array, box_half: jax.Array, disc_centre: jax.Array, radius: jax.Array
 ) -> jax.Array:
-    """Whether axis-aligned boxes and discs overlap (strictly: touching is not overlap).
-
-    Args:
-        box_centre: (..., 2); box_half: (2,); disc_centre: (..., 2) broadcastable
-            with ``box_centre``; radius: () or broadcastable.
-    Returns:
-        (...,) bool.
-    """
+    """(...,) bool: boxes (centre (..., 2), half (2,)) and discs (centre (..., 2)) overlap
+    strictly (touching is not overlap)."""
     return box_squared_distance(box_centre, box_half, disc_centre) < radius * radius
 
 
 def collision_test(ego: EgoState, peds: PedestrianState, params: EnvParams) -> jax.Array:
-    """(P,) bool: which pedestrians meet the collision test of ``collision_model`` (SPEC §5).
+    """(P,) bool: which pedestrians meet the ``collision_model`` test (SPEC §5).
 
-    * ``contact``: the ego's box overlaps the pedestrian's disc (strictly);
-    * ``authors`` (carla-gym ``urban_env.py``, ``is_collision``): the
-      pedestrian's centre is on the ego's lane (``-lane_width <= y <= 0``) and,
-      in the ego frame, within ``-authors_zone_back <= x <= authors_zone_front``
-      and ``|y| <= authors_zone_half_width``.
-
-    Both are a distance from a box: the footprint with the disc's radius, or the
-    zone (the lane cut to the authors' band) with radius 0 and its edges
-    included. The box is chosen on scalars, so one test runs per pedestrian.
-    Whether a hit is the ego's collision (it moves) or the pedestrian struck a
-    stopped car is decided by :func:`classify_hits`.
+    ``contact``: the ego's box overlaps the disc. ``authors`` (carla-gym
+    ``is_collision``): the centre lies in the ego's lane within
+    ``-authors_zone_back <= x <= authors_zone_front``, ``|y| <= authors_zone_half_width``
+    of the ego centre, edges included. The box is chosen on scalars, so one
+    distance test runs per pedestrian.
     """
     authors = params.collision_model == COLLISION_AUTHORS
     foot_centre, foot_half = ego_box(ego.s, params)
@@ -111,12 +83,9 @@ def collision_test(ego: EgoState, peds: PedestrianState, params: EnvParams) -> j
 def classify_hits(
     ego: EgoState, peds: PedestrianState, params: EnvParams
 ) -> tuple[jax.Array, jax.Array]:
-    """``(collision, struck_while_stopped)``, () bool each, after a step (SPEC §5).
-
-    A hit while the ego moves (``v >= stopped_speed``) is the ego's collision;
-    a hit while it stands is *struck while stopped*: no penalty, not the ego's
-    collision, and the episode goes on.
-    """
+    """``(collision, struck_while_stopped)``, () bool each (SPEC §5): a hit while the ego
+    moves (``v >= stopped_speed``) is its collision; one while it stands is neither
+    penalised nor ends the episode."""
     hit = jnp.any(collision_test(ego, peds, params))
     moving = ego.v >= params.stopped_speed
     return hit & moving, hit & ~moving
@@ -125,16 +94,9 @@ def classify_hits(
 def time_to_collision(
     ego: EgoState, peds: PedestrianState, params: EnvParams, static: StaticEnvParams
 ) -> jax.Array:
-    """TTC (s): first sample time at which box and a disc overlap (SPEC §5).
-
-    The ego is projected along its route at its current speed, every
-    pedestrian at its current velocity, at ``t = 0, ttc_step, …, ttc_horizon``;
-    the result is the minimum over pedestrians, ``inf`` if none overlaps or
-    the ego is stopped (``v < stopped_speed``).
-
-    Returns:
-        () float32 in ``{0, ttc_step, …, ttc_horizon} ∪ {inf}``.
-    """
+    """() float32 TTC (s, SPEC §5): the first of ``t = 0, ttc_step, …, ttc_horizon`` at
+    which the ego, at its speed, and a pedestrian, at its velocity, overlap; ``inf``
+    if none does or the ego is stopped."""
     t = jnp.arange(static.ttc_samples, dtype=jnp.float32)[:, None] * static.ttc_step  # (K, 1)
     # Pedestrians relative to the ego's box centre, in the ego's moving frame: (K, P).
     _, half = ego_box(ego.s, params)
@@ -143,6 +105,5 @@ def time_to_collision(
     hit = box_disc_overlap(
         jnp.zeros(2, jnp.float32), half, jnp.stack([rel_x, rel_y], -1), params.ped_radius
     )
-    # The first sample time with any overlap, as one min-reduction (no argmax).
     ttc = jnp.min(jnp.where(hit, t, jnp.inf))
     return jnp.where(ego.v < params.stopped_speed, jnp.inf, ttc).astype(jnp.float32)

@@ -1,13 +1,6 @@
-"""The ego vehicle: high-level action -> setpoint -> PID -> plant (paper §IV-B, Alg. 1; SPEC §2).
+"""The ego vehicle: action -> setpoint -> PID -> plant (paper §IV-B, Alg. 1; SPEC §2).
 
-* :func:`desired_speed` turns an action into the PID setpoint ``v_d``;
-* :func:`pid_step` is CARLA's longitudinal PID (error in km/h, integral over
-  the last K errors, derivative of the last two);
-* :func:`throttle_brake` maps the PID output u to pedals (the paper's
-  "u >= 1" read as u >= 0), or the emergency stop for ``brake``;
-* :func:`plant_step` integrates the first-order-lag longitudinal plant.
-
-All functions work on one environment; ``vmap`` batches them.
+One environment per call; ``vmap`` batches.
 """
 
 from __future__ import annotations
@@ -37,17 +30,9 @@ def initial_ego(params: EnvParams, static: StaticEnvParams) -> EgoState:
 
 
 def desired_speed(action: jax.Array, ego: EgoState, params: EnvParams) -> jax.Array:
-    """Setpoint v_d (m/s) for an action (SPEC §2).
-
-    accelerate: base + 1 km/h; slow_down: max(base - 1 km/h, 0); steer: base;
-    brake: 0. ``base`` is the measured speed (``setpoint_mode = "measured"``)
-    or the previous setpoint (``"setpoint"``).
-
-    Args:
-        action: () int32 in {0, 1, 2, 3}.
-    Returns:
-        () float32.
-    """
+    """() float32 setpoint v_d (m/s) for an () int32 action (SPEC §2): base ± 1 km/h,
+    base (steer) or 0 (brake); base is the measured speed or the previous setpoint
+    (``setpoint_mode``)."""
     base = jnp.where(params.setpoint_mode == SETPOINT_PREVIOUS, ego.v_setpoint, ego.v)
     step = params.setpoint_step
     up = base + step
@@ -59,13 +44,11 @@ def desired_speed(action: jax.Array, ego: EgoState, params: EnvParams) -> jax.Ar
 def pid_step(
     v_d: jax.Array, ego: EgoState, params: EnvParams
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """CARLA's longitudinal PID on the speed error in km/h.
+    """CARLA's longitudinal PID on the speed error in km/h (SPEC §2).
 
-    ``u = clip(Kp·e + Ki·Σe·dt + Kd·Δe/dt, -1, 1)`` over the last K errors;
-    the integral and derivative are 0 until two errors are stored.
-
-    Returns:
-        u: () float32 in [-1, 1]; the new (K,) error buffer; the new count.
+    ``u = clip(Kp·e + Ki·Σe·dt + Kd·Δe/dt, -1, 1)`` over the last K errors; the
+    integral and derivative are 0 until two errors are stored. Returns u () float32,
+    the new (K,) error buffer and count.
     """
     e = (v_d - ego.v) * MS_TO_KMH
     errors = jnp.concatenate([ego.pid_errors[1:], e[None]])
@@ -78,23 +61,17 @@ def pid_step(
 
 
 def throttle_brake(u: jax.Array, params: EnvParams) -> tuple[jax.Array, jax.Array]:
-    """Pedals from the PID output (paper eq. for T_p, B_p; CARLA's limits).
-
-    Returns:
-        throttle ``min(max(u, 0), throttle_max)`` and brake ``min(max(-u, 0), brake_max)``.
-    """
+    """``(throttle, brake)`` from the PID output (paper eq. for T_p, B_p; CARLA's limits)."""
     throttle = jnp.minimum(jnp.maximum(u, 0.0), params.throttle_max)
     brake = jnp.minimum(jnp.maximum(-u, 0.0), params.brake_max)
     return throttle, brake
 
 
 def plant_step(ego: EgoState, throttle: jax.Array, brake: jax.Array, params: EnvParams) -> EgoState:
-    """Integrate the longitudinal plant over one step (SPEC §2).
+    """One step of the first-order-lag longitudinal plant (SPEC §2).
 
-    ``a_cmd = throttle·A_thr − brake·A_brk − c_roll·[v > 0]``;
-    ``a ← a + (a_cmd − a)·dt/τ``; ``v ← clip(v + a·dt, 0, v_max)``;
-    ``s ← s + v·dt``. A vehicle at rest carries no deceleration (a ≥ 0 when
-    v = 0), so it starts again without first undoing a lagged braking force.
+    A vehicle at rest carries no deceleration (a ≥ 0 at v = 0), so it starts again
+    without first undoing a lagged braking force.
     """
     moving = ego.v > 0.0
     a_cmd = (
@@ -112,11 +89,8 @@ def plant_step(ego: EgoState, throttle: jax.Array, brake: jax.Array, params: Env
 
 
 def ego_step(ego: EgoState, action: jax.Array, params: EnvParams) -> EgoState:
-    """One decision step of the ego: setpoint, PID (or emergency stop), plant.
-
-    ``brake`` bypasses the PID (throttle 0, brake 1, setpoint 0) and leaves
-    its error history untouched, as CARLA's emergency stop does.
-    """
+    """One decision step: setpoint, PID, plant. ``brake`` is CARLA's emergency stop:
+    throttle 0, brake 1, the PID's history untouched."""
     v_d = desired_speed(action, ego, params)
     u, errors, count = pid_step(v_d, ego, params)
     throttle, brake = throttle_brake(u, params)

@@ -1,25 +1,14 @@
-"""The ego-centred multi-channel grid (paper §IV-B "State space", §V-A; SPEC §4).
+"""The ego-centred observation grid (paper §IV-B "State space", §V-A; SPEC §4).
 
-``rows × cols × 4`` float32 (45 × 30 × 4), 1 m cells, rows along the ego's
-forward axis (row 0 at ``x_rel = grid_x_min = −5 m``), columns lateral
-(column 0 at ``y_rel = grid_y_min = −15 m``, i.e. the ego's right). Channels:
+(45, 30, 4) float32, 1 m cells; row 0 at ``grid_x_min`` (−5 m) along the ego's
+axis, column 0 at ``grid_y_min`` (−15 m, its right). Channels: occupancy,
+relative heading / π in [−1, 1), speed / norm (``speed_channel``), semantic
+class / 3 (``semantic_channel``).
 
-0. occupancy: 1 where a pedestrian's centre lies in the cell, else 0;
-1. relative heading: ``wrap(heading − ego heading) / π`` in [−1, 1);
-2. speed: pedestrian speed / ``speed_norm_pedestrian`` (``speed_channel =
-   "pedestrian"``), or the norm of its velocity relative to the ego /
-   ``speed_norm_relative`` (``"relative"``); ≥ 0;
-3. semantics: class / 3 (walkway 1/3, crossing 2/3, road 1, off-road 0) at the
-   pedestrian's position (``semantic_channel = "pedestrian"``), or the dense
-   class map of every cell centre (``"map"``).
-
-Pedestrians outside the window, or occluded (``visible`` false), are
-dropped: indices are pushed out of range *before* the scatter (a negative
-index would wrap around), and the scatter uses ``mode="drop"``. When several
-pedestrians share a cell the one nearest to the ego wins (ties: lower index),
-so the grid is a deterministic function of the state whatever order XLA
-applies scatter updates in. An occluded pedestrian never takes a cell from
-a visible one.
+Pedestrians outside the window or occluded are pushed out of range before the
+scatter (``mode="drop"``; a negative index would wrap). Of several in one cell
+the nearest to the ego wins (ties: lower index), so the grid does not depend
+on the order XLA applies scatter updates in.
 """
 
 from __future__ import annotations
@@ -28,12 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.env.collision import squared_length
-from drqn_jax.env.params import (
-    SEMANTIC_MAP,
-    SPEED_RELATIVE,
-    EnvParams,
-    StaticEnvParams,
-)
+from drqn_jax.env.params import SEMANTIC_MAP, SPEED_RELATIVE, EnvParams, StaticEnvParams
 from drqn_jax.env.road_map import lane_centre_y, semantic_class
 from drqn_jax.env.state import EgoState, PedestrianState
 from drqn_jax.pytree import pytree_dataclass
@@ -69,14 +53,8 @@ def cell_centres(
 def grid_cell_index(
     position: jax.Array, ego: EgoState | GridInputs, params: EnvParams, static: StaticEnvParams
 ) -> tuple[jax.Array, jax.Array]:
-    """Flat cell index of each position, and whether it lies inside the window.
-
-    Args:
-        position: (P, 2) world coordinates.
-    Returns:
-        (P,) int32 flat index ``row * cols + col`` (``rows * cols`` when outside,
-        which a ``mode="drop"`` scatter ignores); (P,) bool inside.
-    """
+    """(P,) int32 flat index ``row * cols + col`` of each (P, 2) position (``rows * cols``
+    outside the window), and (P,) bool inside."""
     rel_x = position[:, 0] - ego.s - static.grid_x_min
     rel_y = position[:, 1] - lane_centre_y(params) - static.grid_y_min
     row = jnp.floor(rel_x * (1.0 / static.cell_size))
@@ -88,16 +66,8 @@ def grid_cell_index(
 
 
 def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
-    """Push every pedestrian that loses its cell to a nearer one out of range.
-
-    Of two pedestrians j < i in one cell, j keeps it when at least as near
-    (ties: the lower index), else i does.
-
-    Args:
-        flat: (P,) int32 flat cell indices; dist2: (P,) float32 squared distances.
-    Returns:
-        (P,) int32: ``flat``, with ``size`` where a pedestrian lost its cell.
-    """
+    """``flat`` (P,) int32 with ``size`` where a pedestrian loses its cell to a nearer one
+    (``dist2`` (P,) squared distances; ties: the lower index)."""
     num = flat.shape[0]
     order = jnp.arange(num)
     # beats[j, i]: j shares i's cell and is nearer (ties: the lower index)
@@ -105,10 +75,7 @@ def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
         (dist2[:, None] < dist2[None, :])
         | ((dist2[:, None] == dist2[None, :]) & (order[:, None] < order[None, :]))
     )
-    # The rows OR-ed one by one, not ``jnp.any(axis=0)``: a reduction over a
-    # short axis vectorises poorly on XLA:CPU, and the P (P - 1) / 2 pairs
-    # written out one by one made the grid a fifth of a training program's
-    # operations (compile time); this form is as fast as either.
+    # OR-ed row by row: a reduction over a short axis vectorises poorly on XLA:CPU.
     loses = beats[0]
     for j in range(1, num):
         loses = loses | beats[j]
@@ -117,15 +84,11 @@ def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
 
 @pytree_dataclass
 class GridInputs:
-    """Everything the grid is rasterised from: a compact record of one step.
+    """What the grid is rasterised from: 6P + 2 floats and P flags instead of 5400 grid
+    floats, so a replay stores these and rasterises at sample time.
 
-    6P + 2 floats and P bools (62 numbers and 10 flags for P = 10, against 5400
-    floats for the grid), so a replay can store these and rasterise at sample time.
-
-    Attributes:
-        s, v: () float32, the ego's arc length (m) and speed (m/s).
-        position, velocity: (P, 2) float32; heading, speed: (P,) float32;
-            visible: (P,) bool — the pedestrians' fields of the same names.
+    ``s``, ``v``: () float32, the ego's; ``position``, ``velocity`` (P, 2), ``heading``,
+    ``speed`` (P,) float32, ``visible`` (P,) bool: the pedestrians' fields.
     """
 
     s: jax.Array
@@ -150,7 +113,7 @@ class GridInputs:
 
     @classmethod
     def empty(cls, num_pedestrians: int) -> GridInputs:
-        """Zeros shaped as one step's record (what a replay allocates per observation)."""
+        """Zeros shaped as one step's record."""
         p, f32 = num_pedestrians, jnp.float32
         return cls(
             s=jnp.zeros((), f32),
@@ -166,11 +129,7 @@ class GridInputs:
 def rasterize_grid(
     ego: EgoState, peds: PedestrianState, params: EnvParams, static: StaticEnvParams
 ) -> jax.Array:
-    """Rasterise the pedestrians around the ego into the observation grid.
-
-    Returns:
-        (rows, cols, 4) float32; channel ranges as in the module docstring.
-    """
+    """(rows, cols, 4) float32 observation grid of the pedestrians around the ego."""
     return rasterize(GridInputs.of(ego, peds), params, static)
 
 
@@ -182,10 +141,8 @@ def rasterize(g: GridInputs, params: EnvParams, static: StaticEnvParams) -> jax.
     rel = g.position - jnp.stack([g.s, lane_centre_y(params)])
     flat = _nearest_wins(flat, squared_length(rel), size)
 
-    # Headings come from atan2, in [-pi, pi]: wrap pi to -pi. The ego heading is 0.
-    # No multiply-add here (nor for the speed): XLA may fuse those into FMAs
-    # differently in differently shaped programs, and the grid must not depend
-    # on the batch size.
+    # atan2 headings in [-pi, pi]: wrap pi to -pi (the ego heads 0). No multiply-add
+    # here: XLA may fuse it into an FMA depending on the program's shape.
     heading = jnp.where(g.heading >= jnp.pi, g.heading - 2.0 * jnp.pi, g.heading)
     speed_ped = g.speed * (1.0 / params.speed_norm_pedestrian)
     rel_v = g.velocity - jnp.stack([g.v, jnp.zeros_like(g.v)])

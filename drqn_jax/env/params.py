@@ -1,15 +1,7 @@
-"""Environment parameters: static (shape-setting) and traced (everything else).
-
-``StaticEnvParams`` fixes array shapes and loop lengths: grid size, pedestrian
-count, number of intersections, episode length, TTC sampling. It is a frozen,
-hashable dataclass passed to ``jit`` as a static argument.
-
-``EnvParams`` holds every other number of ``SPEC.md`` §1–6 (speeds, PID gains,
-plant constants, behaviour probabilities, reward terms, ``v_ref``, the spec's
-switches). It is a pytree of scalars, so ``vmap`` over a batch of
-``EnvParams`` sweeps them inside one compiled program. Both validate on
-construction and name the offending field. Units are SI (m, s, m/s, rad);
-the PID works on an error in km/h as CARLA's local planner does.
+"""Environment parameters (SPEC §1–6): static (shape-setting, hashable, a ``jit``
+static argument) and traced (a pytree of scalars, so ``vmap`` over ``EnvParams``
+sweeps them in one program). Both validate on construction. Units are SI (m, s,
+m/s, rad); the PID's error is in km/h as in CARLA's local planner.
 """
 
 from __future__ import annotations
@@ -20,6 +12,7 @@ import math
 import numpy as np
 
 from drqn_jax.pytree import (
+    check_counts,
     check_order,
     check_sums_to_one,
     is_concrete,
@@ -48,40 +41,23 @@ __all__ = ["KMH", "EnvParams", "StaticEnvParams"]
 
 @dataclasses.dataclass(frozen=True)
 class StaticEnvParams:
-    """Shape-setting settings (hashable; a change recompiles).
+    """Shape-setting settings (hashable; a change recompiles)."""
 
-    Attributes:
-        num_pedestrians: P, pedestrians alive at all times (paper §V-D: 10).
-        num_intersections: unsignalized intersections along the route (SPEC §1: 3).
-        grid_rows: cells along the ego's forward axis (paper §V-A: 45).
-        grid_cols: cells along the lateral axis (paper §V-A: 30).
-        cell_size: metres per cell (paper §IV-B: 1 m).
-        grid_x_min: forward offset of row 0's near edge from the ego centre (m).
-        grid_y_min: lateral offset of column 0's right edge from the ego centre (m).
-        max_steps: decision steps before truncation (paper's S = 1000).
-        ttc_horizon: TTC look-ahead (s); samples at ``0, ttc_step, …, ttc_horizon``.
-        ttc_step: TTC sampling interval (s).
-        pid_window: number of past errors in the PID integral (CARLA: 10).
-    """
-
-    num_pedestrians: int = 10
-    num_intersections: int = 3
-    grid_rows: int = 45
-    grid_cols: int = 30
-    cell_size: float = 1.0
-    grid_x_min: float = -5.0
-    grid_y_min: float = -15.0
-    max_steps: int = 1000
-    ttc_horizon: float = 3.0
-    ttc_step: float = 0.1
-    pid_window: int = 10
+    num_pedestrians: int = 10  # P, alive at all times (paper §V-D)
+    num_intersections: int = 3  # along the route (SPEC §1)
+    grid_rows: int = 45  # cells along the ego's axis (paper §V-A)
+    grid_cols: int = 30  # cells across
+    cell_size: float = 1.0  # m
+    grid_x_min: float = -5.0  # m, row 0's near edge from the ego centre
+    grid_y_min: float = -15.0  # m, column 0's right edge from the ego centre
+    max_steps: int = 1000  # decision steps before truncation (paper's S)
+    ttc_horizon: float = 3.0  # s; TTC samples at 0, ttc_step, …, ttc_horizon
+    ttc_step: float = 0.1  # s
+    pid_window: int = 10  # past errors in the PID integral (CARLA)
 
     def __post_init__(self) -> None:
-        positive_ints = ("num_pedestrians", "num_intersections", "grid_rows", "grid_cols")
-        for name in (*positive_ints, "max_steps", "pid_window"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"StaticEnvParams.{name} = {value!r}: must be an integer >= 1")
+        counts = ("num_pedestrians", "num_intersections", "grid_rows", "grid_cols")
+        check_counts(self, (*counts, "max_steps", "pid_window"))
         for name in ("cell_size", "ttc_horizon", "ttc_step"):
             value = getattr(self, name)
             if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
@@ -98,7 +74,7 @@ class StaticEnvParams:
 
     @property
     def ttc_samples(self) -> int:
-        """Number of TTC sample times, ``0 … ttc_horizon`` inclusive (31 by default)."""
+        """TTC sample times, ``0 … ttc_horizon`` inclusive (31 by default)."""
         return round(self.ttc_horizon / self.ttc_step) + 1
 
     @property
@@ -109,12 +85,8 @@ class StaticEnvParams:
 
 @pytree_dataclass
 class EnvParams:
-    """Traced parameters of the urban-pedestrian environment (SPEC §1–6).
-
-    Every field is a scalar (or, for a sweep, an array with a leading batch
-    axis). Switches (``setpoint_mode``, ``speed_channel``,
-    ``semantic_channel``) accept their names and are stored as ``int`` codes.
-    """
+    """Traced parameters (SPEC §1–6): scalars, or arrays with a leading batch axis for a
+    sweep; switches take their names and are stored as ``int`` codes."""
 
     # --- Map (SPEC §1) -------------------------------------------------
     lane_width: float = param(3.5, low=0.0, low_open=True, doc="m; the main road has two lanes")

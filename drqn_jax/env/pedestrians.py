@@ -1,27 +1,9 @@
-"""Pedestrians: spawn, paths, walking, despawn (paper §V-D; SPEC §3).
+"""Pedestrians: spawn, paths, walking, despawn, occlusion (paper §V-D; SPEC §3).
 
-A pedestrian is spawned on a main sidewalk (never inside a cross street) with
-a behaviour drawn from (crossing, jaywalking, sidewalk) and a path of
-``NUM_WAYPOINTS`` waypoints computed at spawn:
-
-* crossing: along the sidewalk to the nearest crosswalk, across it
-  perpendicular to the road to the far sidewalk, then a few metres on;
-* jaywalking: across the road from where it stands at an angle drawn from
-  ``[jaywalk_angle_min, jaywalk_angle_max]`` to the road axis, then on;
-* sidewalk: along its sidewalk segment for ``U(sidewalk_walk_min, max)``
-  metres in a random direction, stopping before a cross street, so it never
-  enters the road or a crossing.
-
-Each step a pedestrian walks straight to its next waypoint at its desired
-speed. Toward the car (``ped_behaviour_to_car``) it either ignores it and
-walks its path regardless, as the authors' CARLA walkers (``ignore``, the
-paper's world), or stands still while its next position would overlap the
-ego's footprint inflated by ``ped_clearance``, for at most ``ped_wait_max_s``
-seconds in all, then walks on (``yield``: never a standoff). Gap acceptance
-(off by default) makes it wait at the kerb. Pedestrians far behind, far
-ahead or done are replaced by new ones spawned ahead of the ego. Optionally
-(``occlusion_prob`` > 0) each pedestrian is left out of the observation grid
-with that probability per step (:func:`occlusion_mask`), for studies of partial observability.
+Spawned on a main sidewalk with a behaviour (crossing, jaywalking, sidewalk) and
+a path of ``NUM_WAYPOINTS`` waypoints; each step a pedestrian walks straight to
+its next waypoint. Those far behind, far ahead or done are replaced ahead of
+the ego.
 """
 
 from __future__ import annotations
@@ -44,6 +26,7 @@ from drqn_jax.env.state import (
     PedestrianState,
 )
 from drqn_jax.programs import cached_program
+from drqn_jax.pytree import tree_where
 
 _FAR = 1e6  # stands in for ±infinity in segment bounds
 _EDGE = 1e-3  # m kept between a sidewalk pedestrian's end point and a cross street
@@ -61,16 +44,8 @@ __all__ = [
 def sidewalk_x(
     u: jax.Array, x_lo: jax.Array, x_hi: jax.Array, params: EnvParams, static: StaticEnvParams
 ) -> jax.Array:
-    """Map uniforms in [0, 1) to x uniform over main-sidewalk stretches in [x_lo, x_hi).
-
-    The stretches inside cross streets (crossings) are cut out: x is drawn
-    uniformly in "compressed" coordinates that skip them, then mapped back.
-
-    Args:
-        u: (...,) float32 uniforms.
-    Returns:
-        (...,) float32 x outside every ``|x - x_c| < cross_street_width / 2``.
-    """
+    """Map (...,) uniforms in [0, 1) to x uniform over [x_lo, x_hi) minus the cross
+    streets: drawn in coordinates that skip them, then mapped back."""
     starts = intersection_centres(params, static) - 0.5 * params.cross_street_width  # (I,)
     width = params.cross_street_width
 
@@ -98,22 +73,11 @@ def _segment_bounds(
 
 
 def spawn_pedestrians(
-    key: jax.Array,
-    x_lo: jax.Array,
-    x_hi: jax.Array,
-    params: EnvParams,
-    static: StaticEnvParams,
+    key: jax.Array, x_lo: jax.Array, x_hi: jax.Array, params: EnvParams, static: StaticEnvParams
 ) -> PedestrianState:
-    """Draw P new pedestrians on the main sidewalks with x in [x_lo, x_hi) (SPEC §3).
-
-    Args:
-        key: PRNG key; x_lo, x_hi: () float32 bounds (m).
-    Returns:
-        PedestrianState with leaves of leading size P, standing still.
-    """
+    """P new pedestrians, standing, on the main sidewalks with x in [x_lo, x_hi) (SPEC §3)."""
     num = static.num_pedestrians
-    # Drawn flat: the same bits as shape (8, P), and a rank fewer for XLA:CPU to
-    # compile under vmap (random draws compile slower with every dimension).
+    # Drawn flat: the bits of shape (8, P), a rank fewer to compile under vmap.
     u = jax.random.uniform(key, (8 * num,), dtype=jnp.float32).reshape(8, num)
     u_x, u_side, u_y, u_speed, u_behaviour, u_angle, u_len, u_dir = u
 
@@ -185,18 +149,13 @@ def spawn_pedestrians(
     )
 
 
-#: ``fold_in`` data of the key that draws the occlusion of a step (the step's key
-#: itself draws the spawns, so those stay what they were without occlusion).
+#: ``fold_in`` data of the key that draws a step's occlusion (the step's key draws spawns).
 OCCLUSION_STREAM = 1
 
 
 def occlusion_mask(key: jax.Array, params: EnvParams, static: StaticEnvParams) -> jax.Array:
-    """(P,) bool: which pedestrians the grid shows this step (``PedestrianState.visible``).
-
-    Each is hidden with probability ``occlusion_prob``, independently per
-    pedestrian and step, from ``fold_in(key, OCCLUSION_STREAM)``: a uniform
-    ``u`` in [0, 1) shows it when ``u >= occlusion_prob`` (always at 0, never at 1).
-    """
+    """(P,) bool ``visible``: each pedestrian hidden with probability ``occlusion_prob``
+    per step, a uniform from ``fold_in(key, OCCLUSION_STREAM)``."""
     num = static.num_pedestrians
 
     def draw() -> jax.Array:
@@ -210,12 +169,8 @@ def occlusion_mask(key: jax.Array, params: EnvParams, static: StaticEnvParams) -
 def _waits_at_kerb(
     peds: PedestrianState, new_position: jax.Array, ego: EgoState, params: EnvParams
 ) -> jax.Array:
-    """(P,) bool: gap acceptance (off by default) holds a pedestrian at the kerb.
-
-    A pedestrian about to step from the sidewalk onto the main road waits
-    while the ego has not passed it and is within ``wait_distance`` or will
-    arrive within ``wait_time``.
-    """
+    """(P,) bool: gap acceptance holds a pedestrian about to step onto the road while the
+    ego, not yet past, is within ``wait_distance`` or ``wait_time``."""
     stepping_on = (jnp.abs(peds.position[:, 1]) >= params.lane_width) & (
         jnp.abs(new_position[:, 1]) < params.lane_width
     )
@@ -227,15 +182,9 @@ def _waits_at_kerb(
 
 
 def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) -> PedestrianState:
-    """Walk every pedestrian one step towards its next waypoint (SPEC §3).
-
-    ``ego`` is the ego after its own step. With ``ped_behaviour_to_car =
-    "yield"`` a pedestrian whose next position would overlap the ego's
-    footprint inflated by ``ped_clearance`` stays put and its ``waited`` (P,)
-    grows by ``dt``, until it reaches ``ped_wait_max_s``: from then on it walks
-    on, car or not (CARLA's walkers wait 5 s, then go). With ``"ignore"`` (the
-    paper's world) it walks its path regardless of the car.
-    """
+    """Walk every pedestrian one step towards its next waypoint (SPEC §3), ``ego`` after
+    its own step. ``"yield"``: one whose next position overlaps the inflated
+    footprint stands, at most ``ped_wait_max_s`` in all."""
     num_wp = peds.waypoints.shape[-2]
     done = peds.done
     idx = jnp.minimum(peds.waypoint_index, num_wp - 1)
@@ -274,10 +223,8 @@ def despawn_mask(peds: PedestrianState, ego: EgoState, params: EnvParams) -> jax
     return behind | ahead | peds.done
 
 
-#: Under ``vmap`` over N envs, the envs that replace a pedestrian this step are
-#: gathered and only they draw new ones, ``max(1, N // RESPAWN_GATHER_SHARE)``
-#: envs per pass (a few per thousand env-steps need one, so one pass at most
-#: nearly always). Speed only: the result is the same whatever the share.
+#: Under ``vmap`` over N envs, only the envs that replace a pedestrian draw, gathered
+#: ``max(1, N // RESPAWN_GATHER_SHARE)`` per pass (speed only; same result).
 RESPAWN_GATHER_SHARE = 32
 
 
@@ -290,14 +237,11 @@ def respawn_pedestrians(
     params: EnvParams,
     static: StaticEnvParams,
 ) -> PedestrianState:
-    """Replace the pedestrians flagged in ``replace`` (P,) by new ones in [x_lo, x_hi).
+    """``spawn_pedestrians(key, x_lo, x_hi, …)`` where ``replace`` (P,) is set.
 
-    The new ones are ``spawn_pedestrians(key, x_lo, x_hi, …)``, taken where
-    ``replace`` is set. Since only a few envs in a thousand replace one in a
-    step, the draw is skipped where none is replaced: by a ``cond`` for one env,
-    and under ``vmap`` by gathering the envs that need it (see
-    :data:`RESPAWN_GATHER_SHARE`). A draw depends on its own env's inputs
-    only, so the result is bit for bit that of drawing in every env.
+    The draw is skipped where nothing is replaced (a ``cond``; under ``vmap`` a
+    gather, :data:`RESPAWN_GATHER_SHARE`); each draw depends on its own env only,
+    so the bits are those of drawing in every env.
     """
     return _respawn(static)(key, peds, replace, x_lo, x_hi, params)
 
@@ -307,13 +251,7 @@ def _respawn(static: StaticEnvParams) -> Callable[..., PedestrianState]:
     """:func:`respawn_pedestrians` for ``static``, with its batching rule."""
 
     def respawn_all(key, peds, replace, x_lo, x_hi, params):
-        """The plain respawn: draw P new pedestrians, take them where ``replace`` is set."""
-        fresh = spawn_pedestrians(key, x_lo, x_hi, params, static)
-
-        def pick(new, old):
-            return jnp.where(replace.reshape(replace.shape + (1,) * (old.ndim - 1)), new, old)
-
-        return jax.tree.map(pick, fresh, peds)
+        return tree_where(replace, spawn_pedestrians(key, x_lo, x_hi, params, static), peds)
 
     @custom_vmap
     def respawn(key, peds, replace, x_lo, x_hi, params):

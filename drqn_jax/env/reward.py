@@ -1,9 +1,5 @@
-"""The reward (paper §IV-B "Reward Function"; SPEC §5).
-
-First matching row: collision → ``r_c``; ``TTC ≤ 3 s`` → ``r_nc = TTC − 3``;
-otherwise the speed reward ``r_v``: ``1 − λ(v_ref − v)`` with ``λ = 1/v_ref``
-for ``0 < v ≤ v_ref``, ``−1`` when stopped, ``−0.5`` above the limit.
-With the default parameters the reward lies in [−10, 1].
+"""The reward (paper §IV-B "Reward Function"; SPEC §5): collision ``r_c``, else
+``TTC − 3`` for ``TTC ≤ 3 s``, else the speed reward ``r_v``; in [−10, 1] by default.
 """
 
 from __future__ import annotations

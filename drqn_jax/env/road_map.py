@@ -1,11 +1,8 @@
 """The map: main road, sidewalks, unsignalized intersections, crosswalks (SPEC §1).
 
-The map is a pure function of its parameters: :func:`semantic_class` gives
-the class of any point (0 off-road/building, 1 walkway, 2 crossing, 3 road),
-so a point query and a dense raster share one definition. Conventions for
-boundaries: the main road is ``|y| < lane_width``; a cross street is
-``|x - x_c| < cross_street_width / 2``; a point exactly on a boundary belongs
-to the outer (walkway) side. x runs along the ego's road, y to its left.
+:func:`semantic_class` is the one definition of the map, for point queries and
+rasters alike. x runs along the ego's road, y to its left; a point on a boundary
+belongs to the outer (walkway) side.
 """
 
 from __future__ import annotations
@@ -16,7 +13,6 @@ import jax.numpy as jnp
 from drqn_jax.env.params import EnvParams, StaticEnvParams
 
 OFF_ROAD, WALKWAY, CROSSING_AREA, ROAD = 0, 1, 2, 3
-SEMANTIC_CLASSES = ("off_road", "walkway", "crossing", "road")
 
 __all__ = ["intersection_centres", "lane_centre_y", "semantic_class"]
 
@@ -40,19 +36,12 @@ def crosswalk_centres(params: EnvParams, static: StaticEnvParams) -> jax.Array:
 
 
 def semantic_class(xy: jax.Array, params: EnvParams, static: StaticEnvParams) -> jax.Array:
-    """Semantic class of points (SPEC §1).
-
-    Args:
-        xy: (..., 2) float32 world coordinates.
-    Returns:
-        (...,) int32 in {0 off-road, 1 walkway, 2 crossing, 3 road}.
-    """
+    """(...,) int32 class of (..., 2) points: 0 off-road, 1 walkway, 2 crossing, 3 road."""
     x, y = xy[..., 0], xy[..., 1]
     ay = jnp.abs(y)
     centres = intersection_centres(params, static)  # (I,)
     half_street = 0.5 * params.cross_street_width
-    # Distance along x to the nearest cross street's centre line (a min written
-    # out over the few intersections: exact in any order, and it fuses).
+    # Distance to the nearest cross street, a min written out (exact, and it fuses).
     dx_min = jnp.abs(x - centres[0])
     for k in range(1, static.num_intersections):
         dx_min = jnp.minimum(dx_min, jnp.abs(x - centres[k]))

@@ -1,23 +1,9 @@
-"""``UrbanPedestrians``: the environment, wiring the pure modules (SPEC §1–5).
+"""``UrbanPedestrians``: the environment wiring the pure modules (SPEC §1–5).
 
-The gymnax 1.0 contract: the env object holds no mutable state, only its
-:class:`StaticEnvParams` (hashable, so the env can be a static ``jit``
-argument).
-
-* ``reset(key, params) -> (obs, state)``;
-* ``step(key, state, action, params) -> (obs, state, reward, terminated,
-  truncated, info)`` with same-step auto-reset: the stepped and the reset
-  states are selected leaf by leaf and the observation is computed once from
-  the result; the pre-reset observation rides in ``info["final_observation"]``
-  (XLA drops it when the caller does not use it);
-* ``step_env`` is the same step without the reset.
-
-One step (0.1 s): the ego acts (setpoint, PID, plant), pedestrians walk
-(ignoring the car, or yielding to it for at most ``ped_wait_max_s``), the
-collision test (``collision_model``) and TTC are measured, the reward is
-computed, and pedestrians far away or done are replaced. A pedestrian that
-meets the collision test while the ego stands has *struck a stopped car*:
-``info["struck_while_stopped"]``, no penalty, and the episode goes on.
+The gymnax contract: the env holds only its hashable :class:`StaticEnvParams`
+(a static ``jit`` argument); ``reset(key, params) -> (obs, state)``,
+``step(key, state, action, params) -> (obs, state, reward, terminated, truncated,
+info)`` with same-step auto-reset, ``step_env`` the same without the reset.
 """
 
 from __future__ import annotations
@@ -48,25 +34,14 @@ __all__ = ["UrbanPedestrians"]
 
 
 def _opaque(params: EnvParams) -> EnvParams:
-    """Hide parameter values from XLA's constant folding.
-
-    When a caller closes over ``params`` they become compile-time constants and
-    XLA rewrites, e.g., ``x / v_ref`` as ``x * (1 / v_ref)``, which rounds
-    differently: the same episode would then differ by an ulp from one where
-    ``params`` are passed as arguments. The barrier is free at run time.
-    """
+    """Hide ``params`` from constant folding: closed over, XLA would rewrite ``x / v_ref``
+    as ``x * (1 / v_ref)`` and round differently from params passed as arguments."""
     return jax.lax.optimization_barrier(params)
 
 
 def checked_action(action: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """``(action, invalid)``: the action as int32 in ``0 … 3``, and whether it was not.
-
-    An integer outside ``Discrete(4)`` is clipped into it (7 acts as ``steer``,
-    -1 as ``accelerate``) and flagged in ``info["invalid_action"]``, so a
-    caller's bug shows without a host round-trip inside ``jit``. A
-    non-integer action (1.5) is refused when traced: truncating it would hide
-    the bug.
-    """
+    """``(action, invalid)``: an integer action clipped into ``0 … 3`` and whether it was
+    outside (``info["invalid_action"]``); a non-integer dtype is a TypeError."""
     action = jnp.asarray(action)
     if not jnp.issubdtype(action.dtype, jnp.integer):
         raise TypeError(
@@ -83,11 +58,7 @@ StepResult = tuple[Observation, EnvState, jax.Array, jax.Array, jax.Array, dict[
 
 @dataclasses.dataclass(frozen=True)
 class UrbanPedestrians:
-    """Urban road with unsignalized intersections and pedestrians (paper §V-D).
-
-    Attributes:
-        static: shape-setting settings; everything else is a traced ``EnvParams``.
-    """
+    """Urban road with unsignalized intersections and pedestrians (paper §V-D)."""
 
     static: StaticEnvParams = dataclasses.field(default_factory=StaticEnvParams)
 
@@ -156,16 +127,8 @@ class UrbanPedestrians:
     def advance(
         self, state: EnvState, action: jax.Array, params: EnvParams
     ) -> tuple[EnvState, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]:
-        """The deterministic part of a step: everything but replacing pedestrians.
-
-        The ego acts, pedestrians walk, collision and TTC are measured on the
-        result and the reward is computed (SPEC §2–5).
-
-        Returns:
-            stepped state, reward () float32, terminated () bool, truncated () bool,
-            info (collision, struck_while_stopped, goal, ttc, distance, speed,
-            time, invalid_action).
-        """
+        """The deterministic part of a step (all but replacing pedestrians, SPEC §2–5):
+        ``(stepped state, reward, terminated, truncated, info)``."""
         params = _opaque(params)
         action, invalid = checked_action(action)
         ego = ego_step(state.ego, action, params)
@@ -193,12 +156,8 @@ class UrbanPedestrians:
     def _next_state(
         self, key: jax.Array, stepped: EnvState, params: EnvParams, reset: jax.Array
     ) -> EnvState:
-        """Finish a step: replace pedestrians far behind, far ahead or done (SPEC §3),
-        and draw which pedestrians the grid shows (``occlusion_prob``).
-
-        With ``reset`` (() bool) the episode restarts instead: ego at the start
-        and all P pedestrians drawn from ``key`` exactly as ``reset_state`` does.
-        """
+        """Finish a step: replace far or finished pedestrians and draw the occlusion; with
+        ``reset`` (() bool) restart exactly as ``reset_state(key, …)`` does."""
         params = _opaque(params)
         ego = jax.tree.map(
             lambda a, b: jnp.where(reset, a, b), initial_ego(params, self.static), stepped.ego
@@ -217,33 +176,17 @@ class UrbanPedestrians:
     def step_env(
         self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
     ) -> StepResult:
-        """One step without auto-reset: ``(obs, state, reward, terminated, truncated, info)``.
-
-        ``key`` draws the pedestrians that replace those far away or done.
-        """
+        """One step without auto-reset: ``(obs, state, reward, terminated, truncated, info)``."""
         stepped, r, terminated, truncated, info = self.advance(state, action, params)
         next_state = self._next_state(key, stepped, params, jnp.asarray(False))
         return self.observation(next_state, params), next_state, r, terminated, truncated, info
 
     def step(
-        self,
-        key: jax.Array,
-        state: EnvState,
-        action: jax.Array,
-        params: EnvParams | None = None,
+        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams | None = None
     ) -> StepResult:
-        """One step with same-step auto-reset.
-
-        While the episode goes on this is exactly ``step_env(key, …)``; when it
-        ends (terminated or truncated) the returned state and observation are
-        exactly ``reset(key, params)``'s, and the state and observation
-        ``step_env`` would have returned are ``info["final_state"]`` and
-        ``info["final_observation"]``. One set of pedestrians is drawn per step
-        (for respawn or for the new episode; only where a pedestrian is
-        replaced, see ``respawn_pedestrians``), and the observation is
-        rasterised once; the final observation costs a second draw and raster
-        only when the caller uses it.
-        """
+        """``step_env(key, …)``, or where the episode ends ``reset(key, params)``'s state and
+        observation, with ``step_env``'s in ``info["final_state"]`` and
+        ``info["final_observation"]`` (computed only when the caller uses them)."""
         params = _opaque(self.default_params if params is None else params)
         stepped, r, terminated, truncated, info = self.advance(state, action, params)
         next_state = self._next_state(key, stepped, params, terminated | truncated)

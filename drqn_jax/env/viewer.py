@@ -1,37 +1,10 @@
-"""How the env is drawn: one palette, one raster renderer, one HUD text (SPEC §1–5).
+"""How the env is drawn (SPEC §1–5): the palette, the raster and the HUD text that
+the Gymnasium frames (:func:`render_frame`, pure JAX) and the rerun recordings share.
 
-As Jumanji's ``viewer.py`` does for its environments, this module owns every
-decision about how the simulator looks, for both picture backends:
-
-* the Gymnasium envs' ``render_mode="rgb_array"`` (:mod:`drqn_jax.interop.gymnasium_env`)
-  show :func:`render_frame`, a pure-JAX raster (jit- and vmap-able);
-* the rerun recordings (:mod:`drqn_jax.interop.recording`) draw the map, the ego and the
-  pedestrians with the same colours and label the ego with the same HUD text
-  (:func:`hud_glyphs` → :func:`hud_text`).
-
-Palette (RGB; legend of both backends):
-
-* map classes (SPEC §1, :data:`MAP_COLOURS`): off-road dark green-grey, walkway
-  light grey, crossing (zebra-striped with road grey in the raster) off-white,
-  road dark grey; dashed centre line :data:`LANE_MARK_COLOUR`, goal line
-  :data:`GOAL_COLOUR` (yellow);
-* the ego (:data:`EGO_COLOUR`, blue; :data:`EGO_COLLISION_COLOUR`, magenta, in a
-  state where it collides, SPEC §5);
-* pedestrians by behaviour (SPEC §3, :data:`BEHAVIOUR_COLOURS`): crossing green,
-  jaywalking red, sidewalk orange; faded to alpha :data:`OCCLUDED_ALPHA` while
-  occluded (``state.pedestrians.visible`` false: left out of the grid, SPEC §4);
-* actions (:data:`ACTION_COLOURS`): accelerate green, slow_down orange, brake
-  red, steer blue (the recordings' Q-value curves; the HUD's action name).
-
-The HUD (heads-up display) states, for the drawn state itself: the step
-(``state.time``), the ego speed in km/h with one decimal, the last action's
-name (``-`` before the first) and the time to collision of that state (SPEC §5,
-:func:`~drqn_jax.env.collision.time_to_collision`, one decimal, ``-`` when
-infinite), e.g. ``step 12  36.0 km/h`` / ``accelerate  TTC 1.5 s``. It is
-formatted once, in JAX, as glyph indices into :data:`GLYPHS` (integer
-arithmetic, branch-free); the raster draws them with a 5 × 7 bitmap font
-(:data:`FONT`) scaled ×2, and :func:`hud_text` reads them back as the string
-the recordings show.
+The HUD shows the drawn state's step, speed (km/h), last action and TTC, e.g.
+``step 12  36.0 km/h`` / ``accelerate  TTC 1.5 s``: formatted in JAX as glyph
+indices into :data:`GLYPHS`, drawn with the 5 × 7 bitmap :data:`FONT`, read back
+as text by :func:`hud_text`.
 """
 
 from __future__ import annotations
@@ -83,7 +56,7 @@ __all__ = [
 RGB = tuple[int, int, int]
 
 # --- the palette ----------------------------------------------------------------
-#: RGB of each map class (SPEC §1), indexed by semantic class.
+#: RGB by semantic class (SPEC §1).
 MAP_COLOURS: dict[int, RGB] = {
     OFF_ROAD: (58, 66, 56),
     WALKWAY: (168, 168, 158),
@@ -94,13 +67,13 @@ LANE_MARK_COLOUR: RGB = (220, 220, 200)
 GOAL_COLOUR: RGB = (250, 200, 40)
 EGO_COLOUR: RGB = (40, 110, 235)
 EGO_COLLISION_COLOUR: RGB = (230, 40, 210)  # magenta: a red jaywalker on it still shows
-#: RGB of each pedestrian behaviour (SPEC §3), indexed by behaviour code.
+#: RGB by pedestrian behaviour (SPEC §3).
 BEHAVIOUR_COLOURS: dict[int, RGB] = {
     CROSSING: (40, 190, 80),
     JAYWALKING: (235, 60, 50),
     SIDEWALK: (250, 165, 30),
 }
-#: RGB of each action (paper §IV-B), indexed by action code.
+#: RGB by action (paper §IV-B).
 ACTION_COLOURS: tuple[RGB, ...] = ((40, 190, 80), (250, 165, 30), (235, 60, 50), (80, 150, 255))
 OCCLUDED_ALPHA = 70  # alpha (of 255) of a pedestrian the grid leaves out this step
 PED_OUTLINE_COLOUR: RGB = (15, 15, 20)
@@ -108,22 +81,18 @@ HUD_TEXT_COLOUR: RGB = (240, 240, 240)
 HUD_BAND_COLOUR: RGB = (10, 10, 14)
 HUD_BAND_ALPHA = 0.7  # the world stays faintly visible behind the HUD
 
-# --- the raster's view ----------------------------------------------------------
-# Metres behind / ahead of the ego centre, half width across the main road's
-# centre line, resolution: 240 × 480 pixels.
+# --- the raster's view: 240 × 480 pixels ------------------------------------------
 RENDER_BEHIND_M = 10.0
 RENDER_AHEAD_M = 50.0
 RENDER_HALF_WIDTH_M = 15.0
 RENDER_PIXELS_PER_M = 8
-#: Smallest drawn pedestrian radius (pixels; a 0.3 m disc is 2.4 px at 8 px/m),
-#: plus a 1-pixel outline in PED_OUTLINE_COLOUR.
+#: Smallest drawn pedestrian radius (pixels; 0.3 m is 2.4 px), plus a 1-pixel outline.
 MIN_PED_RADIUS_PX = 5
 _PED_OUTLINE_PX = 1
 
 # --- the HUD's font ---------------------------------------------------------------
-#: The characters the HUD can show; a glyph index is a position in this string.
 GLYPHS = " 0123456789.-/_TCabcdehklmnoprstw"
-# 5 × 7 bitmaps, one per character of GLYPHS (rows top to bottom, "#" = ink).
+# 5 × 7 bitmaps of GLYPHS, rows top to bottom.
 _BITMAPS = (
     "..... ..... ..... ..... ..... ..... .....",  # space
     ".###. #...# #..## #.#.# ##..# #...# .###.",  # 0
@@ -189,40 +158,17 @@ _ACTION_CODES = np.array(
     np.int32,
 )
 _STEP_DIGITS, _SPEED_DIGITS, _TTC_DIGITS = 5, 3, 3  # integer digits (larger values clip)
-#: Glyphs per field of the HUD: the step, the speed and the TTC with their decimal
-#: point and tenths digit, the TTC with its unit " s".
-_FIELD_WIDTH = {
-    "step": _STEP_DIGITS,
-    "speed": _SPEED_DIGITS + 2,
-    "action": _ACTION_WIDTH,
-    "ttc": _TTC_DIGITS + 4,
-}
-#: The HUD, once: per line, literal text and field names (in braces).
-_HUD_LAYOUT = (
-    ("step ", "{step}", "  ", "{speed}", " km/h"),
-    ("{action}", "  TTC ", "{ttc}"),
+_TTC_WIDTH = _TTC_DIGITS + 4  # "ddd.d s"
+#: Glyphs per HUD line: the longer line with its fields at their widest.
+HUD_LINE_LENGTH = max(
+    len("step ") + _STEP_DIGITS + len("  ") + _SPEED_DIGITS + 2 + len(" km/h"),
+    _ACTION_WIDTH + len("  TTC ") + _TTC_WIDTH,
 )
-assert len(_HUD_LAYOUT) == HUD_LINES
-
-
-def _field(piece: str) -> str | None:
-    """The field a :data:`_HUD_LAYOUT` piece names (``{name}``); None for literal text."""
-    return piece[1:-1] if piece.startswith("{") else None
-
-
-def _piece_width(piece: str) -> int:
-    name = _field(piece)
-    return len(piece) if name is None else _FIELD_WIDTH[name]
-
-
-#: Glyphs per HUD line (static): the longest line with every field at its widest.
-HUD_LINE_LENGTH = max(sum(map(_piece_width, line)) for line in _HUD_LAYOUT)
 
 
 # --- formatting: traced values -> glyph indices -------------------------------------
 def _digits(n: jax.Array, width: int) -> jax.Array:
-    """(width,) int32 glyphs of the decimal digits of ``n`` (() int, clipped to
-    [0, 10**width − 1]); leading zeros are gaps (the units digit always shows)."""
+    """(width,) int32 digit glyphs of ``n`` (clipped), leading zeros as gaps."""
     n = jnp.clip(jnp.asarray(n, jnp.int32), 0, 10**width - 1)
     powers = jnp.asarray(10 ** np.arange(width - 1, -1, -1), jnp.int32)  # (width,)
     leading = (n < powers) & (powers > 1)
@@ -230,8 +176,7 @@ def _digits(n: jax.Array, width: int) -> jax.Array:
 
 
 def _one_decimal(x: jax.Array, width: int) -> jax.Array:
-    """(width + 2,) int32 glyphs of ``x`` (() float >= 0, rounded to tenths):
-    ``width`` integer digits (leading gaps), ``.``, the tenths digit."""
+    """(width + 2,) int32 glyphs of ``x`` >= 0 to one decimal."""
     x = jnp.where(jnp.isfinite(x), x, 0.0)
     tenths = jnp.clip(jnp.round(x * 10.0), 0, 10 ** (width + 1) - 1).astype(jnp.int32)
     point = jnp.full((1,), _DOT, jnp.int32)
@@ -239,16 +184,16 @@ def _one_decimal(x: jax.Array, width: int) -> jax.Array:
 
 
 def _compact(codes: jax.Array, colours: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Drop the gaps of a line ((L,) int32 glyphs, colours), left-aligned, space-padded."""
+    """A line's (L,) glyphs and colours without gaps, left-aligned, space-padded."""
     keep = codes != _GAP
     at = jnp.where(keep, jnp.cumsum(keep) - 1, codes.shape[0])  # gaps go out of range
     out = jnp.full_like(codes, _SPACE).at[at].set(codes, mode="drop")
     return out, jnp.zeros_like(colours).at[at].set(colours, mode="drop")
 
 
-def _line(pieces: list[tuple[jax.Array | np.ndarray, jax.Array | int]]) -> tuple:
-    """One HUD line from (glyphs, colour index) pieces: concatenated, padded to
-    HUD_LINE_LENGTH with gaps and compacted."""
+def _line(pieces: list) -> tuple:
+    """One compacted HUD line from literal text and (glyphs, colour index) pieces."""
+    pieces = [(_codes(p), 0) if isinstance(p, str) else p for p in pieces]
     codes = jnp.concatenate([jnp.asarray(c, jnp.int32) for c, _ in pieces])
     colours = jnp.concatenate([jnp.full(len(c), k, jnp.int32) for c, k in pieces])
     pad = HUD_LINE_LENGTH - codes.shape[0]
@@ -256,57 +201,31 @@ def _line(pieces: list[tuple[jax.Array | np.ndarray, jax.Array | int]]) -> tuple
     return _compact(codes, jnp.concatenate([colours, jnp.zeros(pad, jnp.int32)]))
 
 
-def _hud_fields(
-    state: EnvState, params: EnvParams, static: StaticEnvParams
-) -> dict[str, tuple[jax.Array, jax.Array | int]]:
-    """Each field of :data:`_HUD_LAYOUT`: (its _FIELD_WIDTH glyphs, its colour index)."""
-    ttc = time_to_collision(state.ego, state.pedestrians, params, static)  # SPEC §5
-    no_ttc = np.pad(_codes("-"), (0, _FIELD_WIDTH["ttc"] - 1), constant_values=_GAP)
-    with_unit = jnp.concatenate([_one_decimal(ttc, _TTC_DIGITS), _codes(" s")])
-    action = jnp.clip(state.last_action + 1, 0, NUM_ACTIONS)  # 0: none yet
-    return {
-        "step": (_digits(state.time, _STEP_DIGITS), 0),
-        "speed": (_one_decimal(state.ego.v * 3.6, _SPEED_DIGITS), 0),
-        "action": (jnp.asarray(_ACTION_CODES)[action], action),
-        "ttc": (jnp.where(jnp.isfinite(ttc), with_unit, no_ttc), 0),
-    }
-
-
 def _hud_layout(
     state: EnvState, params: EnvParams, static: StaticEnvParams
 ) -> tuple[jax.Array, jax.Array]:
-    """The HUD's glyphs and colour indices, (HUD_LINES, HUD_LINE_LENGTH) int32 each:
-    :data:`_HUD_LAYOUT` filled with :func:`_hud_fields`.
-
-    Colour index 0 is HUD_TEXT_COLOUR, a + 1 is ACTION_COLOURS[a] (the action name).
-    """
-    fields = _hud_fields(state, params, static)
-    lines = [
-        _line([(_codes(p), 0) if _field(p) is None else fields[_field(p)] for p in line])
-        for line in _HUD_LAYOUT
-    ]
+    """The HUD's glyphs and colour indices (0: HUD_TEXT_COLOUR, a + 1: ACTION_COLOURS[a]),
+    (HUD_LINES, HUD_LINE_LENGTH) int32 each."""
+    ttc = time_to_collision(state.ego, state.pedestrians, params, static)  # SPEC §5
+    no_ttc = np.pad(_codes("-"), (0, _TTC_WIDTH - 1), constant_values=_GAP)
+    with_unit = jnp.concatenate([_one_decimal(ttc, _TTC_DIGITS), _codes(" s")])
+    action = jnp.clip(state.last_action + 1, 0, NUM_ACTIONS)  # 0: none yet
+    step = (_digits(state.time, _STEP_DIGITS), 0)
+    speed = (_one_decimal(state.ego.v * 3.6, _SPEED_DIGITS), 0)
+    name = (jnp.asarray(_ACTION_CODES)[action], action)
+    ttc_text = (jnp.where(jnp.isfinite(ttc), with_unit, no_ttc), 0)
+    lines = [_line(["step ", step, "  ", speed, " km/h"]), _line([name, "  TTC ", ttc_text])]
     return jnp.stack([g for g, _ in lines]), jnp.stack([c for _, c in lines])
 
 
 def hud_glyphs(state: EnvState, params: EnvParams, static: StaticEnvParams) -> jax.Array:
-    """The HUD text of ``state`` as glyph indices into :data:`GLYPHS` (SPEC §5 TTC).
-
-    Line 0: ``step <state.time>  <speed> km/h`` (speed ``state.ego.v * 3.6`` with
-    one decimal); line 1: ``<last action's name>  TTC <ttc> s``, the name ``-``
-    before the first action, ``TTC -`` when the state's
-    :func:`~drqn_jax.env.collision.time_to_collision` is infinite. Each line is
-    left-aligned and padded with spaces. Pure JAX, branch-free (jit/vmap).
-
-    Returns:
-        (HUD_LINES, HUD_LINE_LENGTH) = (2, 23) int32.
-    """
+    """(2, 23) int32 glyph indices of ``state``'s HUD: ``step <t>  <speed> km/h`` and
+    ``<last action>  TTC <ttc> s`` (``-`` for no action yet or an infinite TTC)."""
     return _hud_layout(state, params, static)[0]
 
 
 def hud_text(glyphs: np.ndarray | jax.Array) -> str:
-    """The string of one :func:`hud_glyphs` result ((2, L) ints): each line without
-    its trailing spaces, the lines joined by two spaces, e.g.
-    ``"step 12  36.0 km/h  accelerate  TTC 1.5 s"``."""
+    """One :func:`hud_glyphs` result as a string, lines stripped and joined by two spaces."""
     lines = np.asarray(glyphs).reshape(-1, np.shape(glyphs)[-1])
     return "  ".join("".join(GLYPHS[i] for i in line).rstrip() for line in lines)
 
@@ -323,8 +242,7 @@ def _blend(under: jax.Array, colour: jax.Array, alpha: float) -> jax.Array:
 
 
 def _draw_map(xy: jax.Array, params: EnvParams, static: StaticEnvParams, pixel: float) -> jax.Array:
-    """(H, W, 3) uint8 map (SPEC §1) at pixel centres ``xy`` (H, W, 2): each class's
-    colour, zebra stripes on crossings, the dashed centre line, the goal line."""
+    """(H, W, 3) uint8 map (SPEC §1) at pixel centres ``xy`` (H, W, 2)."""
     cls = semantic_class(xy, params, static)
     palette = _uint8([MAP_COLOURS[c] for c in range(len(MAP_COLOURS))])
     image = palette[cls]
@@ -348,8 +266,7 @@ def _draw_map(xy: jax.Array, params: EnvParams, static: StaticEnvParams, pixel: 
 
 
 def _draw_ego(image: jax.Array, xy: jax.Array, state: EnvState, params: EnvParams) -> jax.Array:
-    """The ego's box (SPEC §2) over ``image``: EGO_COLOUR, or EGO_COLLISION_COLOUR
-    where the state is a collision (SPEC §5, :func:`classify_hits`)."""
+    """The ego's box over ``image``, EGO_COLLISION_COLOUR in a collision (SPEC §5)."""
     inside = (jnp.abs(xy[..., 0] - state.ego.s) <= 0.5 * params.ego_length) & (
         jnp.abs(xy[..., 1] - lane_centre_y(params)) <= 0.5 * params.ego_width
     )
@@ -361,10 +278,8 @@ def _draw_ego(image: jax.Array, xy: jax.Array, state: EnvState, params: EnvParam
 def _draw_pedestrians(
     image: jax.Array, xy: jax.Array, state: EnvState, params: EnvParams, pixel: float
 ) -> jax.Array:
-    """The P pedestrians (SPEC §3) over ``image`` (H, W, 3): discs of radius
-    ``max(ped_radius, MIN_PED_RADIUS_PX pixels)`` in their behaviour's colour
-    (faded to OCCLUDED_ALPHA where not ``visible``) with a 1-pixel dark outline;
-    where discs overlap, the lowest index is on top."""
+    """The pedestrians over ``image`` (H, W, 3): outlined discs by behaviour, faded where
+    occluded, the lowest index on top."""
     peds = state.pedestrians
     radius = jnp.maximum(params.ped_radius, MIN_PED_RADIUS_PX * pixel)
     outer = radius + _PED_OUTLINE_PX * pixel
@@ -389,9 +304,8 @@ def _fit(a: jax.Array, height: int, width: int) -> jax.Array:
 
 
 def _draw_hud(image: jax.Array, glyphs: jax.Array, colours: jax.Array) -> jax.Array:
-    """The HUD lines (glyphs and colour indices, (lines, L) int32, :func:`_hud_layout`)
-    at the top left of ``image`` (H, W, 3), in a translucent dark band as wide as the
-    longest line; the font is FONT scaled by HUD_SCALE, cropped at the image's edge."""
+    """The HUD lines (:func:`_hud_layout`) at the top left of ``image`` (H, W, 3), in a
+    translucent band, FONT scaled by HUD_SCALE, cropped at the edge."""
     height, width, _ = image.shape
     lines, length = glyphs.shape
     s, m = HUD_SCALE, _HUD_MARGIN_PX
@@ -401,7 +315,6 @@ def _draw_hud(image: jax.Array, glyphs: jax.Array, colours: jax.Array) -> jax.Ar
     palette = _uint8([HUD_TEXT_COLOUR, *ACTION_COLOURS])
     rgb = jnp.repeat(palette[colours], _CELL_COLS, axis=1)  # (n, cols, 3)
     rgb = jnp.broadcast_to(rgb[:, None], (lines, _GLYPH_ROWS, cols, 3))
-    # Scale, then stack the lines below a margin each, and indent by the margin.
     ink = jnp.repeat(jnp.repeat(ink, s, axis=1), s, axis=2)
     rgb = jnp.repeat(jnp.repeat(rgb, s, axis=1), s, axis=2)
     pad = ((0, 0), (m, 0), (m, 0))
@@ -429,25 +342,13 @@ def render_frame(
     pixels_per_m: int = RENDER_PIXELS_PER_M,
     hud: bool = True,
 ) -> jax.Array:
-    """Bird's-eye view of the scene around the ego (SPEC §1–5), pure JAX (jit, vmap).
+    """Bird's-eye view of one env's state (SPEC §1–5), pure JAX: map, ego, pedestrians
+    and, with ``hud``, :func:`hud_glyphs` at the top left.
 
-    x (the ego's road) runs left to right from ``s - behind_m`` to
-    ``s + ahead_m``, y upwards from ``-half_width_m`` to ``half_width_m``
-    (the ego drives on the right of the road). Each pixel shows the map class at
-    its centre (SPEC §1: off-road, walkway, zebra-striped crossings, road, the
-    dashed centre line, the goal line), then the ego's box (EGO_COLOUR;
-    EGO_COLLISION_COLOUR in a collision, SPEC §5), then the pedestrians (SPEC §3)
-    as outlined discs of at least MIN_PED_RADIUS_PX pixels coloured by behaviour
-    (faded while occluded, SPEC §4); with ``hud``, the two lines of
-    :func:`hud_glyphs` in a dark band at the top left. The keyword arguments are
-    static (they set the shape).
-
-    Args:
-        state: one env's state (unbatched; ``vmap`` for a batch).
-        params, static: the env's parameters.
-    Returns:
-        (H, W, 3) uint8 with ``H = 2 * half_width_m * pixels_per_m`` and
-        ``W = (behind_m + ahead_m) * pixels_per_m`` (240 × 480 by default).
+    x runs right from ``s - behind_m`` to ``s + ahead_m``, y up over
+    ``±half_width_m``; the keyword arguments are static. Returns (H, W, 3) uint8,
+    ``H = 2 * half_width_m * pixels_per_m``, ``W = (behind_m + ahead_m) *
+    pixels_per_m`` (240 × 480 by default).
     """
     height = round(2 * half_width_m * pixels_per_m)
     width = round((behind_m + ahead_m) * pixels_per_m)

@@ -160,7 +160,9 @@ def _nan(row: Mapping[str, Any]) -> dict[str, Any]:
 def render_section(record: Mapping[str, Any], section: str, form: str = "") -> str:
     """Markdown of one section in ``form`` (:data:`FORMS`, module docstring)."""
     if form not in FORMS:
-        raise ValueError(f"results block {section} {form}: the form must be one of {', '.join(FORMS[1:])}")
+        raise ValueError(
+            f"results block {section} {form}: the form must be one of {', '.join(FORMS[1:])}"
+        )
     if section not in record["sections"]:
         known = ", ".join(record["sections"]) or "none"
         raise ValueError(f"results section {section!r}: not in the results file (has: {known})")

@@ -1,11 +1,5 @@
-"""The episodes a recording shows (paper §V-E; SPEC §8): ``num_episodes`` greedy
-episodes of an agent (its decisions played as the evaluation plays them, then
-replayed with every state traced: two jitted, vmapped rollouts), with every step's
-state, observation, action, reward, TTC and (for a network agent) Q-values:
-:class:`EpisodeRecord`, filled by :func:`collect_episodes`. Episode *i* uses
-``fold_in(key, i)`` exactly as :func:`drqn_jax.evaluation.evaluate` does, so
-recorded episode *i* is the evaluated episode *i* (same length, return,
-collision). :mod:`drqn_jax.interop.recording` writes them as rerun files.
+"""The episodes a recording shows (paper §V-E; SPEC §8): :func:`collect_episodes`
+fills an :class:`EpisodeRecord`; episode *i* is :func:`drqn_jax.evaluate`'s episode *i*.
 """
 
 from __future__ import annotations
@@ -21,13 +15,7 @@ from drqn_jax.env.collision import ego_box
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.state import ACTIONS, EnvState
 from drqn_jax.env.urban import UrbanPedestrians
-from drqn_jax.evaluation import (
-    Decision,
-    episode_keys,
-    map_episodes,
-    padded_keys,
-    play_episode,
-)
+from drqn_jax.evaluation import Decision, episode_keys, map_episodes, padded_keys, play_episode
 from drqn_jax.networks import Network
 from drqn_jax.programs import cached_program, jit_in_store
 from drqn_jax.pytree import pytree_dataclass
@@ -37,43 +25,25 @@ __all__ = ["EpisodeRecord", "collect_episodes", "with_q_values"]
 
 @pytree_dataclass
 class EpisodeRecord:
-    """N recorded episodes, everything the recording logs; T = ``max_steps``.
-
-    Index t of a per-state array is the state before the t-th decision (0 is
-    the reset state); index t of a per-step array is the step from state t to
-    state t + 1. Only ``[:L + 1]`` (states) and ``[:L]`` (steps) of episode i
-    are meaningful, L = ``length[i]``; the rollout runs all T steps
-    branch-free and what follows the end is never logged.
-
-    Attributes:
-        state: EnvState, leaves (N, T + 1, ...).
-        grid: (N, T + 1, rows, cols, 4) float32, observation grid of each state.
-        ego_centre: (N, T + 1, 2) float32, ego box centre (simulator frame, m).
-        ego_half: (N, 2) float32, ego box half extents (m).
-        action: (N, T) int32, the action taken in state t.
-        q_values: (N, T, 4) float32 Q-values of state t (DRQN only, else None).
-        reward: (N, T) float32; ttc: (N, T) float32 (s, inf: none), of the state
-            the step leads to; collision, struck_while_stopped, goal, truncated:
-            (N, T) bool (SPEC §5: a pedestrian striking the standing ego is no
-            collision and does not end the episode).
-        length: (N,) int32 steps until termination or truncation.
-        episode_return: (N,) float32, accumulated as ``rollout_episode`` does.
+    """N recorded episodes, T = ``max_steps``. Per-state index t: the state before the
+    t-th decision (0: reset); per-step index t: the step from state t to t + 1. Only
+    ``[:L + 1]`` states and ``[:L]`` steps of episode i are meaningful, L = ``length[i]``.
     """
 
-    state: EnvState
-    grid: Any
-    ego_centre: Any
-    ego_half: Any
-    action: Any
-    q_values: Any
-    reward: Any
-    ttc: Any
-    collision: Any
+    state: EnvState  # leaves (N, T + 1, ...)
+    grid: Any  # (N, T + 1, rows, cols, 4) float32
+    ego_centre: Any  # (N, T + 1, 2) float32 (m)
+    ego_half: Any  # (N, 2) float32 (m)
+    action: Any  # (N, T) int32
+    q_values: Any  # (N, T, 4) float32, or None without a network
+    reward: Any  # (N, T) float32
+    ttc: Any  # (N, T) float32 (s, inf: none)
+    collision: Any  # (N, T) bool, like the three below
     struck_while_stopped: Any
     goal: Any
     truncated: Any
-    length: Any
-    episode_return: Any
+    length: Any  # (N,) int32
+    episode_return: Any  # (N,) float32
 
     @property
     def num_episodes(self) -> int:
@@ -88,22 +58,20 @@ class EpisodeRecord:
 
 
 def _stack_last(seq: Any, last: Any) -> Any:
-    """Append ``last`` (leaves (...)) to a scanned sequence (leaves (T, ...)) → (T + 1, ...)."""
+    """Leaves (T, ...) and (...) -> (T + 1, ...)."""
     return jax.tree.map(lambda s, x: jnp.concatenate([s, x[None]], axis=0), seq, last)
 
 
 def with_q_values(agent: Agent, network: Network, network_params: Any) -> Agent:
-    """``agent``, with ``network`` stepping beside it on the same observations (its own
-    carry, zeros at reset): the carry becomes ``(agent's carry, network carry, Q)``, Q
-    (4,) float32 of the last observation. For ``drqn_agent(network, network_params)``
-    these are exactly the values whose argmax is the action."""
+    """``agent`` with ``network`` stepping beside it: the carry becomes ``(agent's carry,
+    network carry, Q (4,) float32 of the last observation)``."""
     init, act = _q_values_beside(agent.init_fn, agent.act_fn, network)
     return Agent(params=(agent.params, network_params), name=agent.name, init_fn=init, act_fn=act)
 
 
 @cached_program
 def _q_values_beside(init_fn: InitFn, act_fn: ActFn, network: Network) -> tuple[InitFn, ActFn]:
-    """:func:`with_q_values`'s functions, once per agent kind and network (one compile)."""
+    """:func:`with_q_values`'s functions, once per agent kind and network."""
 
     def init(params: Any, key: jax.Array) -> Any:
         inner, _ = params
@@ -119,16 +87,17 @@ def _q_values_beside(init_fn: InitFn, act_fn: ActFn, network: Network) -> tuple[
     return init, act
 
 
+_STEP_FIELDS = ("reward", "truncated", "ttc", "collision", "struck_while_stopped", "goal")
+
+
 def _record_decision(d: Decision) -> dict[str, Any]:
+    info = {k: d.info[k] for k in _STEP_FIELDS[2:]}
     return {
         "state": d.state,
         "grid": d.obs.grid,
         "reward": d.reward,
-        "ttc": d.info["ttc"],
-        "collision": d.info["collision"],
-        "struck_while_stopped": d.info["struck_while_stopped"],
-        "goal": d.info["goal"],
         "truncated": d.truncated,
+        **info,
     }
 
 
@@ -136,11 +105,8 @@ def _record_decision(d: Decision) -> dict[str, Any]:
 def _decisions(
     agent: Agent, keys: jax.Array, env: UrbanPedestrians, params: EnvParams, with_q: bool
 ) -> tuple[jax.Array, Any]:
-    """The agent's actions (N, T) and, ``with_q``, Q-values (N, T, 4) in each episode: the
-    evaluation's rollout (:func:`~drqn_jax.evaluation.map_episodes`: the same batches, so
-    the same rounding as :func:`drqn_jax.evaluate`), tracing only the decisions. The
-    caller pads the keys (:func:`~drqn_jax.evaluation.padded_keys`): one program for
-    every N up to ``MIN_BATCH``."""
+    """Actions (N, T) and, ``with_q``, Q-values (N, T, 4): the evaluation's own rollout
+    and batches (same rounding), on keys padded by the caller (``padded_keys``)."""
 
     def decision(d: Decision) -> tuple[jax.Array, Any]:
         return d.action, d.carry[2] if with_q else None
@@ -152,7 +118,7 @@ def _decisions(
 
 
 def _replaying(actions: jax.Array) -> Agent:
-    """An agent that takes ``actions`` (T,) in turn: the decisions of :func:`_decisions`."""
+    """An agent that takes ``actions`` (T,) in turn."""
     return Agent(params=actions, name="replay", init_fn=_first_decision, act_fn=_next_action)
 
 
@@ -168,7 +134,7 @@ def _next_action(actions: jax.Array, key: jax.Array, obs: Any, t: jax.Array, *re
 def _rollouts(
     actions: jax.Array, keys: jax.Array, env: UrbanPedestrians, params: EnvParams
 ) -> EpisodeRecord:
-    """One episode per key (N,), ``actions`` (N, T) replayed in it: every state traced."""
+    """``actions`` (N, T) replayed in one episode per key, every state traced."""
 
     def one(actions: jax.Array, key: jax.Array) -> EpisodeRecord:
         metrics, out, obs, state = play_episode(
@@ -183,14 +149,9 @@ def _rollouts(
             ego_half=half,
             action=actions,
             q_values=None,
-            reward=out["reward"],
-            ttc=out["ttc"],
-            collision=out["collision"],
-            struck_while_stopped=out["struck_while_stopped"],
-            goal=out["goal"],
-            truncated=out["truncated"],
             length=metrics.length,
             episode_return=metrics.episode_return,
+            **{k: out[k] for k in _STEP_FIELDS},
         )
 
     return jax.vmap(one)(actions, keys)
@@ -206,23 +167,12 @@ def collect_episodes(
     network: Network | None = None,
     network_params: Any = None,
 ) -> EpisodeRecord:
-    """Play ``num_episodes`` episodes of ``agent``: its decisions as the evaluation plays
-    them (:func:`_decisions`), then those decisions replayed with every state traced.
+    """:class:`EpisodeRecord` (NumPy leaves) of ``num_episodes`` episodes of ``agent``.
 
-    Episode i uses ``episode_keys(key, num_episodes)[i]`` = ``fold_in(key, i)``
-    and the same key schedule as :func:`drqn_jax.evaluation.rollout_episode`,
-    so it is the episode :func:`drqn_jax.evaluate` plays. With ``network`` and
-    ``network_params`` (the DRQN's), the network also steps on the same
-    observations with its own carry (zeros at reset) and its Q-values are
-    recorded: for ``drqn_agent(network, network_params)`` these are exactly
-    the values whose argmax is the action.
-
-    Memory: (T + 1) grids of 45 × 30 × 4 float32 per episode (21.6 MB at
-    T = 1000), all on the device at once; the decisions run in batches of at least
-    :data:`~drqn_jax.evaluation.MIN_BATCH` episodes, tracing only actions and Q-values.
-
-    Returns:
-        :class:`EpisodeRecord` with NumPy leaves.
+    The decisions are played as the evaluation plays them (episode i from
+    ``fold_in(key, i)``), then replayed with every state traced: (T + 1) grids per
+    episode (21.6 MB at T = 1000) on the device at once. With ``network`` and
+    ``network_params`` its Q-values are recorded beside (:func:`with_q_values`).
     """
     if not isinstance(num_episodes, int) or num_episodes < 1:
         raise ValueError(f"num_episodes = {num_episodes!r}, must be an integer >= 1")

@@ -1,60 +1,20 @@
-"""Gymnasium environments over the JAX simulator (SPEC §1–5).
+"""Gymnasium environments over the JAX simulator (SPEC §1–5), NumPy in and out.
 
-The pure JAX env (:class:`~drqn_jax.env.urban.UrbanPedestrians`) speaks the
-gymnax contract; this module puts it behind Gymnasium's API so that any
-Gymnasium-speaking library can drive it, with NumPy in and out:
+:class:`UrbanPedestriansGymEnv` is a :class:`gymnasium.Env` (no auto-reset);
+:func:`register_gymnasium_envs` registers ``drqn_jax/<id>`` for every
+:func:`drqn_jax.registered_envs` id (the vector env: :mod:`.gymnasium_vector`).
 
-* :class:`UrbanPedestriansGymEnv` — a :class:`gymnasium.Env` (one episode at a
-  time, no auto-reset; ``render_mode="rgb_array"``);
-* :class:`UrbanPedestriansVectorEnv` — a native :class:`gymnasium.vector.VectorEnv`:
-  one jitted, ``vmap``-ed call per step for all sub-environments, with
-  ``AutoresetMode.NEXT_STEP`` (default), ``SAME_STEP`` or ``DISABLED``;
-* :func:`register_gymnasium_envs` — registers ``drqn_jax/<id>`` for every id of
-  :func:`drqn_jax.registered_envs` (``import drqn_jax`` calls it), so
-  ``gymnasium.make("drqn_jax/UrbanPedestrians-v0", max_steps=300)`` and
-  ``gymnasium.make_vec("drqn_jax/UrbanPedestrians-v0", num_envs=64)`` work;
-  extra keyword arguments go to :func:`drqn_jax.make`.
+Observation, a ``Dict``: ``grid`` (45, 30, 4) float32 with finite per-channel
+bounds (:func:`grid_speed_high`); ``speed`` shape (1,) float32 (the shape
+``FlattenObservation`` and Stable-Baselines3 expect of a Box); ``last_action``
+``Discrete(5)``, :data:`NO_ACTION_YET` (4) at episode start where the JAX
+observation has −1 (such libraries take only spaces that start at 0). Actions:
+``Discrete(4)``. ``info``: ``collision``, ``goal`` (bools), ``ttc`` (s),
+``distance`` (m), ``speed`` (m/s) float32 and ``time`` int32.
 
-Observation (SPEC §4), a ``Dict``:
-
-* ``grid``: ``Box`` (45, 30, 4) float32 with per-channel bounds: occupancy
-  [0, 1], relative heading [−1, 1], speed [0, b], semantics [0, 1], where b is
-  the largest value the speed channel can take under the env's parameters
-  (:func:`grid_speed_high`; the JAX space leaves it unbounded);
-* ``speed``: ``Box`` shape **(1,)** float32 in [0, max_vehicle_speed / v_ref]
-  (the JAX observation's ``()`` scalar as a length-1 vector, the shape common
-  libraries — ``FlattenObservation``, Stable-Baselines3's ``MultiInputPolicy`` —
-  expect of a Box);
-* ``last_action``: ``Discrete(5)``: the previous action 0–3, or
-  :data:`NO_ACTION_YET` (4) at episode start. The JAX observation writes −1
-  there; Gymnasium's space starts at 0 because Stable-Baselines3 and most
-  one-hot encoders take only such spaces (:func:`gymnasium_last_action`).
-
-Actions: ``Discrete(4)`` (0 accelerate, 1 slow_down, 2 brake, 3 steer; paper
-§IV-B). Termination and truncation are the JAX env's (``step_env``: collision or
-goal; ``max_steps``). ``info`` holds ``collision``, ``goal`` (Python bools),
-``ttc`` (s, ``inf`` when none), ``distance`` (m), ``speed`` (m/s, unnormalised)
-(NumPy float32) and ``time`` (steps, NumPy int32); the vector env batches them
-into (N,) arrays of bool, float32 and int32.
-
-Keys. Every reset draws one JAX key from Gymnasium's ``np_random`` (so
-``reset(seed=s)`` is reproducible and an unseeded reset continues the stream);
-it splits into the key that draws the new episode and the key the env holds;
-every step splits the held key. The vector env keeps one ``np_random`` per
-sub-environment, seeded like :class:`gymnasium.vector.SyncVectorEnv` seeds its
-envs (``seed + i``), and auto-resets from that sub-environment's stream, so
-sub-environment ``i`` behaves exactly like ``gymnasium.make(id)`` reset with
-``seed + i`` and driven by the same actions, whatever ``num_envs`` is.
-
-Rendering (``render_mode="rgb_array"``): ``render()`` returns :func:`render_frame`,
-the bird's-eye view that :mod:`drqn_jax.env.viewer` draws in pure JAX — a (240, 480, 3)
-uint8 frame of the map, the ego, the pedestrians coloured by behaviour and a HUD with
-the step, the speed (km/h), the last action and the TTC, in the palette the rerun
-recordings share; the vector env returns a tuple of N frames from one vmapped call.
-
-The jitted functions are built once per static env (a module-level cache keyed
-on the hashable JAX env) and take ``EnvParams`` as arguments, so creating
-more envs, or the realistic preset beside the paper's, compiles nothing new.
+Every reset draws one JAX key from ``np_random``, split into the episode's key and
+the held key; every step splits the held key. The jitted functions are built once
+per static env and take ``EnvParams`` as arguments.
 """
 
 from __future__ import annotations
@@ -96,14 +56,12 @@ __all__ = [
     "gymnasium_last_action",
     "gymnasium_observation_space",
     "register_gymnasium_envs",
-    "render_frame",
 ]
 
 NAMESPACE = "drqn_jax"
 NO_ACTION_YET = NUM_ACTIONS  # Gymnasium's ``last_action`` at episode start
 SPEED_CHANNEL = 2  # the grid channel without a fixed upper bound (SPEC §4)
-# Float32 rounding margin on the bounds derived from EnvParams (relative).
-_BOUND_MARGIN = 1e-5
+_BOUND_MARGIN = 1e-5  # relative float32 rounding margin on bounds from EnvParams
 
 
 # --- spaces -----------------------------------------------------------------
@@ -113,15 +71,11 @@ def _round_up_f32(x: float) -> np.float32:
 
 
 def grid_speed_high(params: EnvParams) -> float:
-    """Largest value of the grid's speed channel (SPEC §4, ch2) under ``params``.
+    """Largest value of the grid's speed channel (SPEC §4) under ``params``.
 
-    ``speed_channel = "pedestrian"``: a pedestrian walks at most
-    ``ped_speed_max``, so ``ped_speed_max / speed_norm_pedestrian``.
-    ``"relative"``: the ego drives at most ``max_vehicle_speed`` along +x, so
-    ``(max_vehicle_speed + ped_speed_max + δ) / speed_norm_relative``, where δ
-    bounds the float32 error of a velocity measured as a displacement over
-    ``dt`` at world coordinates up to the goal plus the spawn and despawn
-    ranges. Both carry a relative float32 rounding margin of 1e-5.
+    ``"relative"``: ``(max_vehicle_speed + ped_speed_max + δ) / speed_norm_relative``,
+    δ bounding the float32 error of a displacement over ``dt`` at the largest world
+    coordinates; ``"pedestrian"``: ``ped_speed_max / speed_norm_pedestrian``.
     """
     ped_max = float(params.ped_speed_max)
     if int(params.speed_channel) == SPEED_RELATIVE:
@@ -136,16 +90,8 @@ def grid_speed_high(params: EnvParams) -> float:
 
 
 def gymnasium_observation_space(env: UrbanPedestrians, params: EnvParams) -> spaces.Dict:
-    """The Gymnasium observation space of one env (SPEC §4).
-
-    Bounds are the JAX env's :meth:`~UrbanPedestrians.observation_space`, with
-    the speed channel's open upper bound replaced by :func:`grid_speed_high`
-    and the ego speed's by its float32-rounded value (margin 1e-5).
-
-    Returns:
-        ``Dict(grid=Box((rows, cols, 4), float32), speed=Box((1,), float32),
-        last_action=Discrete(5))``.
-    """
+    """The JAX env's observation space (SPEC §4) with finite float32 bounds:
+    ``Dict(grid=Box((rows, cols, 4)), speed=Box((1,)), last_action=Discrete(5))``."""
     jax_space = env.observation_space(params)
     grid = jax_space.spaces["grid"]
     low = np.array(np.broadcast_to(np.asarray(grid.low, np.float32), grid.shape))
@@ -166,18 +112,13 @@ def gymnasium_observation_space(env: UrbanPedestrians, params: EnvParams) -> spa
 
 
 def gymnasium_last_action(last_action: np.ndarray) -> np.ndarray:
-    """The JAX ``last_action`` (any shape; −1 before the first action, else 0–3) as
-    Gymnasium's ``Discrete(5)`` value: the action itself, or :data:`NO_ACTION_YET`."""
+    """The JAX ``last_action`` (any shape) in ``Discrete(5)``: −1 becomes :data:`NO_ACTION_YET`."""
     return np.where(last_action == NO_ACTION, NO_ACTION_YET, last_action)
 
 
 def numpy_observation(obs: Observation) -> dict[str, Any]:
-    """NumPy (fresh, writable) observation dict; leading batch axes are kept.
-
-    ``grid`` (..., rows, cols, 4) float32, ``speed`` (..., 1) float32,
-    ``last_action`` (...) int64 (a NumPy scalar when unbatched), in
-    :func:`gymnasium_last_action`'s encoding.
-    """
+    """Fresh NumPy observation dict, batch axes kept: ``grid`` float32, ``speed`` (..., 1)
+    float32, ``last_action`` int64 (a scalar when unbatched)."""
     last_action = gymnasium_last_action(np.array(obs.last_action, np.int64))
     return {
         "grid": np.array(obs.grid, np.float32),
@@ -186,32 +127,20 @@ def numpy_observation(obs: Observation) -> dict[str, Any]:
     }
 
 
-def invalid_action(action: Any, space: spaces.Space) -> ValueError:
-    return ValueError(
-        f"invalid action {action!r}: not an element of the action space {space} "
-        "(0 accelerate, 1 slow_down, 2 brake, 3 steer)"
-    )
-
-
-def space_contains(space: spaces.Space, x: Any) -> bool:
+def valid_action(action: Any, space: spaces.Space) -> Any:
+    """``action`` (a JAX array as NumPy); a ValueError unless ``space`` contains it."""
+    if isinstance(action, jax.Array):
+        action = np.asarray(action)
     try:
-        return bool(space.contains(x))
+        valid = bool(space.contains(action))
     except Exception:  # e.g. an object NumPy cannot compare
-        return False
-
-
-# --- rendering --------------------------------------------------------------
-def render_frame(
-    env: UrbanPedestrians, state: EnvState, params: EnvParams, **view: Any
-) -> jax.Array:
-    """:func:`drqn_jax.env.viewer.render_frame` of ``env``'s state (SPEC §1–5), pure JAX:
-    the bird's-eye view with the step, speed, last action and TTC; ``view`` takes
-    viewer's keyword arguments (``behind_m``, ``pixels_per_m``, ``hud``, …).
-
-    Returns:
-        (H, W, 3) uint8, 240 × 480 by default.
-    """
-    return viewer.render_frame(state, params, env.static, **view)
+        valid = False
+    if not valid:
+        raise ValueError(
+            f"invalid action {action!r}: not an element of the action space {space} "
+            "(0 accelerate, 1 slow_down, 2 brake, 3 steer)"
+        )
+    return action
 
 
 # --- compiled functions, one set per static env ------------------------------
@@ -223,7 +152,7 @@ class _SingleFns(NamedTuple):
 
 @cached_program
 def key_data_shape() -> tuple[int, ...]:
-    """Shape of one key's raw data under JAX's default PRNG implementation ((2,) for threefry)."""
+    """Shape of one key's raw data under JAX's default PRNG ((2,) for threefry)."""
     return jax.eval_shape(lambda: jax.random.key_data(jax.random.key(0))).shape
 
 
@@ -241,8 +170,7 @@ def _split(key_data: jax.Array) -> tuple[jax.Array, jax.Array]:
 def single_reset(
     env: UrbanPedestrians, key_data: jax.Array, params: EnvParams
 ) -> tuple[jax.Array, Observation, EnvState]:
-    """One env's reset from raw key data (``key_data_shape()``): ``(the key data kept
-    for the next call, obs, state)``."""
+    """One env's reset from raw key data: ``(held key data, obs, state)``."""
     held, reset_key = _split(key_data)
     obs, state = env.reset_env(reset_key, params)
     return held, obs, state
@@ -251,17 +179,16 @@ def single_reset(
 def single_step(
     env: UrbanPedestrians, key_data: jax.Array, state: EnvState, action: jax.Array, params
 ) -> tuple[jax.Array, Observation, EnvState, jax.Array, jax.Array, jax.Array, dict]:
-    """One env's step (no auto-reset: ``step_env``) from raw key data: ``(the key data
-    kept for the next call, obs, state, reward, terminated, truncated, info)``."""
+    """One env's ``step_env`` from raw key data: ``(held key data, obs, state, reward,
+    terminated, truncated, info)``."""
     held, step_key = _split(key_data)
     obs, state, reward, terminated, truncated, info = env.step_env(step_key, state, action, params)
     return held, obs, state, reward, terminated, truncated, info
 
 
 def _packed_step(env: UrbanPedestrians, key_data, state, action, params):
-    """:func:`single_step` with what the host reads as two arrays: the grid and one
-    float32 vector of every scalar (speed, last action, reward, flags, info values in
-    sorted key order). Each host transfer costs tens of µs; one step had fourteen."""
+    """:func:`single_step` with what the host reads packed into two arrays (one transfer
+    each): the grid and a float32 vector of every scalar, info in sorted key order."""
     held, obs, state, reward, terminated, truncated, info = single_step(
         env, key_data, state, action, params
     )
@@ -275,8 +202,7 @@ def _unpack_step(
     dtypes: tuple[tuple[str, Any], ...], grid: np.ndarray, packed: np.ndarray
 ) -> tuple:
     """The host side of :func:`_packed_step`: ``(obs, reward, terminated, truncated, info)``
-    with every value at its own dtype (``dtypes``: :func:`_info_dtypes`; exact: the
-    packed values are float32 reals, small integers and flags)."""
+    at their own dtypes (exact: float32 reals, small integers and flags)."""
     speed, last_action, reward, terminated, truncated = packed[:5]
     info = {
         k: bool(v) if dtype == np.bool_ else np.asarray(v).astype(dtype)[()]
@@ -300,29 +226,18 @@ def _single_fns(env: UrbanPedestrians) -> _SingleFns:
     return _SingleFns(
         reset=jax.jit(functools.partial(single_reset, env)),
         step=jax.jit(functools.partial(_packed_step, env)),
-        render=jax.jit(functools.partial(render_frame, env)),
+        render=jax.jit(functools.partial(viewer.render_frame, static=env.static)),
     )
 
 
 # --- the single env ---------------------------------------------------------
 class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
-    """The urban-pedestrian env (paper §V-D, SPEC §1–5) as a :class:`gymnasium.Env`.
+    """The urban-pedestrian env (paper §V-D) as a :class:`gymnasium.Env`.
 
-    Args:
-        env_id: a :func:`drqn_jax.registered_envs` id (``"UrbanPedestrians-v0"``:
-            the paper's settings; ``"UrbanPedestriansRealistic-v0"``).
-        render_mode: ``None`` or ``"rgb_array"`` (:func:`render_frame`).
-        **overrides: any :func:`drqn_jax.make` override, e.g. ``max_steps=300``.
-
-    Attributes:
-        jax_env, params: the JAX env and its ``EnvParams``.
-        observation_space: see the module docstring; action_space: ``Discrete(4)``.
-
-    ``step`` before ``reset`` raises :class:`gymnasium.error.ResetNeeded` (the
-    env is registered without Gymnasium's ``OrderEnforcing`` and
-    ``PassiveEnvChecker`` wrappers: it enforces the order itself and passes
-    ``check_env``). Stepping past the end of an episode continues the
-    simulation without resetting; call ``reset``.
+    ``env_id`` is a :func:`drqn_jax.registered_envs` id, ``overrides`` go to
+    :func:`drqn_jax.make`. It enforces reset-before-step itself (``ResetNeeded``), so it
+    is registered without Gymnasium's order and checker wrappers. Stepping past an
+    episode's end goes on simulating.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}  # 1/dt
@@ -355,42 +270,24 @@ class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, Any], dict[str, Any]]:
-        """Start an episode; the JAX key is drawn from ``self.np_random``.
-
-        Args:
-            seed: reseeds ``np_random`` when given. ``options`` is accepted and unused.
-        Returns:
-            ``(observation, {})``.
-        """
+        """``(observation, {})`` of a new episode keyed from ``np_random`` (``options`` unused)."""
         super().reset(seed=seed)
         key_data = draw_key_data(self.np_random)
         self._key_data, obs, self._state = self._fns.reset(key_data, self._device_params)
         return numpy_observation(jax.device_get(obs)), {}
 
     def step(self, action: Any) -> tuple[dict[str, Any], SupportsFloat, bool, bool, dict[str, Any]]:
-        """One decision step (0.1 s) with ``action`` in ``Discrete(4)``.
-
-        Returns:
-            ``(observation, reward, terminated, truncated, info)``: reward a
-            Python float in [−10, 1], the flags Python bools, info as in the
-            module docstring.
-        Raises:
-            ValueError: ``action`` is not in the action space.
-            ResetNeeded: called before ``reset``.
-        """
-        if isinstance(action, jax.Array):
-            action = np.asarray(action)
-        if not space_contains(self.action_space, action):
-            raise invalid_action(action, self.action_space)
+        """One decision step: ``(observation, reward, terminated, truncated, info)``, reward
+        a Python float, the flags Python bools; ValueError for an invalid action."""
+        action = valid_action(action, self.action_space)
         if self._state is None:
             raise ResetNeeded("Cannot call UrbanPedestriansGymEnv.step before reset")
         out = self._fns.step(self._key_data, self._state, np.int32(action), self._device_params)
         self._key_data, self._state, grid, packed = out
-        # Flags come back as Python bools (SyncVectorEnv batches those, not np.bool_).
         return _unpack_step(self._info_dtypes, *jax.device_get((grid, packed)))
 
     def render(self) -> np.ndarray | None:
-        """(240, 480, 3) uint8 bird's-eye view (:func:`render_frame`) for ``"rgb_array"``."""
+        """(240, 480, 3) uint8 frame of :func:`drqn_jax.env.viewer.render_frame`."""
         if self.render_mode is None:
             gymnasium.logger.warn(
                 "render() called without a render_mode; e.g. "
@@ -404,22 +301,13 @@ class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
 
 # --- registration -----------------------------------------------------------
 def gymnasium_ids() -> tuple[str, ...]:
-    """The Gymnasium ids: ``drqn_jax/<id>`` for every :func:`drqn_jax.registered_envs` id."""
+    """``drqn_jax/<id>`` for every :func:`drqn_jax.registered_envs` id."""
     return tuple(f"{NAMESPACE}/{env_id}" for env_id in registered_envs())
 
 
 def register_gymnasium_envs() -> tuple[str, ...]:
-    """Register :func:`gymnasium_ids` with Gymnasium (idempotent: present ids are kept).
-
-    Each id has ``entry_point`` :class:`UrbanPedestriansGymEnv`,
-    ``vector_entry_point`` :class:`UrbanPedestriansVectorEnv` and
-    ``kwargs={"env_id": <drqn_jax id>}``; ``order_enforce`` and the passive
-    checker are off (the env enforces reset-before-step and passes
-    ``check_env``), so ``gymnasium.make`` returns the env itself.
-
-    Returns:
-        the ids.
-    """
+    """Register :func:`gymnasium_ids` (present ids are kept) and return them;
+    ``gymnasium.make`` returns the env itself, unwrapped."""
     for env_id in registered_envs():
         gym_id = f"{NAMESPACE}/{env_id}"
         if gym_id in gymnasium.registry:

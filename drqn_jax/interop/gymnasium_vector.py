@@ -1,10 +1,7 @@
-"""Gymnasium's native vector env over the JAX simulator (SPEC §1–5):
-:class:`UrbanPedestriansVectorEnv`, one jitted, ``vmap``-ed call per step for all
-sub-environments, with ``AutoresetMode.NEXT_STEP`` (default), ``SAME_STEP`` or
-``DISABLED``. Spaces, keys, ``info`` and rendering are the single env's
-(:mod:`drqn_jax.interop.gymnasium_env`, which documents them): sub-environment
-``i`` behaves exactly like ``gymnasium.make(id)`` reset with ``seed + i`` and
-driven by the same actions, whatever ``num_envs`` is.
+"""Gymnasium's native vector env over the JAX simulator (SPEC §1–5): one jitted,
+``vmap``-ed call per step. Spaces, keys and ``info`` are the single env's
+(:mod:`drqn_jax.interop.gymnasium_env`); sub-environment ``i`` behaves exactly like
+``gymnasium.make(id)`` reset with ``seed + i``, whatever ``num_envs`` is.
 """
 
 from __future__ import annotations
@@ -22,6 +19,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from drqn_jax.env import viewer
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.state import NUM_ACTIONS, EnvState
 from drqn_jax.env.urban import UrbanPedestrians
@@ -29,21 +27,18 @@ from drqn_jax.interop.gymnasium_env import (
     UrbanPedestriansGymEnv,
     draw_key_data,
     gymnasium_observation_space,
-    invalid_action,
     key_data_shape,
     numpy_observation,
-    render_frame,
     single_reset,
     single_step,
-    space_contains,
+    valid_action,
 )
 from drqn_jax.programs import cached_program
 from drqn_jax.registry import make as make_jax_env
 
 __all__ = ["SPARSE_RESETS", "UrbanPedestriansVectorEnv"]
 
-#: Most sub-environments restarted sparsely in one vector step: up to this many, only
-#: theirs are reset; more at once (rare), every one is computed and selected.
+#: Up to this many restarts in a step only theirs are computed; more, every env's.
 SPARSE_RESETS = 8
 
 
@@ -63,16 +58,13 @@ def _restart_where(
     states: EnvState,
     params: EnvParams,
 ) -> tuple[jax.Array, EnvState]:
-    """``held`` (N, w) key data and ``states`` (N, …) with the sub-environments where
-    ``restart`` (N,) bool starts a fresh episode from ``reset_key_data`` (N, w), split
-    as :func:`single_reset` splits it. Only the restarting envs' resets are
-    computed (none when none restarts; all when more than :data:`SPARSE_RESETS`
-    do); each env's fresh state depends on its own key alone, so the result is the
-    same whichever way it is computed."""
+    """``held`` (N, w) and ``states`` (N, …) with fresh episodes from ``reset_key_data``
+    where ``restart`` (N,) is set; each depends on its own key only, so computing
+    none, a few (:data:`SPARSE_RESETS`) or all gives the same bits."""
     n = restart.shape[0]
     k = min(n, SPARSE_RESETS)
 
-    def reset_one(key_data):  # single_reset's; jit drops the unused observation
+    def reset_one(key_data):  # jit drops the unused observation
         fresh_held, _, fresh = single_reset(env, key_data, params)
         return fresh_held, fresh
 
@@ -108,15 +100,9 @@ def _vector_step(
     autoreset: jax.Array,
     params: EnvParams,
 ):
-    """A batch of N sub-environments' steps with auto-reset (arrays (N, …)).
-
-    Every env steps (``step_env`` with a key split from its held one); the envs
-    that restart get a fresh episode (:func:`_restart_where`) and their
-    observation is rasterised from it. NEXT_STEP restarts where ``autoreset``
-    (the previous step ended the episode), with reward 0 and no termination;
-    SAME_STEP restarts where this step ends it and also returns the final
-    observation.
-    """
+    """N sub-environments' steps with auto-reset: NEXT_STEP restarts where ``autoreset``
+    (reward 0, no flags), SAME_STEP where this step ends, returning the final
+    observation too."""
     step = jax.vmap(functools.partial(single_step, env), in_axes=(0, 0, 0, None))
     held, obs_final, stepped, reward, terminated, truncated, info = step(
         key_data, states, actions, params
@@ -148,13 +134,15 @@ def _vector_fns(env: UrbanPedestrians) -> _VectorFns:
         reset_masked=jax.jit(reset_masked),
         step_next=step(False),
         step_same=step(True),
-        render=jax.jit(jax.vmap(functools.partial(render_frame, env), in_axes=(0, None))),
+        render=jax.jit(
+            jax.vmap(functools.partial(viewer.render_frame, static=env.static), in_axes=(0, None))
+        ),
     )
 
 
 # --- the vector env ---------------------------------------------------------
 def _batched_info(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
-    """Gymnasium's vector info layout: ``key`` (N,) (zero where absent) and mask ``_key``."""
+    """Gymnasium's vector info layout: ``key`` (N,), zero where ``mask`` is not, and ``_key``."""
     if not mask.any():
         return {}
     out: dict[str, np.ndarray] = {}
@@ -168,23 +156,9 @@ def _batched_info(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, 
 class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
     """``num_envs`` copies of the env stepped by one jitted, vmapped call (SPEC §1–5).
 
-    Args:
-        num_envs: N, the number of sub-environments.
-        env_id: a :func:`drqn_jax.registered_envs` id.
-        autoreset_mode: ``AutoresetMode`` (or its value): ``NEXT_STEP`` (default;
-            the step after an episode ends resets that sub-environment: its
-            action is ignored, reward 0, flags False, no info),
-            ``SAME_STEP`` (the ending step returns the new episode's first
-            observation; the last one is ``info["final_obs"]``, its info
-            ``info["final_info"]``, as :class:`gymnasium.vector.SyncVectorEnv`),
-            or ``DISABLED`` (reset ended sub-environments with
-            ``reset(options={"reset_mask": mask})``).
-        render_mode: ``None`` or ``"rgb_array"`` (a tuple of N frames).
-        **overrides: any :func:`drqn_jax.make` override, e.g. ``max_steps=300``.
-
-    Batches: observations ``grid`` (N, 45, 30, 4) float32, ``speed`` (N, 1)
-    float32, ``last_action`` (N,) int64; rewards (N,) float64; flags (N,) bool;
-    actions (N,) integers in ``MultiDiscrete([4] * N)``.
+    ``autoreset_mode``: ``NEXT_STEP`` (default), ``SAME_STEP`` (``final_obs`` and
+    ``final_info`` as :class:`gymnasium.vector.SyncVectorEnv`) or ``DISABLED`` (reset
+    with ``options={"reset_mask": mask}``). Rewards (N,) float64, flags (N,) bool.
     """
 
     def __init__(
@@ -206,10 +180,7 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
         self.params = params
         self._device_params = jax.device_put(params)
         self.render_mode = render_mode
-        self.metadata = {
-            **UrbanPedestriansGymEnv.metadata,
-            "autoreset_mode": self.autoreset_mode,
-        }
+        self.metadata = {**UrbanPedestriansGymEnv.metadata, "autoreset_mode": self.autoreset_mode}
         self.single_observation_space = gymnasium_observation_space(self.jax_env, params)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.single_action_space = spaces.Discrete(NUM_ACTIONS)
@@ -217,15 +188,14 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
         self._fns = _vector_fns(self.jax_env)
         self._rngs: list[np.random.Generator | None] = [None] * num_envs
         self._seeds: list[int | None] = [None] * num_envs
-        # Each sub-environment's next reset key, drawn ahead from its np_random.
-        self._next_key_data: np.ndarray | None = None
+        self._next_key_data: np.ndarray | None = None  # next reset keys, drawn ahead
         self._key_data: jax.Array | None = None  # (N, w) held keys
         self._states: EnvState | None = None
         self._ended = np.zeros(num_envs, bool)  # NEXT_STEP: reset on the next step
 
     @property
     def np_random(self) -> tuple[np.random.Generator | None, ...]:
-        """The sub-environments' generators (as :class:`SyncVectorEnv`'s ``np_random``)."""
+        """The sub-environments' generators."""
         return tuple(self._rngs)
 
     @property
@@ -239,8 +209,8 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
         return self._states
 
     def _take_reset_keys(self, seeds: list[int | None], which: np.ndarray) -> np.ndarray:
-        """(N, w) uint32: reset keys for the sub-environments in ``which``, drawn as
-        ``gymnasium.make(id).reset(seed=seeds[i])`` would draw them."""
+        """(N, w) uint32 reset keys for ``which``, as ``gymnasium.make(id).reset(seed=seeds[i])``
+        would draw them."""
         if self._next_key_data is None:
             self._next_key_data = np.zeros((self.num_envs, *key_data_shape()), np.uint32)
         keys = np.zeros_like(self._next_key_data)
@@ -255,20 +225,10 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
         return keys
 
     def reset(
-        self,
-        *,
-        seed: int | list[int | None] | None = None,
-        options: dict[str, Any] | None = None,
+        self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, Any], dict[str, Any]]:
-        """Reset all sub-environments, or those in ``options["reset_mask"]`` ((N,) bool).
-
-        Args:
-            seed: ``None`` (continue each sub-environment's stream), an int s
-                (sub-environment i gets s + i) or a list of N ints / ``None``.
-        Returns:
-            ``(observations, {})``; the observations of sub-environments not
-            reset are their current ones.
-        """
+        """Reset all sub-environments or those in ``options["reset_mask"]``: ``(observations,
+        {})``. ``seed``: None (continue), s (env i gets s + i) or a list of N."""
         if seed is None:
             seeds: list[int | None] = [None] * self.num_envs
         elif isinstance(seed, int | np.integer):
@@ -305,21 +265,9 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
     def step(
         self, actions: Any
     ) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every sub-environment with ``actions`` ((N,) integers in 0–3).
-
-        Returns:
-            ``(observations, rewards, terminations, truncations, infos)`` with
-            Gymnasium's vector info layout (``key`` and mask ``_key``); see the
-            class docstring for the auto-reset modes.
-        Raises:
-            ValueError: ``actions`` is not in the action space.
-            ResetNeeded: called before ``reset``, or (``DISABLED``) with an
-                ended sub-environment not reset.
-        """
-        if isinstance(actions, jax.Array):
-            actions = np.asarray(actions)
-        if not space_contains(self.action_space, actions):
-            raise invalid_action(actions, self.action_space)
+        """Step every sub-environment: ``(observations, rewards, terminations, truncations,
+        infos)`` in Gymnasium's vector info layout."""
+        actions = valid_action(actions, self.action_space)
         if self._states is None:
             raise ResetNeeded("Cannot call UrbanPedestriansVectorEnv.step before reset")
         same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
@@ -355,7 +303,6 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
                 infos["final_info"], infos["_final_info"] = _batched_info(info, done), done.copy()
         else:
             infos = _batched_info(info, ~autoreset)
-        # The sub-environments that started an episode used their next reset key.
         restarted = np.asarray(restarted, bool)
         if restarted.any():
             self._take_reset_keys([None] * self.num_envs, restarted)
@@ -369,7 +316,7 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
         )
 
     def render(self) -> tuple[np.ndarray, ...] | None:
-        """N (240, 480, 3) uint8 frames (:func:`render_frame`) for ``"rgb_array"``."""
+        """N (240, 480, 3) uint8 frames for ``"rgb_array"``."""
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode")
             return None

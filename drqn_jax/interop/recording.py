@@ -1,16 +1,9 @@
 """Rerun recordings of evaluated episodes (paper §V-E; SPEC §1–5, §8).
 
-:func:`record_episodes` plays ``num_episodes`` greedy episodes of an agent
-(:func:`~drqn_jax.interop.episode_record.collect_episodes`, the evaluated episodes
-themselves) and logs them (:func:`write_episodes`) to one ``.rrd`` file (open it
-with ``rerun FILE.rrd``; no viewer is needed to write it). Training curves are
-:mod:`drqn_jax.interop.training_recording`'s, through the same stream helpers
-(:func:`open_recording`, :func:`close_recording`).
-
-Entity layout of an episode recording (timeline ``"step"`` = the env's
-``state.time``; every episode has its own entity prefix ``episode/<i>``, so
-episodes never overwrite each other and the saved blueprint shows one tab per
-episode)::
+:func:`record_episodes` plays greedy episodes (:func:`collect_episodes`: the
+evaluated episodes themselves) and writes one ``.rrd`` file (``rerun FILE.rrd``).
+Entity layout (timeline ``"step"`` = ``state.time``, one prefix and one blueprint
+tab per episode)::
 
     map/road, map/walkways, map/crosswalks   Boxes2D, static (SPEC §1 regions)
     map/centre_line, map/goal                 LineStrips2D, static
@@ -29,33 +22,13 @@ episode)::
                                               where a pedestrian struck the standing
                                               car), end at L
 
-L is the episode's length. Step t shows the state the agent sees before its
-t-th decision (t = 0 is the reset state, t = L the state the episode ended
-in) with its observation grid and speed; ``action`` and ``q`` at t are the
-decision taken in that state; ``reward`` and ``ttc`` at t are what the step
-*into* state t produced (so the collision's −10 and TTC 0 sit on the frame
-that shows the collision). TTC is logged only where it is finite (``inf``:
-no overlap within the horizon or the ego stopped, SPEC §5), as points. Steps
-after the episode ended are not logged.
-
-World coordinates are the simulator's metres with **y negated** (rerun's 2D views
-point y down), see :func:`drqn_jax.interop.rerun_map.to_view`; the static map is
-:mod:`drqn_jax.interop.rerun_map`'s. Grid images are the observation as the network
-sees it: row 0 is 5 m behind the ego, column 0 is 15 m to its right (SPEC §4).
-
-Colours: the palette of :mod:`drqn_jax.env.viewer` (the Gymnasium frames use it
-too); pedestrians are coloured by behaviour (crossing green, jaywalking red, sidewalk
-orange; an ``AnnotationContext`` on ``/`` names the class ids) and faded while
-occluded (``EnvParams.occlusion_prob``).
-
-The ego's label at step t is the HUD of state t, the text the rendered frames
-show (:func:`drqn_jax.env.viewer.hud_glyphs` read back by
-:func:`~drqn_jax.env.viewer.hud_text`), e.g. ``step 12  36.0 km/h  accelerate
-TTC 1.5 s``: the step, the speed, the action that led to the state (``-`` at
-t = 0) and the TTC of state t itself (``-`` when infinite), computed for all
-states by one jitted ``vmap`` (:func:`hud_labels`). The ``ttc`` scalars are the
-step's ``info["ttc"]``, measured before far or finished pedestrians are
-replaced, so the two can differ on a step that replaced one.
+L is the episode's length. Step t shows the state before the t-th decision
+(``action`` and ``q`` at t are decided in it); ``reward`` and ``ttc`` at t are what
+the step *into* state t produced, so a collision's −10 sits on the frame that shows
+it. ``ttc`` is the step's ``info["ttc"]``, measured before pedestrians are replaced,
+so it can differ from the HUD's TTC of the state. World coordinates are metres with
+y negated (:func:`drqn_jax.interop.rerun_map.to_view`); colours are
+:mod:`drqn_jax.env.viewer`'s.
 """
 
 from __future__ import annotations
@@ -99,6 +72,7 @@ __all__ = [
     "hud_labels",
     "open_recording",
     "record_episodes",
+    "send_scalars",
     "write_episodes",
 ]
 
@@ -109,31 +83,35 @@ GRID_CHANNELS = ("occupancy", "heading", "speed", "semantics")  # SPEC §4 chann
 # --- logging episodes ------------------------------------------------------------
 
 
-def _steps(values: np.ndarray | range) -> list[rr.TimeColumn]:
-    return [rr.TimeColumn(STEP_TIMELINE, sequence=np.asarray(values, np.int64))]
+def _steps(values: np.ndarray | range, timeline: str = STEP_TIMELINE) -> list[rr.TimeColumn]:
+    return [rr.TimeColumn(timeline, sequence=np.asarray(values, np.int64))]
 
 
-def _scalars(rec: rr.RecordingStream, entity: str, steps: np.ndarray, values: np.ndarray) -> None:
+def send_scalars(
+    rec: rr.RecordingStream,
+    entity: str,
+    steps: np.ndarray,
+    values: np.ndarray,
+    timeline: str = STEP_TIMELINE,
+) -> None:
+    """``values`` (E,) at the sequence ``steps`` (E,) of ``timeline``, as float64 scalars."""
     if len(steps):
         rec.send_columns(
             entity,
-            indexes=_steps(steps),
+            indexes=_steps(steps, timeline),
             columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
         )
 
 
 @cached_program
 def _hud_program(env: UrbanPedestrians) -> Any:
-    """``(states, params) -> glyphs``: :func:`~drqn_jax.env.viewer.hud_glyphs` over
-    states with leaves (N, T + 1, ...), one jitted double ``vmap``; built once per env."""
+    """``(states, params) -> glyphs``: jitted :func:`hud_glyphs` over leaves (N, T + 1, ...)."""
     one = partial(hud_glyphs, static=env.static)
     return jax.jit(jax.vmap(jax.vmap(one, in_axes=(0, None)), in_axes=(0, None)))
 
 
 def hud_labels(record: EpisodeRecord, env: UrbanPedestrians, params: EnvParams) -> np.ndarray:
-    """The HUD of every recorded state (SPEC §5 TTC of the state itself), as
-    :func:`~drqn_jax.env.viewer.hud_glyphs`: (N, T + 1, 2, L) int32, one jitted call;
-    :func:`~drqn_jax.env.viewer.hud_text` turns one (2, L) entry into the ego's label."""
+    """(N, T + 1, 2, L) int32 :func:`hud_glyphs` of every recorded state, one jitted call."""
     return np.asarray(_hud_program(env)(record.state, params))
 
 
@@ -145,8 +123,7 @@ def _log_episode(
     params: EnvParams,
     hud: np.ndarray,
 ) -> None:
-    """Log episode ``i`` of ``record`` under ``episode/<i>`` (layout: module docstring);
-    ``hud``: its states' HUD glyphs, (T + 1, 2, L) (:func:`hud_labels`)."""
+    """Log episode ``i`` under ``episode/<i>``; ``hud`` (T + 1, 2, L): its HUD glyphs."""
     _log_world(rec, record, i, hud, float(params.ped_radius), env.static.ttc_horizon)
     _log_grid(rec, record, i, env.static.grid_shape)
     _log_series(rec, record, i)
@@ -167,10 +144,8 @@ def _log_world(
     ped_radius: float,
     heading_s: float,
 ) -> None:
-    """The top view of episode ``i``: the ego (red from its first collision on, its
-    HUD label), the pedestrians (coloured by behaviour, faded where occluded, of radius
-    ``ped_radius`` m) and their headings (``heading_s`` seconds of walking), at state
-    steps 0…L."""
+    """Episode ``i``'s top view: the ego, the pedestrians and their headings (``heading_s``
+    seconds of walking)."""
     root, n, states = _span(record, i)
     peds = jax.tree.map(lambda x: x[i, : n + 1], record.state.pedestrians)
     num_peds = peds.position.shape[1]
@@ -191,12 +166,11 @@ def _log_world(
 
     behaviour = peds.behaviour.reshape(-1)
     palette = np.array([BEHAVIOUR_COLOURS[k] for k in sorted(BEHAVIOUR_COLOURS)], np.uint8)
-    # pedestrians the grid leaves out this step (EnvParams.occlusion_prob) are faded
     alpha = np.where(peds.visible.reshape(-1), 255, OCCLUDED_ALPHA).astype(np.uint8)
     colours = np.concatenate([palette[behaviour], alpha[:, None]], axis=1)
     positions = to_view(peds.position.reshape(-1, 2))
     lengths = [num_peds] * (n + 1)
-    # the behaviour names (annotation context) show on hover, not over every pedestrian
+    # behaviour names show on hover only
     rec.log(f"{root}/world/pedestrians", rr.Points2D.from_fields(show_labels=False), static=True)
     rec.send_columns(
         f"{root}/world/pedestrians",
@@ -224,8 +198,7 @@ def _log_world(
 def _log_grid(
     rec: rr.RecordingStream, record: EpisodeRecord, i: int, grid_shape: tuple[int, int, int]
 ) -> None:
-    """Episode ``i``'s observation grid (rows, cols, channels) as one greyscale image
-    per channel, at state steps 0…L."""
+    """Episode ``i``'s observation grid, one greyscale image per channel."""
     root, n, states = _span(record, i)
     rows, cols, _ = grid_shape
     image_format = rr.components.ImageFormat(
@@ -240,14 +213,13 @@ def _log_grid(
 
 
 def _log_series(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
-    """Episode ``i``'s time series: speed (km/h, state steps), action, Q-values (when
-    recorded), reward and TTC (finite only), at decision steps."""
+    """Episode ``i``'s time series: speed, action, Q-values, reward and finite TTC."""
     root, n, states = _span(record, i)
     decisions = np.arange(n)  # decision steps 0…L-1
     speed_kmh = record.state.ego.v[i, : n + 1].astype(np.float64) * 3.6
-    _scalars(rec, f"{root}/speed_kmh", states, speed_kmh)
+    send_scalars(rec, f"{root}/speed_kmh", states, speed_kmh)
     actions = record.action[i, :n]
-    _scalars(rec, f"{root}/action", decisions, actions)
+    send_scalars(rec, f"{root}/action", decisions, actions)
     if record.q_values is not None:
         for a, name in enumerate(ACTIONS):
             rec.log(
@@ -255,11 +227,11 @@ def _log_series(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
                 rr.SeriesLines(names=name, colors=ACTION_COLOURS[a]),
                 static=True,
             )
-            _scalars(rec, f"{root}/q/{name}", decisions, record.q_values[i, :n, a])
-    _scalars(rec, f"{root}/reward", decisions + 1, record.reward[i, :n])
+            send_scalars(rec, f"{root}/q/{name}", decisions, record.q_values[i, :n, a])
+    send_scalars(rec, f"{root}/reward", decisions + 1, record.reward[i, :n])
     ttc = record.ttc[i, :n]
     finite = np.isfinite(ttc)
-    _scalars(rec, f"{root}/ttc", (decisions + 1)[finite], ttc[finite])
+    send_scalars(rec, f"{root}/ttc", (decisions + 1)[finite], ttc[finite])
 
     rec.log(f"{root}/action", rr.SeriesPoints(names="action", marker_sizes=2.0), static=True)
     rec.log(f"{root}/ttc", rr.SeriesPoints(names="TTC (s)", marker_sizes=2.0), static=True)
@@ -268,8 +240,7 @@ def _log_series(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
 
 
 def _log_events(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
-    """Episode ``i``'s text log: each decision's action (a warning where a pedestrian
-    struck the standing car), then how the episode ended."""
+    """Episode ``i``'s text log: each action, then how the episode ended."""
     root, n, states = _span(record, i)
     actions = record.action[i, :n]
     end, level = {
@@ -299,13 +270,8 @@ def episode_blueprint(
     *,
     x_range: tuple[float, float] | None = None,
 ) -> rrb.Blueprint:
-    """The layout :func:`write_episodes` saves: one tab per episode.
-
-    Each tab shows the world over the map (x from ``x_range``, default the whole
-    drawn map), the four grid channels, speed/reward/TTC, Q-values and action,
-    and the action log. Pass another one to :func:`write_episodes` to zoom, e.g.
-    ``episode_blueprint(1, False, env, params, x_range=(80, 140))``.
-    """
+    """The layout :func:`write_episodes` saves: a tab per episode with the world (x over
+    ``x_range``, default the whole map), the grid channels, the curves and the log."""
     x_min, x_max, y_half = map_extent(env, params)
     if x_range is not None:
         x_min, x_max = x_range
@@ -368,9 +334,9 @@ def open_recording(
 
 
 def close_recording(rec: rr.RecordingStream) -> None:
-    """Flush ``rec`` and close its file (rerun writes the footer on disconnect)."""
+    """Flush ``rec`` and close its file (disconnecting writes the footer)."""
     rec.flush()
-    rec.disconnect()  # writes the footer and closes the file
+    rec.disconnect()
 
 
 def write_episodes(
@@ -382,11 +348,8 @@ def write_episodes(
     application_id: str = "drqn_jax",
     blueprint: rrb.Blueprint | None = None,
 ) -> None:
-    """Log :func:`collect_episodes`' episodes to a new ``.rrd`` file (layout: module docstring).
-
-    The file also holds ``blueprint`` as the default layout (default:
-    :func:`episode_blueprint`, one tab per episode).
-    """
+    """Log :func:`collect_episodes`' episodes to a new ``.rrd`` file with ``blueprint``
+    (default :func:`episode_blueprint`) as its layout."""
     env_params = env.default_params if env_params is None else env_params
     if blueprint is None:
         has_q = record.q_values is not None
@@ -413,24 +376,9 @@ def record_episodes(
     network_params: Any = None,
     application_id: str = "drqn_jax",
 ) -> None:
-    """Play ``num_episodes`` episodes of ``agent`` and save them as a rerun recording.
-
-    Episode i is the one :func:`drqn_jax.evaluate` plays with the same
-    ``key`` (``fold_in(key, i)``). Pass the DRQN's ``network`` and
-    ``network_params`` to record its four Q-values per step (what
-    ``drqn_agent(network, network_params)`` takes the argmax of). The entity
-    layout, timeline and conventions are in the module docstring.
-    """
+    """Save ``num_episodes`` episodes of ``agent`` (those :func:`drqn_jax.evaluate` plays
+    with ``key``) as a rerun recording; ``network`` and ``network_params`` add Q-values."""
     record = collect_episodes(
-        agent,
-        key,
-        num_episodes,
-        env,
-        env_params,
-        network=network,
-        network_params=network_params,
+        agent, key, num_episodes, env, env_params, network=network, network_params=network_params
     )
     write_episodes(path, record, env, env_params, application_id=application_id)
-
-
-# --- training curves --------------------------------------------------------------

@@ -1,10 +1,6 @@
-"""The static map of a rerun recording (SPEC §1): roads, walkways, crosswalks, the
-centre line and the goal as rerun entities under ``map/``, and the behaviour
-annotation context on ``/``.
-
-Positions are the simulator's metres with **y negated** (:func:`to_view`: rerun's 2D
-views point y down; negating keeps the ego's left up, so the ego drives on the right
-of the road as in SPEC §1). Colours are :mod:`drqn_jax.env.viewer`'s palette.
+"""The static map of a rerun recording (SPEC §1) under ``map/``, and the behaviour
+annotation context on ``/``. Positions are metres with y negated (:func:`to_view`:
+rerun's 2D y points down), so the ego drives on the right as in SPEC §1.
 """
 
 from __future__ import annotations
@@ -39,13 +35,7 @@ def to_view(xy: np.ndarray) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class MapRegion:
-    """An axis-aligned rectangle of one semantic class (simulator frame, m).
-
-    Attributes:
-        name: what it is ("main road", "crosswalk", …).
-        semantic: ROAD, WALKWAY or CROSSING_AREA (drqn_jax.env.road_map).
-        x_min, x_max, y_min, y_max: its extent.
-    """
+    """An axis-aligned rectangle (simulator frame, m) of one semantic class."""
 
     name: str
     semantic: int
@@ -69,12 +59,8 @@ def map_extent(env: UrbanPedestrians, params: EnvParams) -> tuple[float, float, 
 
 
 def map_regions(env: UrbanPedestrians, params: EnvParams) -> list[MapRegion]:
-    """The SPEC §1 map as rectangles: roads, walkways and crosswalks.
-
-    The positions come from :mod:`drqn_jax.env.road_map` (intersection and
-    crosswalk centres) and the map widths; every rectangle's interior has the
-    class :func:`~drqn_jax.env.road_map.semantic_class` gives it.
-    """
+    """The SPEC §1 map as rectangles, each of the class
+    :func:`~drqn_jax.env.road_map.semantic_class` gives its interior."""
     x_min, x_max, y_half = map_extent(env, params)
     lane, side = _f(params.lane_width), _f(params.sidewalk_width)
     half_street, cw = 0.5 * _f(params.cross_street_width), _f(params.crosswalk_width)
@@ -134,10 +120,7 @@ def log_map(rec: rr.RecordingStream, env: UrbanPedestrians, params: EnvParams) -
     rec.log(
         "map/goal",
         rr.LineStrips2D(
-            [to_view([[goal, -lane], [goal, lane]])],
-            colors=GOAL_COLOUR,
-            radii=0.25,
-            labels="goal",
+            [to_view([[goal, -lane], [goal, lane]])], colors=GOAL_COLOUR, radii=0.25, labels="goal"
         ),
         static=True,
     )

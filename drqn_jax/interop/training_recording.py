@@ -1,14 +1,10 @@
-"""Rerun recordings of training curves (paper §V-E's training figure): one run's
-per-episode metrics (:func:`record_training`) and a study's curves over seeds
-(:func:`record_study_curves`), each one ``.rrd`` file.
+"""Rerun recordings of training curves (paper §V-E): one run's per-episode metrics
+(:func:`record_training`) and a study's curves over seeds (:func:`record_study_curves`).
 
-Entity layout of a training recording (timeline ``"episode"`` = the training
-episode's index): ``training/return``, ``training/length`` (steps),
-``training/loss`` (mean TD loss of the episode, 0 before learning starts),
-``training/epsilon``, ``training/collision_rate`` and ``training/goal_rate``
-(running means over the last :data:`COLLISION_RATE_WINDOW` = 20 recorded
-episodes, fewer at the start), ``training/distance`` (m) and
-``training/mean_speed_kmh`` when the metrics hold them.
+A training recording (timeline ``"episode"``) holds ``training/return``, ``length``,
+``loss`` (the episode's mean TD loss), ``epsilon``, ``collision_rate`` and
+``goal_rate`` (running means over :data:`COLLISION_RATE_WINDOW` episodes),
+``distance`` (m) and ``mean_speed_kmh`` where the metrics hold them.
 """
 
 from __future__ import annotations
@@ -21,7 +17,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from drqn_jax.interop.recording import close_recording, open_recording
+from drqn_jax.interop.recording import close_recording, open_recording, send_scalars
 
 __all__ = [
     "COLLISION_RATE_WINDOW",
@@ -35,11 +31,7 @@ __all__ = [
 
 _REQUIRED_METRICS = ("episode", "episode_return", "length", "collision", "mean_loss", "epsilon")
 EPISODE_TIMELINE = "episode"
-
-
 ENV_STEPS_TIMELINE = "env_steps"  # a study's curves
-
-
 COLLISION_RATE_WINDOW = 20  # episodes in the running collision/goal rates (as the progress bar)
 
 
@@ -53,27 +45,14 @@ def running_mean(values: np.ndarray, window: int = COLLISION_RATE_WINDOW) -> np.
 
 
 def record_training(
-    path: str | Path,
-    metrics: Mapping[str, np.ndarray],
-    *,
-    application_id: str = "drqn_jax",
+    path: str | Path, metrics: Mapping[str, np.ndarray], *, application_id: str = "drqn_jax"
 ) -> None:
-    """Save training curves as a rerun recording, one value per recorded episode.
+    """Save training curves to the ``.rrd`` file ``path``, one value per recorded episode.
 
-    Args:
-        path: the ``.rrd`` file to write (its directory is created).
-        metrics: per-episode arrays as ``drqn_jax.experiments.runner.recorded_metrics``
-            returns them: ``episode`` (N,) int (the timeline ``"episode"``),
-            ``episode_return``, ``length``, ``collision``, ``mean_loss``,
-            ``epsilon`` (N,), and optionally ``goal``, ``distance`` (m),
-            ``mean_speed`` (m/s).
-    Raises:
-        ValueError: a required metric is missing or the lengths differ.
-
-    Entities (module docstring): ``training/return``, ``training/length``,
-    ``training/loss``, ``training/epsilon``, ``training/collision_rate`` and
-    ``training/goal_rate`` (running means over the last 20 episodes),
-    ``training/distance``, ``training/mean_speed_kmh``.
+    ``metrics``: (N,) arrays as ``drqn_jax.experiments.runner.recorded_metrics``
+    returns them: ``episode``, ``episode_return``, ``length``, ``collision``,
+    ``mean_loss``, ``epsilon``, optionally ``goal``, ``distance``, ``mean_speed``
+    (m/s). ValueError when one is missing or the lengths differ.
     """
     missing = [name for name in _REQUIRED_METRICS if name not in metrics]
     if missing:
@@ -122,31 +101,17 @@ def _send_series(
     values: np.ndarray,
     timeline: str = EPISODE_TIMELINE,
 ) -> None:
-    """A line named ``name`` at ``entity``: ``values`` (E,) at the sequence ``at`` (E,)
-    of ``timeline``."""
+    """A line named ``name`` at ``entity``: ``values`` (E,) at ``at`` (E,) of ``timeline``."""
     rec.log(entity, rr.SeriesLines(names=name), static=True)
-    if len(at):
-        rec.send_columns(
-            entity,
-            indexes=[rr.TimeColumn(timeline, sequence=np.asarray(at, np.int64))],
-            columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
-        )
+    send_scalars(rec, entity, at, values, timeline)
 
 
 def record_study_curves(
-    path: str | Path,
-    curves: Mapping[str, Mapping[str, Any]],
-    *,
-    application_id: str = "drqn_jax",
+    path: str | Path, curves: Mapping[str, Mapping[str, Any]], *, application_id: str = "drqn_jax"
 ) -> None:
-    """Save a study's training curves (:func:`drqn_jax.experiments.curves.load_curves` per config).
-
-    Entities ``curves/<metric>/<config>/{mean,low,high}`` (the running mean's
-    mean and min–max over seeds) and ``curves/<metric>/<config>/seed<k>``
-    (each seed's raw values at the env steps its episodes ended), on the
-    ``env_steps`` timeline; one time-series view per metric (``episode_return``,
-    ``length``).
-    """
+    """Save a study's curves (:func:`drqn_jax.experiments.curves.load_curves` per config)
+    on the ``env_steps`` timeline: ``curves/<metric>/<config>/{mean,low,high}`` over
+    seeds and ``…/seed<k>``, each seed's raw values."""
     metrics = sorted({m for by_metric in curves.values() for m in by_metric})
     views = {m: f"/curves/{m}" for m in metrics}
     rec = open_recording(path, application_id, _series_blueprint(views, ENV_STEPS_TIMELINE))
