@@ -474,8 +474,9 @@ def study_table(
     tables: Sequence[tuple[str, tuple[str, ...], tuple[str, ...]]] = TABLES,
 ) -> str:
     """Markdown of a results table's ``rows`` as ``tables`` (:data:`TABLES` by default:
-    at most 8 columns each), the devices the rows trained on, ``notes`` (the sentences under the table,
-    as a list) and, with ``legend``, every column's definition (:func:`column_legend`)."""
+    at most 8 columns each), the devices the rows trained on, ``notes`` (the sentences
+    under the table, as a list) and, with ``legend``, every column's definition
+    (:func:`column_legend`)."""
     devices = _device_legend(rows)
     parts = []
     for caption, keys, shown in tables:
