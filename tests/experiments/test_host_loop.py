@@ -1,4 +1,4 @@
-"""The one host loop of training (drqn_jax/experiments/host_loop.py; issue 42)."""
+"""The one host loop of training (drqn_jax/experiments/host_loop.py)."""
 
 from __future__ import annotations
 

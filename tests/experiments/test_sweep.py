@@ -576,7 +576,7 @@ def test_every_run_keeps_its_trained_agent(trained, cli_sweep, tmp_path, capsys)
 
 def test_an_exported_sweep_agent_names_where_its_run_trained(cli_sweep, tmp_path):
     """``drqn-jax export OUT/agents/run-NNNN`` keeps the commit and device of the run's
-    record (issue 53: a shipped agent's provenance), not those of the exporting
+    record (a shipped agent's provenance), not those of the exporting
     checkout: here the record is rewritten to say it trained elsewhere."""
     import shutil
 

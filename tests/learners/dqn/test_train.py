@@ -552,7 +552,7 @@ def test_learns_to_drive_near_the_speed_limit():
     Annealing the learning rate to 0.1 × calms Q: 13.2, 13.7, 13.5, 14.3, 13.6,
     13.8, 13.8, 12.1 km/h (7 of 8 in 13–15, all ≥ 12). γ 0.5–0.99, lr 1e-3,
     batch 32, 2 updates per step, 384 episodes, the `dqn` network and
-    `setpoint_mode = "setpoint"` did not narrow the spread (issue 3 notes).
+    `setpoint_mode = "setpoint"` did not narrow the spread.
     """
     config = TrainConfig(
         env_overrides=(
@@ -599,8 +599,8 @@ def test_learns_to_drive_near_the_speed_limit():
         episodes = jax.random.split(jax.random.key(5), 16)
         return jax.vmap(drive, (None, 0))(params, episodes), metrics["mean_speed"]
 
-    # One program; the seeds one after another (lax.map): on the 2-core CPU a vmap
-    # over seeds is slower (issue 6), and each run is the same either way.
+    # One program; the seeds one after another (lax.map): on a CPU a vmap over seeds
+    # is slower, and each run is the same either way.
     seeds = jax.random.split(jax.random.key(0), 3)
     speed_kmh, mean_speed = jax.jit(lambda keys: jax.lax.map(train_and_drive, keys))(seeds)
     steady = np.asarray(speed_kmh)[:, :, 30:]  # (seeds, episodes, steps) after 3 s from rest
