@@ -38,7 +38,6 @@ read: a truncated archive or a changed byte is detected.
 from __future__ import annotations
 
 import contextlib
-import functools
 import hashlib
 import io
 import json
@@ -237,9 +236,8 @@ def _npz_bytes(entries: list[dict[str, Any]], arrays: list[np.ndarray], manifest
 # ----------------------------------------------------------------------------- save / load
 
 
-@functools.cache
 def _commit() -> str:
-    """The commit of the code this process runs (``git_commit``, read at the first save)."""
+    """The commit of the checkout that writes the checkpoint (``git_commit``)."""
     from drqn_jax.experiments.machine import git_commit  # late: it imports drqn_jax
 
     return git_commit()
