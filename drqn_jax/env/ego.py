@@ -8,7 +8,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.env.params import SETPOINT_PREVIOUS, EnvParams, StaticEnvParams
+from drqn_jax.env.params import CHANGE_PER_DECISION, SETPOINT_PREVIOUS, EnvParams, StaticEnvParams
 from drqn_jax.env.state import ACCELERATE, BRAKE, SLOW_DOWN, EgoState
 
 MS_TO_KMH = 3.6
@@ -88,10 +88,16 @@ def plant_step(ego: EgoState, throttle: jax.Array, brake: jax.Array, params: Env
     )
 
 
-def ego_step(ego: EgoState, action: jax.Array, params: EnvParams) -> EgoState:
-    """One decision step: setpoint, PID, plant. ``brake`` is CARLA's emergency stop:
-    throttle 0, brake 1, the PID's history untouched."""
+def ego_step(
+    ego: EgoState, action: jax.Array, params: EnvParams, hold: jax.Array | None = None
+) -> EgoState:
+    """One tick: setpoint, PID, plant. ``brake`` is CARLA's emergency stop: throttle 0,
+    brake 1, the PID's history untouched. ``hold`` (() bool, a decision's later ticks
+    under ``setpoint_change = "decision"``) keeps the previous setpoint instead."""
     v_d = desired_speed(action, ego, params)
+    if hold is not None:
+        kept = jnp.where(action == BRAKE, 0.0, ego.v_setpoint).astype(jnp.float32)
+        v_d = jnp.where(hold & (params.setpoint_change == CHANGE_PER_DECISION), kept, v_d)
     u, errors, count = pid_step(v_d, ego, params)
     throttle, brake = throttle_brake(u, params)
     is_brake = action == BRAKE

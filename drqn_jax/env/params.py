@@ -30,11 +30,13 @@ SPEED_CHANNELS = ("pedestrian", "relative")
 SEMANTIC_CHANNELS = ("pedestrian", "map")
 PED_BEHAVIOURS_TO_CAR = ("ignore", "yield")
 COLLISION_MODELS = ("contact", "authors")
+SETPOINT_CHANGES = ("decision", "tick")
 SETPOINT_MEASURED, SETPOINT_PREVIOUS = 0, 1
 SPEED_PEDESTRIAN, SPEED_RELATIVE = 0, 1
 SEMANTIC_PEDESTRIAN, SEMANTIC_MAP = 0, 1
 PED_IGNORE, PED_YIELD = 0, 1
 COLLISION_CONTACT, COLLISION_AUTHORS = 0, 1
+CHANGE_PER_DECISION, CHANGE_PER_TICK = 0, 1
 
 __all__ = ["KMH", "EnvParams", "StaticEnvParams"]
 
@@ -50,14 +52,15 @@ class StaticEnvParams:
     cell_size: float = 1.0  # m
     grid_x_min: float = -5.0  # m, row 0's near edge from the ego centre
     grid_y_min: float = -15.0  # m, column 0's right edge from the ego centre
-    max_steps: int = 1000  # decision steps before truncation (paper's S)
+    max_steps: int = 1000  # ticks of dt before truncation (paper's S)
+    decision_steps: int = 1  # k: ticks one action holds (1: the paper's 0.1 s; SPEC §2)
     ttc_horizon: float = 3.0  # s; TTC samples at 0, ttc_step, …, ttc_horizon
     ttc_step: float = 0.1  # s
     pid_window: int = 10  # past errors in the PID integral (CARLA)
 
     def __post_init__(self) -> None:
         counts = ("num_pedestrians", "num_intersections", "grid_rows", "grid_cols")
-        check_counts(self, (*counts, "max_steps", "pid_window"))
+        check_counts(self, (*counts, "max_steps", "decision_steps", "pid_window"))
         for name in ("cell_size", "ttc_horizon", "ttc_step"):
             value = getattr(self, name)
             if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
@@ -97,12 +100,19 @@ class EnvParams:
     crosswalk_width: float = param(3.0, low=0.0, low_open=True, doc="m")
     goal_x: float = param(200.0, low=0.0, low_open=True, doc="m; route end (ego centre)")
     # --- Ego vehicle (SPEC §2) -----------------------------------------
-    dt: float = param(0.1, low=0.0, low_open=True, doc="s; one decision step (paper §V-D)")
+    dt: float = param(0.1, low=0.0, low_open=True, doc="s; one tick (paper §V-D)")
     ego_length: float = param(4.5, low=0.0, low_open=True, doc="m")
     ego_width: float = param(1.8, low=0.0, low_open=True, doc="m")
     ego_start_s: float = param(5.0, doc="m; arc length of the box centre at reset")
     setpoint_step: float = param(1.0 * KMH, low=0.0, doc="m/s; +-1 km/h per action")
     setpoint_mode: int = param("measured", choices=SETPOINT_MODES)
+    setpoint_change: int = param(
+        "decision",
+        choices=SETPOINT_CHANGES,
+        doc="with decision_steps > 1, accelerate / slow_down / steer set the setpoint "
+        "'decision': once, at a decision's first tick (the authors' 1-fps code), or 'tick': "
+        "at every tick (SPEC §2)",
+    )
     pid_kp: float = param(1.0, low=0.0, doc="per km/h of error")
     pid_ki: float = param(0.05, low=0.0, doc="per km/h·s")
     pid_kd: float = param(0.0, low=0.0, doc="per km/h/s")

@@ -125,13 +125,18 @@ class UrbanPedestrians:
 
     # --- step ------------------------------------------------------------
     def advance(
-        self, state: EnvState, action: jax.Array, params: EnvParams
+        self,
+        state: EnvState,
+        action: jax.Array,
+        params: EnvParams,
+        hold: jax.Array | None = None,
     ) -> tuple[EnvState, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]:
-        """The deterministic part of a step (all but replacing pedestrians, SPEC §2–5):
-        ``(stepped state, reward, terminated, truncated, info)``."""
+        """The deterministic part of one tick (all but replacing pedestrians, SPEC §2–5):
+        ``(stepped state, reward, terminated, truncated, info)``; ``hold``: see
+        :func:`~drqn_jax.env.ego.ego_step`."""
         params = _opaque(params)
         action, invalid = checked_action(action)
-        ego = ego_step(state.ego, action, params)
+        ego = ego_step(state.ego, action, params, hold)
         peds = step_pedestrians(state.pedestrians, ego, params)
         collided, struck = classify_hits(ego, peds, params)
         ttc = time_to_collision(ego, peds, params, self.static)
@@ -173,12 +178,72 @@ class UrbanPedestrians:
             time=jnp.where(reset, 0, stepped.time).astype(jnp.int32),
         )
 
+    def _tick(
+        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams, hold=None
+    ) -> tuple[EnvState, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]:
+        """One tick of ``dt`` without auto-reset: ``advance`` and the new pedestrians."""
+        stepped, r, terminated, truncated, info = self.advance(state, action, params, hold)
+        next_state = self._next_state(key, stepped, params, jnp.asarray(False))
+        return next_state, r, terminated, truncated, info
+
+    def decide(
+        self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
+    ) -> tuple[EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
+        """One decision without auto-reset: ``action`` held for k = ``decision_steps``
+        ticks (SPEC §2). Returns ``(state, reward, terminated, truncated, info)``:
+        the rewards summed over the ticks played; the episode ends at the tick a
+        collision or the goal happens (no further ticks) and truncates at ``max_steps``
+        ticks. With k = 1 this is one tick. With k > 1 the tick keys are
+        ``split(key, k)``; ``info`` holds the last played tick's measurements, with
+        ``collision``, ``goal`` and ``struck_while_stopped`` over all played ticks and
+        ``ttc`` their least, and ``info["ticks"]`` every tick's: leaves (k,), ``played``
+        (k,) bool marking the ticks the episode lasted."""
+        k = self.static.decision_steps
+        if k == 1:
+            return self._tick(key, state, action, params)
+
+        def tick(carry, xs):
+            state, ended, total, terminated, truncated, info = carry
+            key_tick, later = xs
+            ticked, r, term, trunc, now = self._tick(key_tick, state, action, params, later)
+            live = ~ended
+
+            def keep(a, b):
+                return jnp.where(live, a, b)
+
+            merged = dict(
+                jax.tree.map(keep, now, info),
+                collision=info["collision"] | (live & now["collision"]),
+                goal=info["goal"] | (live & now["goal"]),
+                struck_while_stopped=info["struck_while_stopped"]
+                | (live & now["struck_while_stopped"]),
+                ttc=keep(jnp.minimum(info["ttc"], now["ttc"]), info["ttc"]),
+            )
+            carry = (
+                jax.tree.map(keep, ticked, state),
+                ended | term | trunc,
+                total + jnp.where(live, r, 0.0),
+                terminated | (live & term),
+                truncated | (live & trunc),
+                merged,
+            )
+            return carry, dict(now, played=live)
+
+        _, r0, _, _, info0 = jax.eval_shape(self.advance, state, action, params)
+        info = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), info0)
+        info["ttc"] = jnp.full((), jnp.inf, jnp.float32)
+        false = jnp.zeros((), bool)
+        init = (state, false, jnp.zeros(r0.shape, r0.dtype), false, false, info)
+        xs = (jax.random.split(key, k), jnp.arange(k) > 0)
+        (state, _, reward, terminated, truncated, info), ticks = jax.lax.scan(tick, init, xs)
+        return state, reward, terminated, truncated, dict(info, ticks=ticks)
+
     def step_env(
         self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
     ) -> StepResult:
-        """One step without auto-reset: ``(obs, state, reward, terminated, truncated, info)``."""
-        stepped, r, terminated, truncated, info = self.advance(state, action, params)
-        next_state = self._next_state(key, stepped, params, jnp.asarray(False))
+        """One decision without auto-reset (:meth:`decide`): ``(obs, state, reward,
+        terminated, truncated, info)``."""
+        next_state, r, terminated, truncated, info = self.decide(key, state, action, params)
         return self.observation(next_state, params), next_state, r, terminated, truncated, info
 
     def step(
@@ -188,9 +253,15 @@ class UrbanPedestrians:
         observation, with ``step_env``'s in ``info["final_state"]`` and
         ``info["final_observation"]`` (computed only when the caller uses them)."""
         params = _opaque(self.default_params if params is None else params)
-        stepped, r, terminated, truncated, info = self.advance(state, action, params)
-        next_state = self._next_state(key, stepped, params, terminated | truncated)
-        final = self._next_state(key, stepped, params, jnp.asarray(False))
+        if self.static.decision_steps == 1:
+            stepped, r, terminated, truncated, info = self.advance(state, action, params)
+            next_state = self._next_state(key, stepped, params, terminated | truncated)
+            final = self._next_state(key, stepped, params, jnp.asarray(False))
+        else:
+            final, r, terminated, truncated, info = self.decide(key, state, action, params)
+            fresh = self.reset_state(key, params)
+            done = terminated | truncated
+            next_state = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh, final)
         info = dict(info, final_state=final, final_observation=self.observation(final, params))
         return self.observation(next_state, params), next_state, r, terminated, truncated, info
 
