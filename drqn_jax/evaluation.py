@@ -132,16 +132,30 @@ def _no_metrics() -> EpisodeMetrics:
 def _accumulate(
     m: EpisodeMetrics, live: jax.Array, reward: jax.Array, info: dict, params: EnvParams
 ) -> EpisodeMetrics:
-    """``m`` after one more step; a step after the episode ended (``~live``) counts nothing."""
+    """``m`` after one more decision; one after the episode ended (``~live``) counts
+    nothing. Lengths, speeds and TTC count ticks: a k-tick decision (``info["ticks"]``,
+    leaves (k,)) counts each tick it played."""
+    m = m.replace(episode_return=m.episode_return + jnp.where(live, reward, 0.0))
+    if "ticks" not in info:
+        return _count_tick(m, live, info, params)
+    ticks = info["ticks"]
+    for i in range(ticks["played"].shape[0]):
+        tick = jax.tree.map(lambda x, i=i: x[i], ticks)
+        m = _count_tick(m, live & tick["played"], tick, params)
+    return m
+
+
+def _count_tick(
+    m: EpisodeMetrics, live: jax.Array, info: dict, params: EnvParams
+) -> EpisodeMetrics:
+    """``m`` after one more tick of ``dt`` (SPEC §8)."""
     ttc = info["ttc"]
     moving = live & (info["speed"] > AUTHORS_MOVING_SPEED)
-    return EpisodeMetrics(
-        episode_return=m.episode_return + jnp.where(live, reward, 0.0),
+    return m.replace(
         length=m.length + live.astype(jnp.int32),
         collision=m.collision | (live & info["collision"]),
         goal=m.goal | (live & info["goal"]),
         distance=jnp.where(live, info["distance"], m.distance),
-        mean_speed=m.mean_speed,
         min_ttc=jnp.where(live, jnp.minimum(m.min_ttc, ttc), m.min_ttc),
         near_collision_steps=m.near_collision_steps
         + (live & (ttc <= params.ttc_threshold)).astype(jnp.int32),
@@ -158,17 +172,17 @@ def play_episode(
     params: EnvParams,
     trace: Callable[[Decision], Any] | None = None,
 ) -> tuple[EpisodeMetrics, Any, Any, Any]:
-    """Play one episode to its end (at most ``max_steps`` = T) and measure it: the one
+    """Play one episode to its end (at most ``max_steps`` ticks) and measure it: the one
     rollout of evaluation (:func:`rollout_episode`) and recording (``drqn_jax.interop.recording``).
 
-    The scan always runs T steps (branch-free under ``vmap``); steps after the
-    episode ended are not counted. Keys: ``key`` splits into the reset, the agent's
+    The scan always runs T = ceil(max_steps / decision_steps) decisions (branch-free
+    under ``vmap``); those after the episode ended are not counted. Keys: ``key`` splits into the reset, the agent's
     carry and the run; each step's key into the action's and the env's.
 
     Returns:
         ``(metrics, traced, obs, state)``: the :class:`EpisodeMetrics`; ``trace``'s
         output for each :class:`Decision`, leaves (T, ...) (None without ``trace``);
-        the Observation and EnvState after the T-th step.
+        the Observation and EnvState after the T-th decision.
     """
     key_reset, key_carry, key_run = jax.random.split(key, 3)
     obs, state = env.reset_env(key_reset, params)
@@ -188,8 +202,9 @@ def play_episode(
         return (next_obs, next_state, carry, m, done | terminated | truncated), traced
 
     init = (obs, state, agent.init_carry(key_carry), _no_metrics(), jnp.zeros((), bool))
-    keys = jax.random.split(key_run, env.static.max_steps)
-    (obs, state, _, m, _), traced = jax.lax.scan(step, init, keys)
+    static = env.static
+    decisions = -(-static.max_steps // static.decision_steps)  # ticks, at most max_steps
+    (obs, state, _, m, _), traced = jax.lax.scan(step, init, jax.random.split(key_run, decisions))
     duration = jnp.maximum(m.length, 1).astype(jnp.float32) * params.dt
     authors = m.authors_speed / jnp.maximum(m.moving_steps, 1).astype(jnp.float32)
     m = m.replace(

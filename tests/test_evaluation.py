@@ -214,3 +214,23 @@ def test_summarize_handles_no_finite_ttc():
     assert math.isnan(res["collisions_per_km"]) and math.isnan(res["min_ttc_mean_finite_s"])
     assert res["min_ttc_median_s"] == math.inf and res["near_collision_episode_rate"] == 0.0
     assert math.isnan(res["avg_speed_authors_kmh"]) and res["struck_while_stopped_rate"] == 0.0
+
+
+def test_episodes_of_k_tick_decisions_are_measured_in_ticks():
+    """With ``decision_steps = 5`` an episode's length, distance and mean speed are
+    those of the ticks it played (SPEC §8), as a rollout of ``step_env`` counts them."""
+    env, params = drqn_jax.make("UrbanPedestrians-v0", max_steps=40, decision_steps=5)
+    agent, key = drqn_jax.constant_agent(ACCELERATE), jax.random.key(5)
+    m = take(run_episodes(agent, key[None], env, params), 0)
+    key_reset, _, key_run = jax.random.split(key, 3)
+    _, state = env.reset(key_reset, params)
+    step, ticks = jax.jit(env.step_env), 0
+    for decision_key in jax.random.split(key_run, 8):
+        _, key_env = jax.random.split(decision_key)
+        _, state, _, terminated, truncated, info = step(key_env, state, ACCELERATE, params)
+        ticks += int(info["ticks"]["played"].sum())
+        if terminated or truncated:
+            break
+    assert int(m.length) == ticks == int(info["time"]) and 5 < ticks <= 40
+    assert float(m.distance) == float(info["distance"]) > 0.0
+    assert np.isclose(float(m.mean_speed), float(info["distance"]) / (ticks * params.dt))
