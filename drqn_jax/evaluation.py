@@ -176,8 +176,9 @@ def play_episode(
     rollout of evaluation (:func:`rollout_episode`) and recording (``drqn_jax.interop.recording``).
 
     The scan always runs T = ceil(max_steps / decision_steps) decisions (branch-free
-    under ``vmap``); those after the episode ended are not counted. Keys: ``key`` splits into the reset, the agent's
-    carry and the run; each step's key into the action's and the env's.
+    under ``vmap``); those after the episode ended are not counted. Keys: ``key``
+    splits into the reset, the agent's carry and the run; each decision's key into the
+    action's and the env's.
 
     Returns:
         ``(metrics, traced, obs, state)``: the :class:`EpisodeMetrics`; ``trace``'s

@@ -34,6 +34,17 @@ from drqn_jax.learners.task import Step, Task
 from drqn_jax.networks import Network
 from drqn_jax.pytree import tree_where
 
+
+def per_decision(hp: Hyperparams, task: Task) -> Hyperparams:
+    """``hp`` with the discount and the λs of one decision of k = ``task.decision_steps``
+    ticks: their per-tick values ** k, so ``train.gamma`` keeps its horizon in seconds
+    (SPEC §7); ``hp`` itself for k = 1."""
+    k = task.decision_steps
+    if k == 1:
+        return hp
+    return hp.replace(gamma=hp.gamma**k, gae_lambda=hp.gae_lambda**k, q_lambda=hp.q_lambda**k)
+
+
 __all__ = [
     "BASE_METRICS",
     "budget_met",

@@ -51,6 +51,7 @@ from drqn_jax.learners.common import (
     init_counters,
     init_metrics,
     minibatch_epochs,
+    per_decision,
     restarted,
     rollout,
     run_updates,
@@ -230,7 +231,7 @@ def _make_ppo(config: TrainConfig) -> Trainer:
         """One update: a rollout, GAE, then epochs of clipped-surrogate steps."""
         carry0 = state.carry
         state, traj = _rollout(config, task, network, state)
-        return _learn(config, network, n_act, state, traj, carry0)
+        return _learn(config, task, network, n_act, state, traj, carry0)
 
     return make_trainer(config, task, policy, init, act, run_updates(update))
 
@@ -290,6 +291,7 @@ def _rollout(
 
 def _learn(
     config: TrainConfig,
+    task: Task,
     network: Network,
     n_act: int,
     state: PPOState,
@@ -302,7 +304,8 @@ def _learn(
     joins every running episode's."""
     hp = state.hparams
     out, _ = network.step(state.online, state.obs, restarted(network, state))
-    advantage, target = gae(traj.value, traj.reward, traj.done, out[..., n_act], hp)
+    last_value = out[..., n_act]
+    advantage, target = gae(traj.value, traj.reward, traj.done, last_value, per_decision(hp, task))
     lr = annealed(
         hp, state.recorded, config.num_episodes, step_share(config, state.env_steps)
     ).learning_rate

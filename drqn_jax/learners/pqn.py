@@ -47,6 +47,7 @@ from drqn_jax.learners.common import (
     init_counters,
     init_metrics,
     minibatch_epochs,
+    per_decision,
     restarted,
     rollout,
     run_updates,
@@ -191,7 +192,7 @@ def _make_pqn(config: TrainConfig) -> Trainer:
         """One update: a rollout, then epochs of minibatch steps on its TD errors."""
         carry0 = state.carry
         state, traj = _rollout(config, task, network, state)
-        return _learn(config, network, state, traj, carry0)
+        return _learn(config, task, network, state, traj, carry0)
 
     return make_trainer(config, task, network, init, act, run_updates(update))
 
@@ -253,11 +254,17 @@ def _rollout(
 
 
 def _learn(
-    config: TrainConfig, network: Network, state: PQNState, traj: QTransition, carry0: Any
+    config: TrainConfig,
+    task: Task,
+    network: Network,
+    state: PQNState,
+    traj: QTransition,
+    carry0: Any,
 ) -> PQNState:
     """The update of one rollout: epochs of minibatch steps on :func:`pqn_loss`
     (:func:`~drqn_jax.learners.common.minibatch_epochs`) at the annealed rate."""
     hp = state.hparams
+    td_hp = per_decision(hp, task)
     last = jax.tree.map(lambda x: x[0], traj)._replace(obs=state.obs, reset=state.done)
     lr = annealed(
         hp, state.recorded, config.num_episodes, step_share(config, state.env_steps)
@@ -268,6 +275,6 @@ def _learn(
         take0 = functools.partial(jnp.take, indices=envs, axis=0)
         batch, mb_last = jax.tree.map(take, traj), jax.tree.map(take0, last)
         mb_carry = jax.tree.map(take0, carry0)
-        return jax.grad(pqn_loss, has_aux=True)(params, network, mb_carry, batch, mb_last, hp)
+        return jax.grad(pqn_loss, has_aux=True)(params, network, mb_carry, batch, mb_last, td_hp)
 
     return minibatch_epochs(config, state, lr, grads_of)

@@ -103,6 +103,7 @@ class Task(NamedTuple):
         env: the environment (static); ``env_params`` its default parameters.
         num_actions: size of the discrete action space.
         max_steps: longest episode (the replay's slot length).
+        decision_steps: ticks one action holds (``env.decision_steps``; 1 for gymnax).
         record: zeros shaped as one observation's record (what the replay allocates).
         reset: ``(key, params) -> (obs, state)`` for one env.
         step: ``(key, state, action, params) -> Step`` for one env, resetting at the end.
@@ -135,6 +136,7 @@ class Task(NamedTuple):
     validate: Callable[..., dict[str, jax.Array]]
     validation_metrics: tuple[str, ...]
     teacher: Teacher | None = None
+    decision_steps: int = 1
 
 
 def make_task(env_id: str, overrides: tuple[tuple[str, Any], ...] = ()) -> Task:
@@ -200,6 +202,7 @@ def urban_task(env_id: str = "UrbanPedestrians-v0", **overrides: Any) -> Task:
         env_params=params,
         num_actions=env.num_actions,
         max_steps=static.max_steps,
+        decision_steps=static.decision_steps,
         record=GridInputs.empty(static.num_pedestrians),
         reset=env.reset,
         step=step,

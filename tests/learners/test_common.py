@@ -41,3 +41,23 @@ def test_the_crossing_finder_finds_a_crossing():
 
 def test_shared_code_imports_no_learner_and_learners_not_each_other():
     assert crossings(import_graph()) == []
+
+
+def test_the_discount_and_lambdas_are_per_decision():
+    """A decision of k ticks discounts by γ_tick^k (and λ^k for PQN and PPO), so
+    ``train.gamma`` keeps its horizon in seconds; k = 1 leaves the hyperparameters be."""
+    import numpy as np
+
+    from drqn_jax.learners.common import per_decision
+    from drqn_jax.learners.hyperparams import Hyperparams
+    from drqn_jax.learners.task import make_task
+
+    hp = Hyperparams(gamma=0.99, gae_lambda=0.95, q_lambda=0.65)
+    assert per_decision(hp, make_task("UrbanPedestrians-v0")) is hp
+    task = make_task("UrbanPedestrians-v0", (("decision_steps", 5),))
+    assert task.decision_steps == 5
+    per = per_decision(hp, task)
+    np.testing.assert_allclose(
+        [per.gamma, per.gae_lambda, per.q_lambda], [0.99**5, 0.95**5, 0.65**5], rtol=1e-6
+    )
+    assert per.learning_rate == hp.learning_rate

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.env.state import BRAKE
+from drqn_jax.learners.common import per_decision
 from drqn_jax.learners.dqn.loss import CLIP_GRAD, sequence_loss
 from drqn_jax.learners.dqn.replay import EpisodeReplay, sample_windows
 from drqn_jax.learners.hyperparams import IMITATION_ALL, Hyperparams, TrainConfig
@@ -76,7 +77,7 @@ def gradient_update(
         learner.target,
         windows,
         network,
-        hp.gamma,
+        per_decision(hp, task).gamma,
         hp.clip,
         config.n_step,
         expert,
