@@ -1,6 +1,4 @@
-"""drqn_jax: a JAX-native urban-pedestrian simulator and DRQN trainer, after Deshpande,
-Vaufreydaz and Spalanzani, *Behavioral decision-making for urban autonomous driving in
-the presence of pedestrians using Deep Recurrent Q-Network*.
+"""drqn_jax: a JAX urban-pedestrian simulator and DRQN trainer (after Deshpande et al.).
 
 Importing it caps XLA:CPU code generation at AVX (:mod:`drqn_jax.determinism`).
 """

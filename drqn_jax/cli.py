@@ -1,14 +1,8 @@
-"""The ``drqn-jax`` command line: ``train``, ``evaluate``, ``reproduce``, ``replay``,
-``sweep``, ``study``, ``frontier``, ``report``, ``bench``.
+"""The ``drqn-jax`` command line (it only parses; :mod:`drqn_jax.commands` runs).
 
-``replay`` records greedy episodes of a trained run or a built-in agent as a
-rerun ``.rrd`` file (:mod:`drqn_jax.interop.recording`); ``train --rrd`` and
-``reproduce --rrd`` write the training curves as one.
-
-Exit statuses: 0 done; 1 the run failed (non-finite loss: the last good
-checkpoint is kept); 2 a configuration, usage or checkpoint problem (one
-line on stderr naming it); 130 interrupted by SIGINT/SIGTERM after saving a
-checkpoint.
+Exit statuses: 0 done; 1 the run failed (non-finite loss; last good checkpoint
+kept); 2 a configuration, usage or checkpoint problem; 130 interrupted (after a
+checkpoint).
 """
 
 from __future__ import annotations
@@ -57,8 +51,7 @@ __all__ = ["main"]
 
 
 class _Formatter(argparse.RawDescriptionHelpFormatter):
-    """Help with each option's default, once: not where the help text names it already,
-    nor for defaults that say nothing (None, False, an empty list)."""
+    """Help with each option's default, unless the text names it or it says nothing."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
@@ -414,7 +407,7 @@ def _bench_parser(sub: Any) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``drqn-jax`` parser: one subparser per command, each built by its own function."""
+    """The ``drqn-jax`` parser: one subparser per command."""
     parser = argparse.ArgumentParser(
         prog="drqn-jax",
         description="JAX DRQN for urban driving among pedestrians (Deshpande et al.)",

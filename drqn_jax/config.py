@@ -1,31 +1,12 @@
 """Run configurations: TOML files in ``configs/``, ``--set`` overrides, validation.
 
-A configuration has seven sections; every field has a default, so a file
-names only what it changes:
-
-* ``[run]``: ``seed`` (training key ``split(key(seed))[0]``, evaluation key
-  ``[1]``: disjoint, SPEC §8) and ``checkpoint_every_s``;
-* ``[env]``: ``id`` (a registered env) and any ``StaticEnvParams`` or
-  ``EnvParams`` field; the id's preset fills the fields the file leaves out.
-  An override ``env.id=...`` brings the new id's preset also where the file
-  repeats the old id's (as a run's resolved ``config.toml`` does): a trained
-  run is evaluated among other pedestrians with ``--set env.id=...``;
-* ``[network]``: ``kind``, ``conv``, ``recurrent``, ``hidden`` (Table I), ``frames``,
-  ``layer_norm``, ``cell`` and ``scan_unroll`` (compile time against speed; same bits);
-* ``[train]``: the ``TrainConfig`` sizes (envs, episodes, replay, batch,
-  window, update ratio, chunk) and every ``Hyperparams`` field (Table II);
-* ``[rule_based]``: the baseline's ``RuleBasedParams`` (SPEC §6);
-* ``[planner]``: the privileged planner's ``PlannerParams`` (SPEC §9), its cap at
-  most the speed limit ``env.v_ref``;
-* ``[evaluate]``: ``episodes`` per agent (SPEC §8) and ``batch_size``.
-
-:func:`load_config` reads a file (or a name in ``configs/``), applies
-``section.field=value`` overrides and validates everything — unknown
-fields, types, ranges and the cross-field rules — before anything is
-compiled. Any problem raises :class:`ConfigError` with one line naming the
-field, the value and what is allowed. The resolved configuration (every field,
-defaults included) is a plain nested dict: :meth:`Config.to_toml` writes it,
-:meth:`Config.training_hash` identifies what a checkpoint depends on.
+Seven sections, every field defaulted: ``[run]`` (seed: training key
+``split(key(seed))[0]``, evaluation ``[1]``, SPEC §8), ``[env]`` (``id`` and any
+``StaticEnvParams``/``EnvParams`` field on top of the id's preset), ``[network]``
+(Table I), ``[train]`` (``TrainConfig`` sizes and ``Hyperparams``, Table II),
+``[rule_based]`` (SPEC §6), ``[planner]`` (SPEC §9) and ``[evaluate]``.
+:func:`load_config` validates everything before anything compiles; a problem is a
+one-line :class:`ConfigError` naming field, value and rule.
 """
 
 from __future__ import annotations
@@ -67,12 +48,10 @@ __all__ = [
 #: ``configs/`` of the source tree (the project is installed editable).
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 
-#: The sections a training checkpoint depends on, with ``run.seed`` (the rest may
-#: change on resume).
+#: The sections a training checkpoint depends on, with ``run.seed``.
 TRAINING_SECTIONS = ("env", "network", "train")
 
-#: Fields no result depends on (tests check the bits): left out of
-#: :meth:`Config.training_dict`, so a run resumes with another value.
+#: Fields no result depends on: left out of :meth:`Config.training_dict`.
 UNHASHED = {("network", "scan_unroll")}
 
 TRAIN_SIZES = tuple(
@@ -197,12 +176,8 @@ def _check_type(where: str, value: Any, field: _Field) -> Any:
 
 
 def parse_override(text: str) -> tuple[str, str, Any]:
-    """``"section.field=value"`` -> (section, field, value).
-
-    The value is read as a TOML value (``3e-4``, ``true``, ``[[8, 6, 4, 32]]``,
-    ``"name"``); anything that is not valid TOML is taken as a bare string, so
-    ``--set env.id=UrbanPedestriansRealistic-v0`` needs no quotes.
-    """
+    """``"section.field=value"`` -> (section, field, value): a TOML value, else a bare
+    string (``--set env.id=UrbanPedestriansRealistic-v0`` needs no quotes)."""
     key, sep, raw = text.partition("=")
     section, dot, name = key.strip().partition(".")
     if not sep or not dot or not section or not name:
@@ -229,9 +204,7 @@ def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: An
 
 
 def config_names() -> tuple[str, ...]:
-    """The run presets at the top of ``configs/`` (``paper``, ``default``, …). The
-    configs in its folders (``ablations/``, ``teacher/``) load by name too; sweep files
-    (a top-level ``[axes]`` table, in ``sweeps/``) are not configs."""
+    """The run presets at the top of ``configs/`` (sweep files, with ``[axes]``, are not)."""
     return tuple(sorted(p.stem for p in CONFIG_DIR.glob("*.toml") if not _is_sweep_file(p)))
 
 
@@ -252,8 +225,7 @@ def _is_sweep_file(path: Path) -> bool:
 
 
 def _read_toml(source: str | Path) -> tuple[dict[str, Any], str]:
-    """A config file's tables and its path: ``source`` is a file, or the name of a
-    built-in config (a directory of that name, a run directory say, is not a config)."""
+    """A config file's tables and its path; ``source``: a file or a built-in config's name."""
     path = Path(source)
     if not path.suffix and not path.is_file():
         path = _named_config(str(source))
@@ -291,16 +263,8 @@ def _resolve_extends(raw: dict[str, Any], origin: str, depth: int = 0) -> dict[s
 def load_config(
     source: str | Path | dict[str, Any] | None = None, overrides: Sequence[str] = ()
 ) -> Config:
-    """Read, override and validate a configuration.
-
-    Args:
-        source: a TOML path, a name in ``configs/`` (``"paper"``), a nested
-            dict of the same shape, or None for all defaults.
-        overrides: ``"section.field=value"`` strings applied after the file.
-    Raises:
-        ConfigError: on the first unknown field, wrong type, out-of-range
-            value or broken cross-field rule, naming it.
-    """
+    """Read ``source`` (a TOML path, a name in ``configs/``, a nested dict, or None for
+    the defaults), apply ``section.field=value`` overrides, validate (ConfigError)."""
     if source is None:
         raw, origin = {}, "defaults"
     elif isinstance(source, dict):
@@ -335,10 +299,8 @@ def load_config(
 
 
 def _follow_new_preset(env: dict[str, Any], old_id: str, overridden: set[str]) -> None:
-    """An override of ``env.id`` brings the new id's preset: drop the file's env fields
-    that only repeat ``old_id``'s preset (a resolved ``config.toml`` holds every
-    field), so that the new preset fills them; fields the file set apart from its
-    preset, and other overrides, are kept."""
+    """An override of ``env.id`` brings the new id's preset: drop the env fields that only
+    repeat ``old_id``'s (a resolved ``config.toml`` holds every field)."""
     old = {n: f.default for n, f in SCHEMA["env"].items()}
     old.update(preset(old_id))
     for name in [n for n in env if n != "id" and n not in overridden]:
@@ -452,8 +414,7 @@ class Config:
         return "\n".join(lines)
 
     def training_dict(self) -> dict[str, Any]:
-        """The part of the configuration a training run's results depend on: ``run.seed``
-        and every field of ``[env]``, ``[network]`` and ``[train]`` but the ``UNHASHED``."""
+        """What a training run's results depend on: ``run.seed`` and ``TRAINING_SECTIONS``."""
         out: dict[str, Any] = {"run.seed": self["run"]["seed"]}
         for section in TRAINING_SECTIONS:
             out[section] = {
@@ -469,8 +430,7 @@ class Config:
         return hashlib.sha256(text.encode()).hexdigest()
 
     def training_identity(self) -> dict[str, Any]:
-        """``{"config": training_dict, "config_hash": training_hash}``: what a checkpoint
-        stores, and what loading one checks (the differing fields are named)."""
+        """What a checkpoint stores and loading one checks: the dict and its hash."""
         return {"config": self.training_dict(), "config_hash": self.training_hash()}
 
 

@@ -1,19 +1,15 @@
 """Bit-for-bit reproducibility on CPU: no fused multiply-add in generated code.
 
-XLA:CPU lets LLVM contract ``a + b*c`` into an FMA depending on how a program was
-fused, i.e. on its shapes, so an episode would change by an ulp with the batch
-size. ``import drqn_jax`` appends ``--xla_cpu_max_isa=AVX`` (no FMA instructions)
-to ``XLA_FLAGS`` unless the flags set ``--xla_cpu_max_isa`` already or
-``DRQN_JAX_ALLOW_FMA=1``; it takes effect only if no JAX computation ran before.
+XLA:CPU contracts ``a + b*c`` into an FMA depending on fusion, i.e. on shapes, so
+results would change by an ulp with the batch size. ``import drqn_jax`` appends
+``--xla_cpu_max_isa=AVX`` to ``XLA_FLAGS`` unless ``--xla_cpu_max_isa`` is set or
+``DRQN_JAX_ALLOW_FMA=1``; it only works if no JAX computation ran before.
 
-Other rules keep the bits independent of shapes: a division by a scalar parameter
-is a multiplication by its reciprocal; the env hides ``EnvParams`` behind
-``lax.optimization_barrier``; weight gradients come from a materialised transpose
-(:func:`drqn_jax.layers._rows_product`: Eigen, which XLA:CPU gives ``x.T @ g``,
-splits its sums by the thread pool size, :func:`cpu_thread_pool_size`); no
-``vmap`` over a single run; and every evaluation batch has at least
-:data:`drqn_jax.evaluation.MIN_BATCH` episodes (YNNPACK picks its matrix kernel by
-the number of rows).
+Other shape-independence rules: divide by a scalar parameter as a reciprocal product;
+``EnvParams`` behind ``lax.optimization_barrier``; weight gradients from a materialised
+transpose (:func:`drqn_jax.layers._rows_product`; Eigen splits ``x.T @ g`` by
+:func:`cpu_thread_pool_size`); no ``vmap`` over one run; evaluation batches of at
+least :data:`drqn_jax.evaluation.MIN_BATCH` (YNNPACK picks its kernel by rows).
 """
 
 from __future__ import annotations
@@ -46,8 +42,7 @@ def fma_disabled() -> bool:
 
 
 def cpu_thread_pool_size() -> int:
-    """Threads of XLA:CPU's pool: ``max(PJRT_NPROC (or NPROC, or the usable cores),
-    --xla_force_host_platform_device_count)``, as the PJRT CPU client sizes it."""
+    """Threads of XLA:CPU's pool, sized as the PJRT CPU client does."""
     nproc = None
     for name in ("PJRT_NPROC", "NPROC"):
         try:

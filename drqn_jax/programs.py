@@ -1,14 +1,9 @@
-"""The one cache of built programs: trainers, jitted env functions, agent functions.
+"""The one LRU cache of built programs (trainers, jitted env and agent functions).
 
-``jit`` compiles once per function object, so a program compiles once only if the
-function behind it is built once: everything built from a hashable description
-goes through :func:`cached_program` (or :func:`cached`) into one LRU store of at
-most :data:`MAX_PROGRAMS` entries.
-
-The store is also bounded by memory maps: each live XLA:CPU executable maps a few
-regions per kernel, and Linux kills a process at ``vm.max_map_count``. Over
-:func:`map_budget`, JAX's own caches and then the least recently used half of the
-store are dropped before a build; a program used again is rebuilt, same bits.
+``jit`` compiles once per function object, so everything built from a hashable
+description goes through :func:`cached_program` or :func:`cached`. Over
+:func:`map_budget` memory maps (Linux kills a process at ``vm.max_map_count``),
+JAX's caches and then the older half of the store are dropped; rebuilt, same bits.
 """
 
 from __future__ import annotations
@@ -55,8 +50,7 @@ def cached(name: str, key: Hashable, build: Callable[[], Any]) -> Any:
 
 
 def cached_program(builder: F) -> F:
-    """``builder`` (hashable arguments) built once per set of arguments, in the store;
-    ``f(x)`` and ``f(config=x)`` are two entries."""
+    """``builder`` (hashable arguments) built once per set of arguments, in the store."""
     name = f"{builder.__module__}.{builder.__qualname__}"
 
     @functools.wraps(builder)
@@ -78,8 +72,7 @@ def memory_maps() -> int:
 
 @functools.cache
 def map_budget() -> int:
-    """Half of Linux's ``vm.max_map_count``: the other half is headroom for what compiles
-    until the next build checks."""
+    """Half of Linux's ``vm.max_map_count`` (headroom until the next build checks)."""
     try:
         with open("/proc/sys/vm/max_map_count") as limit:
             return int(limit.read()) // 2
@@ -88,8 +81,7 @@ def map_budget() -> int:
 
 
 def _drop_while_over_map_budget() -> None:
-    """Over budget, drop JAX's caches (every function jitted outside the store), then the
-    least recently used half of the store until under budget."""
+    """Over budget, drop JAX's caches, then the older half of the store until under."""
     if memory_maps() <= map_budget():
         return
     jax.clear_caches()
@@ -101,8 +93,7 @@ def _drop_while_over_map_budget() -> None:
 
 
 def jit_in_store(*static_argnames: str) -> Callable[[F], F]:
-    """``partial(jax.jit, static_argnames=...)`` whose programs live in the store (a
-    module-level ``jax.jit`` would keep every executable for the process's life)."""
+    """``partial(jax.jit, static_argnames=...)`` whose programs live in the store."""
 
     def decorate(fun: F) -> F:
         name = f"{fun.__module__}.{fun.__qualname__}"

@@ -10,7 +10,7 @@ from drqn_jax.env.urban import UrbanPedestrians
 
 # Each id maps to (static overrides, traced overrides) on top of the defaults.
 _PRESETS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
-    # The paper's world (SPEC §1-5; docs/spec.md, "The paper's world: calibration").
+    # The paper's world (SPEC §1-5).
     "UrbanPedestrians-v0": ({}, {}),
     # The paper's world with pedestrians at realistic walking speeds, 0.5-1.5 m/s.
     "UrbanPedestriansRealistic-v0": ({}, {"ped_speed_min": 0.5, "ped_speed_max": 1.5}),

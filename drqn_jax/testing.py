@@ -1,41 +1,13 @@
 """Check that an environment keeps the gymnax 1.0 contract (ours, or a user's).
 
-Like Jumanji's ``check_env_does_not_smoke``: :func:`check_env_contract` runs a
-short random rollout of a few envs, ``jit``-compiled and ``vmap``-ped, and
-raises :class:`EnvContractError` (an ``AssertionError``) naming the first
-broken rule:
-
-* ``reset(key, params) -> (obs, state)`` and ``step(key, state, action,
-  params) -> (obs, state, reward, terminated, truncated, info)``: a step's
-  ``obs`` and ``state`` have the structure, shapes and dtypes of the reset's;
-  ``reward`` is a floating () array, ``terminated`` and ``truncated`` bool ()
-  arrays, ``info`` a dict;
-* every observation (after reset and after every step) is inside
-  ``env.observation_space(params)`` (its ``contains``), and is finite where
-  it is a float; every reward is finite;
-* same-step auto-reset: where a step ends the episode (``terminated |
-  truncated``), the returned ``(obs, state)`` are exactly ``env.reset(
-  reset_key(step_key), params)``'s; while it goes on, ``info
-  ["final_observation"]`` (if the env reports one) is the returned ``obs``;
-* the same keys give bit-identical rollouts;
-* ``jit`` ≡ no ``jit``: the first ``eager_steps`` steps run op by op (``vmap``
-  alone, a Python loop) equal the compiled rollout (bitwise unless ``rtol`` /
-  ``atol`` allow more).
-
-Actions are drawn from ``env.action_space(params).sample``. The auto-reset
-check only bites where an episode ends within ``num_steps``: the returned
-:class:`ContractReport` counts them (for ``drqn_jax`` envs, make one with a
-small ``max_steps``, e.g. ``drqn_jax.make(env_id, max_steps=16)``).
-
-    >>> import drqn_jax
-    >>> from drqn_jax.testing import check_env_contract
-    >>> env, params = drqn_jax.make("UrbanPedestrians-v0", max_steps=16)
-    >>> report = check_env_contract(env, params)
-    >>> report.resets > 0
-    True
-
-The compiled rollout is cached on ``(env, reset_key)`` and the shapes, with
-``params`` an argument: envs that differ only in their parameters share it.
+:func:`check_env_contract` runs a short random rollout of a few envs (``jit`` and
+``vmap``) and raises :class:`EnvContractError` naming the first broken rule: the
+gymnax 1.0 ``reset``/``step`` signatures, shapes and dtypes; observations inside
+``observation_space`` and finite, finite rewards; same-step auto-reset to
+``reset(reset_key(step_key))`` (and ``info["final_observation"]`` is ``obs`` while
+the episode goes on); same keys, same bits; ``jit`` ≡ op by op for the first
+``eager_steps`` steps. Auto-reset is only checked where an episode ends: use a
+small ``max_steps``, e.g. ``drqn_jax.make(env_id, max_steps=16)``.
 """
 
 from __future__ import annotations
@@ -57,14 +29,8 @@ class EnvContractError(AssertionError):
 
 
 class ContractReport(NamedTuple):
-    """What :func:`check_env_contract` ran and saw (all counts over the whole rollout).
-
-    Attributes:
-        num_envs, num_steps: the rollout's size.
-        terminations, truncations: steps with ``terminated``, ``truncated``.
-        resets: steps that ended an episode, where the auto-reset was checked.
-        reward_min, reward_max: the rewards' range.
-    """
+    """What :func:`check_env_contract` ran and saw; ``resets``: steps that ended an
+    episode (auto-reset checked there)."""
 
     num_envs: int
     num_steps: int
@@ -177,12 +143,8 @@ def _rollout(
     action_keys: jax.Array,
     step_keys: jax.Array,
 ) -> dict[str, dict[str, Any]]:
-    """Reset ``len(reset_keys)`` envs and step them ``len(step_keys)`` times (vmapped).
-
-    Returns ``{"reset": {obs, state, in_space}, "steps": {obs, state, reward,
-    terminated, truncated, in_space, finite, reset_ok, final_ok}}``, the steps'
-    leaves (T, N, …).
-    """
+    """Reset N envs and step them T times (vmapped): ``{"reset": {...}, "steps": {...}}``,
+    the steps' leaves (T, N, …)."""
     space = env.observation_space(params)
     obs0, state0 = jax.vmap(env.reset, (0, None))(reset_keys, params)
     first = {"obs": obs0, "state": state0, "in_space": jax.vmap(space.contains)(obs0)}
@@ -266,24 +228,12 @@ def check_env_contract(
     rtol: float = 0.0,
     atol: float = 0.0,
 ) -> ContractReport:
-    """Check ``env`` against the gymnax 1.0 contract (module docstring) on a random rollout.
+    """Check ``env`` (hashable: a static ``jit`` argument) against the gymnax 1.0 contract
+    (module docstring) on a random rollout; raises :class:`EnvContractError`.
 
-    Args:
-        env: an environment with ``reset``, ``step``, ``action_space(params)`` and
-            ``observation_space(params)`` (spaces with ``sample`` and ``contains``).
-            It is a static ``jit`` argument, so it must be hashable.
-        params: its parameters (default ``env.default_params``).
-        key: the rollout's key (default ``jax.random.key(0)``).
-        num_envs, num_steps: the vmapped batch and the scan's length.
-        eager_steps: how many of the steps also run without ``jit`` (op by op, slow).
-        reset_key: ``step_key -> key`` the auto-reset of ``step`` draws the new
-            episode from: the step's key for ``drqn_jax`` envs (:func:`same_key`);
-            ``lambda k: jax.random.split(k)[1]`` for gymnax's ``Environment``.
-        rtol, atol: tolerance of jit ≡ no-jit for float leaves (default: bitwise).
-    Returns:
-        a :class:`ContractReport`.
-    Raises:
-        EnvContractError: the first rule broken, with what was seen.
+    ``reset_key``: ``step_key -> key`` the auto-reset draws from (:func:`same_key` for
+    ``drqn_jax``; ``lambda k: jax.random.split(k)[1]`` for gymnax). ``rtol``/``atol``:
+    jit ≡ no-jit tolerance for float leaves (default bitwise).
     """
     if num_envs < 1 or num_steps < 1 or not 0 <= eager_steps <= num_steps:
         raise ValueError(
@@ -326,9 +276,7 @@ def check_env_contract(
 
 
 def _check_rollout(rollout: dict, batch: tuple[int, int]) -> None:
-    """The rules on a compiled rollout's host copy: ``reward``, ``terminated`` and
-    ``truncated`` of shape ``batch`` (T, N), observations in the space and finite,
-    finite rewards, auto-reset to ``reset`` and ``final_observation`` (module docstring)."""
+    """The module docstring's rules on a compiled rollout's host copy (``batch``: (T, N))."""
     first, steps = rollout["reset"], rollout["steps"]
     reward, terminated, truncated = steps["reward"], steps["terminated"], steps["truncated"]
     num_steps, num_envs = batch
@@ -364,8 +312,7 @@ def _check_rollout(rollout: dict, batch: tuple[int, int]) -> None:
 def _check_eager(
     env: Any, args: tuple, eager_steps: int, rollout: dict, rtol: float, atol: float
 ) -> None:
-    """jit ≡ no jit: the first ``eager_steps`` steps, run op by op, equal the compiled
-    ``rollout``'s (within ``rtol`` and ``atol`` for float leaves)."""
+    """jit ≡ no jit: the first ``eager_steps`` steps, op by op, equal ``rollout``'s."""
     first, steps = rollout["reset"], rollout["steps"]
     eager_first, eager = _eager_rollout(env, *args, eager_steps)
     compiled_first = {"obs": first["obs"], "state": first["state"]}

@@ -1,6 +1,5 @@
-"""The ``drqn-jax`` commands, one module per thing they drive; :mod:`drqn_jax.cli`
-parses the arguments and calls ``cmd_<name>(args)``, which returns the exit status.
-"""
+"""The ``drqn-jax`` commands: :mod:`drqn_jax.cli` parses, ``cmd_<name>(args)`` returns
+the exit status."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""``drqn-jax bench``: the benchmark suite of ``benchmarks/`` in a child process, or
-the quick figures of :mod:`drqn_jax.experiments.bench`."""
+"""``drqn-jax bench``: the suite of ``benchmarks/`` in a child process, or quick figures."""
 
 from __future__ import annotations
 
@@ -22,16 +21,12 @@ SUITE = (
     "gymnasium_throughput",
 )
 
-
-#: Benchmarks run by name only (not by ``all``): the learners on outside benchmarks
-#: (gymnax) and a learning curve on this world (minutes to hours of training, not a
-#: throughput figure).
+#: Benchmarks run by name only, not by ``all`` (long, not throughput figures).
 TOOLS = ("gymnax_validation", "learning_curve")
 
 
 def _run_benchmark(name: str, args: Sequence[str]) -> int:
-    """``python -m benchmarks.NAME ARGS`` of the clone this package was installed from, in
-    a child process (this one's ``sys.path`` stays as it is); returns its exit status."""
+    """``python -m benchmarks.NAME ARGS`` of this package's clone in a child process."""
     root = Path(__file__).resolve().parents[2]  # the clone: drqn_jax/commands/..
     if not (root / "benchmarks" / "__init__.py").is_file():
         raise ConfigError(
@@ -44,9 +39,7 @@ def _run_benchmark(name: str, args: Sequence[str]) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    """``args.name``: ``quick`` (``args.options``: the quick parser's namespace), ``all``
-    (``args.options``: repeats, out, quick, passed to every benchmark of :data:`SUITE`)
-    or one benchmark of ``benchmarks/`` given ``args.args``."""
+    """``quick``, ``all`` (``args.options`` from their parsers) or one benchmark by name."""
     if args.name == "quick":
         from drqn_jax.experiments.bench import bench_env, bench_train
         from drqn_jax.experiments.machine import machine_info, machine_lines

@@ -1,5 +1,4 @@
-"""``drqn-jax frontier``: the rule-based family's frontier and the planner's
-(:mod:`drqn_jax.experiments.frontier`, SPEC §9), with the reviewer's check."""
+"""``drqn-jax frontier``: the rule-based and planner frontiers (SPEC §9)."""
 
 from __future__ import annotations
 
@@ -46,8 +45,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
 
 
 def _frontier_config(args: argparse.Namespace) -> tuple[Config, list[float]]:
-    """``frontier``'s config (with --episodes and --seed) and --caps, checked before
-    anything compiles."""
+    """``frontier``'s config and --caps, checked before anything compiles."""
     overrides = list(args.overrides)
     if args.episodes is not None:
         overrides.append(f"evaluate.episodes={args.episodes}")
@@ -68,8 +66,7 @@ def _frontier_config(args: argparse.Namespace) -> tuple[Config, list[float]]:
 def _frontier_outputs(
     args: argparse.Namespace, config: Config, record: dict[str, Any], checks: list[str], wall: float
 ) -> None:
-    """OUT/frontier.json (every swept point) and frontier.png; the section of --results
-    (the frontiers' rows, the check, the wall times); the table on stdout."""
+    """OUT/frontier.json and .png, the --results section, and the table on stdout."""
     from drqn_jax.experiments.baselines import frontier_key
     from drqn_jax.experiments.report import study_table
     from drqn_jax.experiments.rows import frontier_rows, paper_rows

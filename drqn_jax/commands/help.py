@@ -1,5 +1,4 @@
-"""What each ``drqn-jax`` command says of itself in ``--help`` (:mod:`drqn_jax.cli`
-builds the parsers; the bodies are this package's other modules)."""
+"""What each ``drqn-jax`` command says of itself in ``--help``."""
 
 REPORT_DOC = """Regenerate every block between '<!-- results:NAME -->' and '<!-- /results -->'
 in the documents from section NAME of the results file (drqn-jax study --results FILE

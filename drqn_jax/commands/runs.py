@@ -1,5 +1,4 @@
-"""``drqn-jax train``, ``evaluate``, ``reproduce`` and ``replay``: one run directory
-(:mod:`drqn_jax.experiments.runner`) and the agents it holds or names."""
+"""``drqn-jax train``, ``evaluate``, ``reproduce``, ``replay``, ``export``: one run."""
 
 from __future__ import annotations
 
@@ -64,11 +63,8 @@ def _train_and_evaluate(
     reproduce: bool,
     rrd: str | None = None,
 ) -> int:
-    """Train, then evaluate the DRQN (and, to reproduce Table III, the rule-based agent).
-
-    With ``rrd`` the training curves of every recorded episode are written there
-    once training stops (finished, interrupted or diverged: the last good state).
-    """
+    """Train, then evaluate the DRQN (and, to reproduce Table III, the rule-based agent);
+    ``rrd``: where to write the training curves once training stops, however it stops."""
     if rrd is not None and Path(rrd).is_dir():
         raise ConfigError(f"--rrd {rrd}: is a directory; give a file name such as training.rrd")
     result = train_run(config, run_dir, resume=resume, quiet=quiet)
@@ -118,15 +114,11 @@ def _beside_the_paper(
     about: str,
     training: dict[str, Any],
 ) -> int:
-    """Evaluate ``agent`` and the paper's rule-based agent on ``config``'s evaluation
-    episodes, sweep the rule-based frontier on them, and print and write Table III
-    beside the paper's (:func:`paper_comparison`) with the safety/speed figure.
-    ``training``: the agent's ``env_steps``, ``trained_on`` and ``train_wall_s``, as a
-    sweep run's record has them.
+    """Evaluate ``agent`` and the rule-based agent, sweep the rule-based frontier on the
+    same episodes, and print and write Table III beside the paper's with the figure.
 
-    The frontier sweeps in a second thread while the agents play: XLA compiles on
-    one core and an evaluation keeps two cores only partly busy, so the programs fill
-    each other's idle time; each program's output is what it gives alone.
+    The frontier sweeps in a second thread while the agents play, to fill idle cores;
+    each program's output is what it gives alone.
     """
     from drqn_jax.experiments.baselines import config_frontier
     from drqn_jax.experiments.figures import plot_safety_speed
@@ -181,14 +173,9 @@ def _run_summary(result: Any) -> dict[str, Any]:
 
 
 def _chosen_agent(args: argparse.Namespace, overrides: list[str]) -> tuple[Config, Any, Any, Any]:
-    """``(config, agent, network, network_params)`` for ``[RUN_DIR] --agent``.
-
-    The trained agent (``--agent drqn``: the run's DRQN, DQN or PPO policy, named
-    by :func:`agent_name`) comes from the run's last checkpoint (trained with the run's own
-    config; ``overrides`` apply on top for the episodes); a shipped agent
-    (:mod:`drqn_jax.agents.shipped`) likewise from its directory; a built-in agent uses
-    the run's config, or ``--config``. ``network`` is None for a built-in agent.
-    """
+    """``(config, agent, network, network_params)`` for ``[RUN_DIR] --agent``: a trained
+    or shipped agent from its last checkpoint (``overrides`` apply to the episodes only),
+    or a built-in agent (``network`` None) on the run's config or ``--config``."""
     run_dir, chosen = args.run_dir, args.agent or ("drqn" if args.run_dir else "rule-based")
     if chosen in shipped_agents():
         if run_dir is not None:
@@ -245,10 +232,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def paper_comparison(
     results: list[dict[str, Any]], frontier: dict[str, Any]
 ) -> tuple[list[dict[str, Any]], str]:
-    """The paper's Table III rows (with the interval its 10 episodes allow) beside ours
-    (one trained agent, then the rule-based agent), each with its margin to the rule-based
-    frontier of ``frontier`` (:func:`~drqn_jax.experiments.frontier.world_frontier`), and
-    the verdict on the paper's claim: the rows and the text."""
+    """The paper's Table III rows beside ours (the trained agent, then the rule-based one)
+    with margins to ``frontier`` and the verdict on the paper's claim: rows and text."""
     from drqn_jax.experiments.frontier import with_margin
     from drqn_jax.experiments.report import column_legend, study_table
     from drqn_jax.experiments.rows import baseline_row, paper_rows

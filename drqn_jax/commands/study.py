@@ -1,6 +1,4 @@
-"""``drqn-jax study`` and ``drqn-jax report``: Table III over configs × seeds
-(:mod:`drqn_jax.experiments.study`) and the documents' results blocks
-(:mod:`drqn_jax.experiments.report`)."""
+"""``drqn-jax study`` (Table III over configs × seeds) and ``drqn-jax report``."""
 
 from __future__ import annotations
 
@@ -76,8 +74,7 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def _runs_store(args: argparse.Namespace, section: str) -> Path | None:
-    """The runs store of the study (``--runs-store``; with ``--results`` by default
-    :func:`~drqn_jax.experiments.portable.runs_store_path`), or None for none."""
+    """``--runs-store``, else the default one with ``--results``, else None."""
     from drqn_jax.experiments.portable import runs_store_path
 
     if args.runs_store:
@@ -88,8 +85,7 @@ def _runs_store(args: argparse.Namespace, section: str) -> Path | None:
 def _keep(
     args: argparse.Namespace, section: str, store: Path, finished: dict[str, list[dict]]
 ) -> None:
-    """Keep the study's ``finished`` runs in ``store``, and with ``--results`` mark its
-    section in progress (how many runs of each arm have finished)."""
+    """Keep the ``finished`` runs in ``store``; with ``--results`` mark the section in progress."""
     from drqn_jax.experiments.portable import save_store
     from drqn_jax.experiments.report import note_progress
 
@@ -102,9 +98,7 @@ def _keep(
 def _store_rows(
     args: argparse.Namespace, section: str, out: Path, outcome: Any, wall: float
 ) -> None:
-    """The finished study's rows, comparisons, frontiers, command, wall time and
-    machine as ``section`` of ``--results``, and its safety/speed figure beside it
-    (``figures/<section>-safety-speed.png``)."""
+    """The finished study as ``section`` of ``--results``, with its safety/speed figure."""
     from drqn_jax.experiments.machine import machine_info
     from drqn_jax.experiments.report import load_results, write_results
 
@@ -128,8 +122,7 @@ def _store_rows(
 
 
 def _estimate(arms) -> str:
-    """Lines of the study's training wall time on this device, per arm and in all
-    (:func:`~drqn_jax.experiments.bench.training_estimate`)."""
+    """Lines of the study's training wall time on this device, per arm and in all."""
     import jax
 
     from drqn_jax.experiments.bench import training_estimate

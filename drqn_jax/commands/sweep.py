@@ -1,5 +1,4 @@
-"""``drqn-jax sweep``: a sweep file's points as compiled programs
-(:mod:`drqn_jax.experiments.sweep_runner`), and its results tables."""
+"""``drqn-jax sweep``: a sweep file's points as compiled programs, and its results."""
 
 from __future__ import annotations
 
