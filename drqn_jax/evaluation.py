@@ -10,6 +10,7 @@ and whichever episodes run beside it.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -178,13 +179,16 @@ def play_episode(
     The scan always runs T = ceil(max_steps / decision_steps) decisions (branch-free
     under ``vmap``); those after the episode ended are not counted. Keys: ``key``
     splits into the reset, the agent's carry and the run; each decision's key into the
-    action's and the env's.
+    action's and the env's. An ``every_tick`` agent (the rule-based agent, the planner)
+    plays the world at one decision per tick.
 
     Returns:
         ``(metrics, traced, obs, state)``: the :class:`EpisodeMetrics`; ``trace``'s
         output for each :class:`Decision`, leaves (T, ...) (None without ``trace``);
         the Observation and EnvState after the T-th decision.
     """
+    if agent.every_tick and env.static.decision_steps > 1:
+        env = dataclasses.replace(env, static=dataclasses.replace(env.static, decision_steps=1))
     key_reset, key_carry, key_run = jax.random.split(key, 3)
     obs, state = env.reset_env(key_reset, params)
 

@@ -234,3 +234,19 @@ def test_episodes_of_k_tick_decisions_are_measured_in_ticks():
     assert int(m.length) == ticks == int(info["time"]) and 5 < ticks <= 40
     assert float(m.distance) == float(info["distance"]) > 0.0
     assert np.isclose(float(m.mean_speed), float(info["distance"]) / (ticks * params.dt))
+
+
+def test_the_yardstick_decides_every_tick_in_any_world():
+    """The rule-based agent and the planner play a k-tick world one tick per decision
+    (SPEC §9: the frontier stays the strongest baseline): the same episodes as in
+    the world with k = 1; a network-style agent's differ."""
+    key = episode_keys(jax.random.key(9), 4)
+    env1, params = drqn_jax.make("UrbanPedestrians-v0", max_steps=60)
+    env5, _ = drqn_jax.make("UrbanPedestrians-v0", max_steps=60, decision_steps=5)
+    rule = drqn_jax.rule_based_agent()
+    assert rule.every_tick and not drqn_jax.random_agent().every_tick
+    assert_tree_equal(run_episodes(rule, key, env5, params), run_episodes(rule, key, env1, params))
+    accelerate = drqn_jax.constant_agent("accelerate")
+    held = run_episodes(accelerate, key, env5, params)
+    ticked = run_episodes(accelerate, key, env1, params)
+    assert not np.array_equal(np.asarray(held.distance), np.asarray(ticked.distance))

@@ -30,15 +30,19 @@ def no_carry(params: Any, key: jax.Array) -> tuple[()]:
     return ()
 
 
-@pytree_dataclass(meta_fields=("name", "init_fn", "act_fn"))
+@pytree_dataclass(meta_fields=("name", "init_fn", "act_fn", "every_tick"))
 class Agent:
     """A policy: ``init_fn(params, key) -> carry`` and ``act_fn(params, key, obs, carry,
-    state, env, env_params) -> (() int32 action, carry)``; ``name`` is for reports."""
+    state, env, env_params) -> (() int32 action, carry)``; ``name`` is for reports.
+    ``every_tick``: the policy decides at every tick of ``dt`` in any world (the
+    rule-based agent and the planner: the yardstick, SPEC §9), whatever the world's
+    ``decision_steps``."""
 
     params: Any
     name: str
     init_fn: InitFn
     act_fn: ActFn
+    every_tick: bool = False
 
     def init_carry(self, key: jax.Array) -> Carry:
         """The policy state at an episode's start (an RNN state, or ``()``)."""

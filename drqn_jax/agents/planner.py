@@ -87,4 +87,5 @@ def planner_agent(params: PlannerParams | None = None) -> Agent:
         name="planner",
         init_fn=no_carry,
         act_fn=_act,
+        every_tick=True,
     )

@@ -140,4 +140,5 @@ def rule_based_agent(params: RuleBasedParams | None = None) -> Agent:
         name="rule-based",
         init_fn=no_carry,
         act_fn=_act,
+        every_tick=True,
     )
