@@ -1,12 +1,7 @@
-"""What every arm of a study is judged against (SPEC §9), per world and cached in
-``OUT/baselines/``: the rule-based agent, its family's frontier and the privileged
-planner's (:mod:`drqn_jax.experiments.frontier`), and the trained agents replayed
-among another world's pedestrians.
-
-Worlds are told apart by digests of what each result reads: :func:`env_key` (the
-``[env]`` and ``[rule_based]`` sections and the evaluation episodes) and
-:func:`frontier_key` (the ``[env]`` section without its reward, ``[planner]`` and
-the episodes), so configs that differ elsewhere share one sweep.
+"""What every arm of a study is judged against (SPEC §9), per world, cached in
+``OUT/baselines/``: the rule-based agent, its frontier, the planner's, and cross-env
+replays. Worlds are keyed by digests of what each result reads (:func:`env_key`,
+:func:`frontier_key`), so configs differing elsewhere share one sweep.
 """
 
 from __future__ import annotations
@@ -45,16 +40,13 @@ def _digest(config: Config, **sections: Any) -> str:
 
 
 def env_key(config: Config) -> str:
-    """A short digest of a config's ``[env]`` and ``[rule_based]`` sections and its
-    evaluation (episodes, seed): configs that agree share the rule-based baseline."""
+    """Digest of ``[env]``, ``[rule_based]`` and the evaluation episodes: the baseline's key."""
     return _digest(config, env=config["env"], rule_based=config["rule_based"])
 
 
 def frontier_key(config: Config) -> str:
-    """A short digest of what a config's frontiers read: its ``[env]`` section but the
-    reward (``reward_*``: the rule-based family and the planner ignore it), its
-    ``[planner]`` and its evaluation: configs that agree share the frontiers, and
-    their arms are paired."""
+    """Digest of ``[env]`` without ``reward_*``, ``[planner]`` and the evaluation episodes:
+    configs that agree share frontiers, and their arms are paired."""
     env = {k: v for k, v in config["env"].items() if not k.startswith("reward_")}
     return _digest(config, env=env, planner=config["planner"])
 
@@ -62,9 +54,8 @@ def frontier_key(config: Config) -> str:
 def rule_based_results(
     configs: Sequence[Config], out: Path
 ) -> dict[str, tuple[Config, dict[str, Any]]]:
-    """The rule-based agent on each distinct environment of ``configs`` (the arms'
-    and those of their ``cross_envs``), on the study's episodes: ``{env_key: (the first
-    config of that key, result)}``, cached in ``OUT/baselines/``."""
+    """``{env_key: (first config, result)}``: the rule-based agent on each distinct env of
+    ``configs`` (and their ``cross_envs``), cached in ``OUT/baselines/``."""
     from drqn_jax.experiments.runner import builtin_agent, evaluate_agents, json_ready
 
     found: dict[str, tuple[Config, dict[str, Any]]] = {}
@@ -95,16 +86,8 @@ def _cached(path: Path, compute: Callable[[], dict[str, Any]]) -> dict[str, Any]
 def cross_results(
     arm: str, config: Config, runs: Sequence[Mapping[str, Any]], out: Path
 ) -> list[dict[str, Any]]:
-    """Each of ``runs``' trained agents (``OUT/<arm>/agents/run-NNNN``, ``arm`` the
-    arm's name) evaluated with ``config`` (the arm's ``cross_config(env_id)``: among
-    ``env_id``'s pedestrians, on the study's episodes), cached in
-    ``OUT/<arm>/cross/<env_id>/run-NNNN.json``.
-
-    Raises:
-        CheckpointError: a run's agent is missing (a run restored from a runs store
-            keeps no parameters, :mod:`drqn_jax.experiments.portable`: train it again
-            in a new directory).
-    """
+    """Each of ``runs``' agents evaluated with ``config`` (among ``env_id``'s pedestrians),
+    cached in ``OUT/<arm>/cross/<env_id>/``; CheckpointError if an agent is missing."""
     from drqn_jax.agents import drqn_agent
     from drqn_jax.experiments.runner import (
         evaluate_agents,
@@ -139,9 +122,8 @@ def cross_results(
 def frontier_results(
     configs: Sequence[Config], out: Path, planner_keys: set[str], *, quiet: bool = True
 ) -> dict[str, dict[str, Any]]:
-    """The rule-based frontier of each distinct environment of ``configs`` on the study's
-    episodes, and the planner's where its :func:`frontier_key` is in ``planner_keys``:
-    ``{frontier_key: world_frontier record}``, cached in ``OUT/baselines/``."""
+    """``{frontier_key: world_frontier record}`` per distinct env of ``configs`` (with the
+    planner's where in ``planner_keys``), cached in ``OUT/baselines/``."""
     found: dict[str, dict[str, Any]] = {}
     for config in configs:
         key = frontier_key(config)
@@ -159,9 +141,8 @@ def frontier_results(
 
 
 def config_frontier(config: Config, *, planner: bool = True, **options: Any) -> dict[str, Any]:
-    """:func:`~drqn_jax.experiments.frontier.world_frontier` on ``config``'s world and evaluation
-    episodes (``evaluate.episodes`` of ``run.seed``'s evaluation key, as every agent of a
-    study plays), with its ``[planner]`` settings; ``options`` go on to it."""
+    """:func:`~drqn_jax.experiments.frontier.world_frontier` on ``config``'s world, evaluation
+    episodes and ``[planner]``."""
     env, params = config.make_env()
     _, key = config.keys()
     return world_frontier(

@@ -1,15 +1,6 @@
-"""Quick throughput figures for ``drqn-jax bench`` (the full studies are in ``benchmarks/``).
-
-* :func:`bench_env`: env steps/s of the config's environment, ``num_envs``
-  in parallel, random actions, one jitted ``lax.scan`` of ``steps`` steps;
-* :func:`bench_train`: training iterations/s, env steps/s and gradient
-  updates/s of the config's trainer (any learner) over ``iterations``
-  iterations of ``run`` after learning has started (:func:`train_figures`);
-* :func:`training_estimate`: the wall time of training a config's runs on this
-  device, from the same timing (``drqn-jax study --estimate``).
-
-Each figure is the best of 3 timed calls after a warm-up call; compile time
-(lower + compile) is reported separately.
+"""Quick throughput figures for ``drqn-jax bench``: env steps/s (:func:`bench_env`),
+training throughput (:func:`bench_train`) and ``study --estimate`` (:func:`training_estimate`).
+Each figure is the best of 3 timed calls after a warm-up; compile time is reported apart.
 """
 
 from __future__ import annotations
@@ -29,8 +20,7 @@ __all__ = ["bench_env", "bench_train", "train_figures", "training_estimate"]
 
 
 def _best_of(fn: Callable[[], Any], repeats: int = 3, *, warm_up: bool = True) -> float:
-    """The shortest of ``repeats`` timed calls, after one untimed call unless the caller
-    has just made it (``warm_up=False``)."""
+    """The shortest of ``repeats`` timed calls, after an untimed one if ``warm_up``."""
     if warm_up:
         jax.block_until_ready(fn())
     best = float("inf")
@@ -91,13 +81,8 @@ def train_figures(
     config: Config, iterations: int, seeds: int = 1, repeats: int = 3
 ) -> dict[str, Any] | str:
     """Training throughput once learning runs: ``iterations`` of ``run`` timed (best of
-    ``repeats``), with the env steps and gradient updates they took counted from the state
-    (``env_steps``, ``grad_steps``, summed over seeds), so that every learner's
-    iteration is measured in what it does (the DQN: one step of every env and its
-    updates; PPO and PQN: a rollout and its epochs). ``seeds`` > 1 runs that many
-    seeds ``jax.vmap``-ed in one program, as a sweep does; one seed runs the program
-    ``drqn-jax train`` compiles for chunks of ``iterations``. A string says why
-    there is nothing to time."""
+    ``repeats``), env steps and gradient updates counted from the state; ``seeds`` > 1
+    ``vmap``-ed as a sweep does. A string says why there is nothing to time."""
     trainer = make_train(config.train_config())
     train_key, _ = config.keys()
     init = init_program(trainer)  # train's init program
@@ -133,8 +118,7 @@ def train_figures(
 
 
 def bench_train(config: Config, iterations: int) -> str:
-    """One line: :func:`train_figures` as iterations/s, env steps/s and gradient
-    updates/s, with what an iteration of the config's learner holds."""
+    """One line: :func:`train_figures` as iterations/s, env steps/s and updates/s."""
     figures = train_figures(config, iterations)
     if isinstance(figures, str):
         return f"train: {figures}"
@@ -148,16 +132,9 @@ def bench_train(config: Config, iterations: int) -> str:
 
 
 def training_estimate(config: Config, runs: int, batched: bool = False) -> dict[str, Any] | str:
-    """Seconds to train ``runs`` runs of ``config`` on this device: the env steps of the
-    runs over the env steps per second of train's chunk program once learning runs
-    (:func:`train_figures`, a chunk of ``train.chunk_iterations``; with ``batched`` the
-    runs ``vmap``-ed in one program, as a sweep's ``vmap`` strategy trains them, else one
-    run, as ``map`` trains them one after another).
-
-    A run's env steps are ``train.num_env_steps``, or with an episode budget alone at most
-    ``num_episodes × env.max_steps`` (then ``upper_bound``: episodes that end early make
-    the run shorter). Evaluation and compile time are not in ``seconds``. A string
-    says why there is nothing to time."""
+    """Seconds to train ``runs`` runs of ``config`` here: their env steps over the measured
+    env steps/s (``batched``: ``vmap``-ed, else one run). An episode budget gives an
+    ``upper_bound``; compile and evaluation are excluded. A string if nothing to time."""
     train = config["train"]
     figures = train_figures(config, train["chunk_iterations"], runs if batched else 1)
     if isinstance(figures, str):

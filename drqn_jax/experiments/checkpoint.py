@@ -1,38 +1,9 @@
-"""Checkpoints of a training state: a self-contained ``.npz`` and a ``.json`` copy of its manifest.
+"""Checkpoints of a pytree: a deterministic ``NAME.npz`` (one ``.npy`` per leaf + manifest.json)
+and a human-readable ``NAME.json`` copy of the manifest (never read back).
 
-A checkpoint of any pytree (in practice a :class:`~drqn_jax.learners.dqn.state.TrainState`)
-in ``run_dir`` is:
-
-* ``checkpoint.npz``, the checkpoint itself: a zip archive with one ``.npy``
-  entry per leaf, in flatten order, named after the leaf's key path
-  (``jax.tree_util.keystr``, reduced to ``[A-Za-z0-9_]`` and made unique),
-  and a ``manifest.json`` entry. Typed PRNG keys are stored as their
-  ``jax.random.key_data`` (uint32, the key shape plus the impl's trailing
-  axis); dtypes NumPy does not know natively (``bfloat16`` …) as unsigned
-  integers of the same width. The manifest holds what wrote it (``format``,
-  ``drqn_jax_version``, ``drqn_jax_commit``), every key of the caller's ``meta``
-  (``config``, ``config_hash``, ``recorded``, …) and ``leaves`` (one
-  ``{name, path, shape, dtype}`` per leaf in npz order, plus ``key_impl`` for
-  a PRNG key leaf; ``shape`` and ``dtype`` are the leaf's own, e.g. ``[]``
-  and ``"key<fry>"`` for one key). The bytes are deterministic (fixed zip
-  timestamps, no compression): the same state and meta give the same file.
-* ``checkpoint.json``: a human-readable copy of that manifest plus
-  ``npz_sha256`` (the SHA-256 of the npz bytes), for people and tools.
-  :func:`load_checkpoint` never reads it; it may be missing or stale.
-
-Restoration is bit-exact: every leaf comes back with the same dtype, shape
-and bits (NaN payloads and signed zeros included), in the tree structure of
-the caller's template, so a resumed run continues exactly as the
-uninterrupted run would have. This version reads its own :data:`FORMAT` only.
-
-Crash safety: the npz is written to a temporary file in ``run_dir``, fsynced,
-then renamed over the old one (``os.replace``, then the directory is fsynced).
-That rename is the commit point: a process that dies at any instant leaves the
-previous npz or the new one, each complete, never a mixture (at worst beside a
-stray hidden ``.checkpoint.npz.*.tmp`` file, which nothing reads). The json is
-written the same way after the npz, so after a crash between the two renames it
-lags one save behind. The zip format's CRC-32 of every entry is checked as it is
-read: a truncated archive or a changed byte is detected.
+Restoration is bit-exact (dtype, shape, bits; PRNG keys as key_data; exotic dtypes as uint of
+their width). Crash safety: the npz is written to a temp file, fsynced and renamed (the commit
+point), then the json; zip CRC-32s detect truncation or corruption.
 """
 
 from __future__ import annotations
@@ -77,8 +48,7 @@ _MANIFEST = "manifest.json"  # the npz entry that holds the manifest
 _RESERVED = ("format", "drqn_jax_version", "drqn_jax_commit", "npz_sha256", "leaves")
 _MAX_LISTED = 5  # mismatches named in one error message
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # fixed entry timestamps: deterministic bytes
-#: What reading a broken archive raises (``zipfile.error`` is ``BadZipFile``;
-#: RuntimeError: an entry flagged as encrypted).
+#: What reading a broken archive raises (RuntimeError: an entry flagged as encrypted).
 _ZIP_ERRORS = (zipfile.error, zipfile.LargeZipFile, OSError, EOFError, ValueError, RuntimeError)
 
 
@@ -90,12 +60,7 @@ class CheckpointError(ValueError):
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically: readers see the old file or the new one.
-
-    The bytes go to a temporary file beside ``path`` (permissions ``0o666 & ~umask``),
-    fsynced, then renamed over it (``os.replace``) and the directory fsynced where the
-    platform allows. On any error the temporary file is removed.
-    """
+    """Write ``data`` to ``path`` atomically (temp file, fsync, ``os.replace``, dir fsync)."""
     path = Path(path)
     while True:
         tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
@@ -175,8 +140,7 @@ def _is_key_dtype(dtype: Any) -> bool:
 
 
 def _shape_dtype(leaf: Any) -> tuple[tuple[int, ...], Any]:
-    """Logical (shape, dtype) of a leaf: an array, a key array, a ShapeDtypeStruct or a
-    Python scalar (taken as JAX would: ``jnp.asarray``)."""
+    """Logical (shape, dtype) of an array, key array, ShapeDtypeStruct or Python scalar."""
     if not hasattr(leaf, "dtype") or not hasattr(leaf, "shape"):
         leaf = jnp.asarray(leaf)
     return tuple(int(d) for d in leaf.shape), leaf.dtype
@@ -246,21 +210,9 @@ def _commit() -> str:
 def save_checkpoint(
     run_dir: str | os.PathLike, state: Any, meta: dict[str, Any], *, name: str = CHECKPOINT
 ) -> None:
-    """Save the pytree ``state`` and ``meta`` as ``run_dir/checkpoint.npz`` (+ its ``.json``).
+    """Save the pytree ``state`` and JSON ``meta`` as ``run_dir/NAME.npz`` (+ ``NAME.json``).
 
-    Args:
-        run_dir: the run's directory, created if missing.
-        state: any pytree of arrays, typed PRNG key arrays or Python scalars.
-        meta: JSON-serialisable values (NumPy/JAX scalars are converted) for the
-            top level of the manifest, none under a reserved key (``_RESERVED``).
-        name: the files' stem (``NAME.npz``, ``NAME.json``); e.g. ``agent`` for a
-            trained agent's parameters beside no training state.
-
-    The npz is written atomically first (the commit point), then the json copy.
-
-    Raises:
-        ValueError: ``meta`` uses a reserved key.
-        TypeError: ``meta`` holds a value JSON cannot represent.
+    Raises ValueError if ``meta`` uses a ``_RESERVED`` key, TypeError if it is not JSON.
     """
     import drqn_jax  # late: drqn_jax may import this module while initialising
 
@@ -291,29 +243,10 @@ def load_checkpoint(
     *,
     name: str = CHECKPOINT,
 ) -> tuple[Any, dict[str, Any]]:
-    """Load the checkpoint in ``run_dir`` into the structure of ``template``.
+    """``(state, meta)`` from ``run_dir/NAME.npz``, bit-identical, in ``template``'s structure.
 
-    Only ``checkpoint.npz`` is read (with its manifest), never ``checkpoint.json``.
-
-    Args:
-        run_dir: the directory :func:`save_checkpoint` wrote.
-        template: a pytree of the saved state's structure (e.g.
-            ``jax.eval_shape(trainer.init, key)``): each of its leaves and the
-            saved ones must match one to one in key path, shape and dtype.
-        expected_meta: optional; if it and the checkpoint both have a
-            ``config_hash``, they must be equal. Other keys are not checked.
-        name: the npz's stem, as given to :func:`save_checkpoint`.
-
-    Returns:
-        ``(state, meta)``: the state, bit-identical to the saved leaves (typed keys
-        rebuilt with ``jax.random.wrap_key_data``), in ``template``'s structure,
-        and the manifest but its ``leaves``.
-
-    Raises:
-        CheckpointError: with a one-line message naming the file, the leaf or
-            the field: no npz; an unreadable, truncated or corrupt one (a CRC-32
-            mismatch); another format (naming what wrote it); leaves that do not
-            fit the template; another configuration (the differing fields).
+    Leaves must match ``template`` in key path, shape and dtype; ``config_hash`` must equal
+    ``expected_meta``'s when both have one. Raises CheckpointError naming what is wrong.
     """
     run_dir = Path(run_dir)
     npz_path, archive = _open(run_dir, name)
@@ -329,8 +262,7 @@ def load_checkpoint(
 
 
 def read_manifest(run_dir: str | os.PathLike, name: str = CHECKPOINT) -> dict[str, Any]:
-    """The manifest of the checkpoint ``run_dir/NAME.npz``, its ``leaves`` included,
-    checked as :func:`load_checkpoint` checks it (its format among them)."""
+    """The checked manifest of ``run_dir/NAME.npz``, its ``leaves`` included."""
     npz_path, archive = _open(Path(run_dir), name)
     with archive:
         return _read_manifest(npz_path, archive)
@@ -344,8 +276,7 @@ def writer(manifest: dict[str, Any]) -> str:
 
 
 def _open(run_dir: Path, name: str) -> tuple[Path, zipfile.ZipFile]:
-    """``run_dir/NAME.npz`` and its zip archive, open (an atomic save replaces the file,
-    not the bytes an open archive reads)."""
+    """``run_dir/NAME.npz`` and its open zip archive."""
     npz_path = run_dir / f"{name}.npz"
     if not run_dir.is_dir():
         raise CheckpointError(f"no checkpoint: directory {run_dir} does not exist")

@@ -1,10 +1,6 @@
-"""Learning curves.
-
-* :func:`load_curves`, :func:`plot_curves`: a study's training curves (the paper's
-  "Training performance" figure, Fig. 4): each config's per-episode metrics over
-  its seeds, against env steps, and their PNG;
-* :func:`greedy_curve`: one run's greedy agent evaluated at env-step marks while it
-  trains (collision-free rate and speed against env steps: how a budget is chosen).
+"""Learning curves: a study's training curves against env steps (paper Fig. 4,
+:func:`load_curves`, :func:`plot_curves`) and one run's greedy agent evaluated at env-step
+marks while it trains (:func:`greedy_curve`).
 """
 
 from __future__ import annotations
@@ -43,18 +39,12 @@ CURVE_POINTS = 200
 
 @dataclasses.dataclass(frozen=True)
 class Curve:
-    """A training curve over seeds against env steps (a learner that ends
-    episodes early or runs many envs gets no credit from an episode axis).
+    """A training curve over seeds against env steps (not episodes, which favour learners
+    that end episodes early).
 
-    ``env_steps`` (G,): a common grid from 0 to the fewest env steps any seed's first
-    E episodes took, E the fewest episodes any seed recorded (so a step budget's curves
-    stop short of its end: past that point the seeds' last completions are mostly
-    short episodes, those of the envs whose episode could still end within the budget);
-    ``mean``, ``low``, ``high`` (G,): the mean and min–max across seeds of each seed's
-    running mean over ``smooth`` episodes, read at the grid (linear between episodes);
-    ``seeds`` (S, E): each seed's raw values per training episode, in the order
-    they ended; ``seed_steps`` (S, E): the env steps taken when each had ended
-    (the running total of episode lengths).
+    ``env_steps`` (G,): grid up to the fewest steps any seed's first E episodes took;
+    ``mean``, ``low``, ``high`` (G,): mean and min–max over seeds of the ``smooth``-episode
+    running mean; ``seeds``, ``seed_steps`` (S, E): raw values and cumulative env steps.
     """
 
     env_steps: np.ndarray
@@ -74,12 +64,8 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
 
 
 def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Curve]:
-    """The :data:`CURVES` of one config over its seeds' ``metrics.csv`` files, against
-    env steps (:class:`Curve`).
-
-    Seeds are cut to the episodes they all recorded. Raises ValueError when a
-    file is missing or empty.
-    """
+    """The :data:`CURVES` of one config from its seeds' ``metrics.csv`` files, cut to the
+    episodes all recorded; ValueError if a file is missing or empty."""
     if smooth < 1:
         raise ValueError(f"smooth = {smooth!r}: must be an integer >= 1")
     tables = []
@@ -111,10 +97,7 @@ def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Cu
 
 
 def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smooth: int) -> None:
-    """The paper's "Training performance" figure for every config: a PNG at ``path``.
-
-    ``curves``: config name → :func:`load_curves`.
-    """
+    """The paper's "Training performance" figure (config → :func:`load_curves`) as a PNG."""
     fig = figure(11, 4)
     axes = fig.subplots(1, len(CURVES))
     for ax, (column, label) in zip(axes, CURVES, strict=True):
@@ -154,20 +137,11 @@ def greedy_curve(
     on_point: Callable[[dict[str, Any]], None] | None = None,
     first: int | None = None,
 ) -> tuple[str, list[dict[str, Any]]]:
-    """One run of ``config`` (seed ``run.seed``) trained to its budget and, each time
-    it passes one of ``points`` evenly spaced marks of ``train.num_env_steps``, its
-    greedy agent (``Trainer.agent_params``) evaluated on ``episodes`` episodes of the
-    evaluation key: the same episodes at every point.
+    """Train one run of ``config`` and evaluate its greedy agent on the same ``episodes``
+    at ``points`` evenly spaced env-step marks (at the first chunk boundary past each).
 
-    A point is taken at the first chunk boundary at or past a mark (one point for
-    the marks a chunk passes together: ``train.chunk_iterations`` sets the grain).
-    Each holds ``env_steps``, ``train_s`` (training wall time so far, compile
-    included, evaluations not), ``eval_s`` and the :data:`GREEDY_KEYS` of the
-    evaluation. Returns the run's status
-    (:func:`~drqn_jax.experiments.host_loop.run_chunks`: a non-finite loss ends it
-    early) and the points; ``on_point`` sees each as it lands. With ``first``, training
-    stops after the first ``first`` points (status ``first N of M marks``): e.g. to
-    compare the start of one run across machines.
+    Returns ``(status, points)``; each point has ``env_steps``, ``train_s``, ``eval_s`` and
+    :data:`GREEDY_KEYS`. ``on_point`` sees each; ``first`` stops after that many points.
     """
     total = config["train"]["num_env_steps"]
     if total < 1:

@@ -1,15 +1,5 @@
-"""The study's safety/speed figure (SPEC §9).
-
-:func:`plot_safety_speed` draws collision-free rate against average speed: the
-rule-based family's frontier, the privileged planner's (a ceiling: it sees the
-true state and the simulator), the paper's two points with their 10-episode
-intervals, and every agent of a results table (seeds as dots, the mean with its
-interval). It reads only a results section's rows and its frontier record, so
-``docs/results.json`` alone redraws it.
-
-Every PNG of the package is drawn on a :func:`figure`: a matplotlib ``Figure`` of its
-own, saved by the Agg renderer, with no pyplot state (a caller's interactive backend
-stays as it is).
+"""The study's safety/speed figure (SPEC §9): frontiers, the paper's points and every agent,
+from a results section's rows alone. Every PNG is drawn on a pyplot-free :func:`figure`.
 """
 
 from __future__ import annotations
@@ -65,13 +55,8 @@ def _agent(ax: Any, row: Mapping[str, Any], label: str, color: str | None = None
 def plot_safety_speed(
     rows: Sequence[Mapping[str, Any]], frontier: Mapping[str, Any], path: str | Path
 ) -> None:
-    """Collision-free rate against average speed (SPEC §9) as a PNG at ``path``.
-
-    Args:
-        rows: a results table's rows; those of ``frontier``'s world and the paper's
-            (another world: CARLA) are drawn.
-        frontier: :func:`drqn_jax.experiments.frontier.world_frontier`'s record of that world.
-    """
+    """Collision-free rate against average speed (SPEC §9) as a PNG: ``rows`` of
+    ``frontier``'s world (and the paper's) over that world's frontiers."""
     fig = figure(8, 5.5)
     ax = fig.subplots()
     rule = frontier["rule_based"]["points"]

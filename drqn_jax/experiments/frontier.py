@@ -1,26 +1,9 @@
 """The yardstick (SPEC §9): the rule-based family's frontier, the planner's ceiling, margins.
 
-Collision-free rate and average speed trade against each other, so an agent is
-judged against the best the rule-based agent (paper §V-E) does *at the agent's
-own speed*:
-
-* :func:`sweep_family` evaluates an agent family over a batch of its parameter
-  settings on the same episodes, as one compiled program (``lax.map`` over the
-  settings of a ``vmap`` over the episodes);
-* :func:`rule_based_frontier` sweeps :data:`RULE_BASED_SETTINGS` (taken from
-  :data:`WIDE_GRID`: ``v_max`` from 1 km/h to the 15 km/h limit, ``lookahead``,
-  ``horizon``, ``corridor_margin``) and :func:`pareto_points` keeps the
-  Pareto-efficient points; :func:`planner_frontier` does the same
-  for the privileged planner over its speed cap (a ceiling: it sees the true
-  state and plays the simulator, which no learner does);
-* :func:`frontier_rate` is the frontier as a function: the upper envelope of
-  the points (their upper concave hull), linear between its vertices, the fastest
-  one's rate beyond them (a per-episode mixture of two settings reaches every
-  point of the segment between them, so the family attains the envelope);
-* :func:`frontier_margin` is an agent's collision-free rate minus the frontier at
-  its own average speed, with a 95 % interval: Student t across seeds (each
-  seed at its own speed) for a trained config, the Wilson interval shifted by
-  the frontier for a single policy.
+An agent is judged against the best collision-free rate the rule-based agent (paper §V-E)
+reaches *at the agent's own average speed*: the upper concave hull of the family's Pareto
+points over :data:`RULE_BASED_SETTINGS`, swept as one program (``lax.map`` over settings of
+a ``vmap`` over episodes). The privileged planner's frontier is a ceiling.
 """
 
 from __future__ import annotations
@@ -71,8 +54,7 @@ __all__ = [
     "world_frontier",
 ]
 
-#: The wide grid (3000 settings, each axis out to the end of :data:`REVIEWER_RANGES`):
-#: the evidence behind :data:`RULE_BASED_SETTINGS` (``drqn-jax frontier --wide``).
+#: The wide grid (3000 settings) behind :data:`RULE_BASED_SETTINGS` (``frontier --wide``).
 WIDE_GRID: dict[str, tuple[float, ...]] = {
     "v_max_kmh": (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0),
     "lookahead": (3.5, 7.0, 14.0, 20.0, 25.0),
@@ -90,15 +72,9 @@ def grid_settings(grid: Mapping[str, Sequence[float]]) -> list[dict[str, float]]
     return [dict(zip(names, combo, strict=True)) for combo in itertools.product(*grid.values())]
 
 
-#: The rule-based settings a frontier sweeps by default: ``(v_max km/h, lookahead m,
-#: horizon s, corridor_margin m)``. They are the Pareto-efficient settings of the
-#: :data:`WIDE_GRID` sweep on the paper's world (1000 episodes of seed 0's evaluation
-#: key, swept on an H100: ``benchmarks/results/frontier-wide.json``), thinned to 30 by
-#: ``benchmarks/frontier_settings.py`` (dropping, one at a time, the setting whose loss
-#: moved the Pareto curve least, keeping every vertex of its envelope, the fastest
-#: setting and the paper's, 15 km/h, 7 m, 0 s, 0.5 m); ``v_max = 1 km/h`` never
-#: accelerates (the ±1 km/h band): the standing car. On the GPU's run of those
-#: episodes their envelope is the wide sweep's (docs/results.md, "The yardstick").
+#: The default rule-based settings ``(v_max km/h, lookahead m, horizon s, corridor_margin m)``:
+#: the :data:`WIDE_GRID` Pareto set, thinned to 30 by ``benchmarks/frontier_settings.py``
+#: keeping every envelope vertex (docs/results.md, "The yardstick").
 _SETTINGS = (
     (1.0, 3.5, 0.0, 0.0),
     (12.0, 25.0, 5.0, 1.5),
@@ -138,8 +114,7 @@ RULE_BASED_SETTINGS: tuple[dict[str, float], ...] = tuple(
 
 
 def _rule_based_params(settings: Sequence[Mapping[str, float]]) -> RuleBasedParams:
-    """The settings as one batched :class:`RuleBasedParams` (leaves (S,)); a setting
-    without ``speed_band_kmh`` keeps the agent's ±1 km/h."""
+    """The settings as one batched :class:`RuleBasedParams` (leaves (S,); band ±1 km/h default)."""
     each = [
         RuleBasedParams(
             v_max=s["v_max_kmh"] * KMH,
@@ -162,17 +137,10 @@ def sweep_family(
     params: EnvParams,
     batch_size: int | None = None,
 ) -> EpisodeMetrics:
-    """Every setting of an agent family on the same episodes, in one program.
+    """EpisodeMetrics (S, N) of every setting (leaves (S,)) on the (N,) episode ``keys``.
 
-    Args:
-        make_agent: a setting -> the agent (``rule_based_agent``, ``planner_agent``).
-        settings: the family's parameters, every leaf with a leading axis (S,).
-        keys: (N,) episode keys (:func:`~drqn_jax.evaluation.episode_keys`).
-    Returns:
-        EpisodeMetrics with leaves (S, N); neither the time to collision nor the
-        reward that reads it is measured (``min_ttc`` and ``episode_return`` NaN,
-        ``near_collision_steps`` 0), so XLA drops them, which halves the cost: every
-        other leaf is what :func:`~drqn_jax.evaluation.evaluate` measures.
+    TTC and return are not measured (NaN; near-collision steps 0) so XLA drops them, halving
+    the cost; every other leaf is what :func:`~drqn_jax.evaluation.evaluate` measures.
     """
 
     def one(setting: Any) -> EpisodeMetrics:
@@ -192,8 +160,7 @@ def sweep_family(
 def family_points(
     metrics: EpisodeMetrics, settings: Sequence[Mapping[str, float]]
 ) -> list[dict[str, Any]]:
-    """One point per setting: :func:`~drqn_jax.evaluation.summarize_outcomes` of its
-    episodes and its ``params``."""
+    """One point per setting: ``summarize_outcomes`` of its episodes and its ``params``."""
     host = jax.tree.map(np.asarray, metrics)
     return [
         {"params": dict(s), **summarize_outcomes(jax.tree.map(lambda x, i=i: x[i], host))}
@@ -202,8 +169,7 @@ def family_points(
 
 
 def pareto_points(points: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
-    """The points no other point beats on both collision-free rate and average speed
-    (at least as good on both, better on one), by speed; of equal points the first."""
+    """The Pareto-efficient points (collision-free rate vs average speed), by speed."""
     kept: list[Mapping[str, Any]] = []
     best_rate = -math.inf
     # by speed, fastest first, the safer first at equal speed: a point is efficient
@@ -217,15 +183,9 @@ def pareto_points(points: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]
 
 
 def frontier_vertices(points: Sequence[Mapping[str, Any]]) -> list[tuple[float, float]]:
-    """The vertices ``(speed km/h, rate)`` of the upper envelope of ``points``, by speed:
-    the upper concave hull of their Pareto-efficient points (what :func:`frontier_rate`
-    reads).
+    """The vertices ``(speed km/h, rate)`` of the upper concave hull of the Pareto points.
 
-    Linear between vertices: a rule-based agent that plays one setting in a share of
-    its episodes and another in the rest reaches every point of the segment between
-    them (average speed and collision-free rate are both means over episodes), so
-    the family reaches the whole envelope, and a setting added to a sweep can raise
-    the frontier but never lower it.
+    Linear between vertices: mixing two settings per episode reaches the whole segment.
     """
     xy = sorted({(p["avg_speed_kmh"], p["collision_free_rate"]) for p in pareto_points(points)})
     hull: list[tuple[float, float]] = []
@@ -240,9 +200,8 @@ def frontier_vertices(points: Sequence[Mapping[str, Any]]) -> list[tuple[float, 
 
 
 def frontier_rate(vertices: Sequence[Sequence[float]], speed_kmh: float | np.ndarray) -> Any:
-    """The frontier's collision-free rate at ``speed_kmh`` (SPEC §9): linear between
-    the :func:`frontier_vertices`, the fastest one's rate beyond them (and the slowest
-    one's below them: a faster setting is that safe)."""
+    """The frontier's collision-free rate at ``speed_kmh`` (SPEC §9): linear between the
+    vertices, clamped to the end vertices' rates beyond them."""
     v = np.asarray(vertices, np.float64).reshape(-1, 2)
     if v.shape[0] == 0:
         raise ValueError("frontier_rate: the frontier has no points")
@@ -250,25 +209,18 @@ def frontier_rate(vertices: Sequence[Sequence[float]], speed_kmh: float | np.nda
 
 
 def above_speed_limit(speeds_kmh: Sequence[float], limit_kmh: float) -> bool:
-    """Whether any of the average speeds exceeds the limit (float32 rounding aside),
-    where the frontier has no point (SPEC §9)."""
+    """Whether any average speed exceeds the limit (float32 rounding aside; SPEC §9)."""
     return max(speeds_kmh) > limit_kmh * (1 + 1e-6)
 
 
 def frontier_margin(
     row: Mapping[str, Any], vertices: Sequence[Sequence[float]], limit_kmh: float
 ) -> tuple[float, tuple[float, float]] | None:
-    """``(margin, (low, high))``: a results row's collision-free rate minus the frontier
-    at its own average speed, with a 95 % interval (SPEC §9); None when the row (any of
-    its seeds) drives faster on average than the speed limit ``limit_kmh``: the
-    rule-based family and the planner keep the limit, so the frontier has no point
-    there and a car that breaks the limit is not safer "at equal speed" than one
-    that keeps it.
+    """``(margin, (low, high))``: a row's collision-free rate minus the frontier at its own
+    speed, 95 % interval (SPEC §9); None if any seed exceeds ``limit_kmh``.
 
-    A row with several seeds (``per_seed``: each seed's ``collision_free_rate`` and
-    ``avg_speed_kmh``) gets the mean over seeds of each seed's margin at that seed's
-    speed and its Student-t interval; a single policy the Wilson interval of its rate
-    (``collision_free_ci``) shifted by the frontier at its speed.
+    Several seeds (``per_seed``): mean of per-seed margins, Student t; a single policy: its
+    Wilson interval shifted by the frontier.
     """
     seeds = row.get("per_seed") or []
     speeds = [s["avg_speed_kmh"] for s in seeds] if len(seeds) > 1 else [row["avg_speed_kmh"]]
@@ -306,10 +258,7 @@ def rule_based_frontier(
     settings: Sequence[Mapping[str, float]] = RULE_BASED_SETTINGS,
     batch_size: int | None = None,
 ) -> list[dict[str, Any]]:
-    """Every rule-based setting (``v_max_kmh``, ``lookahead``, ``horizon``,
-    ``corridor_margin``; :func:`grid_settings` makes them from a grid) evaluated on
-    episodes ``fold_in(key, i)``, i < N: one point each (``params`` and the outcome
-    metrics); :func:`pareto_points` keeps the frontier's."""
+    """One point per rule-based setting on episodes ``fold_in(key, i)``, i < N."""
     batched = _rule_based_params(settings)
     return _sweep_points(
         rule_based_agent, batched, settings, key, num_episodes, env, params, batch_size
@@ -325,8 +274,7 @@ def planner_frontier(
     planner: PlannerParams | None = None,
     batch_size: int | None = None,
 ) -> list[dict[str, Any]]:
-    """The privileged planner (``planner``'s horizon and band) at each speed cap, on the
-    same episodes as :func:`rule_based_frontier`: one point each."""
+    """One point per speed cap of the privileged planner, on the frontier's episodes."""
     base = PlannerParams() if planner is None else planner
     settings = [{"v_cap_kmh": float(c), "horizon_steps": base.horizon_steps} for c in caps_kmh]
     each = [base.replace(v_cap=jnp.float32(c * KMH)) for c in caps_kmh]
@@ -339,10 +287,8 @@ def planner_frontier(
 def with_margin(
     row: Mapping[str, Any], record: Mapping[str, Any], limit_kmh: float
 ) -> dict[str, Any]:
-    """``row`` with its ``frontier_margin`` and ``frontier_margin_ci`` against the
-    rule-based frontier of ``record`` (:func:`world_frontier`, the row's world, whose
-    speed limit is ``limit_kmh``): both None and ``above_speed_limit`` True for a row
-    faster than the limit (:func:`frontier_margin`)."""
+    """``row`` with ``frontier_margin``/``_ci`` against ``record``'s rule-based frontier
+    (None, ``above_speed_limit`` True, for a row faster than ``limit_kmh``)."""
     vertices = frontier_vertices(record["rule_based"]["points"])
     found = frontier_margin(row, vertices, limit_kmh)
     if found is None:
@@ -352,10 +298,7 @@ def with_margin(
     return {**row, "frontier_margin": margin, "frontier_margin_ci": interval}
 
 
-#: The ranges a reviewer's random rule-based settings are drawn from (uniform; m, s, m,
-#: km/h), :func:`random_settings`; ``v_max`` from 1 km/h up to the speed limit. The
-#: look-ahead reaches below :data:`WIDE_GRID`'s, its settings fall between the grid's
-#: points, and the speed band, which the grid keeps at ±1 km/h, varies.
+#: Uniform ranges (m, s, m, km/h) of :func:`random_settings`, off :data:`WIDE_GRID`'s points.
 REVIEWER_RANGES = {
     "lookahead": (2.0, 25.0),
     "horizon": (0.0, 5.0),
@@ -365,9 +308,7 @@ REVIEWER_RANGES = {
 
 
 def random_settings(n: int, seed: int, limit_kmh: float) -> list[dict[str, float]]:
-    """``n`` rule-based settings drawn uniformly (NumPy generator ``seed``): ``v_max``
-    from 1 km/h to ``limit_kmh``, the others from :data:`REVIEWER_RANGES`, rounded to
-    0.01: what a reviewer would try against the frontier."""
+    """``n`` rule-based settings drawn uniformly from :data:`REVIEWER_RANGES`, rounded to 0.01."""
     rng = np.random.default_rng(seed)
     ranges = {"v_max_kmh": (1.0, limit_kmh), **REVIEWER_RANGES}
     return [
@@ -379,9 +320,8 @@ def random_settings(n: int, seed: int, limit_kmh: float) -> list[dict[str, float
 def reviewer_check(
     points: Sequence[Mapping[str, Any]], vertices: Sequence[Sequence[float]], seed: int
 ) -> str:
-    """A sentence: how many of ``points`` (:func:`random_settings` of ``seed``, evaluated
-    on the frontier's episodes) lie above the frontier at their own speed, the nearest
-    one's distance to it, and how many have a Wilson interval wholly above it."""
+    """A sentence: how many random ``points`` beat the frontier, the nearest's distance,
+    and how many have a Wilson interval wholly above it."""
     at = frontier_rate(vertices, np.array([p["avg_speed_kmh"] for p in points]))
     excess = np.array([p["collision_free_rate"] for p in points]) - at
     lows = np.array([p["collision_free_ci"][0] for p in points]) - at
@@ -414,16 +354,10 @@ def world_frontier(
     batch_size: int | None = None,
     keep_all: bool = False,
 ) -> dict[str, Any]:
-    """The frontiers of a world on episodes ``fold_in(key, i)``, i < N (a study's
-    evaluation episodes: ``world`` and ``seed`` name them): JSON-ready.
+    """A world's frontiers on episodes ``fold_in(key, i)``, i < N, as JSON-ready
+    ``{"world", "episodes", "seed", "speed_limit_kmh", "rule_based", ["planner"]}``.
 
-    Returns ``{"world", "episodes", "seed", "speed_limit_kmh", "rule_based": {"points":
-    the Pareto points, "swept": settings evaluated, "wall_time_s"}}`` and, given
-    ``planner`` (its horizon and band; the caps replace its cap), ``"planner":
-    {"points": one per cap, "wall_time_s"}``. ``settings``: the rule-based settings (default
-    :data:`RULE_BASED_SETTINGS`); a speed above the limit ``params.v_ref`` is refused
-    (ValueError). With ``keep_all`` the rule-based record also holds
-    ``"swept_points"``, every setting's.
+    Settings above ``params.v_ref`` raise ValueError; ``keep_all`` adds ``"swept_points"``.
     """
     limit_kmh = float(params.v_ref) / KMH
     chosen = list(RULE_BASED_SETTINGS if settings is None else settings)

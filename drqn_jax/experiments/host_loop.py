@@ -1,12 +1,6 @@
-"""The one host loop of training: chunks, stop requests, progress and checkpoints.
-
-A compiled chunk (``Trainer.run``: ``chunk_iterations`` iterations under one
-``lax.scan``) advances a state on the device; between chunks the host checks
-for a stop request (SIGINT/SIGTERM), for a non-finite loss, shows progress and
-saves a checkpoint every so often. ``drqn-jax train`` (:mod:`drqn_jax.experiments.runner`,
-one run) and sweeps (:mod:`drqn_jax.experiments.sweep_runner`, a call of many runs) both
-train through :func:`run_chunks`; what differs — the state, what "finished"
-and "healthy" mean, how a checkpoint is written — comes in as functions.
+"""The one host loop of training (``train`` and sweeps): between compiled chunks, check for
+a stop request or non-finite loss, show progress and checkpoint; what differs comes in as
+functions.
 """
 
 from __future__ import annotations
@@ -60,8 +54,7 @@ class StopRequest:
 
 @jax.jit
 def finite_training(state: Any) -> jax.Array:
-    """() bool: a training state's online parameters, running episode losses and
-    recorded losses are all finite (the DQN learner's and PPO's states alike)."""
+    """() bool: the state's online parameters and losses are all finite."""
     leaves = [*jax.tree.leaves(state.online), state.ep_loss_sum, state.metrics["mean_loss"]]
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
 
@@ -78,20 +71,11 @@ def run_chunks(
     on_chunk: Callable[[S], None] | None = None,
     chunks: int = 0,
 ) -> tuple[str, S, int]:
-    """Run chunks until the state is finished, a stop is requested or it turns unhealthy.
+    """Run chunks until the state is ``finished``, ``stop`` is set or it turns unhealthy.
 
-    Args:
-        run: one compiled chunk, ``state -> state``.
-        finished: whether a state needs no more chunks.
-        stop: checked before each chunk.
-        save: ``save(state, chunks)``, called every ``every_s`` seconds between chunks
-            (not after the last one: the caller saves what it ends with).
-        healthy: a new state failing it is dropped and the loop ends (None: all are).
-        on_chunk: called with each new state (progress bars).
-        chunks: chunks run before (a resumed run counts on).
-    Returns:
-        ``(status, state, chunks)``: ``"finished"``, ``"interrupted"`` (stop requested)
-        or ``"diverged"`` (``state`` is then the last healthy one).
+    ``save(state, chunks)`` runs every ``every_s`` s between chunks (not after the last).
+    Returns ``(status, state, chunks)``: ``"finished"``, ``"interrupted"`` or ``"diverged"``
+    (``state`` then the last healthy one).
     """
     last_save = time.perf_counter()
     while not finished(state):

@@ -19,8 +19,7 @@ __all__ = ["machine_info", "machine_lines"]
 
 
 def _first_processor() -> dict[str, str] | None:
-    """The first processor's fields of /proc/cpuinfo (lower-case keys); None where the
-    file is not there."""
+    """The first processor's /proc/cpuinfo fields (lower-case keys); None if absent."""
     fields: dict[str, str] = {}
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as f:
@@ -41,10 +40,8 @@ def cpu_model() -> str:
 
 
 def cpu_identity() -> str:
-    """``family 25 model 1 stepping 1; avx avx2 fma``: the CPU beyond its model name
-    (one "AMD EPYC" may be several generations), with its vector extensions, from
-    /proc/cpuinfo; results are bit-identical only on one such CPU (docs/guide.md).
-    "(unknown)" where /proc/cpuinfo is not there."""
+    """``family 25 model 1 stepping 1; avx avx2 fma`` from /proc/cpuinfo, or "(unknown)":
+    results are bit-identical only on one such CPU (docs/guide.md)."""
     fields = _first_processor()
     if fields is None:
         return "(unknown)"
@@ -55,16 +52,14 @@ def cpu_identity() -> str:
 
 
 def device_identity() -> str:
-    """The device that computes: on a CPU its model name and :func:`cpu_identity`, else
-    the accelerator's kind (e.g. ``NVIDIA H100 80GB HBM3``)."""
+    """The CPU's model name and :func:`cpu_identity`, or the accelerator's kind."""
     device = jax.devices()[0]
     if device.platform == "cpu":
         return f"{cpu_model()} ({cpu_identity()})"
     return device.device_kind
 
 
-#: What a run's record says of the device or commit that trained it where the record
-#: predates keeping them (never the storing machine's or checkout's).
+#: A record's device or commit where it predates keeping them.
 NOT_RECORDED = "(not recorded)"
 
 

@@ -1,21 +1,8 @@
 """Memory plan of a sweep: bytes per training run, estimated before anything compiles.
 
-A run of :func:`drqn_jax.learners.make_train` holds its ``TrainState`` (episode
-replay, online and target parameters, Adam moments, env states, metrics) for
-the whole run, and while it learns, the temporaries of one gradient update:
-the ``B × (T + 1)`` grids re-rasterised from the replay and every layer's
-activations for the online and target unrolls plus the backward pass. The
-state's bytes are exact (``jax.eval_shape`` of ``init``: shapes only, no
-compilation); the temporaries are estimated from the network's layer sizes
-(:func:`activation_bytes`), calibrated against XLA's own
-``memory_analysis()`` of the compiled program (tests/experiments/test_memory.py: the
-estimate lies between 1× and 2× of XLA's figure for the paper preset).
-
-:func:`runs_per_call` turns the per-run figure and the memory available
-(``MemAvailable`` of the host for CPU devices, the devices' own limit on
-accelerators, or the user's budget) into how many runs one compiled call may
-train at once; a sweep larger than that runs in sequential calls, and a sweep
-whose single run does not fit is refused with the breakdown.
+A run holds its ``TrainState`` (exact, via ``jax.eval_shape``) plus one gradient update's
+temporaries (estimated from layer sizes, within 1-2× of XLA's ``memory_analysis()``).
+:func:`runs_per_call` turns that and the available memory into runs per compiled call.
 """
 
 from __future__ import annotations
@@ -44,15 +31,11 @@ __all__ = [
 ]
 
 FLOAT_BYTES = 4
-#: Share of the available memory a plan may fill (XLA's allocator and the
-#: host process need the rest).
+#: Share of the available memory a plan may fill.
 USABLE_FRACTION = 0.8
-#: Temporaries per forward activation byte: online + target unroll and the
-#: backward pass of the online one (XLA reuses buffers between them; it
-#: reports about 1.7× for the paper preset and the smoke config).
+#: Temporaries per forward activation byte (online + target unroll, backward pass).
 ACTIVATION_FACTOR = 2.0
-#: Gradient, update and parameter-sized temporaries of one Adam step, in units
-#: of the parameters' bytes.
+#: Parameter-sized temporaries of one Adam step, in parameter bytes.
 PARAM_TEMPORARIES = 4
 
 
@@ -101,14 +84,8 @@ def _nbytes(tree: Any) -> int:
 
 
 def forward_bytes_per_step(network: NetworkConfig) -> int:
-    """Bytes of one observation's forward activations (paper Table I layers).
-
-    The grid, each conv layer's gathered patches and output, the flattened
-    features, the recurrent core (LSTM: 4 gates, h and c per layer, plus the
-    second layer's ``[h1, speed, last action]`` input; ``dqn``: two dense
-    layers), the FC layer and the Q-values. A ``dqn`` stacking k grids sees a
-    grid of k times the channels.
-    """
+    """Bytes of one observation's forward activations (paper Table I layers): grid, conv
+    patches and outputs, recurrent core (or ``dqn`` dense layers), FC layer, Q-values."""
     h, w, c = network.grid_shape
     c *= network.frames
     floats = h * w * c
@@ -123,8 +100,7 @@ def forward_bytes_per_step(network: NetworkConfig) -> int:
 
 
 def activation_bytes(config: Config) -> int:
-    """Estimated temporaries of one gradient update (and of acting, which is smaller):
-    the DQN's minibatch of windows, or PPO's rollout (whose minibatches are parts of it)."""
+    """Estimated temporaries of one gradient update (DQN minibatch or PPO rollout)."""
     train = config["train"]
     if train["algorithm"] in ON_POLICY:
         samples = train["rollout_steps"] * train["num_envs"]
@@ -166,11 +142,8 @@ def _host_available() -> int:
 
 
 def available_memory(devices: Sequence[Any]) -> tuple[int, str]:
-    """Bytes the ``devices`` can hold together, and where the figure comes from.
-
-    Accelerators report their own limit (``memory_stats()["bytes_limit"]``
-    minus what is in use); CPU devices share the host's ``MemAvailable``.
-    """
+    """Bytes the ``devices`` can hold (accelerator limit minus use, or host ``MemAvailable``)
+    and where the figure comes from."""
     if all(d.platform == "cpu" for d in devices):
         return _host_available(), "host MemAvailable"
     total = 0
@@ -181,14 +154,8 @@ def available_memory(devices: Sequence[Any]) -> tuple[int, str]:
 
 
 def call_bytes(per_run: RunMemory, runs: int, *, batched: bool = True) -> int:
-    """Peak bytes of ``runs`` runs trained together on one device.
-
-    ``batched`` (``vmap``): every run's state and update temporaries at once.
-    Otherwise (``lax.map``, one run after another): the runs' states twice
-    (the map writes a new stack of states beside its input) and one run's
-    temporaries (``tests/experiments/test_memory.py`` checks the estimate against
-    XLA's own analysis).
-    """
+    """Peak bytes of ``runs`` runs on one device: ``batched``, every state and temporary at
+    once; else (``lax.map``) the states twice and one run's temporaries."""
     if batched:
         return runs * per_run.total
     return 2 * runs * (per_run.total - per_run.activations) + per_run.activations
@@ -197,12 +164,8 @@ def call_bytes(per_run: RunMemory, runs: int, *, batched: bool = True) -> int:
 def runs_per_call(
     per_run: RunMemory, runs: int, devices: int, budget: int, source: str, *, batched: bool = True
 ) -> int:
-    """How many runs one compiled call trains at once: a multiple of ``devices``
-    (the run axis is sharded over them), at most ``runs`` rounded up to one.
-
-    Raises:
-        MemoryPlanError: not even one run per device fits in ``budget``.
-    """
+    """Runs per compiled call: a multiple of ``devices``, at most ``runs`` rounded up;
+    MemoryPlanError if not one run per device fits ``budget``."""
     usable = USABLE_FRACTION * budget
     per_device_budget = usable / devices
     per_device = 0

@@ -1,26 +1,8 @@
-"""A study's runs store: its finished runs in a file of their own, so that a study
-outlives its directory.
+"""A study's runs store: its finished runs in a file of their own, so a study outlives its
+directory (``study --runs-store FILE``; default ``finished-runs/<section>.json`` beside the
+results file). Restored runs give the same table bit for bit, but have no agent on disk.
 
-A study of the paper's protocol trains for hours on a CPU; stopped, it continues
-from ``OUT`` (its checkpoints and finished calls). When ``OUT`` is lost (a fresh
-clone, another machine, a preemptible machine taken away), the finished runs need
-not be: with a runs store (``drqn-jax study --runs-store FILE``; with ``--results``
-its default is ``finished-runs/<section>.json`` beside the results file,
-:func:`runs_store_path`: ``docs/finished-runs/table3-cpu.json`` for
-``docs/results.json``; commit it to carry it to another clone), an interrupted study
-keeps each arm's finished runs there (:func:`save_store`): each
-run's evaluation record as the sweep saved it, the training hash of its config, and
-its training wall time and metrics (``metrics.csv``). The same command in a directory
-that holds no such arm writes them back (:func:`restore_runs`) and trains only the
-other runs; the table is then the same, bit for bit, as if nothing had stopped
-(each run is independent of the others, ``tests/experiments/test_sweep.py``).
-A restored run has no trained agent on disk (its parameters are not stored), so
-``--eval-envs`` cannot evaluate it. A finished study removes its store
-(:func:`drop_store`): the results file's rows hold its results, and the results
-file never holds runs.
-
-Store file: ``{"command": the study's command, "finished_runs": {arm: [run, ...]}}``,
-each run as :func:`portable_runs` gives it.
+Store file: ``{"command": ..., "finished_runs": {arm: [run, ...]}}`` (:func:`portable_runs`).
 """
 
 from __future__ import annotations
@@ -55,8 +37,7 @@ __all__ = [
 
 
 def runs_store_path(results: str | Path, section: str) -> Path:
-    """The default runs store of ``section`` of the results file ``results``:
-    ``finished-runs/<section>.json`` in the results file's directory."""
+    """``finished-runs/<section>.json`` beside the results file ``results``."""
     return Path(results).parent / "finished-runs" / f"{section}.json"
 
 
@@ -71,8 +52,7 @@ def load_store(path: str | Path) -> dict[str, list[dict[str, Any]]]:
 def save_store(
     path: str | Path, finished: Mapping[str, Sequence[Mapping[str, Any]]], command: str
 ) -> None:
-    """Keep ``finished`` (arm name → :func:`portable_runs`) and the study's ``command``
-    as the runs store at ``path`` (replacing what it held)."""
+    """Write ``finished`` (arm → :func:`portable_runs`) and ``command`` as the store at ``path``."""
     record = {"command": command, "finished_runs": {k: list(v) for k, v in finished.items()}}
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(Path(path), json.dumps(record, indent=1) + "\n")
@@ -84,10 +64,8 @@ def drop_store(path: str | Path) -> None:
 
 
 def portable_runs(directory: Path, sweep: Sweep) -> list[dict[str, Any]]:
-    """The finished runs of ``sweep`` in ``directory`` (``OUT/<arm>``), by index: each
-    run's record (with the commit and device that trained it) with its training hash,
-    its training wall time (``train_wall_s``, :func:`run_timings`; None where not
-    counted) and its ``metrics.csv`` text; runs whose metrics are missing are left out."""
+    """By index, the finished runs of ``sweep`` in ``directory``: record, training hash,
+    ``train_wall_s`` and ``metrics.csv`` text (runs without metrics left out)."""
     hashes = {p.index: p.config.training_hash() for p in sweep.points}
     timings = run_timings(directory)
     runs = []
@@ -107,14 +85,9 @@ def portable_runs(directory: Path, sweep: Sweep) -> list[dict[str, Any]]:
 
 
 def restore_runs(directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, Any]]) -> int:
-    """Write ``stored`` runs (:func:`portable_runs`) back into ``directory`` as the
-    finished calls of ``sweep``'s plan, if ``directory`` holds no sweep yet; returns
-    how many runs were restored.
-
-    A run is restored when its index is one of the sweep's points with the same
-    training hash and evaluation episode count; a planned call is restored only
-    when all its runs are (on a CPU each call holds one run), the others train.
-    """
+    """Write ``stored`` runs back into an empty ``directory`` as finished calls of ``sweep``'s
+    plan (matching index, training hash and episode count; whole calls only); returns the
+    number restored."""
     if (directory / "plan.json").exists() or not stored:
         return 0
     points = {p.index: p for p in sweep.points}
@@ -149,10 +122,8 @@ def restore_runs(directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, An
 
 
 def differing_runs(directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, Any]]) -> list[int]:
-    """Indices of the finished runs in ``directory`` whose record ``stored`` (the runs
-    store's, same index and training hash) holds otherwise. A continued study keeps the
-    directory's and stores them again, so a runs store edited alone would be
-    overwritten: the study says so (:func:`~drqn_jax.experiments.study.run_study`)."""
+    """Indices of finished runs in ``directory`` whose record differs from ``stored``'s (the
+    directory's win; the study says so)."""
     kept = {run.get("index"): run for run in stored}
     return [
         run["index"]

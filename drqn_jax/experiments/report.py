@@ -1,27 +1,9 @@
 """One machine-readable results file, and the documents that quote it.
 
-A study run with ``--results docs/results.json --section NAME`` stores its table's
-rows there (:func:`write_results`), beside the command that produced them, its
-wall time and the machine; the file holds results only (an interrupted study's
-finished runs go to a runs store of their own, :mod:`drqn_jax.experiments.portable`).
-Documents never retype those numbers: a block ::
-
-    <!-- results:NAME FORM -->
-    (generated from section NAME)
-    <!-- /results -->
-
-is filled from the file by ``drqn-jax report FILE.md …`` (:func:`update_document`),
-and ``drqn-jax report --check`` (and the test suite) fails when a document and the
-file disagree. ``FORM`` (:data:`FORMS`) chooses what the block shows:
-
-* none: the section's tables (:func:`study_table`: safety and speed, driving,
-  training; at most 8 columns each), its comparisons and its command;
-* ``legend``: the same, then the definition of every column (:func:`column_legend`),
-  so that a document defines each column once, in its first block;
-* ``safety``: the safety-and-speed table alone, its comparisons and its command (a
-  long section; the other columns stay in the results file);
-* ``brief``: the headline table (:data:`BRIEF`, 8 columns), the verdicts on the
-  paper's claim and on the goal, and where the columns are defined (a README's form).
+``study --results FILE --section NAME`` stores a table's rows (:func:`write_results`);
+``drqn-jax report FILE.md`` fills each ``<!-- results:NAME FORM -->…<!-- /results -->`` block
+from it and ``--check`` fails where they disagree. FORM: none (all tables), ``legend`` (plus
+column definitions), ``safety`` (safety-and-speed table only), ``brief`` (headline table).
 """
 
 from __future__ import annotations
@@ -76,8 +58,7 @@ BLOCK = re.compile(
 )
 #: Where a brief block (a README's) points for the columns' definitions.
 DEFINITIONS = "[docs/results.md](docs/results.md)"
-#: How the verdict on the paper's claim and the one on Table III at scale's goal begin
-#: (:mod:`drqn_jax.experiments.verdicts` writes them; a brief block quotes them).
+#: How the verdicts on the paper's claim and on the goal begin (a brief block quotes them).
 CLAIM = "The paper's claim"
 GOAL = "Table III at scale's goal"
 
@@ -114,12 +95,8 @@ def write_results(
     comparisons: Sequence[str],
     about: Mapping[str, Any],
 ) -> dict[str, Any]:
-    """Replace ``section``'s rows of the results file at ``path`` (other sections stay).
-
-    Each row (:func:`drqn_jax.experiments.rows.study_row`) gains ``"section"``; ``about`` (the
-    command, its wall time, the machine) and ``comparisons`` are stored under
-    ``sections[section]``. Returns the whole record written.
-    """
+    """Replace ``section``'s rows (and its ``about``, ``comparisons``) in the results file at
+    ``path``; other sections stay. Returns the whole record written."""
     check_section(section)
     record = load_results(path)
     kept = [r for r in record["rows"] if r.get("section") != section]
@@ -139,10 +116,8 @@ def _save_record(path: str | Path, record: dict[str, Any]) -> dict[str, Any]:
 def note_progress(
     path: str | Path, section: str, finished: Mapping[str, int], command: str, store: str
 ) -> None:
-    """Mark ``section`` of the results file at ``path`` in progress: how many runs of
-    each arm have ``finished``, the ``command`` that continues the study and the runs
-    ``store`` that keeps them (:mod:`drqn_jax.experiments.portable`). A section that
-    holds a table keeps it until the study finishes and replaces it."""
+    """Mark ``section`` in progress: runs ``finished`` per arm, the ``command`` that continues
+    it and the runs ``store``; an existing table stays until replaced."""
     check_section(section)
     record = load_results(path)
     if "wall_time_s" in record["sections"].get(section, {}):
@@ -196,8 +171,7 @@ def render_section(record: Mapping[str, Any], section: str, form: str = "") -> s
 
 
 def _brief(rows: Sequence[Mapping[str, Any]], comparisons: Sequence[str]) -> str:
-    """A section's headline table (:data:`BRIEF`), its verdicts on the paper's claim and
-    on the goal, and where its columns are defined."""
+    """A section's headline table (:data:`BRIEF`), its verdicts and a legend pointer."""
     verdicts = [f"* {c}" for c in comparisons if c.startswith((CLAIM, GOAL))]
     lines = [_markdown_table(BRIEF, rows, {}), "", *verdicts, *([""] if verdicts else [])]
     lines.append(
@@ -207,8 +181,7 @@ def _brief(rows: Sequence[Mapping[str, Any]], comparisons: Sequence[str]) -> str
 
 
 def _in_progress(about: Mapping[str, Any]) -> str:
-    """Markdown of an interrupted study's section (no table yet): its finished runs per
-    arm and the command that continues it."""
+    """Markdown of an interrupted section: finished runs per arm, the continuing command."""
     counts = ", ".join(f"`{arm}` {n}" for arm, n in about["runs_finished"].items()) or "none"
     lines = [
         f"**In progress**: no table until every run has finished. Runs finished so far: "
@@ -247,8 +220,7 @@ PAPER_TABLE_III = (
 PAPER_EPISODES = 10
 #: The world column of the paper's rows.
 PAPER_WORLD = "CARLA (paper)"
-#: km/h: the paper's DRQN's average speed (Table III), at or above which the paper's
-#: claim is judged (SPEC §9).
+#: km/h: the paper's DRQN's average speed (Table III), the claim's threshold (SPEC §9).
 PAPER_DRQN_SPEED_KMH = PAPER_TABLE_III[1][2]
 
 
@@ -263,8 +235,7 @@ def _steps_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
 
 
 def _wall_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
-    """``31.2``: the mean training minutes of a seed; ``31.2 (2 of 5)`` where only some
-    seeds counted theirs; – for none."""
+    """``31.2`` mean training minutes per seed; ``31.2 (2 of 5)`` if partial; – for none."""
     cell = _cell(row.get("train_wall_s_per_seed"), ".1f", 1 / 60)
     counted = row.get("train_wall_seeds")
     if cell != "–" and counted is not None and counted < row["seeds"]:
@@ -273,8 +244,7 @@ def _wall_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
 
 
 def _device_legend(rows: Sequence[Mapping[str, Any]]) -> dict[str, str]:
-    """Each device the rows' runs trained on → ``[k]``, numbered in the order first seen
-    (the table cell names the number; the line under the tables the device)."""
+    """Each device the rows trained on → ``[k]``, numbered in order first seen."""
     names = dict.fromkeys(d for r in rows for d in r.get("devices") or {} if d != NOT_RECORDED)
     return {d: f"[{k}]" for k, d in enumerate(names, 1)}
 
@@ -288,9 +258,8 @@ def _device_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
 
 
 def margin_cell(row: Mapping[str, Any]) -> str:
-    """``+5.2 (+1.0 to +9.4)``: the row's frontier margin in points with its interval
-    (– for a row without one: the paper's, measured in another world; "– (above the
-    speed limit)" for a row faster than its world's limit, SPEC §9)."""
+    """``+5.2 (+1.0 to +9.4)``: the frontier margin in points; – or "– (above the speed
+    limit)" without one (SPEC §9)."""
     if row.get("above_speed_limit"):
         return "– (above the speed limit)"
     margin, interval = row.get("frontier_margin"), row.get("frontier_margin_ci")
@@ -323,9 +292,7 @@ def _metric(key: str, spec: str, scale: float = 1.0) -> Callable[..., str]:
 
 @dataclasses.dataclass(frozen=True)
 class Column:
-    """A column of the results tables: its ``header``, whether its cells align right,
-    its ``cell`` (of a row, given the device numbers :func:`_device_legend` gives) and
-    its ``definition``, said once in a legend."""
+    """A results-table column: ``header``, alignment, ``cell(row, devices)``, ``definition``."""
 
     header: str
     right: bool
@@ -439,8 +406,7 @@ _COLUMNS = (
 #: Every column of the results tables, by header.
 COLUMNS = {c.header: c for c in _COLUMNS}
 _KEYS = ("source", "agent", "teacher", "seeds × episodes")
-#: The tables of a section: caption, the columns that say what a row is, and the columns
-#: it shows of them (a row with – in all of these is left out, and a table without rows).
+#: A section's tables: caption, identifying columns, shown columns (all-– rows left out).
 TABLES = (
     ("Safety and speed", _KEYS, tuple(c.header for c in _COLUMNS[4:8])),
     ("Driving", _KEYS[:2], tuple(c.header for c in _COLUMNS[8:13])),
@@ -473,10 +439,8 @@ def study_table(
     legend: bool = True,
     tables: Sequence[tuple[str, tuple[str, ...], tuple[str, ...]]] = TABLES,
 ) -> str:
-    """Markdown of a results table's ``rows`` as ``tables`` (:data:`TABLES` by default:
-    at most 8 columns each), the devices the rows trained on, ``notes`` (the sentences
-    under the table, as a list) and, with ``legend``, every column's definition
-    (:func:`column_legend`)."""
+    """Markdown of ``rows`` as ``tables`` (default :data:`TABLES`), device legend, ``notes`` and,
+    with ``legend``, every column's definition."""
     devices = _device_legend(rows)
     parts = []
     for caption, keys, shown in tables:

@@ -1,11 +1,6 @@
 """A results table's rows: an agent's runs pooled over seeds (:func:`study_row`), a single
-policy (:func:`baseline_row`), the paper's Table III (:func:`paper_rows`) and the points
-of a world's rule-based frontier and privileged planner (:func:`frontier_rows`).
-
-Every row holds what :func:`drqn_jax.experiments.report.study_table` shows (SPEC §8's
-metrics, the collision-free interval, how its seeds trained) and ``per_seed``, from
-which :func:`drqn_jax.experiments.frontier.with_margin` reads the margin to the
-frontier at each seed's own speed (SPEC §9).
+policy (:func:`baseline_row`), the paper's Table III (:func:`paper_rows`) and a world's
+frontier points (:func:`frontier_rows`); ``per_seed`` feeds the frontier margin (SPEC §9).
 """
 
 from __future__ import annotations
@@ -38,9 +33,7 @@ def _std(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
 
 
 def _devices(runs: Sequence[Mapping[str, Any]]) -> dict[str, int]:
-    """How many runs trained on each device, in the order first seen (a policy not
-    trained here has none; a trained run whose record names no device counts as
-    :data:`NOT_RECORDED`)."""
+    """Runs per device, in order first seen (:data:`NOT_RECORDED` where a record names none)."""
     trained = [r for r in runs if "env_steps" in r or "trained_on" in r]
     return dict(Counter(r.get("trained_on", NOT_RECORDED) for r in trained))
 
@@ -48,21 +41,10 @@ def _devices(runs: Sequence[Mapping[str, Any]]) -> dict[str, int]:
 def study_row(
     label: str, agent: str, runs: Sequence[Mapping[str, Any]], *, world: str
 ) -> dict[str, Any]:
-    """One table row from the evaluations of an agent's runs (one per seed).
+    """One table row from the JSON evaluations of an agent's runs (one per seed) in ``world``.
 
-    ``runs``: :func:`drqn_jax.evaluation.evaluate` results as JSON (``json_ready``);
-    ``world``: the env id they were evaluated in.
-    The collision-free interval is the 95 % Student-t interval of the mean
-    across seeds (it holds the training's variation as well as the episodes'),
-    cut to [0, 1]; with one run, the Wilson interval over its episodes. Collisions per km are
-    pooled: all collisions over all distance. ``per_seed`` keeps each run's seed,
-    collision-free rate and average speed (the frontier margin reads each seed at its
-    own speed, :func:`drqn_jax.experiments.frontier.frontier_margin`).
-    ``env_steps_per_seed``: the mean of the runs' training env steps (over the runs
-    that counted them; NaN for a policy that was not trained). ``devices``: how many
-    runs trained on each device (runs of one study may come from several machines);
-    ``train_wall_s_per_seed``: the mean of the runs' training wall times over the
-    ``train_wall_seeds`` runs that counted theirs (NaN for none).
+    Collision-free interval: 95 % Student t across seeds, cut to [0, 1] (one run: Wilson);
+    collisions per km pooled; ``per_seed``: seed, rate, speed for the frontier margin.
     """
     if not runs:
         raise ValueError(f"study_row {label!r}: no runs")
@@ -129,10 +111,8 @@ def _setting_text(params: Mapping[str, float]) -> str:
 
 
 def frontier_rows(record: Mapping[str, Any], limit_kmh: float) -> list[dict[str, Any]]:
-    """A :func:`~drqn_jax.experiments.frontier.world_frontier` record (of a world whose
-    speed limit is ``limit_kmh``) as table rows, each with its ``params`` and its
-    margin: the rule-based frontier's points (margin 0 by definition) and the
-    privileged planner's, labelled as privileged."""
+    """A ``world_frontier`` record as rows with ``params`` and margin: the rule-based points
+    (margin 0) and the privileged planner's."""
     world = record["world"]
     kinds = [("rule_based", "rule-based frontier", "rule-based")]
     kinds += [("planner", "privileged planner (true state + simulator)", "planner")]

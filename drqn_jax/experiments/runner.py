@@ -1,20 +1,9 @@
 """Host-side driver of a training run: chunks, progress, checkpoints, signals, evaluation.
 
-The learning itself is the pure :func:`drqn_jax.learners.make_train`; this module
-calls its compiled ``run(state, chunk_iterations)`` from Python so that it can
-show progress, write checkpoints and stop cleanly between chunks. A run split
-into chunks ends bit-identical to a one-shot run, so none of this
-changes the results: not the progress bar, not the checkpoint interval, not an
-interruption followed by ``--resume``.
-
-A run directory holds:
-
-* ``config.toml``: the resolved configuration (every field);
-* ``metrics.csv``: one row per recorded training episode (SI units: m, m/s);
-* ``checkpoint.npz`` + ``checkpoint.json``: the whole ``TrainState`` (online
-  and target parameters, Adam state, replay, PRNG key, counters) and its
-  metadata (config hash, counters, wall time), written atomically;
-* ``evaluation.json`` and ``results.md``: the final greedy evaluation (SPEC §8).
+Calls the pure :func:`drqn_jax.learners.make_train` ``run(state, chunk_iterations)`` in chunks;
+a chunked (or interrupted and resumed) run ends bit-identical to a one-shot run. A run
+directory holds ``config.toml``, ``metrics.csv``, ``checkpoint.npz``/``.json`` and
+``evaluation.json``/``results.md`` (SPEC §8).
 """
 
 from __future__ import annotations
@@ -96,12 +85,8 @@ _RECENT = 20  # episodes in the progress bar's running means
 
 @dataclasses.dataclass
 class RunResult:
-    """What :func:`train_run` ended with.
-
-    ``status`` is ``"finished"``, ``"interrupted"`` (a signal: checkpoint
-    saved) or ``"diverged"`` (a non-finite loss or parameter: the last good
-    checkpoint is kept, nothing newer is written).
-    """
+    """What :func:`train_run` ended with: ``status`` ``"finished"``, ``"interrupted"``
+    (checkpoint saved) or ``"diverged"`` (non-finite loss: the last good checkpoint kept)."""
 
     status: str
     state: TrainState
@@ -113,19 +98,15 @@ class RunResult:
 
 
 def init_program(trainer: Trainer) -> Callable[[jax.Array], TrainState]:
-    """``init(key) -> TrainState``: ``trainer.init`` jitted with the hyperparameters
-    and env params as arguments, not constants: one program per shape, which the
-    persistent compilation cache serves to other values and to every caller that
-    builds its state this way (``train``, ``bench``, the tests)."""
+    """``init(key) -> TrainState``, jitted with hyperparameters and env params as arguments
+    (not constants) so one cached program serves every value of a shape."""
     return functools.partial(
         jax.jit(trainer.init), hparams=trainer.config.hyperparams, env_params=trainer.env_params
     )
 
 
 def compiled_run(trainer: Trainer, state: TrainState, iterations: int | None = None) -> Any:
-    """``run(state, iterations)`` (default ``train.chunk_iterations``) compiled once per
-    program, chunk size and process (the hyperparameters are in the state:
-    :meth:`TrainConfig.program_key`)."""
+    """``run(state, iterations)``, compiled once per program key and chunk size."""
     chunk = trainer.config.chunk_iterations if iterations is None else iterations
 
     def build() -> Any:
@@ -135,11 +116,9 @@ def compiled_run(trainer: Trainer, state: TrainState, iterations: int | None = N
 
 
 def recorded_metrics(state: TrainState | Mapping[str, Any]) -> dict[str, np.ndarray]:
-    """Host copies of the recorded episodes' metrics, in episode order, plus ``episode``.
+    """Host copies of the ended episodes' metrics (``length`` >= 1), plus ``episode``.
 
-    ``state`` is a run's ``TrainState`` or its ``metrics`` dict (one run's: leaves
-    ``(num_episodes,)``). With N parallel environments episodes finish out of
-    order; an episode is recorded once it ended (its ``length`` is then >= 1).
+    ``state``: a run's ``TrainState`` or its ``metrics`` dict (leaves ``(num_episodes,)``).
     """
     source = state if isinstance(state, Mapping) else state.metrics
     metrics = {name: np.asarray(v) for name, v in source.items()}
@@ -156,9 +135,7 @@ def recorded_metrics(state: TrainState | Mapping[str, Any]) -> dict[str, np.ndar
 
 
 def final_train_return(metrics: Mapping[str, Any]) -> float:
-    """Mean return of the last 10 % (at least one) of a run's recorded episodes
-    (:func:`recorded_metrics`; ``metrics``: one run's, leaves ``(num_episodes,)``), not
-    of the ``num_episodes`` slots, which a step budget leaves mostly empty; NaN if none."""
+    """Mean return of the last 10 % (at least one) of a run's recorded episodes; NaN if none."""
     returns = recorded_metrics(metrics)["episode_return"]
     if not len(returns):
         return math.nan
@@ -174,10 +151,7 @@ def _format(value: Any) -> str:
 
 
 def metrics_csv(state: TrainState | Mapping[str, Any]) -> str:
-    """``metrics.csv`` text: ``episode`` then every training metric (SI units).
-
-    ``state``: as :func:`recorded_metrics` takes it.
-    """
+    """``metrics.csv`` text: ``episode`` then every training metric (SI units)."""
     rows = recorded_metrics(state)
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
@@ -217,18 +191,9 @@ def _save(run_dir: Path, config: Config, state: TrainState, wall: float, chunks:
 def train_run(
     config: Config, run_dir: str | Path, *, resume: bool = False, quiet: bool = False
 ) -> RunResult:
-    """Train (or continue training) the run in ``run_dir`` until it finishes or is stopped.
+    """Train (or, with ``resume``, continue) the run in ``run_dir`` until done or stopped.
 
-    Args:
-        config: the resolved configuration (for a resume: the run's own, from
-            :func:`load_run`, with any non-training overrides).
-        run_dir: created if needed; a fresh run refuses a directory that
-            already holds a checkpoint.
-        resume: continue from the directory's checkpoint.
-        quiet: no progress bar.
-    Raises:
-        CheckpointError: a fresh run in a used directory, or a missing,
-            corrupt or incompatible checkpoint on resume.
+    Raises CheckpointError for a fresh run in a used directory or a bad checkpoint on resume.
     """
     run_dir = Path(run_dir)
     trainer = make_train(config.train_config())
@@ -281,8 +246,7 @@ def train_run(
 
 
 def validated(trainer: Trainer, state: TrainState) -> TrainState:
-    """A finished run's ``state`` with its candidates' validation metrics filled in
-    (``train.snapshots`` > 0; :func:`~drqn_jax.learners.make_train`); else unchanged."""
+    """``state`` with its snapshots' validation metrics filled in (``train.snapshots`` > 0)."""
     if not trainer.config.snapshots or not bool(jnp.isnan(state.validation["return"]).any()):
         return state
     validate = cached(
@@ -301,8 +265,7 @@ def _chunks(
     run_dir: Path,
     elapsed: Callable[[], float],
 ) -> tuple[str, TrainState, int]:
-    """:func:`~drqn_jax.experiments.host_loop.run_chunks` for one run: a progress bar, a checkpoint
-    every ``run.checkpoint_every_s``, and a stop at the first non-finite loss."""
+    """``run_chunks`` for one run: progress bar, periodic checkpoints, stop on non-finite loss."""
     total, unit = training_budget(config)
 
     def done(state: TrainState) -> int:
@@ -332,27 +295,21 @@ def _chunks(
 
 
 def training_budget(config: Config) -> tuple[int, str]:
-    """A run's budget for progress bars, ``(total, unit)``: ``train.num_env_steps`` env
-    steps (``"step"``) when set, else ``num_episodes`` episodes (``"ep"``)."""
+    """``(total, unit)`` for progress bars: env steps (``"step"``) if set, else episodes."""
     steps = config["train"]["num_env_steps"]
     return (steps, "step") if steps else (config["train"]["num_episodes"], "ep")
 
 
 def budget_used(state: TrainState, total: int, unit: str, runs: int | None = None) -> int:
-    """How much of its :func:`training_budget` ``(total, unit)`` a run's state has used;
-    of a batched state (a sweep's call), its first ``runs`` runs' together."""
+    """How much of its :func:`training_budget` a state (its first ``runs`` runs) has used."""
     used = np.asarray(state.env_steps if unit == "step" else state.recorded)
     return int(np.minimum(used if runs is None else used[:runs], total).sum())
 
 
 def load_run(run_dir: str | Path, overrides: tuple[str, ...] = ()) -> Config:
-    """The resolved configuration stored in a run directory (a training run's, or a
-    trained agent's: ``agent.npz``), with ``overrides``.
+    """The configuration stored in a run (or agent) directory, with ``overrides``.
 
-    Raises:
-        CheckpointError: not a run directory; its checkpoint is of another format, or
-            its ``config.toml`` does not load in this version (one line naming the
-            version and commit that wrote it, and what to do).
+    Raises CheckpointError: not a run directory, or another format/version wrote it.
     """
     run_dir = Path(run_dir)
     path = run_dir / "config.toml"
@@ -374,11 +331,8 @@ def load_run(run_dir: str | Path, overrides: tuple[str, ...] = ()) -> Config:
 def load_trained_network(
     config: Config, run_dir: str | Path
 ) -> tuple[Network, Any, dict[str, Any]]:
-    """The network, the run's agent parameters (``Trainer.agent_params``: the final
-    online parameters, or the validated choice among snapshots) and the metadata
-    of a run directory's last checkpoint, or of a sweep's trained agent (a
-    directory with ``agent.npz`` and no ``checkpoint.npz``:
-    :func:`drqn_jax.experiments.sweep_outputs.agent_dir`)."""
+    """The network, agent parameters (``Trainer.agent_params``) and checkpoint metadata of a
+    run directory, or of a sweep's trained agent (``agent.npz`` only)."""
     trainer = make_train(config.train_config())
     template = jax.eval_shape(trainer.init, config.keys()[0])
     expected = config.training_identity()
@@ -392,10 +346,8 @@ def load_trained_network(
 
 
 def save_agent(directory: str | Path, config: Config, params: Any, meta: Mapping[str, Any]) -> None:
-    """A trained agent as a directory that ``drqn-jax evaluate`` and ``replay`` read like
-    a run's: the resolved ``config.toml`` and ``agent.npz`` (+ ``.json``): ``params``
-    (``Trainer.agent_params``, no training state) with the config's training identity,
-    which loading checks, and ``meta``."""
+    """Write ``config.toml`` and ``agent.npz`` (agent params, no training state) that
+    ``evaluate`` and ``replay`` read like a run directory."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     atomic_write_text(directory / "config.toml", config.to_toml())
@@ -409,16 +361,10 @@ _TRAINING_COUNTS = ("recorded", "grad_steps", "env_steps", "wall_time_s")
 def export_agent(
     run_dir: str | Path, out: str | Path, command: str, trained: Mapping[str, str] | None = None
 ) -> dict[str, Any]:
-    """Write a finished run's agent to ``out`` (:func:`save_agent`, a few MB) with
-    ``provenance.json``: ``command`` (the one that trained it), the run's episodes, env
-    steps, gradient steps and training wall time, ``trained`` (the ``commit`` and
-    ``device`` that trained it: a sweep run's record has them; by default this checkout's
-    and this machine's, so export a ``drqn-jax train`` run where it trained) and
-    ``machine`` (this one's :func:`~drqn_jax.experiments.machine.machine_info`, the
-    export's). Returns the provenance.
+    """Write a finished run's agent to ``out`` (:func:`save_agent`) with ``provenance.json``
+    (command, counters, wall time, the commit/device that trained it, this machine).
 
-    Raises:
-        CheckpointError: not a run directory, or its training has not finished.
+    Returns the provenance; raises CheckpointError if the run is missing or unfinished.
     """
     from drqn_jax.experiments.machine import device_identity, git_commit, machine_info
 
@@ -435,8 +381,7 @@ def export_agent(
 
 
 def builtin_agent(name: str, config: Config) -> Agent:
-    """``rule-based``, ``planner`` (privileged: it sees the true state and plays the
-    simulator, SPEC §9), ``random`` or ``accelerate`` (the constant agent)."""
+    """``rule-based``, ``planner`` (privileged, SPEC §9), ``random`` or ``accelerate``."""
     from drqn_jax.agents import constant_agent, planner_agent, random_agent
 
     if name == "rule-based":
@@ -453,10 +398,8 @@ def builtin_agent(name: str, config: Config) -> Agent:
 def evaluate_agents(
     config: Config, agents: list[Agent], *, quiet: bool = True
 ) -> list[dict[str, Any]]:
-    """SPEC §8 metrics of each agent on ``evaluate.episodes`` episodes of the
-    evaluation key (the same episodes for every agent), and its ``teacher``: how
-    ``config``'s training taught a network agent (:func:`teacher_label`), or
-    :data:`NOT_LEARNED` for a built-in one. Unless ``quiet``, a progress bar per agent."""
+    """SPEC §8 metrics of each agent on the same evaluation episodes, with its ``teacher``
+    (:func:`teacher_label`, or :data:`NOT_LEARNED` for a built-in agent)."""
     env, env_params = config.make_env()
     _, eval_key = config.keys()
     batch = config["evaluate"]["batch_size"] or None

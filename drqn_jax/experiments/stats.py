@@ -1,8 +1,5 @@
-"""Statistics across seeds: Student-t interval of the mean and interquartile mean.
-
-The paper reports single runs; a sweep (and a study's tables) pools several
-seeds per setting. The IQM (the 25 %-trimmed mean) follows Agarwal et al.,
-"Deep RL at the edge of the statistical precipice" (NeurIPS 2021).
+"""Statistics across seeds: Student-t interval of the mean and the interquartile mean
+(Agarwal et al., NeurIPS 2021).
 """
 
 from __future__ import annotations

@@ -1,38 +1,11 @@
-"""A study: configs × seeds, each evaluated greedily, beside the rule-based agent.
-
-The paper compared one DRQN with the rule-based agent on 10 episodes each
-(Table III) and plotted one training run ("Training performance", §V-F).
-A study trains every config for several seeds and evaluates every agent on
-the same episodes (the evaluation key of the first seed), so that the rows
-differ only by the agent::
+"""A study: configs × seeds, each evaluated greedily on the same episodes, beside the
+rule-based agent and its frontier (paper Table III, §V-F; SPEC §9)::
 
     drqn-jax study --configs paper,default,dqn --seeds 5 --episodes 1000 --out studies/table3
 
-Each config is a sweep over ``run.seed`` (:mod:`drqn_jax.experiments.sweep`) in
-``OUT/<config>/``: one program per config, run by
-:func:`~drqn_jax.experiments.sweep_runner.run_sweep` with its checkpoints, so an
-interrupted study continues where it stopped when the same command runs again.
-The rule-based agent is evaluated once per distinct ``[env]`` section on the
-same episodes, and so is its family's frontier (SPEC §9,
-:mod:`drqn_jax.experiments.frontier`; the privileged planner's too, in the first
-config's world). Then:
-
-* ``OUT/study.md``: the paper's rows beside ours (:mod:`drqn_jax.experiments.rows`,
-  :func:`~drqn_jax.experiments.report.study_table`) — collision-free % with a 95 %
-  interval (across seeds: Student t; a single policy: Wilson over its
-  episodes), the margin to the rule-based frontier at the agent's own speed,
-  average speed, distance (all and collision-free), goal %, collisions per km, and
-  under them the sentences of :mod:`drqn_jax.experiments.verdicts` (each row against
-  the frontier, the paper's claim, Table III at scale's goal, arms paired by seed);
-* ``OUT/study.json``: the rows, every run's evaluation and the frontiers;
-* ``OUT/safety_speed.png``: collision-free rate against average speed, the
-  frontiers and every agent (:func:`~drqn_jax.experiments.figures.plot_safety_speed`);
-* with ``--eval-envs``: every config's trained agents
-  (``OUT/<config>/agents/run-NNNN``) evaluated among other envs' pedestrians
-  too, on the same episodes, one row per env (``<config> on <env id>``) beside
-  that env's rule-based agent (cached in ``OUT/<config>/cross/<env id>/``);
-* ``OUT/curves.png`` and ``OUT/curves.rrd``: average reward and steps per episode
-  against env steps, mean and min–max over seeds, as the paper's figure.
+Each config is a resumable sweep over ``run.seed`` in ``OUT/<config>/``. Writes
+``OUT/study.md`` (rows with 95 % intervals, frontier margins, verdicts), ``study.json``,
+``safety_speed.png`` and ``curves.png``/``.rrd``; ``--eval-envs`` adds cross-env rows.
 """
 
 from __future__ import annotations
@@ -67,9 +40,7 @@ __all__ = ["Arm", "StudyOutcome", "plan_study", "run_study"]
 
 @dataclasses.dataclass(frozen=True)
 class Arm:
-    """One row of the study: a config trained for every seed (a sweep over ``run.seed``),
-    and one more row per env of ``cross_envs``, where its trained agents are evaluated
-    as well (among other pedestrians, on the same episodes)."""
+    """One row: a config trained for every seed, plus one row per env of ``cross_envs``."""
 
     name: str
     sweep: Sweep
@@ -81,8 +52,7 @@ class Arm:
         return self.sweep.points[0].config
 
     def cross_config(self, env_id: str) -> Config:
-        """:attr:`config` with ``env.id = env_id`` (its preset follows): the evaluation
-        among ``env_id``'s pedestrians; the agent stays the one trained with :attr:`config`."""
+        """:attr:`config` with ``env.id = env_id``: evaluation among its pedestrians."""
         return load_config(self.config.values, [f"env.id={env_id}"])
 
 
@@ -95,17 +65,8 @@ def plan_study(
 ) -> list[Arm]:
     """Validate the study before anything compiles: one :class:`Arm` per config.
 
-    Args:
-        configs: config names in ``configs/`` or TOML paths (row names: the file stem).
-        seeds: seeds ``0 … seeds − 1`` per config.
-        episodes: greedy evaluation episodes per run (the same for every agent).
-        overrides: ``section.field=value`` applied to every config.
-        eval_envs: env ids every config's agents are evaluated on as well as their
-            own (a config's own id among them adds nothing): trained on one kind of
-            pedestrians, tested on another.
-    Raises:
-        ConfigError: a bad count, a duplicate name, an unknown env id, or a config
-            field at fault.
+    ``configs``: names or TOML paths; ``seeds``: 0 … seeds − 1; ``eval_envs``: env ids the
+    agents are also evaluated on. Raises ConfigError.
     """
     unknown = [e for e in eval_envs if e not in registered_envs()]
     if unknown:
@@ -139,9 +100,7 @@ _TRAINING_FACTS = ("env_steps", "trained_on")
 def _training_facts(
     runs: Sequence[Mapping[str, Any]], timings: Mapping[int, float | None]
 ) -> dict[int, dict[str, Any]]:
-    """By run index: how each run trained (env steps, device: from its record; its wall
-    time: kept apart from the records, :func:`~drqn_jax.experiments.sweep_outputs.run_timings`),
-    for its rows in every world it is evaluated in."""
+    """By run index: env steps, device and wall time of its training."""
     return {
         r["index"]: {
             **{k: r[k] for k in _TRAINING_FACTS if k in r},
@@ -156,15 +115,9 @@ def _training_facts(
 
 @dataclasses.dataclass
 class StudyOutcome:
-    """``finished`` (``rows``: the table; ``runs``: config → its runs' results;
-    ``comparisons``: each trained row against its world's rule-based frontier;
-    ``frontiers``: each world's :func:`~drqn_jax.experiments.frontier.world_frontier`
-    record, by :func:`~drqn_jax.experiments.baselines.frontier_key`) or ``interrupted``
-    (checkpoints saved; the same command continues). ``continued``: some runs were
-    trained, wholly or in part, by an earlier invocation (or not at all here: a report
-    only), so this one's wall time does not cover them. ``finished_runs``: on
-    interruption, each arm's finished runs as a runs store keeps them
-    (:func:`~drqn_jax.experiments.portable.portable_runs`)."""
+    """``finished`` (rows, runs, comparisons to frontiers, frontiers) or ``interrupted``
+    (``finished_runs``: each arm's, for a runs store). ``continued``: an earlier invocation
+    trained some runs, so this wall time does not cover them."""
 
     status: str
     rows: list[dict[str, Any]] = dataclasses.field(default_factory=list)
@@ -187,19 +140,11 @@ def run_study(
     carried: Mapping[str, Sequence[Mapping[str, Any]]] | None = None,
     keep: Callable[[dict[str, list[dict[str, Any]]]], None] | None = None,
 ) -> StudyOutcome:
-    """Train and evaluate every arm (continuing a study already in ``out``), evaluate
-    the rule-based agent, and write the table and the curves (module docstring).
+    """Train and evaluate every arm (continuing ``out``), the rule-based agent, and write
+    the table and curves.
 
-    With ``train=False`` nothing trains: the report covers the runs that have
-    finished so far (a config with none is left out), e.g. of a long study
-    interrupted to go on later. ``carried``: arm name → finished runs an interrupted
-    study kept in its runs store, written back into an arm's directory that holds
-    no sweep yet (:func:`~drqn_jax.experiments.portable.restore_runs`), so that only
-    the other runs train; where the directory holds the same runs otherwise, its own
-    are kept and a line says which. ``keep``: called with every arm's finished runs (as
-    ``finished_runs`` of :class:`StudyOutcome`) each time one more run has finished, so
-    that a study whose machine is shut down without warning loses at most the run in
-    progress.
+    ``train=False``: report the finished runs only. ``carried``: arm → runs restored from a
+    runs store. ``keep``: called with all finished runs after each run finishes.
     """
     out = Path(out)
     trained_runs = _train_arms(arms, out, quiet, train, carried, keep)
@@ -227,9 +172,7 @@ def _train_arms(
     carried: Mapping[str, Sequence[Mapping[str, Any]]] | None,
     keep: Callable[[dict[str, list[dict[str, Any]]]], None] | None,
 ) -> tuple[dict[str, list[dict[str, Any]]], bool] | StudyOutcome:
-    """Each arm's finished runs (training what is left when ``train``) and whether a
-    sweep continued an earlier invocation's; an interrupted sweep's
-    :class:`StudyOutcome` instead (:func:`run_study`'s arguments)."""
+    """Each arm's finished runs and whether any continued; or an interrupted outcome."""
     from drqn_jax.experiments.portable import differing_runs, portable_runs, restore_runs
     from drqn_jax.experiments.sweep_outputs import finished_results
     from drqn_jax.experiments.sweep_runner import run_sweep
@@ -279,9 +222,8 @@ def _study_rows(
     out: Path,
     quiet: bool,
 ) -> tuple[list[dict[str, Any]], list[tuple[dict[str, Any], Config]], dict, dict]:
-    """The table's rows (the paper's, each finished arm's and its cross-env rows, each
-    world's rule-based agent, all with their margins), the trained rows with the
-    config each was evaluated on, the cross-env evaluations and the frontiers."""
+    """The rows (paper, arms, cross-env, rule-based, with margins), the trained rows' configs,
+    the cross-env evaluations and the frontiers."""
     from drqn_jax.experiments.sweep_outputs import run_timings
 
     cross_configs = {a.name: {e: a.cross_config(e) for e in a.cross_envs} for a in done}
@@ -333,8 +275,7 @@ def _write_figures(
     smooth: int,
     png: bool,
 ) -> None:
-    """``OUT/curves.rrd`` and, with ``png``, ``OUT/curves.png`` and
-    ``OUT/safety_speed.png`` (module docstring)."""
+    """``OUT/curves.rrd`` and, with ``png``, ``curves.png`` and ``safety_speed.png``."""
     from drqn_jax.experiments.sweep_outputs import metrics_path
     from drqn_jax.interop.training_recording import record_study_curves
 

@@ -8,21 +8,10 @@ A sweep file (TOML) names a base config and axes::
     "train.num_episodes" = 12
     [axes]                              # "section.field" = list, or a range table
     "run.seed" = { start = 0, stop = 4 }                    # 0, 1, 2, 3
-    "train.learning_rate" = [1e-3, 3e-4]
     "train.gamma" = { start = 0.9, stop = 0.99, num = 3 }   # linspace, ends included
 
-Every point is a full :class:`~drqn_jax.config.Config`, validated before
-anything compiles. Points whose shapes agree (static env parameters, network,
-training sizes) form one program: ``jit(vmap(train))`` over their PRNG keys,
-``Hyperparams`` and ``EnvParams``; an axis that changes shapes (network
-width, pedestrian count, window …) splits the sweep into several programs,
-listed by :meth:`Sweep.describe` before any runs. How they run (memory
-plan, sharding over devices, checkpoints, several processes) is
-:mod:`drqn_jax.experiments.sweep_runner`.
-
-Evaluation: every run is evaluated greedily on the same episodes — the
-evaluation key of the first point — so runs differ only by their training.
-:func:`summarize_sweep` pools the seeds of each setting.
+Points whose shapes agree form one program (``jit(vmap(train))``); every run is evaluated on
+the first point's evaluation episodes. Running: :mod:`drqn_jax.experiments.sweep_runner`.
 """
 
 from __future__ import annotations
@@ -63,11 +52,8 @@ __all__ = [
 ]
 
 MODES = ("product", "zip")
-#: How a device trains its runs: ``vmap`` batches them (one program step
-#: advances all; what accelerators want), ``map`` runs them one after another
-#: inside the same program (``lax.map``; on CPUs, where one run already keeps
-#: the cores busy and batched products are slower); ``auto``: ``map`` on CPU
-#: devices, ``vmap`` elsewhere (:mod:`drqn_jax.experiments.sweep_runner`).
+#: How a device trains its runs: ``vmap`` (batched, for accelerators), ``map`` (``lax.map``,
+#: one after another, for CPUs), ``auto``: ``map`` on CPU, ``vmap`` elsewhere.
 STRATEGIES = ("auto", "vmap", "map")
 
 
@@ -178,14 +164,7 @@ def _override(name: str, value: Any) -> str:
 
 
 def load_sweep(path: str | Path, overrides: Sequence[str] = ()) -> Sweep:
-    """Read a sweep file and validate every point's config (nothing compiles).
-
-    Args:
-        path: the sweep TOML.
-        overrides: ``section.field=value`` applied to every point after ``[set]``.
-    Raises:
-        ConfigError: naming the sweep key, axis or point field at fault.
-    """
+    """Read a sweep TOML and validate every point (``overrides`` after ``[set]``); ConfigError."""
     path = Path(path)
     try:
         raw = tomllib.loads(path.read_text())
@@ -221,16 +200,8 @@ def build_sweep(
     strategy: str = "auto",
     base_source: str | Path | None = None,
 ) -> Sweep:
-    """A sweep from its parts, as a sweep file names them (nothing compiles).
-
-    Args:
-        base: a config name in ``configs/`` or a path.
-        axes: ``{"section.field": list | range table}``.
-        overrides: ``section.field=value`` shared by every point.
-        base_source: where to read ``base`` from, when not ``base`` itself.
-    Raises:
-        ConfigError: naming the key, axis or point field at fault.
-    """
+    """A sweep from a sweep file's parts (``axes``: ``{"section.field": list | range}``);
+    raises ConfigError naming the key at fault."""
     if strategy not in STRATEGIES:
         raise ConfigError(
             f"strategy = {strategy!r}: must be one of {', '.join(map(repr, STRATEGIES))}"
@@ -274,9 +245,7 @@ TABLE_METRICS = (
 
 
 def budget_warnings(points: Sequence[SweepPoint], results: Sequence[dict[str, Any]]) -> list[str]:
-    """One line per run of a step budget (``train.num_env_steps``) that its episode cap
-    ended first: it trained on fewer env steps than its config says (a diverged run
-    says so elsewhere)."""
+    """One line per step-budget run that its episode cap ended first."""
     lines = []
     for point, result in zip(points, results, strict=True):
         train = point.config["train"]
@@ -291,9 +260,8 @@ def budget_warnings(points: Sequence[SweepPoint], results: Sequence[dict[str, An
 
 
 def summarize_sweep(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per setting (axis values but the seed): n runs, how many diverged (a
-    non-finite loss or parameter), and per metric the mean, std, 95 % t-interval
-    and interquartile mean across the seeds."""
+    """Per setting (all axes but the seed): runs, diverged, and per metric mean, std, 95 %
+    t-interval and IQM across seeds."""
     settings: dict[tuple, list[dict[str, Any]]] = {}
     for r in results:
         key = tuple((k, _hashable(v)) for k, v in r["values"].items() if k != "run.seed")
@@ -335,8 +303,7 @@ def sweep_table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 def sweep_csv(rows: Sequence[dict[str, Any]]) -> str:
-    """CSV of :func:`summarize_sweep`: setting columns, runs, diverged, then per metric
-    ``<metric>_mean``, ``_std``, ``_ci_low``, ``_ci_high``, ``_iqm``."""
+    """CSV of :func:`summarize_sweep`: per metric ``_mean``, ``_std``, ``_ci_*``, ``_iqm``."""
     names = list(rows[0]["setting"]) if rows else []
     header = [*names, "runs", "diverged"]
     for metric in TABLE_METRICS:

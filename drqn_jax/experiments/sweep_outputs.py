@@ -1,21 +1,11 @@
-"""What a sweep writes under its output directory, and how it is read back.
+"""What a sweep writes under its output directory, and how it is read back::
 
-:mod:`drqn_jax.experiments.sweep_runner` trains the runs; this module names the
-files, writes them and reads them back (the study, ``drqn-jax evaluate`` of a
-sweep's agent, the portable records of :mod:`drqn_jax.experiments.portable`).
-
-Output directory::
-
-    OUT/plan.json                      the points (values, training hash) and processes
-    OUT/calls/runs-<first>-<last>/     checkpoint.npz/.json while a call runs,
-                                       runs.json once it ended
-    OUT/metrics/run-<index>.csv        each run's training metrics, one row per episode
-                                       (written by the process that trained it)
-    OUT/agents/run-<index>/            each run's trained agent: config.toml and agent.npz
-                                       (its parameters, no training state), read by
-                                       ``drqn-jax evaluate`` and ``replay`` like a run directory
-    OUT/results.md, results.csv        per setting: mean, std, 95 % interval, IQM
-    OUT/runs.json                      every run's evaluation and training summary
+OUT/plan.json                      the points (values, training hash) and processes
+OUT/calls/runs-<first>-<last>/     checkpoint.npz/.json while a call runs, then runs.json
+OUT/metrics/run-<index>.csv        each run's training metrics, one row per episode
+OUT/agents/run-<index>/            each run's agent (config.toml, agent.npz)
+OUT/results.md, results.csv        per setting: mean, std, 95 % interval, IQM
+OUT/runs.json                      every run's evaluation and training summary
 """
 
 from __future__ import annotations
@@ -67,8 +57,8 @@ def _plan_path(out: Path, dist: Distributed) -> Path:
 
 
 def _check_plan(path: Path, record: dict[str, Any]) -> bool:
-    """Check that ``path`` holds this sweep, or its first points (a study given more
-    seeds); return whether the plan grows. Every saved point must keep its training hash."""
+    """Check ``path`` holds this sweep or its first points (same training hashes); return
+    whether the plan grows."""
     out = path.parent
     if not path.is_file():
         raise CheckpointError(f"{out}: no sweep to resume (no {path.name})")
@@ -90,8 +80,7 @@ def _check_plan(path: Path, record: dict[str, Any]) -> bool:
 
 
 def open_plan(out: Path, sweep: Sweep, dist: Distributed, resume: bool) -> None:
-    """Write ``OUT/plan.json`` for a new sweep (refused where ``out`` holds one), or
-    check it for a resumed one (:func:`_check_plan`), adding the points it grew by."""
+    """Write ``OUT/plan.json`` for a new sweep, or check and grow it for a resumed one."""
     record, plan = plan_record(sweep, dist), _plan_path(out, dist)
     if resume:
         write = _check_plan(plan, record)  # grown (more seeds): the new points are added
@@ -112,8 +101,7 @@ def metrics_path(out: str | Path, index: int) -> Path:
 
 
 def write_training_metrics(out: Path, call: Call, state: TrainState) -> None:
-    """Each run's per-episode training metrics as a ``metrics.csv`` (as ``drqn-jax
-    train`` writes it) at :func:`metrics_path`."""
+    """Each run's ``metrics.csv`` (as ``drqn-jax train`` writes it) at :func:`metrics_path`."""
     metrics = jax.tree.map(np.asarray, state.metrics)
     for i, point in enumerate(call.points):
         path = metrics_path(out, point.index)
@@ -122,17 +110,12 @@ def write_training_metrics(out: Path, call: Call, state: TrainState) -> None:
 
 
 def agent_dir(out: str | Path, index: int) -> Path:
-    """``OUT/agents/run-NNNN``: the sweep's run ``index`` as a directory that ``drqn-jax
-    evaluate`` and ``replay`` read like a trained run's (its ``config.toml`` and
-    ``agent.npz``)."""
+    """``OUT/agents/run-NNNN``: run ``index``'s agent, read like a run directory."""
     return Path(out) / "agents" / f"run-{index:04d}"
 
 
 def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
-    """Each run's trained agent at :func:`agent_dir`
-    (:func:`~drqn_jax.experiments.runner.save_agent`): ``params`` are the final or the
-    validated parameters, as evaluated
-    (:func:`~drqn_jax.experiments.sweep_runner.real_agent_params`)."""
+    """Each run's trained agent (the evaluated ``params``) at :func:`agent_dir`."""
     counts = jax.tree.map(np.asarray, (state.recorded, state.grad_steps, state.env_steps))
     for i, point in enumerate(call.points):
         recorded, grad_steps, env_steps = (int(c[i]) for c in counts)
@@ -147,8 +130,7 @@ def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
         save_agent(agent_dir(out, point.index), point.config, run_params, meta)
 
 
-#: A finished call's training wall time, beside its ``runs.json`` (which holds results
-#: only: the same bits on every device count, resume or chunking).
+#: A finished call's training wall time, kept apart from its deterministic ``runs.json``.
 TIMING_JSON = "timing.json"
 
 
@@ -159,8 +141,7 @@ def write_timing(call_dir: Path, call: Call, wall_time_s: float) -> None:
 
 
 def run_timings(directory: Path) -> dict[int, float]:
-    """Each run's training wall time (s): its share of its call's (the call's runs train
-    together), by index; absent where no call of it has one."""
+    """By run index, its share (s) of its call's training wall time, where recorded."""
     timings: dict[int, float] = {}
     for path in sorted((directory / "calls").glob(f"*/{TIMING_JSON}")):
         record = json.loads(path.read_text())
@@ -178,9 +159,8 @@ def finished_results(directory: Path) -> list[dict[str, Any]]:
 
 
 def run_record(directory: str | Path) -> dict[str, Any] | None:
-    """The ``runs.json`` record of the sweep run whose :func:`agent_dir` is ``directory``
-    (its ``commit`` and ``trained_on`` say where it trained); None for a directory that
-    is not a finished sweep run's agent (a ``drqn-jax train`` run)."""
+    """The ``runs.json`` record of the sweep run whose :func:`agent_dir` is ``directory``;
+    None if it is not one (e.g. a ``drqn-jax train`` run)."""
     path = Path(directory)
     index = path.name.removeprefix("run-")
     if path.parent.name != "agents" or not index.isdigit():

@@ -1,12 +1,6 @@
-"""A sweep's plan (SPEC §7's runs, grouped): which points train together in which
-compiled **call**, on which devices and processes.
-
-The points of a :class:`~drqn_jax.experiments.sweep.Sweep` are grouped into programs by
-shape; each process (:class:`Distributed`, set up by :func:`init_distributed`)
-takes a contiguous slice of every program, and the memory plan
-(:mod:`drqn_jax.experiments.memory`) cuts that slice into calls of at most as many
-runs as fit, padded to a multiple of the device count (:func:`call_size`).
-:mod:`drqn_jax.experiments.sweep_runner` runs the calls.
+"""A sweep's plan (SPEC §7): which points train together in which compiled **call**, on
+which devices and processes. Points are grouped into programs by shape; each process takes
+a contiguous slice of every program, cut by the memory plan into padded calls.
 """
 
 from __future__ import annotations
@@ -58,11 +52,8 @@ class Distributed:
 def init_distributed(
     coordinator: str | None, num_processes: int | None, process_id: int | None
 ) -> Distributed:
-    """``jax.distributed.initialize`` from the flags, else ``JAX_COORDINATOR_ADDRESS``,
-    ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``; alone (no call) when none is given.
-
-    Must run before any JAX computation.
-    """
+    """``jax.distributed.initialize`` from the flags or ``JAX_*`` env vars (none: one process).
+    Must run before any JAX computation."""
     env = os.environ
     coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS")
     given = [coordinator, num_processes, process_id]
@@ -139,18 +130,10 @@ def plan_calls(
     memory_source: str = "",
     strategy: str | None = None,
 ) -> list[Call]:
-    """This process's calls, in order: its slice of every program, cut to fit in memory.
+    """This process's calls, in order: its slice of every program, cut to fit ``budget``.
 
-    With ``map`` a call holds one run per device: its runs would take as long
-    together as one after another, and a call's results are saved when it
-    ends, so runs finish (and survive an interruption) one by one.
-
-    Args:
-        devices: local device count (each call's size is a multiple of it).
-        budget: bytes available to one call (default: :func:`available_memory`).
-        strategy: one of :data:`~drqn_jax.experiments.sweep.STRATEGIES` (default: the sweep file's).
-    Raises:
-        MemoryPlanError: one run per device does not fit (before anything compiles).
+    With ``map`` a call holds one run per device, so runs finish (and are saved) one by one.
+    Raises MemoryPlanError if one run per device does not fit.
     """
     local = jax.local_devices()[:devices]
     strategy = resolve_strategy(sweep.strategy if strategy is None else strategy, local)
@@ -175,14 +158,9 @@ def plan_calls(
 
 
 def call_size(runs: int, devices: int, strategy: str = "vmap", most_per_device: int = 2) -> int:
-    """Runs in a call of ``runs`` runs, padding included: a multiple of ``devices``;
-    for ``vmap``, at least 2 runs per device where memory allows.
-
-    A batch of one run per device is avoided because XLA then compiles
-    unbatched matrix products, which round differently from batched ones: the
-    run would drift by an ulp from the same run among others (or alone).
-    ``map`` runs every run unbatched, as alone, and skips the padding.
-    """
+    """A call's size with padding: a multiple of ``devices``; for ``vmap`` at least 2 runs
+    per device where memory allows (a batch of 1 compiles unbatched products that round
+    differently, so a run would drift by an ulp)."""
     per_device = math.ceil(runs / devices)
     if strategy == "vmap":
         per_device = max(per_device, min(2, most_per_device))
@@ -190,8 +168,7 @@ def call_size(runs: int, devices: int, strategy: str = "vmap", most_per_device: 
 
 
 def describe_plan(calls: Sequence[Call], devices: int, dist: Distributed) -> str:
-    """One line per call (consecutive alike calls of a program share one): its
-    runs, padding, strategy, memory in all and per run."""
+    """One line per (run of alike) calls: runs, padding, strategy, memory."""
     where = f"process {dist.process} of {dist.processes}, " if dist.processes > 1 else ""
     lines = [f"memory plan ({where}{devices} device(s)):"]
     groups: list[list[Call]] = []

@@ -1,28 +1,10 @@
 """Running a sweep: compiled calls, checkpoints, progress, several processes.
 
-The plan (:mod:`drqn_jax.experiments.sweep_plan`) groups the points of a
-:class:`~drqn_jax.experiments.sweep.Sweep` into programs by shape, gives each
-process a contiguous slice of every program, and cuts that slice into **calls**: runs
-trained together by one compiled ``jit(vmap(run))``, the run axis sharded
-over the process's devices (a ``NamedSharding`` on a one-axis ``Mesh``),
-padded to a multiple of the device count with copies of the last run.
-
-A call runs chunk by chunk (``train.chunk_iterations`` iterations of every
-run) from the host, like ``drqn-jax train``: a progress bar counts the
-episodes of all runs, a checkpoint of the whole batched ``TrainState`` is
-written every ``run.checkpoint_every_s`` and on SIGINT/SIGTERM, and a call
-that ends writes its runs' results. ``resume=True`` skips the calls that
-ended and continues the others from their checkpoints. A run's results do not
-depend on the call it was in, the device count or the process count: each is
-bit-identical to the same run alone (tests/experiments/test_sweep.py).
-
-What a call writes under the sweep's output directory, and the layout:
-:mod:`drqn_jax.experiments.sweep_outputs`.
-
-Several processes (machines): :func:`init_distributed` calls
-``jax.distributed.initialize``; every process trains its slice and publishes
-its runs' results in the coordination service's key-value store; process 0
-gathers them and writes the tables. No file system needs to be shared.
+A **call** trains several runs of one program together (``jit(vmap(run))``, the run axis
+sharded over the devices, padded to their count) chunk by chunk, checkpointing like
+``drqn-jax train``. Each run is bit-identical to the same run alone. With several processes
+each trains its slice and process 0 gathers results via ``jax.distributed``'s key-value store.
+Output layout: :mod:`drqn_jax.experiments.sweep_outputs`.
 """
 
 from __future__ import annotations
@@ -107,10 +89,8 @@ def _sharding(devices: Sequence[Any]) -> NamedSharding:
 
 
 def call_inputs(call: Call, devices: Sequence[Any]) -> tuple[tuple[Any, Any, Any], jax.Array]:
-    """What a call's programs (:func:`call_programs`) take: ``init``'s arguments
-    ``(keys, hparams, env_params)``, the runs' stacked and padded to ``call.size``,
-    and ``run``'s ``real`` flags ``(size,)`` (False for padding), sharded over
-    ``devices``."""
+    """``(keys, hparams, env_params)`` stacked and padded to ``call.size``, and ``real``
+    flags ``(size,)`` (False for padding), sharded over ``devices``."""
     points = call.points
     keys = jnp.stack([p.config.keys()[0] for p in points])
     hparams = _stack([p.config.hyperparams() for p in points])
@@ -126,10 +106,8 @@ def _over_runs(
     strategy: str,
     **jit_options: Any,
 ) -> Callable:
-    """``program(states, real)``: ``fn`` on every run of a call, each device on
-    its shard of the run axis (``shard_map``), batched (``vmap``) or one after
-    another (``map``, where a run that ``skipped(state, is_real)`` says to skip
-    costs nothing: ``lax.cond`` with the identity or a placeholder result)."""
+    """``program(states, real)``: ``fn`` per run, ``shard_map`` over devices, then ``vmap``
+    or ``map`` (where ``skipped`` runs cost nothing, via ``lax.cond``)."""
     runs = PartitionSpec("runs")
 
     def batched(states: TrainState, real: jax.Array) -> Any:
@@ -153,16 +131,11 @@ def _over_runs(
 def call_programs(
     trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
 ) -> tuple[Callable, Callable]:
-    """``(init, run)`` of a call, jitted once per process and shape: calls whose
-    runs differ in hyperparameter values only share them (``init`` takes the
-    hyperparameters as arguments and ``run`` finds them in the state).
+    """``(init, run)`` of a call, jitted once per process and shape (hyperparameters are
+    arguments/state, so calls differing only in values share them).
 
-    ``init(keys, hparams, env_params)`` builds the ``size`` runs' batched
-    state (sharded over ``devices``); ``run(state, real)`` advances every run
-    whose ``real`` (size,) flag is set and that has not finished by one chunk
-    (``train.chunk_iterations`` iterations). Each device trains its shard of
-    the runs (``shard_map``): batched (``vmap``) or one after another
-    (``map``, where padding and finished runs cost nothing).
+    ``init(keys, hparams, env_params)`` -> the batched state; ``run(state, real)`` advances
+    each real, unfinished run by one chunk.
     """
     chunk = trainer.config.chunk_iterations
 
@@ -185,10 +158,8 @@ def call_programs(
 def validation_program(
     trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
 ) -> Callable:
-    """``validate(states, real) -> {metric: (size, K + 1)}``: the validation
-    metrics of a call's finished runs (``train.snapshots`` = K > 0), sharded and
-    batched as its ``run``; padding rows are skipped (NaN) when the runs go one
-    after another."""
+    """``validate(states, real) -> {metric: (size, K + 1)}`` for ``train.snapshots`` = K > 0,
+    sharded and batched as ``run``."""
 
     def build() -> Callable:
         nan = unvalidated(trainer.config.snapshots, trainer.task.validation_metrics)
@@ -226,12 +197,10 @@ def train_call(
     stop: StopRequest | None = None,
     on_chunk: Callable[[TrainState], None] | None = None,
 ) -> CallOutcome:
-    """Train the call's runs to the end, chunk by chunk; sharded over ``devices``.
+    """Train the call's runs to the end, chunk by chunk, sharded over ``devices``.
 
-    With ``directory``: continue from its checkpoint if there is one, save one
-    every ``checkpoint_every_s`` and when ``stop`` is set (then the outcome is
-    ``interrupted``). The checkpoint keeps the wall time so far, which the outcome's
-    ``wall_time_s`` continues.
+    With ``directory``: resume from its checkpoint, save every ``checkpoint_every_s`` and
+    on ``stop`` (outcome ``interrupted``).
     """
     start = time.perf_counter()
     trainer = make_train(call.points[0].config.train_config())
@@ -277,9 +246,7 @@ def _save_call(directory: Path | None, call: Call, state: TrainState, wall: floa
 def evaluate_runs(
     network: Any, params: Any, points: Sequence[SweepPoint], eval_key: jax.Array
 ) -> list[dict[str, Any]]:
-    """SPEC §8 metrics of each run's greedy DRQN on the episodes of ``eval_key``
-    (``evaluate.episodes`` of them, in batches of ``evaluate.batch_size``), as
-    ``drqn-jax evaluate`` computes them."""
+    """SPEC §8 metrics of each run's greedy DRQN on ``eval_key``'s episodes, as ``evaluate``."""
     out = []
     for i, point in enumerate(points):
         env, env_params = point.config.make_env()
@@ -293,8 +260,7 @@ def evaluate_runs(
 
 
 def real_agent_params(call: Call, outcome: CallOutcome) -> Any:
-    """The agent parameters of the call's runs, padding dropped: NumPy leaves of
-    leading size ``len(call.points)``."""
+    """The call's agent parameters without padding: NumPy leaves ``(len(call.points), ...)``."""
     n = len(call.points)
     return jax.tree.map(lambda x: np.asarray(x)[:n], outcome.agent_params())
 
@@ -302,11 +268,8 @@ def real_agent_params(call: Call, outcome: CallOutcome) -> Any:
 def call_results(
     call: Call, outcome: CallOutcome, eval_key: jax.Array, params: Any, commit: str
 ) -> list[dict[str, Any]]:
-    """Per run: its index and axis values, the evaluation of its agent (``params``:
-    :func:`real_agent_params`), the final training return, the env steps, the device it
-    trained on (runs of one study may come from several machines), ``commit`` (the code
-    this process runs, read when the sweep started) and whether it diverged. Nothing that
-    differs between two trainings of the same runs: the wall time is apart."""
+    """Per run: index, axis values, evaluation, final return, env steps, device, commit and
+    divergence; nothing that differs between two trainings (wall time is kept apart)."""
     n = len(call.points)
     metrics = jax.tree.map(np.asarray, outcome.state.metrics)
     returns = [final_train_return({k: v[i] for k, v in metrics.items()}) for i in range(n)]
@@ -341,9 +304,8 @@ def call_results(
 
 @dataclasses.dataclass
 class SweepOutcome:
-    """``finished`` (``results``: every run, in point order, on process 0; this
-    process's runs elsewhere) or ``interrupted``. ``continued``: this process's calls
-    that an earlier invocation had begun (a checkpoint) or finished (their results)."""
+    """``finished`` (``results``: all runs on process 0) or ``interrupted``; ``continued``:
+    an earlier invocation had begun or finished some of this process's calls."""
 
     status: str
     results: list[dict[str, Any]]
@@ -364,15 +326,8 @@ def run_sweep(
 ) -> SweepOutcome:
     """Train and evaluate this process's runs call by call; gather on process 0.
 
-    Args:
-        calls: the plan (default: :func:`plan_calls` on all local devices).
-        resume: continue a sweep in ``out``: the same points, or more after them (e.g.
-            more seeds), and the same process count. A call whose runs ended is kept
-            when the plan has the same call (always with one run per call, as on CPU);
-            a grown batched plan may regroup runs, which then train again.
-        keep_agents: write each run's trained agent (:func:`write_agents`).
-        on_call_finished: called each time one more call's results are on disk (found
-            on resume or trained here), e.g. to keep them beyond ``out``.
+    ``resume`` keeps ended calls the plan still has (points may grow, e.g. more seeds);
+    ``on_call_finished`` is called as each call's results reach disk.
     """
     out = Path(out)
     devices, commit = jax.local_devices(), git_commit()  # HEAD may move while runs train
@@ -433,10 +388,8 @@ def _finish_call(
     commit: str,
     keep_agents: bool,
 ) -> list[dict[str, Any]]:
-    """A trained call's runs evaluated (:func:`call_results`) and written: their
-    training metrics, the call's timing, their agents (``keep_agents``) and
-    ``calls/<call>/runs.json``, which replaces the call's checkpoint. Returns the runs'
-    results."""
+    """Evaluate a trained call and write its metrics, timing, agents and ``runs.json``
+    (replacing its checkpoint); returns the runs' results."""
     directory = out / "calls" / call.name
     params = real_agent_params(call, outcome)
     results = call_results(call, outcome, eval_key, params, commit)
@@ -454,9 +407,8 @@ def _finish_call(
 
 
 def sweep_budgets(calls: Sequence[Call]) -> tuple[list[int], str]:
-    """Each call's budget for the sweep's progress bar (its runs' together) and the unit:
-    env steps where every call's runs have a step budget (``train.num_env_steps``: the
-    bar then moves as evenly as training does), else episodes."""
+    """Each call's progress-bar budget and the unit: env steps if every call has a step
+    budget, else episodes."""
     budgets = [training_budget(call.points[0].config) for call in calls]
     if any(unit != "step" for _, unit in budgets):
         per_run = [call.points[0].config["train"]["num_episodes"] for call in calls]
@@ -467,8 +419,7 @@ def sweep_budgets(calls: Sequence[Call]) -> tuple[list[int], str]:
 
 
 def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, Any]]:
-    """Every process's results on process 0, through the coordination service's
-    key-value store (no shared file system, no device collectives)."""
+    """Every process's results on process 0, via the coordination key-value store."""
     from jax._src import distributed
 
     client = distributed.global_state.client
@@ -485,12 +436,8 @@ def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, 
 def train_runs(
     points: Sequence[SweepPoint], devices: Sequence[Any] | None = None, strategy: str = "auto"
 ) -> tuple[Trainer, Any, dict[str, np.ndarray]]:
-    """Train ``points`` (all of one shape) in one call on ``devices`` (default: all
-    local devices), no checkpoints, no memory plan.
-
-    Returns:
-        ``(trainer, params, metrics)`` with NumPy leaves of leading size ``len(points)``.
-    """
+    """Train ``points`` (one shape) in one call, no checkpoints: ``(trainer, params,
+    metrics)`` with NumPy leaves of leading size ``len(points)``."""
     devices = list(jax.local_devices() if devices is None else devices)
     strategy = resolve_strategy(strategy, devices)
     size = call_size(len(points), len(devices), strategy)

@@ -1,20 +1,7 @@
-"""The sentences under a results table (SPEC §9): each row against the rule-based
-frontier at its own speed, the paper's claim, the first arm against the others seed by
-seed, and Table III at scale's goal.
+"""The sentences under a results table (SPEC §9): each row against the rule-based frontier
+at its own speed, the paper's claim, arms paired seed by seed, and Table III at scale's goal.
 
-* :func:`frontier_comparison`: one row's margin to the rule-based frontier;
-* :func:`claim_verdict`: the paper's claim (Table III: a DRQN safer than the rule-based
-  agent), from a teacher-free recurrent Q-network's row;
-* :func:`paired_margin` / :func:`compare_paired`: two arms' margins, paired over the
-  seeds both trained;
-* :func:`goal_verdict`: Table III at scale's goal, every part of it: at the paper's
-  DRQN's speed or faster, a margin above 0, a collision-free rate within
-  :data:`GOAL_CEILING_POINTS` of the privileged planner's ceiling at its own speed,
-  and above each memoryless twin, paired over seeds;
-* :func:`study_comparisons`: all of them for a study's table, in that order.
-
-"Above" means the 95 % interval lies above (claims follow intervals); every number
-in a sentence comes from the rows, never typed here.
+"Above" means the 95 % interval lies above; every number comes from the rows.
 """
 
 from __future__ import annotations
@@ -49,12 +36,9 @@ __all__ = [
     "study_comparisons",
 ]
 
-#: The agents (results tables' ``agent``) that are recurrent Q-networks, a DRQN in the
-#: paper's sense: the replay DRQN and recurrent PQN. The paper's claim and Table III at
-#: scale's goal are judged on a teacher-free one heading a study.
+#: The agents that are recurrent Q-networks (a DRQN in the paper's sense).
 RECURRENT_Q_NETWORKS = ("drqn", "pqn")
-#: Table III at scale's goal: how far, in points, the DRQN's collision-free rate may lie
-#: under the privileged planner's ceiling at its own speed (the whole interval within).
+#: Goal: points the DRQN's collision-free rate may lie under the planner's ceiling.
 GOAL_CEILING_POINTS = 10.0
 
 
@@ -83,13 +67,8 @@ def frontier_comparison(row: Mapping[str, Any]) -> str:
 
 
 def claim_verdict(drqn: Mapping[str, Any]) -> str:
-    """One line on the paper's claim (Table III: the DRQN is safer than the rule-based
-    agent) from the DRQN's row, in SPEC §9's terms: supported only where its margin to
-    the rule-based frontier lies above 0 (safer than the rule-based family at its own
-    speed) *and* it drives at least as fast as the paper's DRQN
-    (:data:`~drqn_jax.experiments.report.PAPER_DRQN_SPEED_KMH`): a car that barely
-    drives avoids nearly every collision the authors' test counts; a DRQN faster than
-    the speed limit has no margin (:func:`~drqn_jax.experiments.frontier.frontier_margin`)."""
+    """One line on the paper's claim (Table III) from the DRQN's row (SPEC §9): supported only
+    if its frontier margin lies above 0 *and* it drives at least ``PAPER_DRQN_SPEED_KMH``."""
     speed = drqn["avg_speed_kmh"]
     low, high = drqn["frontier_margin_ci"] or (math.nan, math.nan)  # none above the limit
     fast = speed >= PAPER_DRQN_SPEED_KMH
@@ -124,10 +103,8 @@ def claim_verdict(drqn: Mapping[str, Any]) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class Paired:
-    """Two arms' margins to the rule-based frontier, paired over ``seeds`` common seeds:
-    the mean ``difference`` (first minus second) and its 95 % Student-t ``interval``;
-    ``too_fast`` names the arm that breaks the speed limit in some seed (then there is
-    no margin, and no difference)."""
+    """Two arms' frontier margins paired over ``seeds``: mean ``difference`` (first minus
+    second), its 95 % t ``interval``; ``too_fast``: the arm above the speed limit, if any."""
 
     seeds: int
     difference: float = math.nan
@@ -151,9 +128,8 @@ def paired_margin(
     vertices: Sequence[Sequence[float]],
     limit_kmh: float,
 ) -> Paired | None:
-    """The margin to the rule-based frontier (``vertices``, SPEC §9) of ``runs`` (arm
-    ``names[0]``) against ``others``' (``names[1]``), seed i against seed i on the same
-    evaluation episodes, each at its own speed; None with fewer than 2 common seeds."""
+    """``runs``' frontier margins (SPEC §9) against ``others``', seed i against seed i; None
+    with fewer than 2 common seeds."""
     mine, theirs = _by_seed(runs), _by_seed(others)
     common = sorted(set(mine) & set(theirs))
     if len(common) < 2:
@@ -191,10 +167,7 @@ def compare_paired(
     vertices: Sequence[Sequence[float]],
     limit_kmh: float,
 ) -> str | None:
-    """:func:`paired_margin` of arm ``name`` against arm ``other`` as a sentence: the
-    mean difference in percentage points with its 95 % interval; None with fewer than
-    2 common seeds; a seed faster than the speed limit ``limit_kmh`` has no margin, and
-    the sentence says so instead."""
+    """:func:`paired_margin` of ``name`` against ``other`` as a sentence (points, 95 % interval)."""
     paired = paired_margin((name, other), runs, others, vertices, limit_kmh)
     return None if paired is None else _paired_sentence(name, other, paired, limit_kmh)
 
@@ -202,8 +175,7 @@ def compare_paired(
 def _ceiling_part(
     drqn: Mapping[str, Any], ceiling: Sequence[Sequence[float]], limit_kmh: float
 ) -> tuple[bool, str]:
-    """Whether ``drqn``'s collision-free rate lies within :data:`GOAL_CEILING_POINTS` of
-    the planner's ceiling (``ceiling``: its envelope's vertices) at its own speed."""
+    """Whether ``drqn``'s rate lies within :data:`GOAL_CEILING_POINTS` of the planner's ceiling."""
     gap = frontier_margin(drqn, ceiling, limit_kmh)
     if gap is None:
         return False, "faster than the speed limit, where the planner has no point"
@@ -222,14 +194,9 @@ def goal_verdict(
     limit_kmh: float,
     twins: Mapping[str, Paired | None],
 ) -> str:
-    """Table III at scale's goal, judged part by part on the DRQN's row ``drqn`` (its
-    ``frontier_margin_ci`` set by :func:`~drqn_jax.experiments.frontier.with_margin`):
-    an average speed at or above the paper's DRQN's; a margin to the rule-based
-    frontier above 0; a collision-free rate within :data:`GOAL_CEILING_POINTS` of the
-    privileged planner's ceiling (``ceiling``: its envelope's vertices) at its own
-    speed, the whole interval of the per-seed gap within; above each memoryless twin
-    of ``twins`` (name → :func:`paired_margin` of the DRQN against it). Met only
-    where every part is."""
+    """Table III at scale's goal on the DRQN's row, met only if every part is: speed at least
+    the paper's DRQN's, frontier margin above 0, within :data:`GOAL_CEILING_POINTS` of the
+    planner's ``ceiling``, and above each memoryless twin (``twins``: paired margins)."""
     speed = drqn["avg_speed_kmh"]
     fast = speed >= PAPER_DRQN_SPEED_KMH
     interval = drqn.get("frontier_margin_ci")
@@ -274,12 +241,8 @@ def study_comparisons(
     runs: Mapping[str, Sequence[Mapping[str, Any]]],
     frontiers: Mapping[str, Mapping[str, Any]],
 ) -> list[str]:
-    """The sentences under a study's table (``trained``: each trained row with the config
-    it was evaluated on, the arms' first; ``names``: the arms): where the first arm is a
-    teacher-free recurrent Q-network, the verdict on the paper's claim and, if the study
-    has a memoryless twin of it and the planner's ceiling, on Table III at scale's goal;
-    each trained row against its world's rule-based frontier; and the first arm against
-    each other arm of its world, seed by seed."""
+    """The sentences under a study's table: claim and goal verdicts (first arm a teacher-free
+    DRQN), each trained row against its frontier, the first arm paired with the others."""
     comparisons = [frontier_comparison(row) for row, _ in trained]
     if not names:
         return comparisons
