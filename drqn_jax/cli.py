@@ -438,6 +438,14 @@ def _quick_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--iterations", type=int, default=20, help="training iterations per timed call"
     )
+    parser.add_argument(
+        "--decision-steps",
+        type=int,
+        nargs="+",
+        default=None,
+        metavar="K",
+        help="time training at each env.decision_steps K side by side (default: the config's)",
+    )
     _config_options(parser, "default")
     return parser
 

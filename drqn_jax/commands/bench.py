@@ -49,7 +49,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if quick.num_envs < 1 or quick.steps < 1 or quick.iterations < 1:
             raise ConfigError("--num-envs, --steps and --iterations must be >= 1")
         print(bench_env(config, quick.num_envs, quick.steps))
-        print(bench_train(config, quick.iterations))
+        for k in quick.decision_steps or [None]:
+            overrides = [*quick.overrides, f"env.decision_steps={k}"] if k else quick.overrides
+            print(bench_train(load_config(quick.config, overrides), quick.iterations))
         print("\n".join(machine_lines(machine_info())))
         return EXIT_OK
     if args.name != "all":

@@ -118,14 +118,17 @@ def train_figures(
 
 
 def bench_train(config: Config, iterations: int) -> str:
-    """One line: :func:`train_figures` as iterations/s, env steps/s and updates/s."""
+    """One line: :func:`train_figures` as iterations/s, decisions/s (the learner's env
+    steps), ticks/s (k = ``env.decision_steps`` ticks of simulated driving per decision;
+    an episode's last decision may play fewer) and updates/s."""
     figures = train_figures(config, iterations)
     if isinstance(figures, str):
         return f"train: {figures}"
-    run_s = figures["seconds"]
+    run_s, k = figures["seconds"], config["env"]["decision_steps"]
+    decisions = figures["env_steps"] / run_s
     return (
-        f"train ({config.origin}): {iterations / run_s:,.1f} iterations/s = "
-        f"{figures['env_steps'] / run_s:,.0f} env steps/s and "
+        f"train ({config.origin}, k = {k}): {iterations / run_s:,.1f} iterations/s = "
+        f"{decisions:,.0f} decisions/s = {k * decisions:,.0f} ticks/s and "
         f"{figures['grad_steps'] / run_s:,.1f} gradient updates/s "
         f"({_learner_text(config)}; compile {figures['compile_s']:.1f} s)"
     )
