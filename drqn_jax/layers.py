@@ -1,21 +1,6 @@
-"""The numerics under Table I's layers (paper §V-A; SPEC §7), written so that the same
-key gives the same bits alone, batched by ``vmap`` and on any number of devices.
-
-:mod:`drqn_jax.networks` says which layers the networks have; this module says how
-each one computes:
-
-* :func:`affine` and :func:`matmul`: products whose weight and bias gradients have
-  the same bits whatever XLA:CPU's thread pool and whether ``vmap`` added a seed
-  axis (custom VJPs, :func:`_rows_product`);
-* :func:`glorot`, :func:`dense_init`, :func:`lstm_init`, :func:`gru_init`: the
-  initialisers (Glorot-uniform weights, zero biases, the LSTM's forget bias 1);
-* :func:`dense_relu`: a dense ReLU layer, through a LayerNorm when it has one;
-* :func:`patches`, :func:`gathered_patches`, :func:`kernel_matrix`: a convolution
-  as a product of its patches (exact copies) with the kernel as a matrix;
-* :func:`lstm_cell`, :func:`gru_cell` and :func:`recurrent_layer`: the cells one
-  step at a time (acting) and over a time-major sequence (learning);
-* :func:`stacked`, :func:`stack_sequence`: the last k grids along the channels
-  (the frame-stacking DQN), one step and over a sequence with episode starts.
+"""The numerics under Table I's layers (paper §V-A; SPEC §7): products, initialisers,
+convolutions as patch products, LSTM/GRU cells and frame stacks, written so that the
+same key gives the same bits alone, batched by ``vmap`` and on any number of devices.
 """
 
 from __future__ import annotations
@@ -50,27 +35,18 @@ __all__ = [
 
 
 def _rows_product(x: jax.Array, g: jax.Array) -> jax.Array:
-    """``xᵀ g`` summed over every leading axis: (..., m), (..., n) -> (m, n), a weight's
-    gradient, with the same bits whatever XLA:CPU's thread pool.
+    """``xᵀ g`` summed over every leading axis: (..., m), (..., n) -> (m, n).
 
-    XLA:CPU hands a product that contracts its left operand's leading axis (as
-    ``x.T @ g`` and autodiff's weight gradients do) to Eigen, which splits
-    its sums by the size of the process's thread pool: max(cores, forced host
-    devices), so 4 forced devices on 2 cores would round every gradient
-    differently from one device. A row-major ``(m, k) @ (k, n)`` goes to
-    YNNPACK, whose sums do not depend on the pool, batched (``vmap``) or not.
-    So ``xᵀ`` is materialised first: ``optimization_barrier`` keeps XLA from
-    folding the transpose back into the product (it costs one copy of ``x``).
-    A vector-matrix product (the acting network on one environment) still goes
-    to Eigen, but Eigen does not split those by the pool.
+    XLA:CPU gives ``x.T @ g`` to Eigen, whose sums split by thread-pool size; a
+    row-major product (YNNPACK) does not, so ``xᵀ`` is materialised behind an
+    ``optimization_barrier`` (one copy of ``x``) to keep the same bits.
     """
     rows = _rows(x)
     return jax.lax.optimization_barrier(rows.T) @ _rows(g)
 
 
 def _rows(x: jax.Array) -> jax.Array:
-    """(..., m) -> (k, m), k the product of the leading axes (``-1`` cannot be
-    inferred when m is 0, as PPO's empty extra inputs)."""
+    """(..., m) -> (k, m); ``-1`` cannot be inferred when m is 0 (PPO's empty extras)."""
     return x.reshape(math.prod(x.shape[:-1]), x.shape[-1])
 
 
@@ -78,13 +54,8 @@ def _rows(x: jax.Array) -> jax.Array:
 def affine(x: jax.Array, w: jax.Array, b: jax.Array) -> jax.Array:
     """``x @ w + b``: (..., n_in) @ (n_in, n_out) + (n_out,), with a vmap-stable gradient.
 
-    The gradients of ``w`` and ``b`` are sums over every leading axis. A plain
-    reduction for ``b`` is ordered differently by XLA:CPU once ``vmap`` adds a
-    seed axis (a batched run would drift by an ulp from the same run alone),
-    so both come out of ONE matrix product, ``[x, 1]ᵀ g`` (:func:`_rows_product`,
-    which does not depend on the thread pool either), which XLA batches
-    exactly. (A separate ones-vector product for ``b`` does the same, but
-    XLA:CPU runs it slowly inside the backward pass.)
+    Both gradients come from one product ``[x, 1]ᵀ g`` (:func:`_rows_product`): a
+    plain reduction for ``b`` is reordered under ``vmap`` and would drift by an ulp.
     """
     return x @ w + b
 
@@ -95,8 +66,7 @@ def _affine_fwd(x: jax.Array, w: jax.Array, b: jax.Array) -> tuple[jax.Array, tu
 
 def _affine_bwd(res: tuple, g: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     x, w = res
-    # the ones join the 2-D rows: joined to x before the reshape, XLA allocates
-    # about a quarter more temporaries for the smoke config's update
+    # the ones join the 2-D rows (before the reshape XLA allocates more temporaries)
     rows = _rows(x)
     rows = jnp.concatenate([rows, jnp.ones((rows.shape[0], 1), rows.dtype)], axis=1)
     grad_wb = _rows_product(rows, g)  # (n_in + 1, n_out)
@@ -126,12 +96,7 @@ matmul.defvjp(_matmul_fwd, _matmul_bwd)
 
 
 def glorot(key: jax.Array, shape: tuple[int, ...], fan_in: int, fan_out: int) -> jax.Array:
-    """Glorot-uniform weights of ``shape``.
-
-    Drawn flat and reshaped: the same bits as drawing ``shape`` directly (the
-    threefry counter is the row-major index), but a 4-D draw compiles about 10 ×
-    slower on XLA:CPU.
-    """
+    """Glorot-uniform weights of ``shape``, drawn flat (same bits, compiles faster)."""
     limit = math.sqrt(6.0 / (fan_in + fan_out))
     flat = jax.random.uniform(key, (math.prod(shape),), jnp.float32, -limit, limit)
     return flat.reshape(shape)
@@ -160,9 +125,7 @@ def dense_relu(layer: Params, x: jax.Array) -> jax.Array:
 def patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
     """(N, H, W, C) -> (N, H', W', kh·kw·C) VALID patches, by strided slices (exact copies).
 
-    A convolution is these patches times :func:`kernel_matrix`: ``vmap`` runs a
-    ``conv_general_dilated`` over seeds as a grouped convolution that sums in
-    another order (a run among others would drift from it alone).
+    Times :func:`kernel_matrix` this is a convolution that ``vmap`` does not reorder.
     """
     _, h, w, _ = x.shape
     h_out, w_out = (h - kh) // stride + 1, (w - kw) // stride + 1
@@ -175,9 +138,8 @@ def patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
 
 
 def gathered_patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
-    """:func:`patches` as one gather of the same copies: on XLA:CPU much faster than the
-    paper network's 48 slices, but its gradient (a scatter-add) sums in another order:
-    acting only."""
+    """:func:`patches` as one gather: faster, but its gradient sums in another order
+    (acting only)."""
     n, h, w, c = x.shape
     h_out, w_out = (h - kh) // stride + 1, (w - kw) // stride + 1
     rows = np.arange(h_out)[:, None, None, None] * stride + np.arange(kh)[None, None, :, None]
@@ -200,13 +162,8 @@ def lstm_init(key: jax.Array, n_in: int, n_hidden: int) -> Params:
 
 
 def lstm_cell(p: Params, x: jax.Array, state: LSTMState) -> tuple[jax.Array, LSTMState]:
-    """One LSTM step: ``c' = σ(f)c + σ(i)tanh(g)``, ``h' = σ(o)tanh(c')``.
-
-    Args:
-        p: ``{"w": (n_in + H, 4H), "b": (4H,)}``; x: (..., n_in); state: ((..., H), (..., H)).
-    Returns:
-        h' (..., H) and the new state (h', c').
-    """
+    """One LSTM step ``c' = σ(f)c + σ(i)tanh(g)``, ``h' = σ(o)tanh(c')``: x (..., n_in),
+    state ((..., H), (..., H)) -> h' (..., H), (h', c')."""
     h, c = state
     return _lstm_gates(affine(jnp.concatenate([x, h], axis=-1), p["w"], p["b"]), c)
 
@@ -242,14 +199,7 @@ def _gru_gates(
 
 
 def gru_cell(p: Params, x: jax.Array, state: tuple[jax.Array]) -> tuple[jax.Array, tuple]:
-    """One GRU step (the ``"gru"`` cell of :class:`~drqn_jax.networks.NetworkConfig`).
-
-    Args:
-        p: ``{"w": (n_in + H, 3H), "b": (3H,), "b_hn": (H,)}``; x: (..., n_in);
-            state: ((..., H),).
-    Returns:
-        h' (..., H) and the new state (h',).
-    """
+    """One GRU step: x (..., n_in), state ((..., H),) -> h' (..., H), (h',)."""
     n_in = x.shape[-1]
     return _gru_gates(affine(x, p["w"][:n_in], p["b"]), state[0], p["w"][n_in:], p["b_hn"])
 
@@ -263,15 +213,9 @@ def recurrent_layer(
     cell: str,
     scan_unroll: int,
 ) -> tuple[jax.Array, Any]:
-    """One recurrent layer of ``cell`` (``"lstm"`` or ``"gru"``) over a time-major
-    sequence: outputs (T, B..., H) and the last state.
-
-    The same function as :func:`lstm_cell` (:func:`gru_cell`) step by step on
-    ``[x, extra]`` (``extra`` (T, B..., E) or None), with the state zeroed where
-    ``resets`` (T, B...) is true; the input projection of every step is one matrix
-    product before the ``lax.scan``, which multiplies only the recurrent state
-    (``scan_unroll`` steps written out per loop iteration: the same bits).
-    """
+    """``cell`` (``"lstm"``/``"gru"``) over a time-major sequence ``[x, extra]``
+    (T, B..., ·), state zeroed where ``resets`` (T, B...): outputs (T, B..., H) and
+    the last state. The input projection is one product before the ``lax.scan``."""
     n_x = x.shape[-1]
     w = p["w"]
     x_gates = affine(x, w[:n_x], p["b"])
@@ -304,11 +248,9 @@ def stacked(seen: jax.Array) -> jax.Array:
 def stack_sequence(
     grid: jax.Array, carry: jax.Array, resets: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
-    """The stacked grids (T, B..., rows, cols, k·C) of a time-major sequence
-    (T, B..., rows, cols, C) whose k − 1 grids before are ``carry`` (B..., k − 1,
-    …), and the carry after it. A grid before the latest reset at or before t
-    (an episode's start) is zeros in step t's stack, as a network's ``step``
-    sees it after a reset carry."""
+    """Stacks (T, B..., rows, cols, k·C) of a sequence (T, B..., rows, cols, C) after
+    ``carry`` (B..., k − 1, …), and the next carry; grids before an episode's last
+    reset are zeros."""
     k = carry.shape[-4] + 1
     steps = grid.shape[0]
     before = jnp.moveaxis(carry, -4, 0)  # (k - 1, B..., rows, cols, C)

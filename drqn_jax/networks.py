@@ -1,34 +1,13 @@
 """The DRQN of paper §V-A (Table I, Fig. 3) and a DQN ablation, as plain pytrees (SPEC §7).
 
-Layers (default widths, Table I):
+Conv 8×6/4 (32) → 4×3/3 (64) → 2×2/2 (64), ReLU, VALID (45×30 → 1×1, 64 features);
+``drqn``: LSTM1 (256) → LSTM2 (256) fed ``[h1, speed, one-hot last action]``; ``dqn``:
+two dense ReLU layers instead (``frames`` = k > 1: the last k grids stacked); FC 256
+ReLU → 4 Q-values. Flat-vector envs get an MLP torso (``torso = "mlp"``) and no extras.
 
-* conv 8×6 stride 4, 32 filters, ReLU → conv 4×3 stride 3, 64, ReLU → conv
-  2×2 stride 2, 64, ReLU (VALID; 45×30 → 10×7 → 3×2 → 1×1) → flatten (64);
-* ``drqn``: LSTM1 (256) on the conv features → LSTM2 (256) fed
-  ``[h1, speed, one-hot last action]``; ``dqn``: two dense ReLU layers in
-  their place (same inputs, no memory, empty carry); ``dqn`` with ``frames``
-  = k > 1 sees the last k grids stacked along the channels (the classic
-  frame-stacking DQN, Mnih et al. 2015), its carry the k − 1 grids before;
-* FC 256 ReLU → linear, 4 Q-values.
-
-The conv stack is the torso for the paper's grid observation. For an
-environment whose observation is a flat vector (any env of the gymnax
-contract, :mod:`drqn_jax.learners.task`) the torso is an MLP instead (``torso =
-"mlp"``: dense ReLU layers of widths ``mlp``), and the core sees its features
-alone (no speed, no last action); the core and head are the same.
-
-The LSTM is the standard one (gates i, f, g, o; ``c' = σ(f)c + σ(i)tanh(g)``,
-``h' = σ(o)tanh(c')``) with the forget-gate bias initialised to 1. How each layer
-computes (products with device-invariant gradients, convolutions as patches,
-initialisers, the cells) is :mod:`drqn_jax.layers`; this module says which layers
-there are.
-
-:func:`make_network` returns a :class:`Network` of pure functions:
-``init(key) -> params``; ``initial_carry(batch_shape) -> carry`` (zeros);
-``step(params, obs, carry) -> (q, carry)`` for one time step with any leading
-batch shape (acting); ``unroll(params, obs_seq, carry, resets) -> (q_seq,
-carry)`` over a time-major ``(T, B, …)`` sequence (learning), zeroing the carry
-at the steps where ``resets`` is true (an episode starts there).
+:func:`make_network` gives pure ``init(key)``, ``initial_carry(batch_shape)``,
+``step(params, obs, carry) -> (q, carry)`` (acting, any batch shape) and
+``unroll(params, obs_seq, carry, resets)`` over time-major (T, B, …) sequences.
 """
 
 from __future__ import annotations
@@ -87,28 +66,11 @@ __all__ = [
 class NetworkConfig:
     """Shape-setting settings of the Q-network (hashable: a static argument).
 
-    Attributes:
-        kind: ``"drqn"`` (LSTMs) or ``"dqn"`` (dense layers, the ablation).
-        conv: ``(kernel_h, kernel_w, stride, filters)`` per conv layer (Table I).
-        recurrent: width of LSTM1 and LSTM2 (or of the dense layers for ``dqn``).
-        hidden: width of the FC layer before the Q-values.
-        frames: for ``dqn``, how many of the last grids it sees stacked (1: the
-            current one only).
-        grid_shape: ``(rows, cols, channels)`` of the observation grid.
-        num_actions: number of Q-values.
-        torso: ``"conv"`` (the grid, speed and last action of the paper's env)
-            or ``"mlp"`` (a flat observation vector of ``obs_size`` floats);
-            chosen from the environment's observation by the trainer.
-        mlp: widths of the MLP torso's dense ReLU layers.
-        obs_size: length of the flat observation (``torso = "mlp"``).
-        layer_norm: LayerNorm (learned scale and bias) before the ReLU of every
-            dense layer of the MLP torso and of the FC layer (PQN's; False:
-            Table I, none).
-        cell: the recurrent cell of kind ``drqn``: ``"lstm"`` (Table I) or
-            ``"gru"`` (purejaxql's recurrent PQN; :func:`~drqn_jax.layers.gru_cell`).
-        scan_unroll: steps of each recurrent layer's ``lax.scan`` (an unroll)
-            written out per loop iteration: the same bits whatever its value; more
-            compile longer (9: the paper's windows whole, PPO's rollouts in blocks).
+    ``conv``: (kernel_h, kernel_w, stride, filters) per layer; ``recurrent``: core
+    width; ``hidden``: FC width; ``frames``: grids stacked (``dqn``); ``torso``:
+    ``"conv"`` or ``"mlp"`` (widths ``mlp`` on ``obs_size`` floats); ``layer_norm``:
+    before the MLP's and FC's ReLUs (PQN's); ``cell``: ``"lstm"`` (Table I) or
+    ``"gru"``; ``scan_unroll``: steps written out per scan iteration (same bits).
     """
 
     kind: str = "drqn"
@@ -186,16 +148,14 @@ class NetworkConfig:
 
     @property
     def features(self) -> int:
-        """Width of the torso's output: the flattened conv output (64), or the
-        MLP's last layer."""
+        """Width of the torso's output (64 for Table I)."""
         if self.torso == "mlp":
             return self.mlp[-1] if self.mlp else self.obs_size
         return math.prod(self.conv_output_shape)
 
     @property
     def extra_inputs(self) -> int:
-        """Width of what LSTM2 (or dense2) sees beside LSTM1's output: speed and the
-        one-hot last action (1 + A) with the conv torso, nothing with the MLP."""
+        """Width of LSTM2's extra inputs: speed + one-hot last action (conv), else 0."""
         return 1 + self.num_actions if self.torso == "conv" else 0
 
 
@@ -212,13 +172,8 @@ class Network(NamedTuple):
 def conv_torso(
     params: Params, grid: jax.Array, config: NetworkConfig, *, gather: bool = False
 ) -> jax.Array:
-    """The conv stack on grids of any leading shape: (..., 45, 30, 4) -> (..., 64).
-
-    Each layer multiplies its patches with the kernel as a matrix
-    (:func:`~drqn_jax.layers.patches`: the same bits batched or alone). ``gather``
-    (acting) takes the first layer's patches from one gather; the update keeps
-    slices, with a third fewer temporaries.
-    """
+    """The conv stack as patch products: (..., 45, 30, 4) -> (..., 64); ``gather``
+    (acting only) takes the first layer's patches from one gather."""
     lead = grid.shape[: grid.ndim - 3]
     x = grid.reshape((-1, *grid.shape[-3:]))
     for i, (layer, (kh, kw, stride, _)) in enumerate(zip(params["conv"], config.conv, strict=True)):
@@ -242,14 +197,12 @@ def _extra_inputs(obs: Observation, num_actions: int) -> jax.Array:
 
 
 def _recurrent_names(config: NetworkConfig) -> tuple[str, str]:
-    """The recurrent layers' parameter names, after their cell: ``lstm1``, ``lstm2``
-    (Table I) or ``gru1``, ``gru2``."""
+    """The recurrent layers' parameter names: ``lstm1/2`` or ``gru1/2``."""
     return ("lstm1", "lstm2") if config.cell == "lstm" else ("gru1", "gru2")
 
 
 def _init_torso(config: NetworkConfig, keys: jax.Array) -> Params:
-    """The torso's parameters: ``{"conv": [{"w": (kh, kw, C_in, F), "b": (F,)}, ...]}``
-    or ``{"torso": [dense, ...]}`` for the MLP torso; one key per layer."""
+    """``{"conv": [{"w": (kh, kw, C_in, F), "b": (F,)}, ...]}`` or ``{"torso": [...]}``."""
     if config.torso != "conv":
         widths = (config.obs_size, *config.mlp)
         return {
@@ -299,8 +252,7 @@ def _init_params(config: NetworkConfig, key: jax.Array) -> Params:
 
 @cached_program
 def make_network(config: NetworkConfig | None = None) -> Network:
-    """Build the pure functions of a DRQN (or DQN) for ``config`` (once per config:
-    the same config gives the same functions, so ``jit`` reuses their compilations)."""
+    """The pure functions of a DRQN (or DQN), cached per config so ``jit`` reuses them."""
     config = NetworkConfig() if config is None else config
     width, n_act = config.recurrent, config.num_actions
     conv = config.torso == "conv"
@@ -318,8 +270,7 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         return ((zeros, zeros), (zeros, zeros))
 
     def core(params: Params, features: jax.Array, extra: jax.Array, carry: Carry):
-        """The recurrent (or dense) part for one time step: LSTM2's (or dense2's)
-        output (..., H) and the new carry."""
+        """One step of the recurrent (or dense) core: output (..., H) and the carry."""
         if config.kind == "drqn":
             h1, s1 = cell(params[layers[0]], features, carry[0])
             h2, s2 = cell(params[layers[1]], jnp.concatenate([h1, extra], -1), carry[1])
@@ -345,8 +296,7 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         return conv_torso(params, obs.grid, config, gather=gather), _extra_inputs(obs, n_act)
 
     def step(params: Params, obs: Any, carry: Carry) -> tuple[jax.Array, Carry]:
-        """Q-values (..., A) for one time step with any leading batch shape (acting:
-        the first conv layer's patches gathered, see :func:`conv_torso`)."""
+        """Q-values (..., A) for one time step, any leading batch shape (acting)."""
         if not conv or frames == 1:
             return core_step(params, *inputs(params, obs, gather=True), carry)
         grid = obs.grid
@@ -359,14 +309,8 @@ def make_network(config: NetworkConfig | None = None) -> Network:
     def unroll(
         params: Params, obs_seq: Any, carry: Carry, resets: jax.Array
     ) -> tuple[jax.Array, Carry]:
-        """Q-values (T, B..., A) over a time-major sequence.
-
-        The torso, each recurrent layer's input projection and the head run on
-        all T·B steps at once; each recurrent layer is a ``lax.scan`` over T of
-        its recurrent product alone (:func:`~drqn_jax.layers.recurrent_layer`), its state zeroed
-        where ``resets`` (T, B...) is true. The same function as :meth:`step` step by step (sums
-        in another order: equal to float32 rounding).
-        """
+        """Q-values (T, B..., A) over a time-major sequence, the carry zeroed where
+        ``resets`` (T, B...); :meth:`step` step by step up to float32 rounding."""
         if frames > 1:  # the stacking does the resets; the dense core has no carry
             grid, carry = stack_sequence(obs_seq.grid, carry, resets)
             features = conv_torso(params, grid, config)  # (T, B..., F)

@@ -1,23 +1,7 @@
-"""What the learners share, and nothing of any one learner (SPEC §7).
-
-* Per-episode bookkeeping: the learners step N environments at once, so
-  episodes end out of order. Each env keeps the index of its current training
-  episode and running sums; when an episode ends its metrics are written at its
-  index of (num_episodes,) buffers, and the env's next episode takes the next
-  free index. ``recorded`` counts the training episodes written: the run's
-  budget is ``num_episodes`` of them (an episode beyond it is played but not
-  written), or, with ``num_env_steps`` > 0, that many env steps if they come
-  first (:func:`budget_met`).
-* The ε schedule of the ε-greedy learners (:func:`epsilon_of`: the replay DQN's
-  and PQN's; paper §V-B).
-* What the on-policy learners (PPO, PQN) share: the rollout of
-  ``rollout_steps`` steps on the N envs (:func:`rollout`), with the recurrent
-  state zeroed before the first step of every episode (:func:`restarted`), the
-  epochs of minibatch gradient steps over whole env sequences
-  (:func:`minibatch_epochs`) and the scan of updates (:func:`run_updates`).
-
-A learner's state is its own; what is read of it here is named in each
-function's docstring.
+"""What the learners share (paper §V-B; SPEC §7): per-episode bookkeeping of N envs
+whose episodes end out of order (metrics written at each episode's index of
+(num_episodes,) buffers), the ε schedule, and the on-policy learners' rollout,
+minibatch epochs and update scan.
 """
 
 from __future__ import annotations
@@ -64,17 +48,13 @@ BASE_METRICS = ("episode_return", "length", "mean_loss")
 
 
 def budget_met(state: Any) -> jax.Array:
-    """() bool: every one of the ``num_episodes`` training episodes is recorded, or
-    the state's ``step_budget`` (``TrainConfig.num_env_steps``; 0 = none) of env
-    steps is taken."""
+    """() bool: all ``num_episodes`` recorded, or ``step_budget`` (0: none) steps taken."""
     by_steps = (state.step_budget > 0) & (state.env_steps >= state.step_budget)
     return (state.recorded >= state.metrics["length"].shape[-1]) | by_steps
 
 
 def init_counters(num_envs: int, num_env_steps: int) -> dict[str, jax.Array]:
-    """The counters a state starts with: env i in training episode i, running sums
-    (N,) at zero, none recorded, no step or gradient step taken, and the step
-    budget (0: none)."""
+    """A state's starting counters: env i in episode i, running sums (N,) at zero."""
     zeros_f, zeros_i = jnp.zeros((num_envs,), jnp.float32), jnp.zeros((num_envs,), jnp.int32)
     return {
         "episode": jnp.arange(num_envs, dtype=jnp.int32),
@@ -91,8 +71,7 @@ def init_counters(num_envs: int, num_env_steps: int) -> dict[str, jax.Array]:
 
 
 def init_metrics(task: Task, num_episodes: int, extra: tuple[str, ...] = ()) -> dict:
-    """Empty metric buffers, (num_episodes,) each: ``BASE_METRICS``, the learner's
-    float32 ``extra`` ones and the task's."""
+    """Empty (num_episodes,) buffers of ``BASE_METRICS``, ``extra`` and the task's."""
     dtypes = {**dict.fromkeys((*BASE_METRICS, *extra), jnp.float32), "length": jnp.int32}
     dtypes.update(dict(task.metrics))
     return {name: jnp.zeros((num_episodes,), dtype) for name, dtype in dtypes.items()}
@@ -108,18 +87,9 @@ def record_episodes(
     n_updates: jax.Array,
     extra: dict[str, jax.Array] | None = None,
 ) -> tuple[Any, dict[str, jax.Array]]:
-    """The bookkeeping of one vector env step (leaves (N,)).
-
-    ``state`` holds the env and observation, the per-env counters (``episode``,
-    ``ep_return``, ``ep_length``, ``ep_loss_sum``, ``ep_loss_count``) and the
-    run's (``episodes_started``, ``recorded``, ``env_steps``, ``metrics``);
-    ``done`` (N,) says which episodes ended at ``step``; ``loss_sum`` and
-    ``n_updates`` are the losses summed over and the number of gradient
-    updates made at this step; ``extra`` the learner's own per-env values
-    written with an ended episode (the DQN's ε). Returns the state moved on
-    (counters of ended episodes reset, their envs' next episode indices) and
-    the metrics with each ended training episode's values written.
-    """
+    """The bookkeeping of one vector env step (leaves (N,)): ``done`` (N,) episodes
+    are written (with ``extra``, e.g. ε) and take the next free index. Returns the
+    moved state and the metrics."""
     ep_return = state.ep_return + step.reward
     ep_length = state.ep_length + 1
     ep_loss_sum = state.ep_loss_sum + loss_sum
@@ -157,11 +127,8 @@ def record_episodes(
 def epsilon_of(
     episode: jax.Array, hp: Hyperparams, num_episodes: int, steps: jax.Array | None = None
 ) -> jax.Array:
-    """ε (same shape as ``episode``, float32) of training episode ``episode``:
-    linear from ``epsilon_start`` (episode 0) to ``epsilon_end`` (the last, or
-    the ``epsilon_fraction`` share of them), then constant. With a step budget,
-    ``steps`` is the share of it taken when the episode starts
-    (:func:`~drqn_jax.learners.hyperparams.step_share`), and the further of the two counts."""
+    """float32 ε of training ``episode``: linear from ``epsilon_start`` to ``epsilon_end``
+    over the ``epsilon_fraction`` share (or ``steps``' budget share, the further)."""
     frac = episode * (1.0 / max(num_episodes - 1, 1))
     if steps is not None:
         frac = jnp.maximum(frac, steps)
@@ -170,29 +137,20 @@ def epsilon_of(
 
 
 def restarted(network: Network, state: Any) -> Any:
-    """The carry (leaves (N, …)) the next step starts from: ``state.carry``, zeros
-    where the last step ended an episode (``state.done`` (N,))."""
+    """``state.carry`` (N, …), zeroed where ``state.done`` (N,)."""
     return tree_where(state.done, network.initial_carry(state.done.shape), state.carry)
 
 
-#: ``policy(state, key) -> (actions (N,) int32, carry, acted, extra)``: how an
-#: on-policy learner acts; ``acted`` its own fields of the rollout's transition
-#: (PPO: the value and log-probability; PQN: the Q-values), ``extra`` its own
-#: per-env values written with an ended episode (PQN: ε), or None.
+#: ``policy(state, key) -> (actions (N,) int32, carry, acted, extra)``; ``acted``:
+#: its transition fields, ``extra``: per-env values written with an episode, or None.
 Policy = Callable[[Any, jax.Array], tuple[jax.Array, Any, dict[str, Any], Any]]
 
 
 def rollout(
     config: TrainConfig, task: Task, policy: Policy, transition: Callable[..., Any], state: Any
 ) -> tuple[Any, Any]:
-    """``rollout_steps`` steps of the N envs acting by ``policy``: the moved state
-    (its ended episodes recorded, :func:`record_episodes`) and the trajectory, a
-    ``transition`` (leaves (T, N, …)) of ``obs``, ``action``, ``reward``, ``done``
-    (the episode ended at the step), ``reset`` (the carry was zeroed before it)
-    and the policy's ``acted`` fields.
-
-    Reads and moves ``state.key``, ``carry`` and ``done`` besides the bookkeeping.
-    """
+    """``rollout_steps`` steps by ``policy``: the moved state and a ``transition``
+    (T, N, …) of ``obs``, ``action``, ``reward``, ``done``, ``reset`` and ``acted``."""
     zero_f, zero_i = jnp.zeros((), jnp.float32), jnp.zeros((), jnp.int32)
 
     def step(state, _):
@@ -219,12 +177,9 @@ def minibatch_epochs(
     learning_rate: jax.Array,
     grads_of: Callable[[Any, jax.Array], tuple[Any, jax.Array]],
 ) -> Any:
-    """``update_epochs`` passes over the N envs in ``num_minibatches`` random
-    minibatches of whole env sequences: ``grads_of(params, envs (N / M,))`` gives a
-    minibatch's gradients and loss; each step clips them to ``max_grad_norm`` and
-    takes a step of ``config.optimizer`` (Adam, or PQN's RAdam). The state with
-    the new parameters (``online``) and optimiser, its key advanced, the gradient
-    steps counted and the mean loss added to every running episode's."""
+    """``update_epochs`` passes of ``num_minibatches`` random minibatches of whole env
+    sequences; ``grads_of(params, envs (N / M,))`` -> (grads, loss), clipped to
+    ``max_grad_norm``. The mean loss joins every running episode's."""
     hp = state.hparams
     opt = optimizer(config.optimizer, learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
     per_mb = config.num_envs // config.num_minibatches
@@ -258,9 +213,7 @@ def minibatch_epochs(
 
 
 def run_updates(update: Callable[[Any], Any]) -> Callable[[Any, int], Any]:
-    """The ``run`` of an on-policy learner whose iteration is ``update``:
-    ``run(state, num_iterations)`` scans that many updates; those after the run
-    finished change nothing."""
+    """``run(state, num_iterations)`` scanning ``update``; no-ops once finished."""
 
     def run(state: Any, num_iterations: int) -> Any:
         def body(state, _):

@@ -1,13 +1,6 @@
-"""Adam, RAdam and the gradient clamps, by hand, shaped like optax (SPEC §7).
-
-No optax at run time: ``adam(lr, b1, b2, eps)`` (and ``radam``, PQN's) returns a
-:class:`GradientTransformation` with optax's ``init(params) -> state`` and
-``update(grads, state, params) -> (updates, state)``; :func:`apply_updates`
-adds the updates to the parameters; :func:`clip` is optax's ``clip`` (the
-``clip = "grad"`` switch: gradients clamped to [−max, max] element-wise);
-:func:`clip_by_global_norm` is optax's (PPO's gradient-norm limit);
-:func:`chain` composes transformations. Hyperparameters may be traced
-arrays, so a sweep can ``vmap`` over the learning rate.
+"""Adam, RAdam and the gradient clamps by hand, with optax's ``init``/``update`` shape
+(paper §V-B; SPEC §7); no optax at run time. Hyperparameters may be traced arrays, so
+a sweep can ``vmap`` over the learning rate.
 """
 
 from __future__ import annotations

@@ -1,40 +1,10 @@
-"""Recurrent PPO, a learner of another family (Schulman et al. 2017; the project's).
+"""Recurrent PPO (Schulman et al. 2017; not the paper's), laid out like PureJaxRL's
+``ppo_rnn.py`` behind the same :class:`~drqn_jax.learners.trainer.Trainer` as the DQN.
 
-Laid out like PureJaxRL's ``ppo_rnn.py`` and served through the same
-:class:`~drqn_jax.learners.trainer.Trainer` as the DQN (``TrainConfig.algorithm =
-"ppo"``; :func:`drqn_jax.learners.make_train` builds it), so the host loop,
-checkpoints, sweeps, evaluation and the study treat both alike. An
-iteration is one update: a rollout of ``rollout_steps`` steps on
-``num_envs`` envs, generalised advantage estimation, then ``update_epochs``
-epochs of clipped-surrogate gradient steps over ``num_minibatches``
-minibatches of whole env sequences (global-norm clip, Adam). The run's
-budget is the project's: ``num_episodes`` training episodes, written with
-the DQN's per-episode metrics (:mod:`drqn_jax.learners.common`; ``mean_loss`` is
-the mean loss of the updates made while the episode ran); updates after
-the budget is met change nothing, so a run split into chunks ends
-bit-identical to a one-shot run. The learning rate falls as the DQN's does,
-in recorded episodes (``learning_rate_end``; PureJaxRL's annealing to 0 is
-``learning_rate_end = 0``).
-
-It shares the DRQN's environment interface (:class:`~drqn_jax.learners.task.Task`,
-any env of the gymnax contract), torso and recurrent core
-(:mod:`drqn_jax.networks`: the network has one output more than there are
-actions — the logits, then the value) and its Adam. The trainer's
-``network`` is :func:`policy_network`, the logits alone, whose argmax is the
-greedy agent that evaluation plays (:func:`~drqn_jax.agents.drqn.drqn_agent`).
-
-The recurrent state is zeroed before the first step of every episode, in
-acting and in the update's unroll (the ``resets`` of each step are the
-``done`` flags of the step before), and each minibatch unrolls from the
-state its envs had at the rollout's start. Like PureJaxRL, a time limit ends
-the advantage's sum as a termination does.
-
-Read top to bottom: the state and a rollout step (:class:`PPOState`,
-:class:`Transition`), the network, the advantages and the loss
-(:func:`actor_critic`, :func:`gae`, :func:`ppo_loss`), then :func:`make_ppo`,
-which wires the init, the sampling policy, the rollout and the update into the
-trainer; the rollout scan and the minibatch epochs are the on-policy learners'
-(:mod:`drqn_jax.learners.common`).
+One update: a rollout of ``rollout_steps`` on ``num_envs`` envs, GAE, then
+``update_epochs`` of clipped-surrogate steps over minibatches of whole env sequences.
+The network has A + 1 outputs (logits, value); the carry is zeroed at every episode
+start, and a time limit ends the advantage's sum as a termination does (PureJaxRL).
 """
 
 from __future__ import annotations
@@ -77,15 +47,8 @@ __all__ = [
 
 @pytree_dataclass
 class PPOState:
-    """Everything a PPO run carries between updates (and checkpoints).
-
-    Per-env leaves have a leading N axis. ``online`` holds the actor-critic's
-    parameters, trained and acting (the name the :class:`Trainer` protocol
-    reads); ``carry`` is the acting network's recurrent state and ``done`` (N,)
-    says which envs ended an episode at the last step (their carry restarts);
-    the episode counters and ``metrics`` are
-    :func:`~drqn_jax.learners.common.record_episodes`'.
-    """
+    """Everything a PPO run carries between updates (and checkpoints); per-env leaves
+    (N, …), ``online`` the actor-critic's parameters, ``done`` (N,) restarts the carry."""
 
     key: jax.Array
     hparams: Hyperparams
@@ -129,16 +92,13 @@ class Transition(NamedTuple):
 
 
 def actor_critic(config: TrainConfig, task: Task) -> Network:
-    """The network PPO trains: the task's torso (``config.network`` completed from
-    the observation) and recurrent core, with A + 1 outputs — A logits, then the
-    value."""
+    """The task's network with A + 1 outputs: A logits, then the value."""
     net_config = task.network(config.network)
     return make_network(dataclasses.replace(net_config, num_actions=task.num_actions + 1))
 
 
 def policy_network(network: Network, num_actions: int) -> Network:
-    """``network`` with its value output dropped: ``step`` and ``unroll`` give the
-    logits (…, A), whose argmax is the greedy action."""
+    """``network`` giving the logits (…, A) alone (the greedy agent's argmax)."""
 
     def step(params, obs, carry):
         out, carry = network.step(params, obs, carry)
@@ -154,9 +114,8 @@ def policy_network(network: Network, num_actions: int) -> Network:
 def gae(
     value: jax.Array, reward: jax.Array, done: jax.Array, last_value: jax.Array, hp: Hyperparams
 ) -> tuple[jax.Array, jax.Array]:
-    """Generalised advantage estimates and value targets, (T, N) each, of a
-    rollout's values, rewards and end-of-episode flags (T, N) and the value of
-    the state after it (N,)."""
+    """GAE advantages and value targets (T, N) from values, rewards, dones (T, N)
+    and the next state's value (N,)."""
 
     def back(carry, step):
         advantage, next_value = carry
@@ -182,9 +141,8 @@ def ppo_loss(
     target: jax.Array,
     hp: Hyperparams,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """The clipped-surrogate loss of a minibatch of whole sequences (T, B, …)
-    unrolled from ``carry`` (B, …): actor + vf_coef · clipped value loss −
-    ent_coef · entropy, and its parts."""
+    """Clipped-surrogate loss of sequences (T, B, …) from ``carry`` (B, …): actor +
+    vf_coef · clipped value loss − ent_coef · entropy, and its parts."""
     out, _ = network.unroll(params, batch.obs, carry, batch.reset)
     logits, value = out[..., :num_actions], out[..., num_actions]
     log_probs = jax.nn.log_softmax(logits)
@@ -201,8 +159,7 @@ def ppo_loss(
 
 
 def make_ppo(config: TrainConfig) -> Trainer:
-    """The :class:`~drqn_jax.learners.trainer.Trainer` of a ``config`` with ``algorithm =
-    "ppo"`` (equal configs: the same functions). ``make_train`` calls it."""
+    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "ppo"`` config."""
     if config.algorithm != "ppo":
         raise ValueError(f"make_ppo: TrainConfig.algorithm = {config.algorithm!r}; use 'ppo'")
     return _make_ppo(config)
@@ -216,8 +173,7 @@ def _make_ppo(config: TrainConfig) -> Trainer:
     policy = policy_network(network, n_act)
 
     def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
-        """The state before the first update (the config's hyperparameters and the
-        task's env params by default)."""
+        """The state before the first update."""
         hp = config.hyperparams if hparams is None else hparams
         env_params = task.env_params if env_params is None else env_params
         return _init_state(config, task, network, key, hp, env_params)
@@ -269,9 +225,7 @@ def _init_state(
 def _sample(
     task: Task, network: Network, state: PPOState, key: jax.Array
 ) -> tuple[jax.Array, Any, dict[str, jax.Array], None]:
-    """The sampling policy (:data:`~drqn_jax.learners.common.Policy`): actions (N,)
-    int32 drawn from the logits, the advanced carry, and the value (N,) and
-    log-probability (N,) of the action taken."""
+    """The sampling policy: actions (N,) int32, the carry, value and log-prob (N,)."""
     n_act = task.num_actions
     out, carry = network.step(state.online, state.obs, restarted(network, state))
     logits, value = out[..., :n_act], out[..., n_act]
@@ -283,9 +237,7 @@ def _sample(
 def _rollout(
     config: TrainConfig, task: Task, network: Network, state: PPOState
 ) -> tuple[PPOState, Transition]:
-    """``rollout_steps`` steps of the N envs with actions sampled from the policy:
-    the moved state (its ended episodes recorded) and the trajectory (leaves
-    (T, N, …))."""
+    """``rollout_steps`` sampled steps: the moved state and the trajectory (T, N, …)."""
     return rollout(config, task, functools.partial(_sample, task, network), Transition, state)
 
 
@@ -298,10 +250,7 @@ def _learn(
     traj: Transition,
     carry0: Any,
 ) -> PPOState:
-    """The update of one rollout: GAE, then epochs of minibatch gradient steps
-    (global-norm clip, Adam at the annealed rate,
-    :func:`~drqn_jax.learners.common.minibatch_epochs`); the update's mean loss
-    joins every running episode's."""
+    """One rollout's update: GAE, then minibatch epochs at the annealed rate."""
     hp = state.hparams
     out, _ = network.step(state.online, state.obs, restarted(network, state))
     last_value = out[..., n_act]

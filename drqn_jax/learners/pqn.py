@@ -1,36 +1,9 @@
-"""Recurrent PQN: Q-learning built for vectorised envs (Gallici et al. 2024,
-"Simplifying Deep Temporal Difference Learning"; reference code purejaxql's
-``pqn_rnn_gymnax.py``).
+"""Recurrent PQN (Gallici et al. 2024; purejaxql's ``pqn_rnn_gymnax.py``): the paper's
+recurrent Q-network (Table I; paper §V-B) without replay or target network.
 
-It trains the paper's object, a recurrent Q-network whose greedy action is the
-agent (Table I; paper §V-B), without the paper's replay and target network:
-an update is an ε-greedy rollout of ``rollout_steps`` steps on ``num_envs``
-envs, Q(λ) targets computed from the network being trained (no gradient
-through them), then ``update_epochs`` epochs over ``num_minibatches``
-minibatches of whole env sequences of the squared TD error (global-norm clip,
-Adam at the annealed rate). It is served through the same
-:class:`~drqn_jax.learners.trainer.Trainer` as the DQN and PPO
-(``TrainConfig.algorithm = "pqn"``); the rollout scan, episode bookkeeping and
-minibatch epochs are the on-policy learners' (:mod:`drqn_jax.learners.common`).
-
-Read top to bottom: the state and a rollout step (:class:`PQNState`,
-:class:`QTransition`), the targets and the loss (:func:`q_lambda_targets`,
-:func:`pqn_loss`), then :func:`make_pqn`, which wires the init, the ε-greedy
-policy, the rollout and the update into the trainer.
-
-* ε follows the DQN's schedule (:func:`~drqn_jax.learners.common.epsilon_of`:
-  per training episode, or the share of the step budget, whichever is
-  further); purejaxql's ``EPS_DECAY`` is ``epsilon_fraction``.
-* The recurrent state is zeroed before the first step of every episode, in
-  acting and in the update's unroll, and each minibatch unrolls from the state
-  its envs had at the rollout's start.
-* Each minibatch's targets bootstrap from the Q-values of the observation
-  after the rollout (unrolled with the rollout), so every one of the
-  ``rollout_steps`` steps has a target; purejaxql drops the last step instead.
-* purejaxql's RAdam, LayerNorm and reward scale are options
-  (``TrainConfig.optimizer = "radam"``, ``NetworkConfig.layer_norm``,
-  ``Hyperparams.reward_scale``); its "memory window" (steps before the
-  rollout that warm the unroll) is not.
+One update: an ε-greedy rollout (the DQN's ε schedule), Q(λ) targets from the trained
+network (no gradient), then minibatch epochs of the squared TD error. Targets also
+bootstrap from the observation after the rollout (purejaxql drops the last step).
 """
 
 from __future__ import annotations
@@ -68,15 +41,8 @@ PQN_METRICS = ("epsilon",)
 
 @pytree_dataclass
 class PQNState:
-    """Everything a PQN run carries between updates (and checkpoints).
-
-    Per-env leaves have a leading N axis. ``online`` holds the Q-network's
-    parameters, trained and acting (the name the :class:`Trainer` protocol
-    reads); ``carry`` is the acting network's recurrent state and ``done`` (N,)
-    says which envs ended an episode at the last step (their carry restarts);
-    the episode counters and ``metrics`` (with ``epsilon``) are
-    :func:`~drqn_jax.learners.common.record_episodes`'.
-    """
+    """Everything a PQN run carries between updates (and checkpoints); per-env leaves
+    (N, …), ``online`` the Q-network's parameters, ``done`` (N,) restarts the carry."""
 
     key: jax.Array
     hparams: Hyperparams
@@ -121,13 +87,8 @@ class QTransition(NamedTuple):
 def q_lambda_targets(
     q_next: jax.Array, reward: jax.Array, done: jax.Array, gamma: jax.Array, lam: jax.Array
 ) -> jax.Array:
-    """Peng's Q(λ) targets (T, N) of a rollout: ``q_next`` (T, N) is max_a Q of the
-    observation after each step, ``reward`` and ``done`` (T, N) the step's.
-
-    G_{T-1} = r + γ(1 − d) q_next; G_t = r + γ(1 − d)((1 − λ) q_next + λ G_{t+1}):
-    λ = 0 is one-step Q-learning, λ = 1 the discounted return to the rollout's
-    end, bootstrapped there (purejaxql's ``_compute_targets``).
-    """
+    """Peng's Q(λ) targets (T, N) from ``q_next`` = max_a Q after each step, ``reward``,
+    ``done`` (T, N): G_t = r + γ(1 − d)((1 − λ) q_next + λ G_{t+1}) (purejaxql's)."""
     not_done = 1.0 - done.astype(jnp.float32)
 
     def back(g_next, step):
@@ -148,10 +109,8 @@ def pqn_loss(
     last: QTransition,
     hp: Hyperparams,
 ) -> tuple[jax.Array, jax.Array]:
-    """Half the mean squared TD error of a minibatch of whole sequences (T, B, …)
-    unrolled from ``carry`` (B, …) with the observation after them (``last``,
-    leaves (B, …)) appended: Q(s_t, a_t) against :func:`q_lambda_targets` of the
-    same unroll, held fixed. Returns (loss, loss)."""
+    """Half the mean squared TD error of sequences (T, B, …) plus ``last`` (B, …),
+    unrolled from ``carry``, against fixed :func:`q_lambda_targets`: (loss, loss)."""
     obs = jax.tree.map(lambda xs, x: jnp.concatenate([xs, x[None]]), batch.obs, last.obs)
     resets = jnp.concatenate([batch.reset, last.reset[None]])
     q, _ = network.unroll(params, obs, carry, resets)  # (T + 1, B, A)
@@ -164,8 +123,7 @@ def pqn_loss(
 
 
 def make_pqn(config: TrainConfig) -> Trainer:
-    """The :class:`~drqn_jax.learners.trainer.Trainer` of a ``config`` with ``algorithm =
-    "pqn"`` (equal configs: the same functions). ``make_train`` calls it."""
+    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "pqn"`` config."""
     if config.algorithm != "pqn":
         raise ValueError(f"make_pqn: TrainConfig.algorithm = {config.algorithm!r}; use 'pqn'")
     return _make_pqn(config)
@@ -177,8 +135,7 @@ def _make_pqn(config: TrainConfig) -> Trainer:
     network = make_network(task.network(config.network))
 
     def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
-        """The state before the first update (the config's hyperparameters and the
-        task's env params by default)."""
+        """The state before the first update."""
         hp = config.hyperparams if hparams is None else hparams
         env_params = task.env_params if env_params is None else env_params
         return _init_state(config, task, network, key, hp, env_params)
@@ -230,9 +187,7 @@ def _init_state(
 def _explore(
     config: TrainConfig, task: Task, network: Network, state: PQNState, key: jax.Array
 ) -> tuple[jax.Array, Any, dict[str, jax.Array], dict[str, jax.Array]]:
-    """The ε-greedy policy (:data:`~drqn_jax.learners.common.Policy`): actions (N,)
-    int32 from the online Q-network, the advanced carry, the Q-values acted on
-    (N, A) and each env's ε (N,) (its training episode's, :func:`epsilon_of`)."""
+    """The ε-greedy policy: actions (N,) int32, the carry, Q-values (N, A) and ε (N,)."""
     hp = state.hparams
     k_explore, k_random = jax.random.split(key)
     q, carry = network.step(state.online, state.obs, restarted(network, state))
@@ -247,8 +202,7 @@ def _explore(
 def _rollout(
     config: TrainConfig, task: Task, network: Network, state: PQNState
 ) -> tuple[PQNState, QTransition]:
-    """``rollout_steps`` ε-greedy steps of the N envs: the moved state (its ended
-    episodes recorded, with their ε) and the trajectory (leaves (T, N, …))."""
+    """``rollout_steps`` ε-greedy steps: the moved state and the trajectory (T, N, …)."""
     policy = functools.partial(_explore, config, task, network)
     return rollout(config, task, policy, QTransition, state)
 
@@ -261,8 +215,7 @@ def _learn(
     traj: QTransition,
     carry0: Any,
 ) -> PQNState:
-    """The update of one rollout: epochs of minibatch steps on :func:`pqn_loss`
-    (:func:`~drqn_jax.learners.common.minibatch_epochs`) at the annealed rate."""
+    """One rollout's update: minibatch epochs on :func:`pqn_loss` at the annealed rate."""
     hp = state.hparams
     td_hp = per_decision(hp, task)
     last = jax.tree.map(lambda x: x[0], traj)._replace(obs=state.obs, reset=state.done)

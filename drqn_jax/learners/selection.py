@@ -1,11 +1,8 @@
 """Choosing the run's agent among parameter snapshots (the project's, not the paper's).
 
-With ``snapshots`` = K > 0 the training state keeps the online parameters as
-they were when the recorded episodes reached k · num_episodes / (K + 1),
-k = 1 … K (:func:`snapshot_thresholds`, :func:`take_snapshot`). After training,
-the K candidates and the final parameters each play ``validation_episodes``
-greedy episodes of a key of their own (the task's ``validate``), and the run's
-agent is the candidate that ``select_by`` prefers (:func:`chosen_candidate`).
+With ``snapshots`` = K > 0 the online parameters are kept at k · num_episodes / (K + 1)
+recorded episodes; the K and the final ones play greedy validation episodes, and
+``select_by`` picks the agent.
 """
 
 from __future__ import annotations
@@ -38,17 +35,10 @@ SELECT_SAFE = SELECT_BY.index("safe")
 
 
 def chosen_candidate(validation: dict[str, jax.Array], hp: Hyperparams) -> jax.Array:
-    """() int32 index of the run's agent among its K + 1 candidates, from their
-    validation metrics (``VALIDATION_METRICS``, each (K + 1,)):
-
-    * ``select_by = "return"``: the best mean return;
-    * ``select_by = "safe"``: among the candidates whose mean speed is at least
-      ``select_speed_floor``, the highest collision-free rate, then the best
-      return; the final parameters when none is as fast.
-
-    Of equal candidates, the latest. The final parameters (K) while any metric
-    is NaN (not validated yet). A task that measures the return alone (a gymnax
-    env, :mod:`drqn_jax.learners.task`) has no ``"safe"`` choice: the best return.
+    """() int32 index of the run's agent among K + 1 candidates (metrics (K + 1,)):
+    the best return, or with ``"safe"`` the most collision-free at
+    ``select_speed_floor`` or faster, then the best return. Ties: the latest; any
+    NaN, or none fast enough: the final parameters (K).
     """
     returns = validation["return"]
     last = returns.shape[-1] - 1
@@ -65,11 +55,8 @@ def chosen_candidate(validation: dict[str, jax.Array], hp: Hyperparams) -> jax.A
 
 
 def selection(validation: dict[str, Any] | None, hp: Hyperparams) -> dict[str, Any]:
-    """Host-side record of a run's choice: ``{}`` without snapshots, else each
-    candidate's validation metrics (K + 1 floats each, the last the final
-    parameters'; NaN before validation) — ``validation_returns``,
-    ``validation_collision_free``, ``validation_speed_kmh`` — and ``selected``
-    (:func:`chosen_candidate`, K = the final parameters)."""
+    """Host-side record of a run's choice: ``{}`` without snapshots, else the
+    candidates' ``validation_*`` lists (K + 1 floats) and ``selected``."""
     if validation is None:
         return {}
     validation = {name: jnp.asarray(v) for name, v in validation.items()}
@@ -81,9 +68,7 @@ def selection(validation: dict[str, Any] | None, hp: Hyperparams) -> dict[str, A
 
 
 def unvalidated(snapshots: int, names: tuple[str, ...] = VALIDATION_METRICS) -> dict:
-    """``TrainState.validation`` before validation: NaN for each of the
-    ``snapshots`` + 1 candidates and each of ``names`` (the task's validation
-    metrics; the paper's env: ``VALIDATION_METRICS``)."""
+    """``TrainState.validation`` before validation: NaN (snapshots + 1,) per name."""
     return {name: jnp.full((snapshots + 1,), jnp.nan, jnp.float32) for name in names}
 
 
@@ -97,14 +82,9 @@ def snapshot_thresholds(config: TrainConfig) -> tuple[int, ...]:
 def take_snapshot(
     config: TrainConfig, snapshots: Any, online: Any, before: jax.Array, after: jax.Array
 ) -> Any:
-    """``snapshots`` (leaves [K, ...]) with ``online`` written to slot k when the
-    recorded episodes cross threshold k between ``before`` and ``after`` (at
-    most one: they are ``num_envs`` apart); unchanged when K = 0.
-
-    One slot is read and written whether or not it changes, so the cost does
-    not grow with K and stays small under ``vmap`` (a ``cond`` would become a
-    select of the whole stack).
-    """
+    """``snapshots`` (leaves [K, ...]) with ``online`` in slot k when the recorded
+    episodes cross threshold k between ``before`` and ``after``. One slot is always
+    rewritten, so the cost under ``vmap`` does not grow with K."""
     if not config.snapshots:
         return snapshots
     thresholds = jnp.asarray(snapshot_thresholds(config), jnp.int32)
@@ -123,12 +103,8 @@ def candidates(snapshots: Any, online: Any) -> Any:
 
 
 def candidate_metrics(config: TrainConfig, task: Any, network: Any, state: Any) -> dict:
-    """The task's validation metrics of a finished run's candidates, each (K + 1,)
-    float32 — for the paper's env ``VALIDATION_METRICS``: every candidate's mean
-    greedy return, share of collision-free episodes and mean speed (m/s, the mean
-    over episodes of distance / time, SPEC §8); for a gymnax env the mean greedy
-    return — over ``validation_episodes`` episodes of ``fold_in(state.key,
-    VALIDATION_STREAM)`` (the same episodes for every candidate). Needs K > 0."""
+    """The task's validation metrics (K + 1,) float32 of a finished run's candidates,
+    on the same ``validation_episodes`` for each (SPEC §8). Needs K > 0."""
     if not config.snapshots:
         raise ValueError("validation_metrics: the run keeps no snapshots (train.snapshots = 0)")
     keys = episode_keys(
@@ -142,9 +118,7 @@ def candidate_metrics(config: TrainConfig, task: Any, network: Any, state: Any) 
 
 
 def run_agent(config: TrainConfig, state: Any) -> Any:
-    """The run's agent: the final online parameters, or with K > 0 and
-    ``state.validation`` filled in, the candidate that ``select_by`` prefers
-    (:func:`chosen_candidate`)."""
+    """The run's agent: the final parameters, or with K > 0 the chosen candidate."""
     if not config.snapshots:
         return state.online
     best = chosen_candidate(state.validation, state.hparams)

@@ -1,30 +1,9 @@
-"""What the learner needs of an environment: the :class:`Task` (SPEC §7).
+"""What the learner needs of an environment beyond the gymnax contract (SPEC §7).
 
-``make_train`` (:mod:`drqn_jax.learners.dqn.train`) learns on any environment of the gymnax
-contract — ``reset(key, params) -> (obs, state)``, ``step(key, state, action,
-params) -> (obs, state, reward, done, info)`` with automatic resets, a
-discrete action space. A :class:`Task` wraps one such environment with the
-few things the learner needs beyond that contract:
-
-* what the replay stores per observation (``to_record``) and how a replayed
-  record becomes the network's input again (``observe``);
-* the network's torso, chosen from the observation (``network``): Table I's
-  conv stack for the paper's grid (+ speed + last action), an MLP for a flat
-  vector;
-* the per-episode metrics beyond return and length (``metrics``);
-* greedy validation episodes (snapshot selection): return, collision-free
-  share and speed for the paper's env, the return for others;
-* optionally a teacher (the rule-based agent, SPEC §6), which only the
-  paper's env has.
-
-:func:`urban_task` is the paper's env (``drqn_jax`` ids, :mod:`drqn_jax.registry`);
-:func:`gymnax_task` any gymnax env (ids ``"gymnax:<name>"``, e.g.
-``"gymnax:CartPole-v1"``). gymnax 1.x steps as Gymnasium does — ``(obs,
-state, reward, terminated, truncated, info)`` with the pre-reset observation
-in ``info["final_observation"]`` — so targets bootstrap through a time limit
-and never through a termination, as in the paper's env. The older contract,
-``(obs, state, reward, done, info)``, does not tell them apart: there, like
-PureJaxRL's DQN, every ``done`` is a termination.
+A :class:`Task` adds the replay's record and ``observe``, the network torso, extra
+episode metrics, greedy validation and an optional teacher (SPEC §6).
+:func:`urban_task` is the paper's env; :func:`gymnax_task` any ``"gymnax:<name>"``
+(gymnax 1.x tells truncation from termination; with < 1.0 every ``done`` terminates).
 """
 
 from __future__ import annotations
@@ -66,12 +45,8 @@ RULE_BASED_GUIDE = RuleBasedParams()
 
 
 class Step(NamedTuple):
-    """One vectorised env step as the learner sees it (leaves (N, …)).
-
-    ``final`` is the record of the observation the action led to, before any
-    automatic reset (the replay's last observation of an ended episode);
-    ``info`` holds what the task's ``episode_metrics`` reads.
-    """
+    """One vectorised env step as the learner sees it (leaves (N, …)); ``final`` is
+    the pre-reset record, ``info`` what ``episode_metrics`` reads."""
 
     obs: Any
     state: Any
@@ -83,13 +58,8 @@ class Step(NamedTuple):
 
 
 class Teacher(NamedTuple):
-    """The rule-based agent as a teacher (the project's, not the paper's):
-
-    * ``act(env_state, env_params) -> ()`` int32, its action in one env (guided
-      exploration, ``explore_guide``);
-    * ``labels(records, env_params, hp) -> (…)`` int32, its actions in replayed
-      records (the imitation term's expert; thresholds from ``hp.imitation_*``).
-    """
+    """The rule-based agent as a teacher (not the paper's): ``act`` () int32 in one
+    env (guided exploration), ``labels`` (…) int32 on replayed records (imitation)."""
 
     act: Callable[[Any, Any], jax.Array]
     labels: Callable[[Any, Any, Any], jax.Array]
@@ -98,25 +68,11 @@ class Teacher(NamedTuple):
 class Task(NamedTuple):
     """An environment of the gymnax contract with what the learner needs of it.
 
-    Attributes:
-        env_id: the id it was made from.
-        env: the environment (static); ``env_params`` its default parameters.
-        num_actions: size of the discrete action space.
-        max_steps: longest episode (the replay's slot length).
-        decision_steps: ticks one action holds (``env.decision_steps``; 1 for gymnax).
-        record: zeros shaped as one observation's record (what the replay allocates).
-        reset: ``(key, params) -> (obs, state)`` for one env.
-        step: ``(key, state, action, params) -> Step`` for one env, resetting at the end.
-        to_record: ``(obs, state) -> record`` for one env.
-        observe: ``(records, last_action, params) -> obs``, leaves (T, B, …).
-        network: the network config completed for this observation (torso, sizes).
-        metrics: ``((name, dtype), …)``: per-episode metrics beyond return and length.
-        episode_metrics: ``(step, length, params) -> {name: (N,)}`` of ``metrics``.
-        explore_bias: ``hp -> (A,)`` the action distribution of biased exploration.
-        teacher: the rule-based agent, or None (no guidance, no imitation).
-        validate: ``(network, params, keys, env_params) -> {metric: ()}``, the
-            candidates' greedy validation episodes (snapshot selection).
-        validation_metrics: the names ``validate`` returns.
+    ``max_steps``: the replay's slot length; ``decision_steps``: ticks one action holds
+    (1 for gymnax); ``record``: zeros of one record; ``step`` -> :class:`Step`, resetting
+    at the end; ``observe(records, last_action, params)`` on (T, B, …); ``network``:
+    completes the config for this observation; ``explore_bias(hp)`` (A,); ``validate``
+    -> {metric: ()} for snapshot selection.
     """
 
     env_id: str
@@ -161,9 +117,7 @@ def observations(
 
 
 def urban_task(env_id: str = "UrbanPedestrians-v0", **overrides: Any) -> Task:
-    """The paper's env (paper §IV; SPEC §1-5): grids rasterised from compact
-    records, the collision/goal/distance/speed metrics, the rule-based agent
-    as an optional teacher and greedy validation episodes."""
+    """The paper's env (paper §IV; SPEC §1-5), its rule-based agent as teacher."""
     env, params = make(env_id, **overrides)
     static = env.static
 
@@ -243,16 +197,9 @@ def _urban_validation(env, network, params, keys, env_params) -> dict[str, jax.A
 
 
 def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Task:
-    """A gymnax environment (``gymnax.make(name)``), its observation flattened to
-    a float vector for the MLP torso (its step as either contract above).
-
-    Args:
-        name: a gymnax id, e.g. ``"CartPole-v1"`` or ``"MemoryChain-bsuite"``.
-        max_steps: the replay's slot length; default the env's
-            ``max_steps_in_episode`` (set it lower for envs whose episodes are
-            always shorter, such as MemoryChain's ``memory_length + 1``).
-        **overrides: fields of the env's ``EnvParams`` (e.g. ``memory_length=5``).
-    """
+    """``gymnax.make(name)``, observations flattened for the MLP torso; ``max_steps``
+    (default ``max_steps_in_episode``) is the replay's slot length, ``overrides``
+    fields of its ``EnvParams``."""
     try:
         import gymnax
     except ImportError as err:  # pragma: no cover - depends on the install
@@ -324,8 +271,7 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
 def greedy_returns(
     task: Task, network: Any, params: Any, keys: jax.Array, env_params: Any = None
 ) -> jax.Array:
-    """(E,) float32 returns of the greedy network (``argmax Q``, its carry from
-    zeros) over one episode of ``task`` per key of ``keys`` (E,)."""
+    """(E,) float32 greedy (``argmax Q``) returns, one episode per key of ``keys`` (E,)."""
 
     def act(obs, carry):
         q, carry = network.step(params, obs, carry)
@@ -344,13 +290,8 @@ def play_greedy(
     key: jax.Array,
     env_params: Any = None,
 ) -> tuple[jax.Array, jax.Array]:
-    """Play one episode of ``task`` (``env_params``, default the task's) with
-    ``act(obs, carry) -> (action, carry)`` from ``carry``: its return () float32
-    and length () int32.
-
-    Runs ``max_steps`` steps (branch-free under ``vmap``); steps after the
-    episode's end are not counted.
-    """
+    """One episode with ``act(obs, carry) -> (action, carry)``: return () float32 and
+    length () int32; ``max_steps`` steps, branch-free, those after the end not counted."""
     env_params = task.env_params if env_params is None else env_params
     k_reset, k_run = jax.random.split(key)
     obs, state = task.reset(k_reset, env_params)

@@ -1,17 +1,7 @@
-"""The protocol every learner serves: a :class:`Trainer` of pure functions.
-
-:func:`drqn_jax.learners.make_train` builds one for a
-:class:`~drqn_jax.learners.hyperparams.TrainConfig`: the paper's Double-DQN on an
-episode replay (``algorithm = "dqn"``, :mod:`drqn_jax.learners.dqn.train`), recurrent
-PPO (``"ppo"``, :mod:`drqn_jax.learners.ppo`) or recurrent PQN (``"pqn"``,
-:mod:`drqn_jax.learners.pqn`). The host loop (:mod:`drqn_jax.experiments.runner`),
-sweeps, checkpoints, evaluation and the study use nothing else, so they treat
-every learner alike. Each learner's state is its own class; every one has
-``key``, ``hparams``, ``env_params``, ``online`` (the parameters trained),
-``opt_state``, ``recorded`` / ``finished`` (the episode budget), ``env_steps``,
-``grad_steps``, ``ep_loss_sum``, ``metrics`` (per training episode,
-:mod:`drqn_jax.learners.common`) and ``validation`` (the candidates' validation
-metrics; None for a learner that keeps no snapshots).
+"""The protocol every learner (dqn, ppo, pqn) serves: a :class:`Trainer` of pure
+functions, all the host loop, sweeps, checkpoints and evaluation use. Every state has
+``key``, ``hparams``, ``env_params``, ``online``, ``opt_state``, ``recorded``,
+``finished``, ``env_steps``, ``grad_steps``, ``ep_loss_sum``, ``metrics``, ``validation``.
 """
 
 from __future__ import annotations
@@ -27,17 +17,10 @@ __all__ = ["Trainer", "make_trainer"]
 
 
 class Trainer(NamedTuple):
-    """The pure functions of one training configuration.
-
-    * ``init(key, hparams=None, env_params=None) -> state``;
-    * ``act(state, key) -> (actions (N,), carry)``: the learner's behaviour;
-    * ``run(state, num_iterations) -> state``: ``lax.scan`` over iterations
-      (env steps of the DQN, updates of PPO and PQN); those after the run finished
-      change nothing, so any chunking ends bit-identical;
-    * ``train(key, hparams=None, env_params=None) -> (agent params, metrics)``;
-    * ``gradient_update``: the DQN's single gradient step (benchmarks); None for PPO, PQN;
-    * ``validation_metrics(state)``: the candidates' (``snapshots`` > 0);
-    * ``agent_params(state)``: the run's agent, for ``network`` (greedy argmax).
+    """The pure functions of one training configuration: ``init``, ``act`` (actions
+    (N,), carry), ``run(state, n)`` (no-ops once finished, so any chunking ends
+    bit-identical), ``train`` -> (agent params, metrics), ``gradient_update`` (DQN
+    only), ``validation_metrics`` and ``agent_params``.
     """
 
     config: Any
@@ -63,9 +46,7 @@ def make_trainer(
     run: Callable[[Any, int], Any],
     gradient_update: Callable[..., tuple[tuple, jax.Array]] | None = None,
 ) -> Trainer:
-    """A learner's :class:`Trainer` from its ``init``, ``act`` and ``run``: the
-    whole run, validation and agent choice are the same for every learner
-    (``network`` is the one the greedy agent plays)."""
+    """A learner's :class:`Trainer` from its ``init``, ``act`` and ``run``."""
 
     def validation_metrics(state: Any) -> dict[str, jax.Array]:
         return candidate_metrics(config, task, network, state)
@@ -74,10 +55,8 @@ def make_trainer(
         return run_agent(config, state)
 
     def train(key: jax.Array, hparams: Any = None, env_params: Any = None):
-        """Init, then chunks of ``config.chunk_iterations`` in a ``lax.while_loop``
-        until the run finished, then the choice of the run's agent:
-        ``(agent params, metrics)``. ``jax.jit(jax.vmap(train))`` runs several
-        seeds at once."""
+        """Init, chunks in a ``lax.while_loop`` until finished, then the agent's choice:
+        ``(agent params, metrics)``; ``vmap`` it over seeds."""
         state = init(key, hparams, env_params)
         state = jax.lax.while_loop(
             lambda s: ~s.finished, lambda s: run(s, config.chunk_iterations), state

@@ -1,17 +1,8 @@
 """Acting while learning: ε-greedy exploration (paper §V-B; SPEC §7).
 
-ε (:func:`~drqn_jax.learners.common.epsilon_of`) falls linearly from
-``epsilon_start`` to ``epsilon_end`` over the training episodes (an episode
-keeps the ε it started with), or over their first ``epsilon_fraction`` (the
-project's option; 1 = the paper). During the first
-``explore_bias_fraction`` of episodes a random action is drawn from the
-task's biased distribution (the paper's env: accelerate 0.4, slow_down 0.1,
-brake 0.1, steer 0.4), uniformly afterwards. With ``explore_guide`` = g > 0
-(the project's, not the paper's) an exploratory action is, with probability
-g, the teacher's (the rule-based agent, SPEC §6) instead: the replay then
-holds episodes of braking and waiting for pedestrians, which uniform random
-actions rarely produce; learning stays off-policy Q-learning and the agent
-acts greedily on its own at evaluation.
+Random actions follow the task's biased distribution for the first
+``explore_bias_fraction`` of episodes, then uniform; with ``explore_guide`` = g > 0
+(not the paper's) they are the rule-based agent's (SPEC §6) with probability g.
 """
 
 from __future__ import annotations
@@ -27,20 +18,15 @@ from drqn_jax.networks import Network
 
 __all__ = ["GUIDE_STREAM", "explore"]
 
-#: ``fold_in`` index of the draw that picks a guided exploratory action: a
-#: stream of its own, so that ``explore_guide = 0`` leaves every other draw,
-#: and hence every run, as it was.
+#: ``fold_in`` index of the guided-action draw: its own stream, so that
+#: ``explore_guide = 0`` leaves every other draw as it was.
 GUIDE_STREAM = 1
 
 
 def explore(
     task: Task, network: Network, num_episodes: int, state: TrainState, key: jax.Array
 ) -> tuple[jax.Array, Any]:
-    """ε-greedy actions (N,) int32 of the run's N envs and the advanced network carry.
-
-    Reads ``state``'s online parameters, observations, carry and true env
-    states (leading N axes) and each env's training episode and ε, (N,).
-    """
+    """ε-greedy actions (N,) int32 of the run's N envs and the advanced network carry."""
     hp = state.hparams
     n_env = state.episode.shape[0]
     k_explore, k_random = jax.random.split(key)

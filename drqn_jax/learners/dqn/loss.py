@@ -1,41 +1,11 @@
 """Double DQN loss over sequences (paper §II-E, §V-B; SPEC §7).
 
-Online and target networks unroll once over a window's W + 1 observations
-from a zero state. For transition t the target is
+    y_t = Σ_{k<m} γ^k r_{t+k} + γ^m (1 − terminated) Q_target(s_{t+m}, argmax_a Q_online)
 
-    y_t = r_t + γ (1 − terminated_t) Q_target(s_{t+1}, argmax_a Q_online(s_{t+1}, a))
-
-— it bootstraps through truncation, never through termination. With
-``n_step`` = n > 1 (not in the paper; R2D2-style, Kapturowski et al. 2019)
-the target sums up to n rewards of the window before bootstrapping,
-
-    y_t = Σ_{k<m} γ^k r_{t+k} + γ^m (1 − terminated) Q_target(s_{t+m}, a*_{t+m}),
-    a*_j = argmax_a Q_online(s_j, a),
-
-where m ≤ n stops at the episode's end (its last real transition) and at
-the window's end; n = 1 is the one-step target above. The TD error
-is clipped as the paper says ("limiting the error term to [−1, 1]"): Huber
-loss with δ = 1 (``clip = "huber"``), or the authors' code, MSE with the
-gradient clamped element-wise (``clip = "grad"``, see
-:func:`drqn_jax.learners.optim.clip`). Padding is masked out of the mean.
-
-Optionally (not in the paper; R2D2, Kapturowski et al. 2019, after Pohlen et
-al. 2018) the values are rescaled: the network learns h(Q) with
-h(x) = sign(x)(√(|x| + 1) − 1) + εx, so the target of any n becomes
-
-    y_t = h(Σ_{k<m} γ^k r_{t+k} + γ^m (1 − terminated) h⁻¹(Q_target(s_{t+m}, a*_{t+m}))),
-
-which shrinks large returns (a collision penalty of −100) without clipping
-them away (``value_rescale = 1``; 0 is the paper's target bit for bit).
-
-Optionally (not in the paper) a large-margin imitation term is added, as in
-DQfD (Hester et al. 2018): for each step with an expert action a_E and a
-weight w_t > 0,
-
-    J_E(t) = max_a [Q(s_t, a) + l · 1(a ≠ a_E)] − Q(s_t, a_E),
-
-which is zero once a_E's value leads every other action's by the margin l;
-the loss is then Σ_t (TD_t + w_t J_E(t)) over the masked steps' count.
+with m ≤ ``n_step`` (1 = the paper), bootstrapping through truncation only. The TD
+error is clipped (paper: "[−1, 1]"): Huber δ = 1 or MSE with a clamped gradient.
+Not in the paper: R2D2's value rescaling h (Kapturowski et al. 2019) and DQfD's
+large-margin imitation term J_E (Hester et al. 2018). Padding is masked out.
 """
 
 from __future__ import annotations
@@ -72,11 +42,7 @@ def huber(x: jax.Array, delta: float = 1.0) -> jax.Array:
 
 
 def rescale(x: jax.Array, eps: float = RESCALE_EPS) -> jax.Array:
-    """R2D2's h(x) = sign(x)(√(|x| + 1) − 1) + εx (odd, increasing, h(0) = 0).
-
-    √(|x| + 1) − 1 is computed as |x| / (√(|x| + 1) + 1): the same number without
-    the cancellation that costs float32 its digits near 0.
-    """
+    """R2D2's h(x) = sign(x)(√(|x| + 1) − 1) + εx, written without cancellation near 0."""
     a = jnp.abs(x)
     return jnp.sign(x) * a / (jnp.sqrt(a + 1.0) + 1.0) + eps * x
 
@@ -112,17 +78,9 @@ def n_step_targets(
     n_step: int,
     value_rescale: int | jax.Array = 0,
 ) -> jax.Array:
-    """n-step Double DQN targets (W, B) of a window (see the module docstring).
-
-    Args:
-        q_online_next, q_target_next: (W, B, A) Q-values at observations 1 … W.
-        reward, terminated, mask: (W, B); ``mask`` is false on padding.
-        n_step: static n ≥ 1 (n = 1: :func:`double_dqn_targets`).
-        value_rescale: 1: the networks' values are h(Q) (:func:`rescale`): the
-            bootstrap is unrescaled and the target rescaled; 0: the paper's.
-    Returns:
-        (W, B) float32 targets; those of padded steps are finite and meaningless.
-    """
+    """n-step Double DQN targets (W, B) from Q-values (W, B, A) at observations 1 … W
+    and reward/terminated/mask (W, B); ``value_rescale`` 1 works in h(Q) space.
+    Padded steps' targets are finite and meaningless."""
     on = jnp.asarray(value_rescale) == 1
     # Selected, not branched: with value_rescale = 0 the target is the paper's bit for bit.
     q_target_next = jnp.where(on, unrescale(q_target_next), q_target_next)
@@ -193,26 +151,11 @@ def sequence_loss(
     value_rescale: int | jax.Array = 0,
     burn_in: int = 0,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Mean masked TD loss of a window batch (plus the imitation term), and diagnostics.
+    """Mean masked TD loss of a window batch (W + 1 obs, B), plus the imitation term
+    where ``expert_action``/``expert_weight`` (W, B) are given (None: the paper).
 
-    Args:
-        online, target: network parameters (gradients flow to ``online`` only).
-        windows: time-major batch (W + 1 observations, W transitions, B windows).
-        clip_mode: ``CLIP_HUBER`` (0) or ``CLIP_GRAD`` (1, MSE ½δ²).
-        n_step: static number of rewards per target (1 = the paper).
-        expert_action, expert_weight: (W, B) int32 and float32, the expert's
-            action in each state and the weight of its :func:`large_margin` term
-            (0: none); both None (the paper): no imitation term.
-        margin: the margin l of :func:`large_margin`.
-        value_rescale: 1: R2D2's value rescaling (:func:`n_step_targets`); 0: the paper.
-        burn_in: static L: the windows' first L steps only warm the LSTM (R2D2's
-            burn-in; they are masked out of the loss and no gradient flows back
-            into them); 0: the paper, the LSTM starts from zeros — or from
-            ``windows.carry``, the state stored while acting, when the replay
-            keeps one (R2D2's stored state).
-    Returns:
-        () float32 loss, and ``{"td_abs": mean |δ|, "q_mean": mean Q(s, a),
-        "margin": mean weighted J_E}`` (``margin`` with an expert only).
+    Gradients flow to ``online`` only; ``burn_in`` L steps only warm the LSTM. Returns
+    () loss and ``{"td_abs", "q_mean"[, "margin"]}``.
     """
     batch = windows.action.shape[1]
     carry = network.initial_carry((batch,))

@@ -1,25 +1,10 @@
-"""Replay of whole episodes (paper Table II: M = 50; SPEC §7).
+"""Replay of whole episodes (paper §V-B, Table II: M = 50; SPEC §7).
 
-Per observation the replay stores a *record*, any pytree the environment's
-task chooses (:mod:`drqn_jax.learners.task`), and turns records into the network's
-observations at sample time with the task's ``observe``. For the paper's env
-the record is compact: a :class:`~drqn_jax.env.grid.GridInputs` (6P + 2
-floats) instead of the 45×30×4 grid, re-rasterised at sample time, the speed
-and last-action inputs rebuilt from the record and the stored actions (about
-13 MB for M = 50 episodes of up to 1000 steps with P = 10); for a flat-vector
-env it is the observation itself. Per transition the replay stores the
-action, reward and ``terminated`` flag.
-
-The ring holds M episode slots. With N parallel environments each writes its
-episodes, oldest first, into its own ``M // N`` slots, so two writers never
-share a slot. A slot can be sampled only once its episode is complete; a
-slot being rewritten is not sampled. A sample draws ``batch`` complete
-episodes uniformly with replacement and from each a window of ``window``
-consecutive transitions (``window + 1`` observations) at a uniform start
-(the capacity must be at least 2N, so that every writer has a complete
-episode while it fills the next);
-episodes shorter than the window are padded and masked. A window therefore
-never crosses an episode start and never reads an unwritten step.
+Per observation it stores the task's *record* (:mod:`drqn_jax.learners.task`; for the
+paper's env compact ``GridInputs``, re-rasterised by ``observe`` at sample time), per
+transition the action, reward and ``terminated``. Each of N writers fills its own
+``M // N`` slots, oldest first; only complete episodes are sampled, in windows that
+never cross an episode start (shorter episodes padded and masked).
 """
 
 from __future__ import annotations
@@ -57,15 +42,9 @@ WINDOW_INSIDE, WINDOW_ANYWHERE = WINDOW_STARTS.index("inside"), WINDOW_STARTS.in
 class EpisodeReplay:
     """Ring of M episode slots of up to L transitions, written by N environments.
 
-    Attributes:
-        records: the task's records with leaves (M, L + 1, …): the observations.
-        action: (M, L) int32; reward: (M, L) float32; terminated: (M, L) bool.
-        length: (M,) int32, transitions stored in each slot.
-        complete: (M,) bool, the slot holds a whole episode (may be sampled).
-        slot: (N,) int32, the slot each environment is writing.
-        episodes: (N,) int32, episodes each environment has begun.
-        carry: with a stored state (R2D2's), the acting network's recurrent
-            state as it entered each observation, leaves (M, L + 1, …); else None.
+    ``records`` (M, L + 1, …); ``action``/``reward``/``terminated`` (M, L); ``length``,
+    ``complete`` (M,); ``slot``, ``episodes`` (N,) per writer; ``carry``: R2D2's
+    stored recurrent state (M, L + 1, …) or None.
     """
 
     records: Any
@@ -95,21 +74,10 @@ class EpisodeReplay:
 class Windows:
     """A sampled minibatch, time-major.
 
-    Attributes:
-        obs: the network's observations, leaves (W + 1, B, …) (rasterised
-            grids for the paper's env).
-        records: the records with leaves (W + 1, B, …) that ``obs`` was made
-            from (for the paper's env the true state's ego and pedestrians).
-        action, reward, terminated, mask: (W, B); ``mask`` is false on padding
-            and on the burn-in steps.
-        slot, start: (B,) int32, where each window came from (``start``: its first
-            trained step).
-        resets: (W + 1, B) bool, where the LSTM starts afresh: at the episode's
-            first observation and before it, inside a burn-in reaching past the
-            episode's start (all false without burn-in: the carry starts at zero).
-        carry: with a stored state, the recurrent state (leaves (B, …)) the acting
-            network entered each window's first observation with; else None
-            (the window's LSTM starts from zeros).
+    ``obs``, ``records`` (W + 1, B, …); ``action``/``reward``/``terminated``/``mask``
+    (W, B), mask false on padding and burn-in; ``slot``, ``start`` (B,); ``resets``
+    (W + 1, B): LSTM restarts (burn-in past the episode start); ``carry``: stored
+    state (B, …) at each window's first observation, or None (zeros).
     """
 
     obs: Any
@@ -127,10 +95,8 @@ class Windows:
 def init_replay(
     capacity: int, max_length: int, num_writers: int, record: Any, carry: Any = None
 ) -> EpisodeReplay:
-    """An empty replay of ``capacity`` episodes of up to ``max_length`` transitions
-    whose observations are stored as pytrees shaped like ``record`` (one step's),
-    with the recurrent state shaped like ``carry`` (one env's) beside each when
-    given (R2D2's stored state)."""
+    """An empty replay of ``capacity`` episodes of up to ``max_length`` transitions,
+    records shaped like ``record`` (and stored states like ``carry`` when given)."""
     if num_writers < 1 or capacity < 2 * num_writers:
         raise ValueError(
             f"replay capacity = {capacity} episodes: must be >= 2 × the number of parallel "
@@ -161,12 +127,8 @@ def replay_bytes(replay: EpisodeReplay) -> int:
 
 
 def _set(buffer: jax.Array, where: jax.Array, index: tuple, value: jax.Array) -> jax.Array:
-    """``buffer.at[index].set(value)`` only for writers where ``where`` (N,) is true.
-
-    Skipped writers get an out-of-range slot and the scatter drops them, so
-    the buffer is only written, never read: XLA then updates it in place
-    instead of copying it.
-    """
+    """``buffer.at[index].set(value)`` for writers where ``where`` (N,); others get an
+    out-of-range slot and are dropped, so XLA updates the buffer in place."""
     slot = jnp.where(where, index[0], buffer.shape[0])
     return buffer.at[(slot, *index[1:])].set(value, mode="drop", unique_indices=True)
 
@@ -174,11 +136,8 @@ def _set(buffer: jax.Array, where: jax.Array, index: tuple, value: jax.Array) ->
 def begin_episodes(
     replay: EpisodeReplay, starting: jax.Array, first: Any, first_carry: Any = None
 ) -> EpisodeReplay:
-    """Writers flagged in ``starting`` (N,) start an episode with observation ``first``
-    (and, with a stored state, the recurrent state ``first_carry`` it is seen with).
-
-    Each takes the oldest of its own slots, which stops being sampleable.
-    """
+    """Writers flagged in ``starting`` (N,) start an episode at ``first`` (and
+    ``first_carry``) in the oldest of their slots, which stops being sampleable."""
     n = replay.num_writers
     per_writer = replay.capacity // n
     writer = jnp.arange(n, dtype=jnp.int32)
@@ -210,13 +169,8 @@ def add_transition(
     active: jax.Array | None = None,
     next_carry: Any = None,
 ) -> EpisodeReplay:
-    """Append one transition per writer (N,) to its current episode.
-
-    ``next_record`` is the observation after the action (the pre-reset one
-    when the episode ended), ``next_carry`` (with a stored state) the recurrent
-    state the acting network holds for it. Writers where ``active`` is false
-    are skipped. Past ``max_length`` transitions nothing more is stored.
-    """
+    """Append one transition per writer (N,) where ``active``; ``next_record`` is the
+    pre-reset observation after the action. Nothing is stored past ``max_length``."""
     n = replay.num_writers
     active = jnp.ones((n,), bool) if active is None else active
     t = replay.length[replay.slot]
@@ -257,24 +211,9 @@ def sample_windows(
 ) -> Windows:
     """Draw ``batch`` windows of ``window`` transitions from complete episodes.
 
-    Episodes are drawn uniformly with replacement among complete slots (call
-    only once one is complete). The start is uniform in ``[0, max(n − W, 0)]``
-    with ``window_start = WINDOW_INSIDE`` (SPEC §7: windows lie inside the
-    episode, so its last W − 1 steps are in fewer windows than the others, its
-    last step in 1 of every n − W + 1), or in ``[0, n − 1]`` with
-    ``WINDOW_ANYWHERE`` (windows run into masked padding past the episode's end,
-    and every step from the W-th on is in W of every n).
-
-    With ``burn_in`` = L > 0 (static; R2D2's burn-in) each window is preceded by
-    the L steps before its start, which only warm the LSTM: the returned windows
-    have L + W transitions, the first L masked out of the loss; steps before the
-    episode's start are padding, and the LSTM restarts at its first observation
-    (``resets``). The trained steps are those of ``burn_in = 0``'s windows.
-
-    ``observe`` turns the windows' records into the network's observations
-    (:func:`~drqn_jax.learners.task.observations` with the env's parameters for the
-    paper's env). With a stored state the windows carry the recurrent state the
-    acting network entered their first observation with (burn-in included).
+    Episodes uniform with replacement; the start uniform in ``[0, max(n − W, 0)]``
+    (``WINDOW_INSIDE``, SPEC §7) or ``[0, n − 1]`` (``WINDOW_ANYWHERE``, padded).
+    ``burn_in`` = L > 0 prepends L masked steps that only warm the LSTM (R2D2).
     """
     key_slot, key_start = jax.random.split(key)
     logits = jnp.where(replay.complete, 0.0, -jnp.inf)

@@ -1,9 +1,5 @@
-"""What a run of the replay DQN carries between iterations and checkpoints
-(paper §V-B; SPEC §7): :class:`TrainState` and the metrics it records.
-
-Its own module so that :mod:`~drqn_jax.learners.dqn.acting` and
-:mod:`~drqn_jax.learners.dqn.train` both read it without importing each other.
-"""
+"""The replay DQN's :class:`TrainState` (paper §V-B; SPEC §7), its own module so that
+acting and train read it without importing each other."""
 
 from __future__ import annotations
 
@@ -25,11 +21,8 @@ METRIC_NAMES = (*BASE_METRICS, "epsilon")
 
 @pytree_dataclass
 class TrainState:
-    """Everything a training run carries between iterations (and checkpoints).
-
-    Per-environment leaves have a leading N axis; ``metrics`` holds one
-    (num_episodes,) array per name in ``METRIC_NAMES`` and the task's metrics.
-    """
+    """Everything a training run carries between iterations (and checkpoints); per-env
+    leaves (N, …), ``metrics`` (num_episodes,) per name."""
 
     key: jax.Array
     hparams: Hyperparams

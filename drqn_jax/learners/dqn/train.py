@@ -1,34 +1,9 @@
 """Training a (D)RQN end to end inside one jitted program (paper §V-B, Table II; SPEC §7).
 
-``make_dqn(config)`` (what :func:`drqn_jax.learners.make_train` calls for
-``algorithm = "dqn"``) returns a :class:`~drqn_jax.learners.trainer.Trainer`
-whose functions are pure:
-
-* ``init(key, hparams, env_params) -> TrainState``;
-* ``run(state, num_iterations) -> TrainState``: ``lax.scan`` over iterations
-  — act ε-greedily with the network's carry on N environments
-  (:mod:`drqn_jax.learners.dqn.acting`), store the step in the episode replay, take
-  ``updates_per_step`` Double-DQN gradient steps (:mod:`drqn_jax.learners.dqn.update`)
-  once the replay holds ``learning_starts`` whole episodes, copy the target
-  network every ``target_period`` gradient steps, write each ended episode's
-  metrics. An iteration after the last training episode has been recorded
-  changes nothing, so a run split into chunks of any size ends bit-identical
-  to a one-shot run;
-* ``train(key, hparams=None, env_params=None) -> (params, metrics)``: init,
-  then chunks in a ``lax.while_loop`` until ``num_episodes`` episodes are
-  recorded, then the choice of the run's agent (:mod:`drqn_jax.learners.selection`).
-  ``jax.jit(jax.vmap(train))(keys)`` runs several seeds at once.
-
-The environment is any of the gymnax contract, wrapped as a
-:class:`~drqn_jax.learners.task.Task` (``config.env_id``: a registered id of the
-paper's env, or ``"gymnax:<name>"``); the network's torso follows its
-observation. The acting network's carry advances on every step and is zeroed
-when its environment starts a new episode.
-
-Shape-setting choices live in the hashable :class:`TrainConfig`; the rest
-(learning rate, γ, ε schedule, target period, clip mode, …) in the traced
-:class:`Hyperparams`, so a sweep can ``vmap`` over them
-(:mod:`drqn_jax.learners.hyperparams`).
+An iteration acts ε-greedily on N envs, stores the step in the episode replay, takes
+``updates_per_step`` Double-DQN steps once ``learning_starts`` episodes are complete,
+copies the target every ``target_period`` steps and records ended episodes. Iterations
+after the run finished change nothing, so any chunking ends bit-identical.
 """
 
 from __future__ import annotations
@@ -81,9 +56,7 @@ def _small_leaves(state: TrainState) -> TrainState:
 
 
 def make_dqn(config: TrainConfig) -> Trainer:
-    """The :class:`~drqn_jax.learners.trainer.Trainer` of a ``config`` with ``algorithm =
-    "dqn"`` (equal configs: the same functions, so ``jax.jit`` reuses what it
-    compiled). :func:`drqn_jax.learners.make_train` calls it."""
+    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "dqn"`` config."""
     if config.algorithm != "dqn":
         raise ValueError(f"make_dqn: TrainConfig.algorithm = {config.algorithm!r}; use 'dqn'")
     return _make_dqn(config)
@@ -145,8 +118,7 @@ def _make_dqn(config: TrainConfig) -> Trainer:
 def _init_state(
     config: TrainConfig, task: Task, network: Network, key: jax.Array, hp: Hyperparams, env_params
 ) -> TrainState:
-    """The state before the first iteration: N envs reset, their first
-    observations in the replay, fresh networks and Adam, empty metrics."""
+    """N envs reset, their first observations in the replay, fresh networks and Adam."""
     n_env, n_episodes = config.num_envs, config.num_episodes
     key, k_net, k_env = jax.random.split(key, 3)
     online = network.init(k_net)
@@ -186,9 +158,7 @@ def _init_state(
 def _store(
     task: Task, network: Network, replay: EpisodeReplay, action, step: Step, carry, done, live
 ) -> EpisodeReplay:
-    """The replay with one vector step stored: the transition (with the acting
-    network's ``carry`` for its next observation, when the replay keeps it), the
-    end of the episodes that ended and the first observation of those that begin."""
+    """The replay with one vector step stored: transitions, ended and begun episodes."""
     replay = add_transition(
         replay,
         action,
@@ -206,12 +176,8 @@ def _store(
 def _iteration(
     config: TrainConfig, task: Task, network: Network, act: Callable, state: TrainState
 ) -> TrainState:
-    """One vector env step, its storage, learning and episode bookkeeping.
-
-    Once the run has finished (every training episode recorded) the
-    iteration changes nothing: small leaves are selected, replay and metric
-    writes are masked and learning is gated, so no large buffer is copied.
-    """
+    """One vector env step, its storage, learning and bookkeeping; once finished it
+    changes nothing (writes masked, learning gated, no large buffer copied)."""
     n_env = config.num_envs
     live = ~state.finished
     key, k_act, k_env, k_learn = jax.random.split(state.key, 4)

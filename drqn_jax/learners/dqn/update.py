@@ -1,14 +1,7 @@
-"""The learner's gradient update (paper §II-E, §V-B; SPEC §7).
-
-:func:`gradient_update` is one Double-DQN step: sample windows from the
-episode replay, the loss (:func:`drqn_jax.learners.dqn.loss.sequence_loss`) and its
-gradient, the clamp switch of ``clip = "grad"``, Adam, and the hard target
-copy every ``target_period`` steps. With ``imitation_weight`` > 0 (the
-project's, not the paper's; needs the task's teacher) the loss also pulls
-the greedy action toward the rule-based agent's in the replayed states —
-those where it brakes, or all — with DQfD's large margin; the labels are
-recomputed from the replay's records at each step. :func:`learn` takes
-``updates_per_step`` of them.
+"""The learner's gradient update (paper §II-E, §V-B; SPEC §7): sample windows, the
+sequence loss and its gradient (clamped with ``clip = "grad"``), Adam, and a hard
+target copy every ``target_period`` steps; imitation labels (not the paper's) are
+recomputed from the replayed records.
 """
 
 from __future__ import annotations
@@ -40,8 +33,7 @@ class Learner(NamedTuple):
 
 
 def _imitation(task: Task, windows: Any, hp: Hyperparams, env_params: Any) -> tuple:
-    """The expert's actions (W, B) and the imitation term's weights (W, B), or
-    (None, None) when the task has no teacher."""
+    """Expert actions and imitation weights (W, B), or (None, None) without a teacher."""
     if task.teacher is None:
         return None, None
     states = jax.tree.map(lambda x: x[:-1], windows.records)  # s_t of each transition
@@ -106,12 +98,10 @@ def learn(
     env_params: Any,
     key: jax.Array,
 ) -> tuple[Learner, jax.Array]:
-    """``updates_per_step`` gradient steps on ``learner``; the new learner and the
-    summed loss.
+    """``updates_per_step`` gradient steps: the new learner and the summed loss.
 
-    The trainer gates it by a ``lax.cond`` that takes the replay as a read-only
-    operand and returns only the learner: a ``while_loop`` carrying the replay,
-    or a cond returning the whole state, makes XLA copy the 13 MB replay every step.
+    The replay is a read-only operand of the gating ``lax.cond`` (carrying it would
+    make XLA copy it every step).
     """
 
     def update(learner, k):
