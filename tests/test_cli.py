@@ -427,14 +427,19 @@ def test_reproduce_evaluates_the_shipped_agent_without_training(
 
 
 def test_bench_quick_prints_throughput(capsys):
-    # a chunk of smoke's ``train``: the program test_train_writes_the_run_directory compiles
     argv = ["bench", "quick", "--config", "smoke", "--num-envs", "4", "--steps", "5"]
-    argv += ["--iterations", str(SMOKE_CHUNK)]
+    argv += ["--iterations", str(SMOKE_CHUNK), "--decision-steps", "1", "4"]
+    argv += ["--set", "train.num_episodes=40"]  # k = 4's decisions outlast a chunk
     assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "env steps/s at 4 envs" in out and "JAX" in out
     envs = load_config("smoke")["train"]["num_envs"]
     assert f"gradient updates/s (DQN: {envs} envs" in out
+    lines = {k: line for line in out.splitlines() for k in (1, 4) if f"k = {k})" in line}
+    for k, line in lines.items():  # ticks/s = k × decisions/s, as printed
+        decisions, ticks = re.search(r"([\d,]+) decisions/s = ([\d,]+) ticks/s", line).groups()
+        assert abs(int(ticks.replace(",", "")) - k * int(decisions.replace(",", ""))) <= k
+    assert set(lines) == {1, 4}
 
 
 def test_bench_quick_counts_ppos_iterations_in_env_steps_and_updates():
