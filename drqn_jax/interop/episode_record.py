@@ -66,7 +66,6 @@ def with_q_values(agent: Agent, network: Network, network_params: Any) -> Agent:
 
 @cached_program
 def _q_values_beside(init_fn: InitFn, act_fn: ActFn, network: Network) -> tuple[InitFn, ActFn]:
-    """:func:`with_q_values`'s functions, once per agent kind and network."""
 
     def init(params: Any, key: jax.Array) -> Any:
         inner, _ = params
@@ -161,9 +160,8 @@ def collect_episodes(
     network: Network | None = None,
     network_params: Any = None,
 ) -> EpisodeRecord:
-    """:class:`EpisodeRecord` (NumPy) of ``agent``'s episodes: decisions played as the
-    evaluation plays them, then replayed with every state traced (21.6 MB per episode at
-    T = 1000); ``network`` adds its Q-values."""
+    """:class:`EpisodeRecord` (NumPy): played as the evaluation plays, then replayed with
+    every state traced (21.6 MB per episode at T = 1000); ``network`` adds Q-values."""
     if not isinstance(num_episodes, int) or num_episodes < 1:
         raise ValueError(f"num_episodes = {num_episodes!r}, must be an integer >= 1")
     if (network is None) != (network_params is None):

@@ -1,11 +1,7 @@
-"""Gymnasium env over the JAX simulator (SPEC §1–5), NumPy in and out; registered as
-``drqn_jax/<id>`` for every :func:`drqn_jax.registered_envs` id.
-
-Observation ``Dict``: ``grid`` (45, 30, 4) float32 with finite bounds, ``speed`` (1,)
-float32, ``last_action`` ``Discrete(5)`` (:data:`NO_ACTION_YET` where JAX has −1:
-SB3-style libraries need spaces from 0). Each reset draws one JAX key from
-``np_random``; each step splits the held key.
-"""
+"""Gymnasium env over the JAX simulator (SPEC §1–5), NumPy in and out, as ``drqn_jax/<id>``.
+``speed`` has shape (1,) and ``last_action`` is ``Discrete(5)`` (:data:`NO_ACTION_YET` for
+−1): SB3-style libraries need Box shapes and spaces from 0. Resets draw a JAX key from
+``np_random``; steps split the held key."""
 
 from __future__ import annotations
 
@@ -54,9 +50,7 @@ SPEED_CHANNEL = 2  # the grid channel without a fixed upper bound (SPEC §4)
 _BOUND_MARGIN = 1e-5  # relative float32 rounding margin on bounds from EnvParams
 
 
-# --- spaces -----------------------------------------------------------------
 def _round_up_f32(x: float) -> np.float32:
-    """``x`` widened by the float32 rounding margin, as float32."""
     return np.float32(x * (1.0 + _BOUND_MARGIN) if x > 0 else x)
 
 
@@ -202,7 +196,6 @@ def _info_dtypes(env: UrbanPedestrians, params: EnvParams) -> tuple[tuple[str, A
 
 @cached_program
 def _single_fns(env: UrbanPedestrians) -> _SingleFns:
-    """Jitted reset/step/render of one env, built once per static env."""
     return _SingleFns(
         reset=jax.jit(functools.partial(single_reset, env)),
         step=jax.jit(functools.partial(_packed_step, env)),

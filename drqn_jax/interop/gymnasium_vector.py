@@ -114,7 +114,6 @@ def _vector_step(
 
 @cached_program
 def _vector_fns(env: UrbanPedestrians) -> _VectorFns:
-    """Jitted, vmapped reset/step/render of a batch of one static env."""
     reset = jax.vmap(functools.partial(single_reset, env), in_axes=(0, None))
 
     def reset_masked(key_data, held, states, mask, params):

@@ -1,5 +1,4 @@
 """Rerun recordings of evaluated episodes (paper §V-E; SPEC §1–5, §8).
-
 :func:`record_episodes` writes :func:`collect_episodes`' episodes to one ``.rrd``
 file: a static ``map/``, and per episode ``episode/<i>/`` holds ``world/`` (ego,
 pedestrians, headings), ``grid/<channel>`` images, ``speed_kmh``, ``action``,
