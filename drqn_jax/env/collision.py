@@ -1,7 +1,4 @@
-"""Collision and time to collision (paper §IV-B "Reward Function"; SPEC §5).
-
-The ego is an axis-aligned box heading +x; a pedestrian is a disc.
-"""
+"""Collision and TTC (paper §IV-B; SPEC §5): the ego an axis-aligned box, pedestrians discs."""
 
 from __future__ import annotations
 
@@ -39,8 +36,7 @@ def squared_length(v: jax.Array) -> jax.Array:
 
 
 def box_squared_distance(box_centre: jax.Array, box_half: jax.Array, point: jax.Array) -> jax.Array:
-    """(...,) float32 squared distance from boxes (centre (..., 2), half (2,)) to points
-    (..., 2); 0 inside or on the edge."""
+    """(...,) squared distance from boxes (centre (..., 2), half (2,)) to points; 0 inside."""
     dx = jnp.maximum(jnp.abs(point[..., 0] - box_centre[..., 0]) - box_half[0], 0.0)
     dy = jnp.maximum(jnp.abs(point[..., 1] - box_centre[..., 1]) - box_half[1], 0.0)
     return dx * dx + dy * dy
@@ -49,20 +45,13 @@ def box_squared_distance(box_centre: jax.Array, box_half: jax.Array, point: jax.
 def box_disc_overlap(
     box_centre: jax.Array, box_half: jax.Array, disc_centre: jax.Array, radius: jax.Array
 ) -> jax.Array:
-    """(...,) bool: boxes (centre (..., 2), half (2,)) and discs (centre (..., 2)) overlap
-    strictly (touching is not overlap)."""
+    """(...,) bool: boxes and discs overlap strictly (touching is not overlap)."""
     return box_squared_distance(box_centre, box_half, disc_centre) < radius * radius
 
 
 def collision_test(ego: EgoState, peds: PedestrianState, params: EnvParams) -> jax.Array:
-    """(P,) bool: which pedestrians meet the ``collision_model`` test (SPEC §5).
-
-    ``contact``: the ego's box overlaps the disc. ``authors`` (carla-gym
-    ``is_collision``): the centre lies in the ego's lane within
-    ``-authors_zone_back <= x <= authors_zone_front``, ``|y| <= authors_zone_half_width``
-    of the ego centre, edges included. The box is chosen on scalars, so one
-    distance test runs per pedestrian.
-    """
+    """(P,) bool ``collision_model`` test (SPEC §5): ``contact``, box overlaps disc;
+    ``authors`` (carla-gym ``is_collision``), centre in the ``authors_zone_*`` box, edges in."""
     authors = params.collision_model == COLLISION_AUTHORS
     foot_centre, foot_half = ego_box(ego.s, params)
     lane_y = lane_centre_y(params)
@@ -83,9 +72,7 @@ def collision_test(ego: EgoState, peds: PedestrianState, params: EnvParams) -> j
 def classify_hits(
     ego: EgoState, peds: PedestrianState, params: EnvParams
 ) -> tuple[jax.Array, jax.Array]:
-    """``(collision, struck_while_stopped)``, () bool each (SPEC §5): a hit while the ego
-    moves (``v >= stopped_speed``) is its collision; one while it stands is neither
-    penalised nor ends the episode."""
+    """``(hit while moving, hit while stopped)``, () bool each (SPEC §5)."""
     hit = jnp.any(collision_test(ego, peds, params))
     moving = ego.v >= params.stopped_speed
     return hit & moving, hit & ~moving
@@ -94,9 +81,8 @@ def classify_hits(
 def time_to_collision(
     ego: EgoState, peds: PedestrianState, params: EnvParams, static: StaticEnvParams
 ) -> jax.Array:
-    """() float32 TTC (s, SPEC §5): the first of ``t = 0, ttc_step, …, ttc_horizon`` at
-    which the ego, at its speed, and a pedestrian, at its velocity, overlap; ``inf``
-    if none does or the ego is stopped."""
+    """() float32 TTC (s, SPEC §5): the first sampled t <= ``ttc_horizon`` at which ego and
+    pedestrians, at constant velocity, overlap; ``inf`` if none or the ego is stopped."""
     t = jnp.arange(static.ttc_samples, dtype=jnp.float32)[:, None] * static.ttc_step  # (K, 1)
     # Pedestrians relative to the ego's box centre, in the ego's moving frame: (K, P).
     _, half = ego_box(ego.s, params)

@@ -1,15 +1,6 @@
-"""The ego-centred observation grid (paper §IV-B "State space", §V-A; SPEC §4).
-
-(45, 30, 4) float32, 1 m cells; row 0 at ``grid_x_min`` (−5 m) along the ego's
-axis, column 0 at ``grid_y_min`` (−15 m, its right). Channels: occupancy,
-relative heading / π in [−1, 1), speed / norm (``speed_channel``), semantic
-class / 3 (``semantic_channel``).
-
-Pedestrians outside the window or occluded are pushed out of range before the
-scatter (``mode="drop"``; a negative index would wrap). Of several in one cell
-the nearest to the ego wins (ties: lower index), so the grid does not depend
-on the order XLA applies scatter updates in.
-"""
+"""The ego-centred observation grid (paper §IV-B, §V-A; SPEC §4), (45, 30, 4) float32:
+occupancy, heading / π, speed, semantic class / 3. The nearest pedestrian wins a cell, so
+the grid does not depend on XLA's scatter order."""
 
 from __future__ import annotations
 
@@ -53,8 +44,7 @@ def cell_centres(
 def grid_cell_index(
     position: jax.Array, ego: EgoState | GridInputs, params: EnvParams, static: StaticEnvParams
 ) -> tuple[jax.Array, jax.Array]:
-    """(P,) int32 flat index ``row * cols + col`` of each (P, 2) position (``rows * cols``
-    outside the window), and (P,) bool inside."""
+    """(P,) int32 flat cell index of (P, 2) positions (``rows * cols`` outside), and inside."""
     rel_x = position[:, 0] - ego.s - static.grid_x_min
     rel_y = position[:, 1] - lane_centre_y(params) - static.grid_y_min
     row = jnp.floor(rel_x * (1.0 / static.cell_size))
@@ -66,11 +56,10 @@ def grid_cell_index(
 
 
 def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
-    """``flat`` (P,) int32 with ``size`` where a pedestrian loses its cell to a nearer one
-    (``dist2`` (P,) squared distances; ties: the lower index)."""
+    """``flat`` (P,) with ``size`` where a nearer pedestrian (ties: lower index) wins the cell."""
     num = flat.shape[0]
     order = jnp.arange(num)
-    # beats[j, i]: j shares i's cell and is nearer (ties: the lower index)
+    # beats[j, i]: j shares i's cell and is nearer
     beats = (flat[:, None] == flat[None, :]) & (
         (dist2[:, None] < dist2[None, :])
         | ((dist2[:, None] == dist2[None, :]) & (order[:, None] < order[None, :]))
@@ -84,12 +73,8 @@ def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
 
 @pytree_dataclass
 class GridInputs:
-    """What the grid is rasterised from: 6P + 2 floats and P flags instead of 5400 grid
-    floats, so a replay stores these and rasterises at sample time.
-
-    ``s``, ``v``: () float32, the ego's; ``position``, ``velocity`` (P, 2), ``heading``,
-    ``speed`` (P,) float32, ``visible`` (P,) bool: the pedestrians' fields.
-    """
+    """The ego's ``s``, ``v`` () and the pedestrians' fields the grid is rasterised from:
+    6P + 2 floats and P flags a replay stores instead of 5400 grid floats."""
 
     s: jax.Array
     v: jax.Array
@@ -113,7 +98,6 @@ class GridInputs:
 
     @classmethod
     def empty(cls, num_pedestrians: int) -> GridInputs:
-        """Zeros shaped as one step's record."""
         p, f32 = num_pedestrians, jnp.float32
         return cls(
             s=jnp.zeros((), f32),
@@ -141,8 +125,7 @@ def rasterize(g: GridInputs, params: EnvParams, static: StaticEnvParams) -> jax.
     rel = g.position - jnp.stack([g.s, lane_centre_y(params)])
     flat = _nearest_wins(flat, squared_length(rel), size)
 
-    # atan2 headings in [-pi, pi]: wrap pi to -pi (the ego heads 0). No multiply-add
-    # here: XLA may fuse it into an FMA depending on the program's shape.
+    # Wrap pi to -pi (the ego heads 0); no multiply-add: XLA may fuse it into an FMA.
     heading = jnp.where(g.heading >= jnp.pi, g.heading - 2.0 * jnp.pi, g.heading)
     speed_ped = g.speed * (1.0 / params.speed_norm_pedestrian)
     rel_v = g.velocity - jnp.stack([g.v, jnp.zeros_like(g.v)])

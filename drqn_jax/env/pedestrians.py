@@ -1,10 +1,5 @@
-"""Pedestrians: spawn, paths, walking, despawn, occlusion (paper §V-D; SPEC §3).
-
-Spawned on a main sidewalk with a behaviour (crossing, jaywalking, sidewalk) and
-a path of ``NUM_WAYPOINTS`` waypoints; each step a pedestrian walks straight to
-its next waypoint. Those far behind, far ahead or done are replaced ahead of
-the ego.
-"""
+"""Pedestrians (paper §V-D; SPEC §3): spawned on a main sidewalk with a behaviour and
+``NUM_WAYPOINTS`` waypoints, walked straight to the next, replaced when far or done."""
 
 from __future__ import annotations
 
@@ -44,8 +39,7 @@ __all__ = [
 def sidewalk_x(
     u: jax.Array, x_lo: jax.Array, x_hi: jax.Array, params: EnvParams, static: StaticEnvParams
 ) -> jax.Array:
-    """Map (...,) uniforms in [0, 1) to x uniform over [x_lo, x_hi) minus the cross
-    streets: drawn in coordinates that skip them, then mapped back."""
+    """(...,) uniforms in [0, 1) -> x uniform over [x_lo, x_hi) minus the cross streets."""
     starts = intersection_centres(params, static) - 0.5 * params.cross_street_width  # (I,)
     width = params.cross_street_width
 
@@ -154,8 +148,7 @@ OCCLUSION_STREAM = 1
 
 
 def occlusion_mask(key: jax.Array, params: EnvParams, static: StaticEnvParams) -> jax.Array:
-    """(P,) bool ``visible``: each pedestrian hidden with probability ``occlusion_prob``
-    per step, a uniform from ``fold_in(key, OCCLUSION_STREAM)``."""
+    """(P,) bool ``visible``: each hidden with probability ``occlusion_prob`` per step."""
     num = static.num_pedestrians
 
     def draw() -> jax.Array:
@@ -169,8 +162,7 @@ def occlusion_mask(key: jax.Array, params: EnvParams, static: StaticEnvParams) -
 def _waits_at_kerb(
     peds: PedestrianState, new_position: jax.Array, ego: EgoState, params: EnvParams
 ) -> jax.Array:
-    """(P,) bool: gap acceptance holds a pedestrian about to step onto the road while the
-    ego, not yet past, is within ``wait_distance`` or ``wait_time``."""
+    """(P,) bool: gap acceptance holds at the kerb, the ego within ``wait_distance``/``_time``."""
     stepping_on = (jnp.abs(peds.position[:, 1]) >= params.lane_width) & (
         jnp.abs(new_position[:, 1]) < params.lane_width
     )
@@ -182,9 +174,8 @@ def _waits_at_kerb(
 
 
 def step_pedestrians(peds: PedestrianState, ego: EgoState, params: EnvParams) -> PedestrianState:
-    """Walk every pedestrian one step towards its next waypoint (SPEC §3), ``ego`` after
-    its own step. ``"yield"``: one whose next position overlaps the inflated
-    footprint stands, at most ``ped_wait_max_s`` in all."""
+    """Walk every pedestrian one step to its next waypoint (SPEC §3); ``"yield"``: stand
+    (``ped_wait_max_s`` at most) rather than enter the inflated ego footprint."""
     num_wp = peds.waypoints.shape[-2]
     done = peds.done
     idx = jnp.minimum(peds.waypoint_index, num_wp - 1)
@@ -223,8 +214,7 @@ def despawn_mask(peds: PedestrianState, ego: EgoState, params: EnvParams) -> jax
     return behind | ahead | peds.done
 
 
-#: Under ``vmap`` over N envs, only the envs that replace a pedestrian draw, gathered
-#: ``max(1, N // RESPAWN_GATHER_SHARE)`` per pass (speed only; same result).
+#: Under ``vmap`` the envs that respawn draw, ``max(1, N // this)`` per pass (same bits).
 RESPAWN_GATHER_SHARE = 32
 
 
@@ -237,18 +227,13 @@ def respawn_pedestrians(
     params: EnvParams,
     static: StaticEnvParams,
 ) -> PedestrianState:
-    """``spawn_pedestrians(key, x_lo, x_hi, …)`` where ``replace`` (P,) is set.
-
-    The draw is skipped where nothing is replaced (a ``cond``; under ``vmap`` a
-    gather, :data:`RESPAWN_GATHER_SHARE`); each draw depends on its own env only,
-    so the bits are those of drawing in every env.
-    """
+    """``spawn_pedestrians`` where ``replace`` (P,) is set; skipped where nothing is
+    (under ``vmap`` a gather), same bits as drawing in every env."""
     return _respawn(static)(key, peds, replace, x_lo, x_hi, params)
 
 
 @cached_program
 def _respawn(static: StaticEnvParams) -> Callable[..., PedestrianState]:
-    """:func:`respawn_pedestrians` for ``static``, with its batching rule."""
 
     def respawn_all(key, peds, replace, x_lo, x_hi, params):
         return tree_where(replace, spawn_pedestrians(key, x_lo, x_hi, params, static), peds)

@@ -1,11 +1,5 @@
-"""How the env is drawn (SPEC §1–5): the palette, the raster and the HUD text that
-the Gymnasium frames (:func:`render_frame`, pure JAX) and the rerun recordings share.
-
-The HUD shows the drawn state's step, speed (km/h), last action and TTC, e.g.
-``step 12  36.0 km/h`` / ``accelerate  TTC 1.5 s``: formatted in JAX as glyph
-indices into :data:`GLYPHS`, drawn with the 5 × 7 bitmap :data:`FONT`, read back
-as text by :func:`hud_text`.
-"""
+"""How the env is drawn (SPEC §1–5): palette, raster (:func:`render_frame`, pure JAX) and
+HUD (step, km/h, last action, TTC as :data:`GLYPHS` indices) shared with rerun recordings."""
 
 from __future__ import annotations
 
@@ -55,7 +49,6 @@ __all__ = [
 
 RGB = tuple[int, int, int]
 
-# --- the palette ----------------------------------------------------------------
 #: RGB by semantic class (SPEC §1).
 MAP_COLOURS: dict[int, RGB] = {
     OFF_ROAD: (58, 66, 56),
@@ -81,7 +74,7 @@ HUD_TEXT_COLOUR: RGB = (240, 240, 240)
 HUD_BAND_COLOUR: RGB = (10, 10, 14)
 HUD_BAND_ALPHA = 0.7  # the world stays faintly visible behind the HUD
 
-# --- the raster's view: 240 × 480 pixels ------------------------------------------
+# The raster's view: 240 × 480 pixels.
 RENDER_BEHIND_M = 10.0
 RENDER_AHEAD_M = 50.0
 RENDER_HALF_WIDTH_M = 15.0
@@ -90,7 +83,6 @@ RENDER_PIXELS_PER_M = 8
 MIN_PED_RADIUS_PX = 5
 _PED_OUTLINE_PX = 1
 
-# --- the HUD's font ---------------------------------------------------------------
 GLYPHS = " 0123456789.-/_TCabcdehklmnoprstw"
 # 5 × 7 bitmaps of GLYPHS, rows top to bottom.
 _BITMAPS = (
@@ -166,7 +158,6 @@ HUD_LINE_LENGTH = max(
 )
 
 
-# --- formatting: traced values -> glyph indices -------------------------------------
 def _digits(n: jax.Array, width: int) -> jax.Array:
     """(width,) int32 digit glyphs of ``n`` (clipped), leading zeros as gaps."""
     n = jnp.clip(jnp.asarray(n, jnp.int32), 0, 10**width - 1)
@@ -204,8 +195,7 @@ def _line(pieces: list) -> tuple:
 def _hud_layout(
     state: EnvState, params: EnvParams, static: StaticEnvParams
 ) -> tuple[jax.Array, jax.Array]:
-    """The HUD's glyphs and colour indices (0: HUD_TEXT_COLOUR, a + 1: ACTION_COLOURS[a]),
-    (HUD_LINES, HUD_LINE_LENGTH) int32 each."""
+    """(HUD_LINES, HUD_LINE_LENGTH) int32 glyphs and colours (0: text, a + 1: action a)."""
     ttc = time_to_collision(state.ego, state.pedestrians, params, static)  # SPEC §5
     no_ttc = np.pad(_codes("-"), (0, _TTC_WIDTH - 1), constant_values=_GAP)
     with_unit = jnp.concatenate([_one_decimal(ttc, _TTC_DIGITS), _codes(" s")])
@@ -219,8 +209,7 @@ def _hud_layout(
 
 
 def hud_glyphs(state: EnvState, params: EnvParams, static: StaticEnvParams) -> jax.Array:
-    """(2, 23) int32 glyph indices of ``state``'s HUD: ``step <t>  <speed> km/h`` and
-    ``<last action>  TTC <ttc> s`` (``-`` for no action yet or an infinite TTC)."""
+    """(2, 23) int32 glyphs: ``step <t>  <speed> km/h`` / ``<last action>  TTC <ttc> s``."""
     return _hud_layout(state, params, static)[0]
 
 
@@ -230,7 +219,6 @@ def hud_text(glyphs: np.ndarray | jax.Array) -> str:
     return "  ".join("".join(GLYPHS[i] for i in line).rstrip() for line in lines)
 
 
-# --- the raster -------------------------------------------------------------------
 def _uint8(colour: RGB | list) -> jax.Array:
     return jnp.asarray(colour, jnp.uint8)
 
@@ -278,8 +266,7 @@ def _draw_ego(image: jax.Array, xy: jax.Array, state: EnvState, params: EnvParam
 def _draw_pedestrians(
     image: jax.Array, xy: jax.Array, state: EnvState, params: EnvParams, pixel: float
 ) -> jax.Array:
-    """The pedestrians over ``image`` (H, W, 3): outlined discs by behaviour, faded where
-    occluded, the lowest index on top."""
+    """Outlined pedestrian discs by behaviour, faded where occluded, lowest index on top."""
     peds = state.pedestrians
     radius = jnp.maximum(params.ped_radius, MIN_PED_RADIUS_PX * pixel)
     outer = radius + _PED_OUTLINE_PX * pixel
@@ -304,8 +291,7 @@ def _fit(a: jax.Array, height: int, width: int) -> jax.Array:
 
 
 def _draw_hud(image: jax.Array, glyphs: jax.Array, colours: jax.Array) -> jax.Array:
-    """The HUD lines (:func:`_hud_layout`) at the top left of ``image`` (H, W, 3), in a
-    translucent band, FONT scaled by HUD_SCALE, cropped at the edge."""
+    """The HUD lines at the top left of ``image`` (H, W, 3) in a translucent band."""
     height, width, _ = image.shape
     lines, length = glyphs.shape
     s, m = HUD_SCALE, _HUD_MARGIN_PX
@@ -342,14 +328,8 @@ def render_frame(
     pixels_per_m: int = RENDER_PIXELS_PER_M,
     hud: bool = True,
 ) -> jax.Array:
-    """Bird's-eye view of one env's state (SPEC §1–5), pure JAX: map, ego, pedestrians
-    and, with ``hud``, :func:`hud_glyphs` at the top left.
-
-    x runs right from ``s - behind_m`` to ``s + ahead_m``, y up over
-    ``±half_width_m``; the keyword arguments are static. Returns (H, W, 3) uint8,
-    ``H = 2 * half_width_m * pixels_per_m``, ``W = (behind_m + ahead_m) *
-    pixels_per_m`` (240 × 480 by default).
-    """
+    """(H, W, 3) uint8 bird's-eye view (SPEC §1–5), 240 × 480 by default: x from ``s -
+    behind_m`` to ``s + ahead_m``, y up over ``±half_width_m``; keywords are static."""
     height = round(2 * half_width_m * pixels_per_m)
     width = round((behind_m + ahead_m) * pixels_per_m)
     pixel = 1.0 / pixels_per_m

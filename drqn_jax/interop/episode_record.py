@@ -1,6 +1,4 @@
-"""The episodes a recording shows (paper §V-E; SPEC §8): :func:`collect_episodes`
-fills an :class:`EpisodeRecord`; episode *i* is :func:`drqn_jax.evaluate`'s episode *i*.
-"""
+"""Recorded episodes (paper §V-E; SPEC §8): episode i is :func:`drqn_jax.evaluate`'s i."""
 
 from __future__ import annotations
 
@@ -25,10 +23,8 @@ __all__ = ["EpisodeRecord", "collect_episodes", "with_q_values"]
 
 @pytree_dataclass
 class EpisodeRecord:
-    """N recorded episodes, T = ``max_steps``. Per-state index t: the state before the
-    t-th decision (0: reset); per-step index t: the step from state t to t + 1. Only
-    ``[:L + 1]`` states and ``[:L]`` steps of episode i are meaningful, L = ``length[i]``.
-    """
+    """N episodes, T = ``max_steps``: state t is before decision t, step t goes from state
+    t to t + 1; only ``[:L + 1]`` states and ``[:L]`` steps count, L = ``length[i]``."""
 
     state: EnvState  # leaves (N, T + 1, ...)
     grid: Any  # (N, T + 1, rows, cols, 4) float32
@@ -63,15 +59,13 @@ def _stack_last(seq: Any, last: Any) -> Any:
 
 
 def with_q_values(agent: Agent, network: Network, network_params: Any) -> Agent:
-    """``agent`` with ``network`` stepping beside it: the carry becomes ``(agent's carry,
-    network carry, Q (4,) float32 of the last observation)``."""
+    """``agent`` with ``network`` beside it: carry ``(agent carry, network carry, Q (4,))``."""
     init, act = _q_values_beside(agent.init_fn, agent.act_fn, network)
     return Agent(params=(agent.params, network_params), name=agent.name, init_fn=init, act_fn=act)
 
 
 @cached_program
 def _q_values_beside(init_fn: InitFn, act_fn: ActFn, network: Network) -> tuple[InitFn, ActFn]:
-    """:func:`with_q_values`'s functions, once per agent kind and network."""
 
     def init(params: Any, key: jax.Array) -> Any:
         inner, _ = params
@@ -105,8 +99,7 @@ def _record_decision(d: Decision) -> dict[str, Any]:
 def _decisions(
     agent: Agent, keys: jax.Array, env: UrbanPedestrians, params: EnvParams, with_q: bool
 ) -> tuple[jax.Array, Any]:
-    """Actions (N, T) and, ``with_q``, Q-values (N, T, 4): the evaluation's own rollout
-    and batches (same rounding), on keys padded by the caller (``padded_keys``)."""
+    """Actions (N, T) and, ``with_q``, Q (N, T, 4) from the evaluation's own rollout."""
 
     def decision(d: Decision) -> tuple[jax.Array, Any]:
         return d.action, d.carry[2] if with_q else None
@@ -167,13 +160,8 @@ def collect_episodes(
     network: Network | None = None,
     network_params: Any = None,
 ) -> EpisodeRecord:
-    """:class:`EpisodeRecord` (NumPy leaves) of ``num_episodes`` episodes of ``agent``.
-
-    The decisions are played as the evaluation plays them (episode i from
-    ``fold_in(key, i)``), then replayed with every state traced: (T + 1) grids per
-    episode (21.6 MB at T = 1000) on the device at once. With ``network`` and
-    ``network_params`` its Q-values are recorded beside (:func:`with_q_values`).
-    """
+    """:class:`EpisodeRecord` (NumPy): played as the evaluation plays, then replayed with
+    every state traced (21.6 MB per episode at T = 1000); ``network`` adds Q-values."""
     if not isinstance(num_episodes, int) or num_episodes < 1:
         raise ValueError(f"num_episodes = {num_episodes!r}, must be an integer >= 1")
     if (network is None) != (network_params is None):

@@ -1,21 +1,7 @@
-"""Gymnasium environments over the JAX simulator (SPEC §1–5), NumPy in and out.
-
-:class:`UrbanPedestriansGymEnv` is a :class:`gymnasium.Env` (no auto-reset);
-:func:`register_gymnasium_envs` registers ``drqn_jax/<id>`` for every
-:func:`drqn_jax.registered_envs` id (the vector env: :mod:`.gymnasium_vector`).
-
-Observation, a ``Dict``: ``grid`` (45, 30, 4) float32 with finite per-channel
-bounds (:func:`grid_speed_high`); ``speed`` shape (1,) float32 (the shape
-``FlattenObservation`` and Stable-Baselines3 expect of a Box); ``last_action``
-``Discrete(5)``, :data:`NO_ACTION_YET` (4) at episode start where the JAX
-observation has −1 (such libraries take only spaces that start at 0). Actions:
-``Discrete(4)``. ``info``: ``collision``, ``goal`` (bools), ``ttc`` (s),
-``distance`` (m), ``speed`` (m/s) float32 and ``time`` int32.
-
-Every reset draws one JAX key from ``np_random``, split into the episode's key and
-the held key; every step splits the held key. The jitted functions are built once
-per static env and take ``EnvParams`` as arguments.
-"""
+"""Gymnasium env over the JAX simulator (SPEC §1–5), NumPy in and out, as ``drqn_jax/<id>``.
+``speed`` has shape (1,) and ``last_action`` is ``Discrete(5)`` (:data:`NO_ACTION_YET` for
+−1): SB3-style libraries need Box shapes and spaces from 0. Resets draw a JAX key from
+``np_random``; steps split the held key."""
 
 from __future__ import annotations
 
@@ -64,19 +50,13 @@ SPEED_CHANNEL = 2  # the grid channel without a fixed upper bound (SPEC §4)
 _BOUND_MARGIN = 1e-5  # relative float32 rounding margin on bounds from EnvParams
 
 
-# --- spaces -----------------------------------------------------------------
 def _round_up_f32(x: float) -> np.float32:
-    """``x`` widened by the float32 rounding margin, as float32."""
     return np.float32(x * (1.0 + _BOUND_MARGIN) if x > 0 else x)
 
 
 def grid_speed_high(params: EnvParams) -> float:
-    """Largest value of the grid's speed channel (SPEC §4) under ``params``.
-
-    ``"relative"``: ``(max_vehicle_speed + ped_speed_max + δ) / speed_norm_relative``,
-    δ bounding the float32 error of a displacement over ``dt`` at the largest world
-    coordinates; ``"pedestrian"``: ``ped_speed_max / speed_norm_pedestrian``.
-    """
+    """Largest grid speed-channel value (SPEC §4); ``"relative"`` adds δ, the float32 error
+    of a displacement over ``dt`` at the largest world coordinates."""
     ped_max = float(params.ped_speed_max)
     if int(params.speed_channel) == SPEED_RELATIVE:
         extent = abs(float(params.goal_x)) + float(params.spawn_max) + float(params.despawn_ahead)
@@ -90,8 +70,7 @@ def grid_speed_high(params: EnvParams) -> float:
 
 
 def gymnasium_observation_space(env: UrbanPedestrians, params: EnvParams) -> spaces.Dict:
-    """The JAX env's observation space (SPEC §4) with finite float32 bounds:
-    ``Dict(grid=Box((rows, cols, 4)), speed=Box((1,)), last_action=Discrete(5))``."""
+    """The JAX env's observation space (SPEC §4) as a ``Dict`` with finite float32 bounds."""
     jax_space = env.observation_space(params)
     grid = jax_space.spaces["grid"]
     low = np.array(np.broadcast_to(np.asarray(grid.low, np.float32), grid.shape))
@@ -117,8 +96,7 @@ def gymnasium_last_action(last_action: np.ndarray) -> np.ndarray:
 
 
 def numpy_observation(obs: Observation) -> dict[str, Any]:
-    """Fresh NumPy observation dict, batch axes kept: ``grid`` float32, ``speed`` (..., 1)
-    float32, ``last_action`` int64 (a scalar when unbatched)."""
+    """Fresh NumPy observation dict, batch axes kept (``speed`` (..., 1))."""
     last_action = gymnasium_last_action(np.array(obs.last_action, np.int64))
     return {
         "grid": np.array(obs.grid, np.float32),
@@ -143,7 +121,6 @@ def valid_action(action: Any, space: spaces.Space) -> Any:
     return action
 
 
-# --- compiled functions, one set per static env ------------------------------
 class _SingleFns(NamedTuple):
     reset: Any  # (key_data (w,) uint32, params) -> (key_data, obs, state)
     step: Any  # (key_data, state, action, params) -> (key_data, obs, state, r, term, trunc, info)
@@ -179,16 +156,14 @@ def single_reset(
 def single_step(
     env: UrbanPedestrians, key_data: jax.Array, state: EnvState, action: jax.Array, params
 ) -> tuple[jax.Array, Observation, EnvState, jax.Array, jax.Array, jax.Array, dict]:
-    """One env's ``step_env`` from raw key data: ``(held key data, obs, state, reward,
-    terminated, truncated, info)``."""
+    """One env's ``step_env`` from raw key data, the held key data first."""
     held, step_key = _split(key_data)
     obs, state, reward, terminated, truncated, info = env.step_env(step_key, state, action, params)
     return held, obs, state, reward, terminated, truncated, info
 
 
 def _packed_step(env: UrbanPedestrians, key_data, state, action, params):
-    """:func:`single_step` with what the host reads packed into two arrays (one transfer
-    each): the grid and a float32 vector of every scalar, info in sorted key order."""
+    """:func:`single_step`, the host's outputs packed: grid, float32 scalars (info sorted)."""
     held, obs, state, reward, terminated, truncated, info = single_step(
         env, key_data, state, action, params
     )
@@ -201,8 +176,7 @@ def _packed_step(env: UrbanPedestrians, key_data, state, action, params):
 def _unpack_step(
     dtypes: tuple[tuple[str, Any], ...], grid: np.ndarray, packed: np.ndarray
 ) -> tuple:
-    """The host side of :func:`_packed_step`: ``(obs, reward, terminated, truncated, info)``
-    at their own dtypes (exact: float32 reals, small integers and flags)."""
+    """Host side of :func:`_packed_step`, back at own dtypes (exact for these values)."""
     speed, last_action, reward, terminated, truncated = packed[:5]
     info = {
         k: bool(v) if dtype == np.bool_ else np.asarray(v).astype(dtype)[()]
@@ -222,7 +196,6 @@ def _info_dtypes(env: UrbanPedestrians, params: EnvParams) -> tuple[tuple[str, A
 
 @cached_program
 def _single_fns(env: UrbanPedestrians) -> _SingleFns:
-    """Jitted reset/step/render of one env, built once per static env."""
     return _SingleFns(
         reset=jax.jit(functools.partial(single_reset, env)),
         step=jax.jit(functools.partial(_packed_step, env)),
@@ -230,15 +203,9 @@ def _single_fns(env: UrbanPedestrians) -> _SingleFns:
     )
 
 
-# --- the single env ---------------------------------------------------------
 class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
-    """The urban-pedestrian env (paper §V-D) as a :class:`gymnasium.Env`.
-
-    ``env_id`` is a :func:`drqn_jax.registered_envs` id, ``overrides`` go to
-    :func:`drqn_jax.make`. It enforces reset-before-step itself (``ResetNeeded``), so it
-    is registered without Gymnasium's order and checker wrappers. Stepping past an
-    episode's end goes on simulating.
-    """
+    """The urban-pedestrian env (paper §V-D); ``overrides`` go to :func:`drqn_jax.make`.
+    Raises ``ResetNeeded`` itself (so no order/checker wrappers); no auto-reset."""
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}  # 1/dt
 
@@ -277,8 +244,7 @@ class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
         return numpy_observation(jax.device_get(obs)), {}
 
     def step(self, action: Any) -> tuple[dict[str, Any], SupportsFloat, bool, bool, dict[str, Any]]:
-        """One decision step: ``(observation, reward, terminated, truncated, info)``, reward
-        a Python float, the flags Python bools; ValueError for an invalid action."""
+        """One decision step; reward a Python float, flags Python bools."""
         action = valid_action(action, self.action_space)
         if self._state is None:
             raise ResetNeeded("Cannot call UrbanPedestriansGymEnv.step before reset")
@@ -299,15 +265,13 @@ class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
         return np.array(self._fns.render(self._state, self._device_params))
 
 
-# --- registration -----------------------------------------------------------
 def gymnasium_ids() -> tuple[str, ...]:
     """``drqn_jax/<id>`` for every :func:`drqn_jax.registered_envs` id."""
     return tuple(f"{NAMESPACE}/{env_id}" for env_id in registered_envs())
 
 
 def register_gymnasium_envs() -> tuple[str, ...]:
-    """Register :func:`gymnasium_ids` (present ids are kept) and return them;
-    ``gymnasium.make`` returns the env itself, unwrapped."""
+    """Register (unwrapped) and return :func:`gymnasium_ids`; present ids are kept."""
     for env_id in registered_envs():
         gym_id = f"{NAMESPACE}/{env_id}"
         if gym_id in gymnasium.registry:

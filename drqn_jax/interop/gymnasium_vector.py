@@ -1,8 +1,5 @@
-"""Gymnasium's native vector env over the JAX simulator (SPEC §1–5): one jitted,
-``vmap``-ed call per step. Spaces, keys and ``info`` are the single env's
-(:mod:`drqn_jax.interop.gymnasium_env`); sub-environment ``i`` behaves exactly like
-``gymnasium.make(id)`` reset with ``seed + i``, whatever ``num_envs`` is.
-"""
+"""Gymnasium vector env over the JAX simulator (SPEC §1–5), one jitted vmapped call per
+step; sub-env ``i`` behaves exactly like ``gymnasium.make(id)`` reset with ``seed + i``."""
 
 from __future__ import annotations
 
@@ -58,9 +55,8 @@ def _restart_where(
     states: EnvState,
     params: EnvParams,
 ) -> tuple[jax.Array, EnvState]:
-    """``held`` (N, w) and ``states`` (N, …) with fresh episodes from ``reset_key_data``
-    where ``restart`` (N,) is set; each depends on its own key only, so computing
-    none, a few (:data:`SPARSE_RESETS`) or all gives the same bits."""
+    """Fresh episodes where ``restart`` (N,) is set; each uses only its own key, so
+    computing none, a few (:data:`SPARSE_RESETS`) or all gives the same bits."""
     n = restart.shape[0]
     k = min(n, SPARSE_RESETS)
 
@@ -100,9 +96,8 @@ def _vector_step(
     autoreset: jax.Array,
     params: EnvParams,
 ):
-    """N sub-environments' steps with auto-reset: NEXT_STEP restarts where ``autoreset``
-    (reward 0, no flags), SAME_STEP where this step ends, returning the final
-    observation too."""
+    """N steps with auto-reset: NEXT_STEP restarts where ``autoreset`` (reward 0, no
+    flags), SAME_STEP where this step ends (final observation returned too)."""
     step = jax.vmap(functools.partial(single_step, env), in_axes=(0, 0, 0, None))
     held, obs_final, stepped, reward, terminated, truncated, info = step(
         key_data, states, actions, params
@@ -119,7 +114,6 @@ def _vector_step(
 
 @cached_program
 def _vector_fns(env: UrbanPedestrians) -> _VectorFns:
-    """Jitted, vmapped reset/step/render of a batch of one static env."""
     reset = jax.vmap(functools.partial(single_reset, env), in_axes=(0, None))
 
     def reset_masked(key_data, held, states, mask, params):
@@ -140,7 +134,6 @@ def _vector_fns(env: UrbanPedestrians) -> _VectorFns:
     )
 
 
-# --- the vector env ---------------------------------------------------------
 def _batched_info(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
     """Gymnasium's vector info layout: ``key`` (N,), zero where ``mask`` is not, and ``_key``."""
     if not mask.any():
@@ -154,12 +147,8 @@ def _batched_info(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, 
 
 
 class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
-    """``num_envs`` copies of the env stepped by one jitted, vmapped call (SPEC §1–5).
-
-    ``autoreset_mode``: ``NEXT_STEP`` (default), ``SAME_STEP`` (``final_obs`` and
-    ``final_info`` as :class:`gymnasium.vector.SyncVectorEnv`) or ``DISABLED`` (reset
-    with ``options={"reset_mask": mask}``). Rewards (N,) float64, flags (N,) bool.
-    """
+    """``num_envs`` envs in one jitted call; ``autoreset_mode`` NEXT_STEP, SAME_STEP (as
+    ``SyncVectorEnv``) or DISABLED (``reset(options={"reset_mask": mask})``)."""
 
     def __init__(
         self,
@@ -209,8 +198,7 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
         return self._states
 
     def _take_reset_keys(self, seeds: list[int | None], which: np.ndarray) -> np.ndarray:
-        """(N, w) uint32 reset keys for ``which``, as ``gymnasium.make(id).reset(seed=seeds[i])``
-        would draw them."""
+        """(N, w) uint32 reset keys for ``which``, as the single env would draw them."""
         if self._next_key_data is None:
             self._next_key_data = np.zeros((self.num_envs, *key_data_shape()), np.uint32)
         keys = np.zeros_like(self._next_key_data)
@@ -227,8 +215,7 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, Any], dict[str, Any]]:
-        """Reset all sub-environments or those in ``options["reset_mask"]``: ``(observations,
-        {})``. ``seed``: None (continue), s (env i gets s + i) or a list of N."""
+        """Reset all or ``options["reset_mask"]``; ``seed``: None, s (env i: s + i) or N seeds."""
         if seed is None:
             seeds: list[int | None] = [None] * self.num_envs
         elif isinstance(seed, int | np.integer):
@@ -265,8 +252,7 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
     def step(
         self, actions: Any
     ) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every sub-environment: ``(observations, rewards, terminations, truncations,
-        infos)`` in Gymnasium's vector info layout."""
+        """Step every sub-environment (infos in Gymnasium's vector layout)."""
         actions = valid_action(actions, self.action_space)
         if self._states is None:
             raise ResetNeeded("Cannot call UrbanPedestriansVectorEnv.step before reset")

@@ -1,34 +1,11 @@
 """Rerun recordings of evaluated episodes (paper §V-E; SPEC §1–5, §8).
-
-:func:`record_episodes` plays greedy episodes (:func:`collect_episodes`: the
-evaluated episodes themselves) and writes one ``.rrd`` file (``rerun FILE.rrd``).
-Entity layout (timeline ``"step"`` = ``state.time``, one prefix and one blueprint
-tab per episode)::
-
-    map/road, map/walkways, map/crosswalks   Boxes2D, static (SPEC §1 regions)
-    map/centre_line, map/goal                 LineStrips2D, static
-    episode/<i>/world/ego                     Boxes2D, steps 0…L, labelled with the HUD text
-                                              (blue; magenta from a collision on)
-    episode/<i>/world/pedestrians             Points2D (radius = ped_radius), steps 0…L
-    episode/<i>/world/headings                Arrows2D: velocity × ttc_horizon, steps 0…L
-    episode/<i>/grid/<channel>                Image (45, 30) float32, steps 0…L, one entity
-                                              per channel: occupancy, heading, speed, semantics
-    episode/<i>/speed_kmh                     Scalars, steps 0…L
-    episode/<i>/action                        Scalars (action code), steps 0…L-1
-    episode/<i>/q/<action name>               Scalars, steps 0…L-1 (DRQN only)
-    episode/<i>/reward                        Scalars, steps 1…L
-    episode/<i>/ttc                           Scalars, steps 1…L where TTC is finite
-    episode/<i>/events                        TextLog: action names at 0…L-1 (a warning
-                                              where a pedestrian struck the standing
-                                              car), end at L
-
-L is the episode's length. Step t shows the state before the t-th decision
-(``action`` and ``q`` at t are decided in it); ``reward`` and ``ttc`` at t are what
-the step *into* state t produced, so a collision's −10 sits on the frame that shows
-it. ``ttc`` is the step's ``info["ttc"]``, measured before pedestrians are replaced,
-so it can differ from the HUD's TTC of the state. World coordinates are metres with
-y negated (:func:`drqn_jax.interop.rerun_map.to_view`); colours are
-:mod:`drqn_jax.env.viewer`'s.
+:func:`record_episodes` writes :func:`collect_episodes`' episodes to one ``.rrd``
+file: a static ``map/``, and per episode ``episode/<i>/`` holds ``world/`` (ego,
+pedestrians, headings), ``grid/<channel>`` images, ``speed_kmh``, ``action``,
+``q/<action>``, ``reward``, ``ttc`` scalars and an ``events`` text log, on the
+``"step"`` timeline (``state.time``). Step t shows the state before decision t;
+``reward``/``ttc`` at t come from the step into state t (a collision's −10 sits on
+the frame that shows it). Coordinates: :func:`~drqn_jax.interop.rerun_map.to_view`.
 """
 
 from __future__ import annotations
@@ -78,9 +55,6 @@ __all__ = [
 
 STEP_TIMELINE = "step"
 GRID_CHANNELS = ("occupancy", "heading", "speed", "semantics")  # SPEC §4 channel order
-
-
-# --- logging episodes ------------------------------------------------------------
 
 
 def _steps(values: np.ndarray | range, timeline: str = STEP_TIMELINE) -> list[rr.TimeColumn]:
@@ -144,8 +118,7 @@ def _log_world(
     ped_radius: float,
     heading_s: float,
 ) -> None:
-    """Episode ``i``'s top view: the ego, the pedestrians and their headings (``heading_s``
-    seconds of walking)."""
+    """Episode ``i``'s top view: ego, pedestrians, headings (``heading_s`` s of walking)."""
     root, n, states = _span(record, i)
     peds = jax.tree.map(lambda x: x[i, : n + 1], record.state.pedestrians)
     num_peds = peds.position.shape[1]
@@ -170,7 +143,6 @@ def _log_world(
     colours = np.concatenate([palette[behaviour], alpha[:, None]], axis=1)
     positions = to_view(peds.position.reshape(-1, 2))
     lengths = [num_peds] * (n + 1)
-    # behaviour names show on hover only
     rec.log(f"{root}/world/pedestrians", rr.Points2D.from_fields(show_labels=False), static=True)
     rec.send_columns(
         f"{root}/world/pedestrians",
@@ -270,8 +242,7 @@ def episode_blueprint(
     *,
     x_range: tuple[float, float] | None = None,
 ) -> rrb.Blueprint:
-    """The layout :func:`write_episodes` saves: a tab per episode with the world (x over
-    ``x_range``, default the whole map), the grid channels, the curves and the log."""
+    """The saved layout: a tab per episode (world over ``x_range``, grids, curves, log)."""
     x_min, x_max, y_half = map_extent(env, params)
     if x_range is not None:
         x_min, x_max = x_range
@@ -348,8 +319,7 @@ def write_episodes(
     application_id: str = "drqn_jax",
     blueprint: rrb.Blueprint | None = None,
 ) -> None:
-    """Log :func:`collect_episodes`' episodes to a new ``.rrd`` file with ``blueprint``
-    (default :func:`episode_blueprint`) as its layout."""
+    """Log :func:`collect_episodes`' episodes to a new ``.rrd`` file (layout ``blueprint``)."""
     env_params = env.default_params if env_params is None else env_params
     if blueprint is None:
         has_q = record.q_values is not None
@@ -376,8 +346,7 @@ def record_episodes(
     network_params: Any = None,
     application_id: str = "drqn_jax",
 ) -> None:
-    """Save ``num_episodes`` episodes of ``agent`` (those :func:`drqn_jax.evaluate` plays
-    with ``key``) as a rerun recording; ``network`` and ``network_params`` add Q-values."""
+    """Record the episodes :func:`drqn_jax.evaluate` plays with ``key``; ``network`` adds Q."""
     record = collect_episodes(
         agent, key, num_episodes, env, env_params, network=network, network_params=network_params
     )

@@ -1,7 +1,5 @@
-"""The static map of a rerun recording (SPEC §1) under ``map/``, and the behaviour
-annotation context on ``/``. Positions are metres with y negated (:func:`to_view`:
-rerun's 2D y points down), so the ego drives on the right as in SPEC §1.
-"""
+"""A rerun recording's static map (SPEC §1) and behaviour annotations; y is negated
+(:func:`to_view`) so the ego drives on the right as in SPEC §1."""
 
 from __future__ import annotations
 
@@ -46,7 +44,6 @@ class MapRegion:
 
 
 def _f(x: Any) -> float:
-    """A traced scalar as a Python float."""
     return float(np.asarray(x))
 
 
@@ -59,8 +56,7 @@ def map_extent(env: UrbanPedestrians, params: EnvParams) -> tuple[float, float, 
 
 
 def map_regions(env: UrbanPedestrians, params: EnvParams) -> list[MapRegion]:
-    """The SPEC §1 map as rectangles, each of the class
-    :func:`~drqn_jax.env.road_map.semantic_class` gives its interior."""
+    """The SPEC §1 map as rectangles of the class ``semantic_class`` gives their interior."""
     x_min, x_max, y_half = map_extent(env, params)
     lane, side = _f(params.lane_width), _f(params.sidewalk_width)
     half_street, cw = 0.5 * _f(params.cross_street_width), _f(params.crosswalk_width)

@@ -1,11 +1,5 @@
 """Rerun recordings of training curves (paper §V-E): one run's per-episode metrics
-(:func:`record_training`) and a study's curves over seeds (:func:`record_study_curves`).
-
-A training recording (timeline ``"episode"``) holds ``training/return``, ``length``,
-``loss`` (the episode's mean TD loss), ``epsilon``, ``collision_rate`` and
-``goal_rate`` (running means over :data:`COLLISION_RATE_WINDOW` episodes),
-``distance`` (m) and ``mean_speed_kmh`` where the metrics hold them.
-"""
+(timeline ``"episode"``) and a study's curves over seeds (timeline ``"env_steps"``)."""
 
 from __future__ import annotations
 
@@ -47,13 +41,8 @@ def running_mean(values: np.ndarray, window: int = COLLISION_RATE_WINDOW) -> np.
 def record_training(
     path: str | Path, metrics: Mapping[str, np.ndarray], *, application_id: str = "drqn_jax"
 ) -> None:
-    """Save training curves to the ``.rrd`` file ``path``, one value per recorded episode.
-
-    ``metrics``: (N,) arrays as ``drqn_jax.experiments.runner.recorded_metrics``
-    returns them: ``episode``, ``episode_return``, ``length``, ``collision``,
-    ``mean_loss``, ``epsilon``, optionally ``goal``, ``distance``, ``mean_speed``
-    (m/s). ValueError when one is missing or the lengths differ.
-    """
+    """Save training curves to ``path``: ``metrics`` (N,) arrays per recorded episode, as
+    ``recorded_metrics`` returns them; rates are running means."""
     missing = [name for name in _REQUIRED_METRICS if name not in metrics]
     if missing:
         raise ValueError(f"record_training: metrics lack {', '.join(missing)}")
@@ -109,9 +98,7 @@ def _send_series(
 def record_study_curves(
     path: str | Path, curves: Mapping[str, Mapping[str, Any]], *, application_id: str = "drqn_jax"
 ) -> None:
-    """Save a study's curves (:func:`drqn_jax.experiments.curves.load_curves` per config)
-    on the ``env_steps`` timeline: ``curves/<metric>/<config>/{mean,low,high}`` over
-    seeds and ``…/seed<k>``, each seed's raw values."""
+    """Save ``load_curves`` per config as ``curves/<metric>/<config>/{mean,low,high,seed<k>}``."""
     metrics = sorted({m for by_metric in curves.values() for m in by_metric})
     views = {m: f"/curves/{m}" for m in metrics}
     rec = open_recording(path, application_id, _series_blueprint(views, ENV_STEPS_TIMELINE))
