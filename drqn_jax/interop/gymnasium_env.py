@@ -156,9 +156,11 @@ def single_reset(
 def single_step(
     env: UrbanPedestrians, key_data: jax.Array, state: EnvState, action: jax.Array, params
 ) -> tuple[jax.Array, Observation, EnvState, jax.Array, jax.Array, jax.Array, dict]:
-    """One env's ``step_env`` from raw key data, the held key data first."""
+    """One env's ``step_env`` from raw key data, the held key data first. The info holds
+    the decision's scalars (SPEC §5); a k-tick decision's per-tick ``ticks`` stay in JAX."""
     held, step_key = _split(key_data)
     obs, state, reward, terminated, truncated, info = env.step_env(step_key, state, action, params)
+    info = {k: v for k, v in info.items() if k != "ticks"}
     return held, obs, state, reward, terminated, truncated, info
 
 

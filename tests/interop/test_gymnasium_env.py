@@ -101,6 +101,22 @@ def test_kwargs_reach_drqn_jax_make():
         gymnasium.make(ID, no_such_field=1)
 
 
+def test_decision_steps_reach_gymnasium_single_and_vector_envs():
+    """``decision_steps`` is an env field like any other: a step is one k-tick decision,
+    the info the decision's scalars."""
+    env = gymnasium.make(ID, max_steps=20, decision_steps=4)
+    assert env.unwrapped.jax_env.static.decision_steps == 4
+    env.reset(seed=0)
+    *_, info = env.step(0)
+    assert info["time"] == 4 and "ticks" not in info
+    vec = gymnasium.make_vec(
+        ID, num_envs=2, vectorization_mode="vector_entry_point", max_steps=20, decision_steps=4
+    )
+    vec.reset(seed=0)
+    *_, infos = vec.step(np.zeros(2, np.int64))
+    np.testing.assert_array_equal(infos["time"], [4, 4])
+
+
 # --- the single env -------------------------------------------------------------
 @pytest.mark.parametrize("gym_id", [ID, ID_REALISTIC])
 def test_check_env_passes_without_warnings(gym_id):
