@@ -143,7 +143,9 @@ def training_estimate(config: Config, runs: int, batched: bool = False) -> dict[
     if isinstance(figures, str):
         return figures
     steps_per_s = figures["env_steps"] / figures["seconds"]
-    steps = train["num_env_steps"] or train["num_episodes"] * config["env"]["max_steps"]
+    env = config["env"]
+    longest = -(-env["max_steps"] // env["decision_steps"])  # decisions of an episode
+    steps = train["num_env_steps"] or train["num_episodes"] * longest
     return {
         "runs": runs,
         "env_steps_per_run": steps,

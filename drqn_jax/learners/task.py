@@ -128,7 +128,7 @@ def urban_task(env_id: str = "UrbanPedestrians-v0", **overrides: Any) -> Task:
 
     def episode_metrics(step: Step, length: jax.Array, params: EnvParams) -> dict:
         info = step.info
-        duration = length.astype(jnp.float32) * params.dt
+        duration = info["time"].astype(jnp.float32) * params.dt  # ticks: k per decision
         return {
             "collision": info["collision"],
             "goal": info["goal"],
@@ -155,7 +155,7 @@ def urban_task(env_id: str = "UrbanPedestrians-v0", **overrides: Any) -> Task:
         env=env,
         env_params=params,
         num_actions=env.num_actions,
-        max_steps=static.max_steps,
+        max_steps=-(-static.max_steps // static.decision_steps),  # decisions
         decision_steps=static.decision_steps,
         record=GridInputs.empty(static.num_pedestrians),
         reset=env.reset,

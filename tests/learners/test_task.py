@@ -13,7 +13,7 @@ import pytest
 
 from benchmarks.gymnax_validation import cartpole_config
 from drqn_jax.learners import make_train
-from drqn_jax.learners.task import make_task
+from drqn_jax.learners.task import Step, make_task
 from drqn_jax.testing import check_env_contract
 
 
@@ -60,3 +60,20 @@ def test_the_wrapped_gymnax_env_keeps_the_contract():
     )
     assert report.terminations >= report.num_envs, report
     assert report.reward_min == report.reward_max == 1.0, report
+
+
+def test_k_tick_tasks_count_decisions_and_measure_speed_over_ticks():
+    """With ``decision_steps = 4`` the replay's slots hold ceil(max_steps / 4) decisions
+    and an episode's mean speed is its distance over its ticks (``info["time"]``), not
+    over its decisions."""
+    task = make_task("UrbanPedestrians-v0", (("max_steps", 30), ("decision_steps", 4)))
+    assert task.max_steps == 8 and task.decision_steps == 4
+    info = {
+        "collision": jnp.zeros(1, bool),
+        "goal": jnp.zeros(1, bool),
+        "distance": jnp.full(1, 6.0),
+        "time": jnp.full(1, 30, jnp.int32),
+    }
+    step = Step(None, None, None, None, None, None, info)  # only the info is read
+    speed = task.episode_metrics(step, jnp.full(1, 8, jnp.int32), task.env_params)["mean_speed"]
+    np.testing.assert_allclose(speed, 6.0 / (30 * 0.1), rtol=1e-6)
