@@ -31,7 +31,7 @@ from typing import Any
 
 from benchmarks.harness import base_parser, markdown_table, report, write_json
 from drqn_jax.config import Config, load_config
-from drqn_jax.experiments.baselines import env_key, frontier_key
+from drqn_jax.experiments.baselines import frontier_key
 from drqn_jax.experiments.curves import greedy_curve
 from drqn_jax.experiments.frontier import with_margin
 from drqn_jax.experiments.report import margin_cell
@@ -50,16 +50,14 @@ COLUMNS = {
 
 def stored_frontier(config: Config, results: Path = RESULTS) -> dict[str, Any] | None:
     """The rule-based frontier of ``config``'s world and evaluation episodes in any
-    section of ``results`` (``docs/results.json``), or None. Sections store it under
-    :func:`frontier_key`, those written before that key under :func:`env_key`."""
+    section of ``results`` (``docs/results.json``, under :func:`frontier_key`), or None."""
     if not results.is_file():
         return None
     sections = json.loads(results.read_text(encoding="utf-8")).get("sections", {})
-    for key in (frontier_key(config), env_key(config)):
-        for section in sections.values():
-            record = section.get("frontiers", {}).get(key)
-            if record is not None:
-                return record
+    for section in sections.values():
+        record = section.get("frontiers", {}).get(frontier_key(config))
+        if record is not None:
+            return record
     return None
 
 

@@ -39,15 +39,23 @@ def _digest(config: Config, **sections: Any) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
+def _yardstick_env(config: Config) -> dict[str, Any]:
+    """``[env]`` as the yardstick plays it: it decides at every tick (SPEC §9), so the
+    decision interval and how a setpoint moves over a decision do not change it."""
+    return {
+        k: v for k, v in config["env"].items() if k not in ("decision_steps", "setpoint_change")
+    }
+
+
 def env_key(config: Config) -> str:
     """Digest of ``[env]``, ``[rule_based]`` and the evaluation episodes: the baseline's key."""
-    return _digest(config, env=config["env"], rule_based=config["rule_based"])
+    return _digest(config, env=_yardstick_env(config), rule_based=config["rule_based"])
 
 
 def frontier_key(config: Config) -> str:
     """Digest of ``[env]`` without ``reward_*``, ``[planner]`` and the evaluation episodes:
     configs that agree share frontiers, and their arms are paired."""
-    env = {k: v for k, v in config["env"].items() if not k.startswith("reward_")}
+    env = {k: v for k, v in _yardstick_env(config).items() if not k.startswith("reward_")}
     return _digest(config, env=env, planner=config["planner"])
 
 
