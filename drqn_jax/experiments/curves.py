@@ -121,11 +121,15 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
 
 #: What a point of :func:`greedy_curve` keeps of its evaluation (SPEC §8 names).
 GREEDY_KEYS = (
+    "num_episodes",
     "collision_free_rate",
     "collision_free_ci",
     "struck_while_stopped_rate",
     "goal_rate",
     "avg_speed_kmh",
+    "avg_speed_authors_kmh",
+    "avg_distance_m",
+    "avg_distance_collision_free_m",
     "avg_return",
 )
 
