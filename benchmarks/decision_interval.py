@@ -20,8 +20,11 @@ continues an interrupted study, on this machine or another clone.
 
 from __future__ import annotations
 
+import argparse
+import shlex
 import sys
 import time
+from pathlib import Path
 from collections.abc import Sequence
 from typing import Any
 
@@ -48,31 +51,29 @@ COLUMNS = {
 }
 
 
-def arm_label(name: str, k: int) -> str:
-    """The row label of config ``name`` at ``k`` ticks per decision."""
-    return f"drqn_jax: {name}, k = {k}"
+def arm_label(name: str, k: int, sets: Sequence[str] = ()) -> str:
+    """The row label of config ``name`` at ``k`` ticks per decision with overrides ``sets``."""
+    return ", ".join([f"drqn_jax: {name}", f"k = {k}", *sets])
 
 
-def arm_config(name: str, k: int, ticks: int, episodes: int, seed: int) -> Config:
-    """Config ``name`` at ``k`` ticks per decision with ``ticks // k`` decisions of training."""
-    return load_config(
-        name,
-        [
-            f"env.decision_steps={k}",
-            f"train.num_env_steps={ticks // k}",
-            f"evaluate.episodes={episodes}",
-            f"run.seed={seed}",
-        ],
-    )
+def arm(name: str, k: int, args: argparse.Namespace) -> tuple[str, Config]:
+    """The label and config of ``name`` (with ``--set``) at ``k`` ticks per decision,
+    trained on ``--ticks // k`` decisions."""
+    sets = [
+        *args.set,
+        f"env.decision_steps={k}",
+        f"train.num_env_steps={args.ticks // k}",
+        f"evaluate.episodes={args.episodes}",
+        f"run.seed={args.seed}",
+    ]
+    return arm_label(name, k, args.set), load_config(name, sets)
 
 
-def arm_row(name: str, config: Config, point: dict[str, Any], frontier: Any) -> dict[str, Any]:
-    """The results row of an arm's last curve point (its trained agent)."""
+def arm_row(label: str, config: Config, point: dict[str, Any], frontier: Any) -> dict[str, Any]:
+    """The results row ``label`` of an arm's last curve point (its trained agent)."""
     k = config["env"]["decision_steps"]
-    run = {**point, "env_steps": point["env_steps"], "train_wall_s": point["train_s"]}
-    row = study_row(
-        arm_label(name, k), agent_name(config.train_config()), [run], world=config["env"]["id"]
-    )
+    run = {**point, "train_wall_s": point["train_s"]}
+    row = study_row(label, agent_name(config.train_config()), [run], world=config["env"]["id"])
     row.update(decision_steps=k, ticks_per_seed=k * point["env_steps"])
     return with_margin(row, frontier, config.speed_limit_kmh())
 
@@ -93,39 +94,42 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--seed", type=int, default=0, help="run.seed of every arm")
     parser.add_argument("--results", default="docs/results.json", help="the results file")
     parser.add_argument("--section", default="decision-interval", help="its section")
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override"
+    )
     args = parser.parse_args(argv)
     names = [n for n in args.configs.split(",") if n]
     ks = [int(k) for k in args.k.split(",") if k]
     if min(ks) < 1 or args.ticks < max(ks) or args.points < 1 or args.episodes < 1:
         parser.error("--k >= 1, --ticks >= the largest k, --points and --episodes >= 1")
-    arms = [
-        (n, k, arm_config(n, k, args.ticks, args.episodes, args.seed)) for n in names for k in ks
-    ]
-    frontier = stored_frontier(arms[0][2])
-    if frontier is None or any(frontier_key(c) != frontier_key(arms[0][2]) for *_, c in arms):
-        parser.error("the arms need one world and episodes with a frontier in docs/results.json")
+    arms = [arm(n, k, args) for n in names for k in ks]
+    frontier = stored_frontier(arms[0][1], Path(args.results))
+    if frontier is None or any(frontier_key(c) != frontier_key(arms[0][1]) for _, c in arms):
+        parser.error("the arms need one world and episodes with a frontier in --results")
     rows, about = _stored(args.results, args.section)
     curves = dict(about.get("curves", {}))
     earlier_s, start = about.get("wall_time_s", 0.0), time.perf_counter()
-    command = " ".join(["python -m benchmarks.decision_interval", *(argv or sys.argv[1:])])
-    for name, k, config in arms:
-        if any(r["label"] == arm_label(name, k) for r in rows):
+    command = shlex.join(["python", "-m", "benchmarks.decision_interval", *(argv or sys.argv[1:])])
+    commands = [c for c in about.get("command", "").splitlines() if c != command] + [command]
+    for label, config in arms:
+        if any(r["label"] == label for r in rows):
             continue
-        print(f"{name}, k = {k}: {config['train']['num_env_steps']:,} decisions", flush=True)
+        k = config["env"]["decision_steps"]
+        print(f"{label}: {config['train']['num_env_steps']:,} decisions", flush=True)
         status, points = greedy_curve(config, args.points, args.episodes)
         if status != "finished":
-            parser.exit(130, f"{name}, k = {k}: {status}; the finished arms are stored\n")
+            parser.exit(130, f"{label}: {status}; the finished arms are stored\n")
         for p in points:
             p["ticks"] = k * p["env_steps"]
-        rows.append(arm_row(name, config, points[-1], frontier))
-        curves[arm_label(name, k)] = points
+        rows.append(arm_row(label, config, points[-1], frontier))
+        curves[label] = points
         write_results(
             args.results,
             args.section,
             rows,
             [frontier_comparison(r) for r in rows],
             {
-                "command": command,
+                "command": "\n".join(commands),
                 "wall_time_s": earlier_s + time.perf_counter() - start,
                 "continued": True,
                 "machine": machine_info(),

@@ -1,0 +1,63 @@
+"""``benchmarks.decision_interval`` at tiny sizes: arms at k ticks per decision on one
+budget of ticks, their rows and curves stored, a second call trains nothing."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from benchmarks import decision_interval
+from drqn_jax.config import load_config
+from drqn_jax.experiments.baselines import frontier_key
+from tests.helpers import HAND_FRONTIER
+
+TINY = [
+    "train.algorithm=pqn",
+    "train.num_envs=4",
+    "train.rollout_steps=8",
+    "train.num_minibatches=2",
+    "train.chunk_iterations=1",
+    "network.layer_norm=true",
+]
+
+
+def _args(results, *extra):
+    sets = [x for s in TINY for x in ("--set", s)]
+    return ["--configs", "smoke", "--ticks", "64", "--points", "1", "--episodes", "4",
+            "--results", str(results), *sets, *extra]  # fmt: skip
+
+
+def test_each_arm_trains_ticks_over_k_decisions_and_is_stored_once(tmp_path, capsys):
+    config = load_config("smoke", [*TINY, "evaluate.episodes=4"])
+    results = tmp_path / "results.json"
+    frontiers = {frontier_key(config): HAND_FRONTIER}
+    results.write_text(json.dumps({"rows": [], "sections": {"f": {"frontiers": frontiers}}}))
+
+    decision_interval.main(_args(results, "--k", "1,2"))
+    record = json.loads(results.read_text())
+    rows = [r for r in record["rows"] if r["section"] == "decision-interval"]
+    assert [(r["decision_steps"], r["label"]) for r in rows] == [
+        (1, "drqn_jax: smoke, k = 1, " + ", ".join(TINY)),
+        (2, "drqn_jax: smoke, k = 2, " + ", ".join(TINY)),
+    ]
+    curves = record["sections"]["decision-interval"]["curves"]
+    for row in rows:
+        (point,) = curves[row["label"]]
+        k = row["decision_steps"]
+        assert point["ticks"] == k * point["env_steps"] == row["ticks_per_seed"]
+        assert point["env_steps"] >= 64 // k  # the budget in ticks, reached at a chunk's end
+        assert row["frontier_margin"] is not None and row["episodes"] == 4
+
+    capsys.readouterr()
+    decision_interval.main(_args(results, "--k", "1,2"))
+    assert "decisions" not in capsys.readouterr().out  # nothing trained again
+    assert json.loads(results.read_text())["rows"] == record["rows"]
+
+
+def test_an_arm_without_a_stored_frontier_is_refused(tmp_path):
+    results = tmp_path / "results.json"
+    results.write_text(json.dumps({"rows": [], "sections": {}}))
+    with pytest.raises(SystemExit) as refused:
+        decision_interval.main(_args(results, "--k", "1"))
+    assert refused.value.code == 2
