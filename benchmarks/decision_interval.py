@@ -24,8 +24,8 @@ import argparse
 import shlex
 import sys
 import time
-from pathlib import Path
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from benchmarks.harness import base_parser, markdown_table, report
@@ -38,7 +38,7 @@ from drqn_jax.experiments.machine import machine_info
 from drqn_jax.experiments.report import load_results, margin_cell, write_results
 from drqn_jax.experiments.rows import study_row
 from drqn_jax.experiments.verdicts import frontier_comparison
-from drqn_jax.learners.hyperparams import agent_name
+from drqn_jax.learners.hyperparams import agent_name, teacher_label
 
 COLUMNS = {
     "label": "arm",
@@ -72,7 +72,8 @@ def arm(name: str, k: int, args: argparse.Namespace) -> tuple[str, Config]:
 def arm_row(label: str, config: Config, point: dict[str, Any], frontier: Any) -> dict[str, Any]:
     """The results row ``label`` of an arm's last curve point (its trained agent)."""
     k = config["env"]["decision_steps"]
-    run = {**point, "train_wall_s": point["train_s"]}
+    teacher = teacher_label(config.hyperparams())
+    run = {**point, "train_wall_s": point["train_s"], "teacher": teacher}
     row = study_row(label, agent_name(config.train_config()), [run], world=config["env"]["id"])
     row.update(decision_steps=k, ticks_per_seed=k * point["env_steps"])
     return with_margin(row, frontier, config.speed_limit_kmh())

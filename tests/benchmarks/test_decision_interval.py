@@ -48,6 +48,7 @@ def test_each_arm_trains_ticks_over_k_decisions_and_is_stored_once(tmp_path, cap
         assert point["ticks"] == k * point["env_steps"] == row["ticks_per_seed"]
         assert point["env_steps"] >= 64 // k  # the budget in ticks, reached at a chunk's end
         assert row["frontier_margin"] is not None and row["episodes"] == 4
+        assert row["learned"] == "none (reward alone)"
 
     capsys.readouterr()
     decision_interval.main(_args(results, "--k", "1,2"))
