@@ -17,6 +17,17 @@ from drqn_jax.experiments.runner import EXIT_OK
 
 
 def cmd_frontier(args: argparse.Namespace) -> int:
+    """The rule-based family's safety/speed frontier and the privileged planner's
+    ceiling (SPEC §9) on a config's evaluation episodes
+
+    Sweep the rule-based agent over its parameters (v_max from 1 km/h to the speed
+    limit, lookahead, horizon, corridor margin) on the config's evaluation episodes as one
+    compiled program, and keep its Pareto-efficient points (collision-free rate against
+    average speed): the frontier every agent's margin is measured against. Then play the
+    privileged planner (it sees the true state: a ceiling, never a learner's competitor)
+    at each speed cap. Prints both with their wall times; writes OUT/frontier.json (every
+    swept point) and OUT/frontier.png, and with --results a section of the results file.
+    """
     from drqn_jax.experiments.baselines import config_frontier
     from drqn_jax.experiments.frontier import WIDE_GRID, grid_settings
 

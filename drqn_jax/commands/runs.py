@@ -35,6 +35,12 @@ from drqn_jax.learners.selection import selection
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    """Train the DRQN
+
+    Train the DRQN of a config; writes config.toml, metrics.csv, checkpoints,
+    evaluation.json and results.md to the run directory. Ctrl-C (or SIGTERM) saves a
+    checkpoint and exits with status 130; --resume continues bit-identically.
+    """
     start = time.perf_counter()
     if args.resume is not None:
         if args.config != "default" or args.run_dir is not None:
@@ -200,6 +206,13 @@ def _chosen_agent(args: argparse.Namespace, overrides: list[str]) -> tuple[Confi
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Evaluate a trained run or a built-in agent
+
+    Evaluate a run directory's DRQN (or a sweep's or study's trained agent,
+    OUT/agents/run-NNNN) or a built-in agent greedily on the evaluation key and print the
+    SPEC §8 metrics. --set changes the episodes, not the agent: e.g. --set env.id=...
+    evaluates it among other pedestrians, --seed 0 on a study's episodes.
+    """
     overrides = list(args.overrides)
     if args.episodes is not None:
         overrides.append(f"evaluate.episodes={args.episodes}")
@@ -272,6 +285,16 @@ def _headline_dir() -> Path:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
+    """Train, evaluate and print the paper's Table III beside ours
+
+    Evaluate the trained agent shipped with drqn_jax (--agent headline, its provenance
+    printed) and the paper's rule-based agent on evaluate.episodes episodes each (1000),
+    sweep the rule-based family's frontier on the same episodes, and print the paper's
+    Table III beside ours with each agent's margin to the frontier, the verdict on the
+    paper's claim, the safety/speed figure's path and the wall time. --train trains the
+    agent again first (its config, or --config) and evaluates that one. Writes
+    evaluation.json, results.md and safety_speed.png to the run directory.
+    """
     start = time.perf_counter()
     if args.train:
         source = args.config or _headline_dir() / "config.toml"
@@ -325,6 +348,13 @@ def _training_estimate(config: Config) -> str:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    """Record episodes of a trained run or a built-in agent for the rerun viewer
+
+    Record episodes of a run directory's greedy DRQN (with its four Q-values per step)
+    or of a built-in agent as a rerun recording: the map, the ego, the pedestrians coloured
+    by behaviour, the four grid channels, speed, action, reward and TTC on the timeline
+    "step". Episode i is episode i of `evaluate`. View it with: rerun PATH
+    """
     from drqn_jax.interop.episode_record import collect_episodes
     from drqn_jax.interop.recording import write_episodes
 
@@ -365,6 +395,16 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    """Write a finished run's trained agent alone (a few MB) to a directory
+
+    Write the agent of a finished run directory as OUT/config.toml, OUT/agent.npz (its
+    parameters alone: a few MB, with the config's training hash) and OUT/provenance.json
+    (the training command, episodes, env steps, gradient steps and wall time, the commit
+    and device that trained it, and this machine; a sweep's run names its own, a drqn-jax
+    train run is taken to have trained here: export it where it trained). evaluate and
+    replay read OUT like a run directory; a directory under drqn_jax/agents/trained/NAME is
+    shipped with the package as --agent NAME.
+    """
     from drqn_jax.experiments.runner import export_agent
     from drqn_jax.experiments.sweep_outputs import run_record
 

@@ -16,6 +16,20 @@ from drqn_jax.experiments.runner import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 
 
 def cmd_study(args: argparse.Namespace) -> int:
+    """Configs x seeds trained and evaluated on the same episodes, beside the
+    rule-based agent: Table III with intervals, and training curves
+
+    Train every config for seeds 0 … N-1 (a sweep over run.seed in OUT/<config>/),
+    evaluate every run and the rule-based agent greedily on the same episodes (the first
+    seed's evaluation key), and write OUT/study.md (the paper's Table III beside ours:
+    collision-free % with a 95 % interval across seeds, speed, distance, goal %, collisions
+    per km), OUT/study.json and the training curves (mean and min-max over seeds) as
+    OUT/curves.png and OUT/curves.rrd. Each run's trained agent is
+    OUT/<config>/agents/run-NNNN. Ctrl-C saves checkpoints (status 130); the same command
+    continues the study, with a larger --seeds adds seeds, and --eval-envs on a finished
+    study only evaluates. With --runs-store an interrupted study keeps its finished runs
+    in a file of their own, and the same command in a fresh --out trains only the others.
+    """
     from drqn_jax.experiments.portable import drop_store, load_store
     from drqn_jax.experiments.study import plan_study, run_study
 
@@ -154,6 +168,13 @@ def _estimate(arms) -> str:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    """Fill the results blocks of documents from the results file a study wrote
+
+    Regenerate every block between '<!-- results:NAME -->' and '<!-- /results -->' in
+    the documents from section NAME of the results file (drqn-jax study --results FILE
+    --section NAME writes it): its table, comparisons, command and wall time, so that no
+    document retypes a number.
+    """
     from drqn_jax.experiments.report import load_results, stale_documents, update_document
 
     if not Path(args.results).is_file():

@@ -15,6 +15,17 @@ from drqn_jax.experiments.runner import EXIT_INTERRUPTED, EXIT_OK
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
+    """Train and evaluate a grid of seeds x hyperparameters as one program per shape
+
+    Run every point of a sweep file: points that share shapes train together in
+    compiled jit(vmap) calls, sharded over all local devices, as many per call as the
+    memory plan allows; each run is evaluated on the same episodes. Writes results.md and
+    results.csv (mean, std, 95 % t-interval and IQM across seeds per setting), runs.json
+    (every run) and every run's trained agent in OUT/agents/run-NNNN. Ctrl-C saves
+    checkpoints (status 130); --resume continues, also a sweep file given more points
+    (more seeds). With several processes each trains its slice of the runs and process 0
+    writes the results.
+    """
     import jax
 
     from drqn_jax.experiments.sweep import load_sweep, summarize_sweep, sweep_csv, sweep_table
