@@ -4,12 +4,25 @@ the exit status."""
 from __future__ import annotations
 
 import datetime
+import sys
 from pathlib import Path
 
-from drqn_jax.config import ConfigError
+from drqn_jax.config import Config, ConfigError
 from drqn_jax.experiments.report import check_section
 
-__all__ = ["check_section_option", "default_run_dir", "duration_text"]
+__all__ = [
+    "check_section_option",
+    "default_run_dir",
+    "duration_text",
+    "episodes_text",
+    "evaluation_overrides",
+    "say",
+]
+
+
+def say(text: str) -> None:
+    """A status line on stderr (stdout holds the results)."""
+    print(text, file=sys.stderr, flush=True)
 
 
 def default_run_dir(prefix: str, config_name: str) -> Path:
@@ -32,3 +45,22 @@ def check_section_option(section: str) -> None:
         check_section(section)
     except ValueError as err:
         raise ConfigError(str(err)) from None
+
+
+def evaluation_overrides(
+    overrides: list[str], episodes: int | None = None, seed: int | None = None
+) -> list[str]:
+    """``overrides`` (--set), then --episodes and --seed as evaluate.episodes and run.seed."""
+    given = {"evaluate.episodes": episodes, "run.seed": seed}
+    return [
+        *overrides,
+        *(f"{field}={value}" for field, value in given.items() if value is not None),
+    ]
+
+
+def episodes_text(config: Config) -> str:
+    """``N episodes of ENV_ID (evaluation key of seed S)``: the episodes an agent plays."""
+    return (
+        f"{config['evaluate']['episodes']} episodes of {config['env']['id']} "
+        f"(evaluation key of seed {config['run']['seed']})"
+    )

@@ -22,7 +22,7 @@ SUITE = (
 )
 
 #: Benchmarks run by name only, not by ``all`` (long, not throughput figures).
-TOOLS = ("gymnax_validation", "learning_curve")
+TOOLS = ("gymnax_validation", "learning_curve", "decision_interval")
 
 
 def _run_benchmark(name: str, args: Sequence[str]) -> int:

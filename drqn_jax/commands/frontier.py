@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from drqn_jax.commands import check_section_option, default_run_dir
+from drqn_jax.commands import (
+    check_section_option,
+    default_run_dir,
+    episodes_text,
+    evaluation_overrides,
+    say,
+)
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.env.params import KMH
 from drqn_jax.experiments.checkpoint import atomic_write_text
@@ -17,19 +22,34 @@ from drqn_jax.experiments.runner import EXIT_OK
 
 
 def cmd_frontier(args: argparse.Namespace) -> int:
+    """The rule-based family's safety/speed frontier and the privileged planner's
+    ceiling (SPEC §9) on a config's evaluation episodes
+
+    Sweep the rule-based agent's parameters (v_max up to the speed limit, lookahead,
+    horizon, corridor margin) as one compiled program and keep the Pareto-efficient points
+    (collision-free rate against average speed): the frontier every agent's margin is
+    measured against. Then play the privileged planner at each speed cap. Writes
+    OUT/frontier.json (every swept point) and OUT/frontier.png.
+    """
     from drqn_jax.experiments.baselines import config_frontier
     from drqn_jax.experiments.frontier import WIDE_GRID, grid_settings
 
-    config, caps = _frontier_config(args)
+    overrides = evaluation_overrides(args.overrides, args.episodes, args.seed)
+    config = load_config(args.config, overrides)
+    try:
+        caps = [float(c) for c in args.caps.split(",") if c.strip()]
+    except ValueError:
+        raise ConfigError(f"--caps {args.caps!r}: must be numbers (km/h), e.g. 5,10,15") from None
+    if args.check < 0:
+        raise ConfigError(f"--check {args.check}: must be an integer >= 0")
+    if args.results:
+        check_section_option(args.section)
     settings = grid_settings(WIDE_GRID) if args.wide else None
     if not args.quiet:
-        print(
+        say(
             f"sweeping {len(settings) if settings else 'the default'} rule-based settings"
             + ("" if args.no_planner else f" and the planner at {len(caps)} caps")
-            + f" on {config['evaluate']['episodes']} episodes of {config['env']['id']} "
-            f"(evaluation key of seed {config['run']['seed']})...",
-            file=sys.stderr,
-            flush=True,
+            + f" on {episodes_text(config)}..."
         )
     start = time.perf_counter()
     try:
@@ -42,25 +62,6 @@ def cmd_frontier(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - start
     _frontier_outputs(args, config, record, checks, wall)
     return EXIT_OK
-
-
-def _frontier_config(args: argparse.Namespace) -> tuple[Config, list[float]]:
-    """``frontier``'s config and --caps, checked before anything compiles."""
-    overrides = list(args.overrides)
-    if args.episodes is not None:
-        overrides.append(f"evaluate.episodes={args.episodes}")
-    if args.seed is not None:
-        overrides.append(f"run.seed={args.seed}")
-    config = load_config(args.config, overrides)
-    try:
-        caps = [float(c) for c in args.caps.split(",") if c.strip()]
-    except ValueError:
-        raise ConfigError(f"--caps {args.caps!r}: must be numbers (km/h), e.g. 5,10,15") from None
-    if args.check < 0:
-        raise ConfigError(f"--check {args.check}: must be an integer >= 0")
-    if args.results:
-        check_section_option(args.section)
-    return config, caps
 
 
 def _frontier_outputs(

@@ -6,14 +6,19 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from drqn_jax.agents import drqn_agent
 from drqn_jax.agents.shipped import shipped_agent_dir, shipped_agents
-from drqn_jax.commands import default_run_dir, duration_text
+from drqn_jax.commands import (
+    default_run_dir,
+    duration_text,
+    episodes_text,
+    evaluation_overrides,
+    say,
+)
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import metrics_table
 from drqn_jax.experiments.machine import device_identity
@@ -35,133 +40,54 @@ from drqn_jax.learners.selection import selection
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    """Train the DRQN
+
+    Train the DRQN of a config; writes config.toml, metrics.csv, checkpoints,
+    evaluation.json and results.md to the run directory. Ctrl-C (or SIGTERM) saves a
+    checkpoint and exits with status 130; --resume continues bit-identically.
+    """
     start = time.perf_counter()
-    if args.resume is not None:
-        if args.config != "default" or args.run_dir is not None:
-            raise ConfigError(
-                "--resume RUN_DIR continues with RUN_DIR's own config.toml and directory: "
-                "drop --config and --run-dir (use --set for non-training fields)"
-            )
-        config = load_run(args.resume, tuple(args.overrides))
-        run_dir = Path(args.resume)
-    else:
+    if args.resume is None:
         config = load_config(args.config, args.overrides)
         run_dir = Path(args.run_dir or default_run_dir("train", args.config))
-    resume = args.resume is not None
-    return _train_and_evaluate(
-        config, run_dir, resume, args.quiet, start, reproduce=False, rrd=args.rrd
-    )
+    elif args.config != "default" or args.run_dir is not None:
+        raise ConfigError(
+            "--resume RUN_DIR continues with RUN_DIR's own config.toml and directory: "
+            "drop --config and --run-dir (use --set for non-training fields)"
+        )
+    else:
+        config = load_run(args.resume, tuple(args.overrides))
+        run_dir = Path(args.resume)
+    return _train_and_evaluate(args, config, run_dir, start, resume=args.resume is not None)
 
 
 def _train_and_evaluate(
+    args: argparse.Namespace,
     config: Config,
     run_dir: Path,
-    resume: bool,
-    quiet: bool,
     start: float,
-    *,
-    reproduce: bool,
-    rrd: str | None = None,
+    resume: bool = False,
+    reproduce: bool = False,
 ) -> int:
-    """Train, then evaluate the DRQN (and, to reproduce Table III, the rule-based agent);
-    ``rrd``: where to write the training curves once training stops, however it stops."""
+    """Train, then evaluate the DRQN (to reproduce Table III, beside the rule-based agent);
+    --rrd: the training curves, written once training stops, however it stops."""
+    rrd, quiet = args.rrd, args.quiet
     if rrd is not None and Path(rrd).is_dir():
         raise ConfigError(f"--rrd {rrd}: is a directory; give a file name such as training.rrd")
     result = train_run(config, run_dir, resume=resume, quiet=quiet)
+    state = result.state
     if rrd is not None:
         from drqn_jax.interop.training_recording import record_training
 
         try:
-            record_training(rrd, recorded_metrics(result.state))
-            print(f"training curves: {rrd} (view with: rerun {rrd})", file=sys.stderr)
+            record_training(rrd, recorded_metrics(state))
+            say(f"training curves: {rrd} (view with: rerun {rrd})")
         except OSError as err:  # the run itself is saved: report and go on
-            print(f"error: --rrd {rrd}: {err}", file=sys.stderr)
+            say(f"error: --rrd {rrd}: {err}")
     if result.status != "finished":
-        print(("error: " if result.status == "diverged" else "") + result.message, file=sys.stderr)
+        say(("error: " if result.status == "diverged" else "") + result.message)
         return EXIT_FAILED if result.status == "diverged" else EXIT_INTERRUPTED
-    summary = _run_summary(result)
-    trained = (
-        f"training {result.wall_time_s:.1f} s over {int(result.state.recorded)} episodes, "
-        f"{int(result.state.grad_steps)} gradient steps"
-    )
-    if reproduce:
-        training = {
-            "env_steps": int(result.state.env_steps),
-            "trained_on": device_identity(),
-            "train_wall_s": result.wall_time_s,
-        }
-        agent = _trained(result)
-        return _beside_the_paper(config, agent, run_dir, quiet, start, summary, trained, training)
-    agents = [_trained(result)]
-    if not quiet:
-        _say_evaluating(config, agents)
-    results = evaluate_agents(config, agents, quiet=quiet)
-    table = metrics_table(results)
-    wall = time.perf_counter() - start
-    write_evaluation(run_dir, results, {**summary, "total_wall_time_s": wall}, table)
-    print(table)
-    print(f"\nwall time {wall:.1f} s ({trained})\nrun directory: {run_dir}")
-    return EXIT_OK
-
-
-def _beside_the_paper(
-    config: Config,
-    agent: Any,
-    run_dir: Path,
-    quiet: bool,
-    start: float,
-    summary: dict[str, Any],
-    about: str,
-    training: dict[str, Any],
-) -> int:
-    """Evaluate ``agent`` and the rule-based agent, sweep the rule-based frontier on the
-    same episodes, and print and write Table III beside the paper's with the figure.
-
-    The frontier sweeps in a second thread while the agents play, to fill idle cores;
-    each program's output is what it gives alone.
-    """
-    from drqn_jax.experiments.baselines import config_frontier
-    from drqn_jax.experiments.figures import plot_safety_speed
-
-    agents = [agent, builtin_agent("rule-based", config)]
-    if not quiet:
-        print("sweeping the rule-based frontier on the same episodes...", file=sys.stderr)
-        _say_evaluating(config, agents)
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        swept = pool.submit(config_frontier, config, planner=False)
-        results = evaluate_agents(config, agents, quiet=quiet)
-        frontier = swept.result()
-    rows, table = paper_comparison([{**results[0], **training}, results[1]], frontier)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    figure = run_dir / "safety_speed.png"
-    plot_safety_speed(rows, frontier, figure)
-    wall = time.perf_counter() - start
-    write_evaluation(run_dir, results, {**summary, "total_wall_time_s": wall}, table)
-    print(table)
-    print(f"\nsafety/speed figure: {figure}")
-    print(f"wall time {wall:.1f} s ({about})\nrun directory: {run_dir}")
-    return EXIT_OK
-
-
-def _say_evaluating(config: Config, agents: Sequence[Any]) -> None:
-    """The status line of an evaluation (stderr): agents, episodes, world and key."""
-    names = " and ".join(a.name for a in agents)
-    print(
-        f"evaluating {names} on {config['evaluate']['episodes']} episodes of "
-        f"{config['env']['id']} (evaluation key of seed {config['run']['seed']})...",
-        file=sys.stderr,
-        flush=True,
-    )
-
-
-def _trained(result: Any) -> Any:
-    params = result.trainer.agent_params(result.state)
-    return drqn_agent(result.trainer.network, params, agent_name(result.trainer.config))
-
-
-def _run_summary(result: Any) -> dict[str, Any]:
-    state = result.state
-    return {
+    summary = {
         "run_dir": str(result.run_dir),
         "train_wall_time_s": result.wall_time_s,
         "compile_time_s": result.compile_time_s,
@@ -170,6 +96,65 @@ def _run_summary(result: Any) -> dict[str, Any]:
         "grad_steps": int(state.grad_steps),
         **selection(state.validation, state.hparams),
     }
+    about = (
+        f"training {result.wall_time_s:.1f} s over {int(state.recorded)} episodes, "
+        f"{int(state.grad_steps)} gradient steps"
+    )
+    params = result.trainer.agent_params(state)
+    agent = drqn_agent(result.trainer.network, params, agent_name(result.trainer.config))
+    training = None
+    if reproduce:
+        training = {
+            "env_steps": int(state.env_steps),
+            "trained_on": device_identity(),
+            "train_wall_s": result.wall_time_s,
+        }
+    return _evaluated(config, agent, run_dir, quiet, start, summary, about, training)
+
+
+def _evaluated(
+    config: Config,
+    agent: Any,
+    run_dir: Path,
+    quiet: bool,
+    start: float,
+    summary: dict[str, Any],
+    about: str,
+    training: dict[str, Any] | None = None,
+) -> int:
+    """Evaluate ``agent``, write the evaluation to ``run_dir`` and print its table and the
+    wall time. With ``training`` (to reproduce Table III): beside the rule-based agent and
+    the rule-based frontier swept on the same episodes, the table beside the paper's.
+
+    The frontier sweeps in a second thread while the agents play, to fill idle cores;
+    each program's output is what it gives alone.
+    """
+    agents = [agent] if training is None else [agent, builtin_agent("rule-based", config)]
+    if not quiet:
+        if training is not None:
+            say("sweeping the rule-based frontier on the same episodes...")
+        say(f"evaluating {' and '.join(a.name for a in agents)} on {episodes_text(config)}...")
+    if training is None:
+        results = evaluate_agents(config, agents, quiet=quiet)
+        table = metrics_table(results)
+    else:
+        from drqn_jax.experiments.baselines import config_frontier
+        from drqn_jax.experiments.figures import plot_safety_speed
+
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            swept = pool.submit(config_frontier, config, planner=False)
+            results = evaluate_agents(config, agents, quiet=quiet)
+            frontier = swept.result()
+        rows, table = paper_comparison([{**results[0], **training}, results[1]], frontier)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        plot_safety_speed(rows, frontier, run_dir / "safety_speed.png")
+    wall = time.perf_counter() - start
+    write_evaluation(run_dir, results, {**summary, "total_wall_time_s": wall}, table)
+    print(table + "\n")
+    if training is not None:
+        print(f"safety/speed figure: {run_dir / 'safety_speed.png'}")
+    print(f"wall time {wall:.1f} s ({about})\nrun directory: {run_dir}")
+    return EXIT_OK
 
 
 def _chosen_agent(args: argparse.Namespace, overrides: list[str]) -> tuple[Config, Any, Any, Any]:
@@ -190,26 +175,26 @@ def _chosen_agent(args: argparse.Namespace, overrides: list[str]) -> tuple[Confi
         raise ConfigError("--agent drqn needs a RUN_DIR (a trained run)")
     network, params, meta = load_trained_network(load_run(run_dir, ()), run_dir)
     if not meta["finished"]:
-        print(
-            f"note: {run_dir} has not finished training ({meta['recorded']} episodes so far)",
-            file=sys.stderr,
-        )
+        say(f"note: {run_dir} has not finished training ({meta['recorded']} episodes so far)")
     config = load_run(run_dir, tuple(overrides))
     name = agent_name(config.train_config())
     return config, drqn_agent(network, params, name), network, params
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    overrides = list(args.overrides)
-    if args.episodes is not None:
-        overrides.append(f"evaluate.episodes={args.episodes}")
-    if args.seed is not None:
-        overrides.append(f"run.seed={args.seed}")
+    """Evaluate a trained run or a built-in agent
+
+    Evaluate a run directory's DRQN (or a sweep's or study's trained agent,
+    OUT/agents/run-NNNN) or a built-in agent greedily on the evaluation key and print the
+    SPEC §8 metrics. --set changes the episodes, not the agent: e.g. --set env.id=...
+    evaluates it among other pedestrians, --seed 0 on a study's episodes.
+    """
+    overrides = evaluation_overrides(args.overrides, args.episodes, args.seed)
     config, agent, _, _ = _chosen_agent(args, overrides)
     start = time.perf_counter()
     seed, world = config["run"]["seed"], config["env"]["id"]
     if not args.quiet:
-        _say_evaluating(config, [agent])
+        say(f"evaluating {agent.name} on {episodes_text(config)}...")
     (result,) = evaluate_agents(config, [agent], quiet=args.quiet)
     wall = time.perf_counter() - start
     # with --json - stdout carries only the JSON (pipe it to jq); the table goes to stderr
@@ -239,22 +224,16 @@ def paper_comparison(
     from drqn_jax.experiments.rows import baseline_row, paper_rows
     from drqn_jax.experiments.verdicts import claim_verdict
 
-    world = frontier["world"]
-    limit_kmh = frontier["speed_limit_kmh"]
+    world, limit_kmh = frontier["world"], frontier["speed_limit_kmh"]
     ours = [
         with_margin(baseline_row("drqn_jax", r, world=world), frontier, limit_kmh) for r in results
     ]
     rows = paper_rows() + ours
-    text = "\n\n".join(
-        [
-            study_table(rows, legend=False),
-            claim_verdict(ours[0])
-            + " One training seed: its interval holds the episodes' variation, not the"
-            " training's (drqn-jax study trains several).",
-            column_legend(),
-        ]
+    verdict = claim_verdict(ours[0]) + (
+        " One training seed: its interval holds the episodes' variation, not the"
+        " training's (drqn-jax study trains several)."
     )
-    return rows, text
+    return rows, "\n\n".join([study_table(rows, legend=False), verdict, column_legend()])
 
 
 #: The shipped agent ``drqn-jax reproduce`` evaluates (:mod:`drqn_jax.agents.shipped`).
@@ -272,6 +251,14 @@ def _headline_dir() -> Path:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
+    """Train, evaluate and print the paper's Table III beside ours
+
+    Evaluate the agent shipped with drqn_jax (--agent headline) and the paper's rule-based
+    agent on evaluate.episodes episodes, sweep the rule-based frontier on the same
+    episodes, and print the paper's Table III beside ours with each agent's margin to the
+    frontier and the verdict on the paper's claim; with --train, of an agent trained again
+    first. Writes evaluation.json, results.md and safety_speed.png to the run directory.
+    """
     start = time.perf_counter()
     if args.train:
         source = args.config or _headline_dir() / "config.toml"
@@ -279,10 +266,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         name = Path(str(args.config)).stem if args.config else HEADLINE
         run_dir = Path(args.run_dir or default_run_dir("reproduce", name))
         if not args.quiet:
-            print(_training_estimate(config), file=sys.stderr, flush=True)
-        return _train_and_evaluate(
-            config, run_dir, False, args.quiet, start, reproduce=True, rrd=args.rrd
-        )
+            say(_training_estimate(config))
+        return _train_and_evaluate(args, config, run_dir, start, reproduce=True)
     if args.config is not None or args.rrd is not None:
         raise ConfigError("--config and --rrd are for --train: reproduce alone trains nothing")
     directory = _headline_dir()
@@ -296,7 +281,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         f"on {trained['device']}"
     )
     if not args.quiet:
-        print(about, file=sys.stderr)
+        say(about)
     run_dir = Path(args.run_dir or default_run_dir("reproduce", HEADLINE))
     summary = {"agent_dir": str(directory), "provenance": provenance}
     training = {
@@ -304,7 +289,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         "trained_on": trained["device"],
         "train_wall_s": provenance.get("wall_time_s"),
     }
-    return _beside_the_paper(config, agent, run_dir, args.quiet, start, summary, about, training)
+    return _evaluated(config, agent, run_dir, args.quiet, start, summary, about, training)
 
 
 def _training_estimate(config: Config) -> str:
@@ -325,15 +310,20 @@ def _training_estimate(config: Config) -> str:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    """Record episodes of a trained run or a built-in agent for the rerun viewer
+
+    Record episodes of a run directory's greedy DRQN (with its four Q-values per step)
+    or of a built-in agent as a rerun recording: the map, the ego, the pedestrians coloured
+    by behaviour, the four grid channels, speed, action, reward and TTC on the timeline
+    "step". Episode i is episode i of `evaluate`. View it with: rerun PATH
+    """
     from drqn_jax.interop.episode_record import collect_episodes
     from drqn_jax.interop.recording import write_episodes
 
     if args.episodes < 1:
         raise ConfigError(f"--episodes = {args.episodes}: must be an integer >= 1")
-    overrides = list(args.overrides)
-    if args.seed is not None:
-        overrides.append(f"run.seed={args.seed}")
-    config, agent, network, network_params = _chosen_agent(args, overrides)
+    overrides = evaluation_overrides(args.overrides, seed=args.seed)
+    config, agent, network, params = _chosen_agent(args, overrides)
     default_out = Path(args.run_dir) / "episodes.rrd" if args.run_dir else Path("episodes.rrd")
     out = Path(args.out) if args.out else default_out
     if out.is_dir():
@@ -341,13 +331,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     env, env_params = config.make_env()
     _, eval_key = config.keys()
     record = collect_episodes(
-        agent,
-        eval_key,
-        args.episodes,
-        env,
-        env_params,
-        network=network,
-        network_params=network_params,
+        agent, eval_key, args.episodes, env, env_params, network=network, network_params=params
     )
     try:
         write_episodes(out, record, env, env_params)
@@ -365,6 +349,14 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    """Write a finished run's trained agent alone (a few MB) to a directory
+
+    OUT/config.toml, OUT/agent.npz (its parameters alone, with the config's training hash)
+    and OUT/provenance.json (the training command, its figures, and the commit and device
+    that trained it: a drqn-jax train run is taken to have trained here, so export it
+    there). evaluate and replay read OUT like a run directory; a directory under
+    drqn_jax/agents/trained/NAME is shipped with the package as --agent NAME.
+    """
     from drqn_jax.experiments.runner import export_agent
     from drqn_jax.experiments.sweep_outputs import run_record
 
@@ -374,9 +366,6 @@ def cmd_export(args: argparse.Namespace) -> int:
         trained = {"commit": record["commit"], "device": record["trained_on"]}
     provenance = export_agent(args.run_dir, args.out, args.training_command, trained)
     if not args.quiet:
-        print(
-            f"{args.out}: the agent of {args.run_dir} ({provenance.get('env_steps', 0):,} env "
-            f"steps), with provenance.json",
-            file=sys.stderr,
-        )
+        steps = provenance.get("env_steps", 0)
+        say(f"{args.out}: the agent of {args.run_dir} ({steps:,} env steps), with provenance.json")
     return EXIT_OK

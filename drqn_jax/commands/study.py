@@ -4,19 +4,29 @@ from __future__ import annotations
 
 import argparse
 import functools
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from drqn_jax.commands import check_section_option, duration_text
+from drqn_jax.commands import check_section_option, duration_text, say
 from drqn_jax.config import ConfigError
 from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.runner import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 
 
 def cmd_study(args: argparse.Namespace) -> int:
-    from drqn_jax.experiments.portable import drop_store, load_store
+    """Configs x seeds trained and evaluated on the same episodes, beside the
+    rule-based agent: Table III with intervals, and training curves
+
+    Train every config for seeds 0 … N-1 (a sweep in OUT/<config>/, its agents in
+    OUT/<config>/agents/run-NNNN), evaluate every run and the rule-based agent on the first
+    seed's evaluation episodes, and write OUT/study.md (the paper's Table III beside ours,
+    with 95 % intervals across seeds), OUT/study.json and the training curves as
+    OUT/curves.png and OUT/curves.rrd. Ctrl-C saves checkpoints (status 130); the same
+    command continues the study, with a larger --seeds adds seeds, and --eval-envs on a
+    finished study only evaluates.
+    """
+    from drqn_jax.experiments.portable import drop_store, load_store, runs_store_path
     from drqn_jax.experiments.study import plan_study, run_study
 
     configs = [c.strip() for c in args.configs.split(",") if c.strip()]
@@ -28,9 +38,11 @@ def cmd_study(args: argparse.Namespace) -> int:
     section = args.section or out.name
     if args.results:
         check_section_option(section)
-    store = _runs_store(args, section)
+    store = Path(args.runs_store) if args.runs_store else None
+    if store is None and args.results:  # the default store beside the results file
+        store = runs_store_path(args.results, section)
     for arm in arms:
-        print(f"{arm.name}: {arm.sweep.describe()}", file=sys.stderr)
+        say(f"{arm.name}: {arm.sweep.describe()}")
     if args.estimate:
         print(_estimate(arms))
         return EXIT_OK
@@ -50,17 +62,13 @@ def cmd_study(args: argparse.Namespace) -> int:
         keep=keep,
     )
     if outcome.status == "interrupted":
-        print(
-            f"interrupted; checkpoints saved, continue with the same command (--out {out})",
-            file=sys.stderr,
-        )
+        say(f"interrupted; checkpoints saved, continue with the same command (--out {out})")
         if keep is not None and outcome.finished_runs:
             keep(outcome.finished_runs)
             count = sum(len(r) for r in outcome.finished_runs.values())
-            print(
+            say(
                 f"{count} finished run(s) kept in {store}: the same command continues "
-                "from them in a fresh --out",
-                file=sys.stderr,
+                "from them in a fresh --out"
             )
         return EXIT_INTERRUPTED
     wall = time.perf_counter() - start
@@ -71,15 +79,6 @@ def cmd_study(args: argparse.Namespace) -> int:
     print(outcome.table)
     print(f"\nwall time {wall:.1f} s; study in {out}")
     return EXIT_OK
-
-
-def _runs_store(args: argparse.Namespace, section: str) -> Path | None:
-    """``--runs-store``, else the default one with ``--results``, else None."""
-    from drqn_jax.experiments.portable import runs_store_path
-
-    if args.runs_store:
-        return Path(args.runs_store)
-    return runs_store_path(args.results, section) if args.results else None
 
 
 def _keep(
@@ -113,12 +112,12 @@ def _store_rows(
         about = {**earlier, "report_command": args.command_line}
     about["frontiers"] = outcome.frontiers
     write_results(args.results, section, outcome.rows, outcome.comparisons, about)
-    print(f"rows stored as section {section!r} of {args.results}", file=sys.stderr)
+    say(f"rows stored as section {section!r} of {args.results}")
     if not args.no_png and (out / "safety_speed.png").is_file():
         figure = Path(args.results).parent / "figures" / f"{section}-safety-speed.png"
         figure.parent.mkdir(parents=True, exist_ok=True)
         figure.write_bytes((out / "safety_speed.png").read_bytes())
-        print(f"safety/speed figure: {figure}", file=sys.stderr)
+        say(f"safety/speed figure: {figure}")
 
 
 def _estimate(arms) -> str:
@@ -154,6 +153,13 @@ def _estimate(arms) -> str:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    """Fill the results blocks of documents from the results file a study wrote
+
+    Regenerate every block between '<!-- results:NAME -->' and '<!-- /results -->' in
+    the documents from section NAME of the results file (drqn-jax study --results FILE
+    --section NAME writes it): its table, comparisons, command and wall time, so that no
+    document retypes a number.
+    """
     from drqn_jax.experiments.report import load_results, stale_documents, update_document
 
     if not Path(args.results).is_file():
@@ -168,10 +174,10 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise ConfigError(str(err)) from None
     if args.check:
         for doc in stale:
-            print(f"{doc}: its results blocks differ from {args.results}", file=sys.stderr)
+            say(f"{doc}: its results blocks differ from {args.results}")
         return EXIT_FAILED if stale else EXIT_OK
     for doc in stale:
         atomic_write_text(Path(doc), update_document(Path(doc).read_text(), record))
         if not args.quiet:
-            print(f"updated {doc}", file=sys.stderr)
+            say(f"updated {doc}")
     return EXIT_OK

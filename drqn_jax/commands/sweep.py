@@ -4,17 +4,25 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
-from drqn_jax.commands import default_run_dir
+from drqn_jax.commands import default_run_dir, say
 from drqn_jax.config import ConfigError
 from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.runner import EXIT_INTERRUPTED, EXIT_OK
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
+    """Train and evaluate a grid of seeds x hyperparameters as one program per shape
+
+    Points that share shapes train together in compiled jit(vmap) calls, sharded over the
+    local devices, as many per call as the memory plan allows; each run is evaluated on the
+    same episodes. Writes results.md and results.csv (mean, std, 95 % t-interval and IQM
+    across seeds per setting), runs.json and OUT/agents/run-NNNN. Ctrl-C saves checkpoints
+    (status 130); --resume continues, also a sweep file given more points (more seeds).
+    With several processes each trains its slice and process 0 writes the results.
+    """
     import jax
 
     from drqn_jax.experiments.sweep import load_sweep, summarize_sweep, sweep_csv, sweep_table
@@ -33,8 +41,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     budget = None if args.memory_gb is None else int(args.memory_gb * 1e9)
     calls = plan_calls(sweep, devices, dist, budget, "--memory-gb", args.strategy)
     if dist.leader:
-        print(sweep.describe(), file=sys.stderr)
-    print(describe_plan(calls, devices, dist), file=sys.stderr)
+        say(sweep.describe())
+    say(describe_plan(calls, devices, dist))
     if args.dry_run:
         return EXIT_OK
     out = Path(args.out or default_run_dir("sweep", args.sweep_file))
@@ -49,10 +57,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         keep_agents=not args.no_agents,
     )
     if outcome.status == "interrupted":
-        print(
+        say(
             f"interrupted; checkpoints saved, continue with: drqn-jax sweep {args.sweep_file} "
-            f"--out {out} --resume (and the same --set options)",
-            file=sys.stderr,
+            f"--out {out} --resume (and the same --set options)"
         )
         return EXIT_INTERRUPTED
     if not dist.leader:
