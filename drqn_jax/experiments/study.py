@@ -92,36 +92,17 @@ def plan_study(
     return arms
 
 
-# ----------------------------------------------------------------------------- how runs trained
-
-_TRAINING_FACTS = ("env_steps", "trained_on")
-
-
-def _training_facts(
-    runs: Sequence[Mapping[str, Any]], timings: Mapping[int, float | None]
-) -> dict[int, dict[str, Any]]:
-    """By run index: env steps, device and wall time of its training."""
-    return {
-        r["index"]: {
-            **{k: r[k] for k in _TRAINING_FACTS if k in r},
-            "train_wall_s": timings.get(r["index"]),
-        }
-        for r in runs
-    }
-
-
 # ----------------------------------------------------------------------------- running it
 
 
 @dataclasses.dataclass
 class StudyOutcome:
-    """``finished`` (rows, runs, comparisons to frontiers, frontiers) or ``interrupted``
+    """``finished`` (rows, comparisons to frontiers, frontiers) or ``interrupted``
     (``finished_runs``: each arm's, for a runs store). ``continued``: an earlier invocation
     trained some runs, so this wall time does not cover them."""
 
     status: str
     rows: list[dict[str, Any]] = dataclasses.field(default_factory=list)
-    runs: dict[str, list[dict[str, Any]]] = dataclasses.field(default_factory=dict)
     table: str = ""
     comparisons: list[str] = dataclasses.field(default_factory=list)
     continued: bool = False
@@ -161,7 +142,7 @@ def run_study(
     atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
     if done:
         _write_figures(out, done, runs, rows, frontiers, smooth, png)
-    return StudyOutcome("finished", rows, runs, table, comparisons, continued, frontiers)
+    return StudyOutcome("finished", rows, table, comparisons, continued, frontiers)
 
 
 def _train_arms(
@@ -238,14 +219,14 @@ def _study_rows(
     frontiers = frontier_results(
         configs, out, {frontier_key(done[0].config)} if done else set(), quiet=quiet
     )
-    baselines = {
-        key: with_margin(
-            baseline_row(f"drqn_jax: {c['env']['id']}", r, world=c["env"]["id"]),
-            frontiers[frontier_key(c)],
-            c.speed_limit_kmh(),
-        )
-        for key, (c, r) in rule_based_results(configs, out).items()
-    }
+
+    def judged(row: dict[str, Any], config: Config) -> dict[str, Any]:
+        return with_margin(row, frontiers[frontier_key(config)], config.speed_limit_kmh())
+
+    baselines = [
+        judged(baseline_row(f"drqn_jax: {c['env']['id']}", r, world=c["env"]["id"]), c)
+        for c, r in rule_based_results(configs, out).values()
+    ]
     trained: list[tuple[dict[str, Any], Config]] = []  # each row and the config it was evaluated on
     for arm in done:
         agent = agent_name(arm.config.train_config())
@@ -254,14 +235,20 @@ def _study_rows(
             (f"{arm.name} on {env}", cross_configs[arm.name][env], results)
             for env, results in cross[arm.name].items()
         ]
-        training = _training_facts(runs[arm.name], run_timings(out / arm.name))
+        timings = run_timings(out / arm.name)
+        training = {  # how each run trained: env steps, device, wall time
+            r["index"]: {
+                **{k: r[k] for k in ("env_steps", "trained_on") if k in r},
+                "train_wall_s": timings.get(r["index"]),
+            }
+            for r in runs[arm.name]
+        }
         for name, config, results in evaluated:  # a cross row evaluates the arm's agents
             trained_runs = [{**r, **training[r["index"]]} for r in results]
             row = study_row(f"drqn_jax: {name}", agent, trained_runs, world=config["env"]["id"])
-            margin = with_margin(row, frontiers[frontier_key(config)], config.speed_limit_kmh())
-            trained.append((margin, config))
+            trained.append((judged(row, config), config))
     # configs that differ only in what the rule-based agent ignores (the reward) share its row
-    shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines.values()}
+    shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines}
     rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]
     return rows, trained, cross, frontiers
 
