@@ -51,10 +51,6 @@ class Arm:
         """The first seed's resolved config (the others differ only in ``run.seed``)."""
         return self.sweep.points[0].config
 
-    def cross_config(self, env_id: str) -> Config:
-        """:attr:`config` with ``env.id = env_id``: evaluation among its pedestrians."""
-        return load_config(self.config.values, [f"env.id={env_id}"])
-
 
 def plan_study(
     configs: Sequence[str],
@@ -207,7 +203,10 @@ def _study_rows(
     the cross-env evaluations and the frontiers."""
     from drqn_jax.experiments.sweep_outputs import run_timings
 
-    cross_configs = {a.name: {e: a.cross_config(e) for e in a.cross_envs} for a in done}
+    cross_configs = {  # each arm's config among another env's pedestrians
+        a.name: {e: load_config(a.config.values, [f"env.id={e}"]) for e in a.cross_envs}
+        for a in done
+    }
     cross = {
         arm.name: {
             env: cross_results(arm.name, config, runs[arm.name], out)
