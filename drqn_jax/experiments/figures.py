@@ -28,10 +28,10 @@ def save_png(fig: Figure, path: str | Path) -> None:
     fig.savefig(path, dpi=120, format="png")
 
 
-def _points(ax: Any, points: Sequence[Mapping[str, Any]], style: Mapping[str, Any]) -> None:
+def _points(ax: Any, points: Sequence[Mapping[str, Any]], *fmt: str, **style: Any) -> None:
     xs = [p["avg_speed_kmh"] for p in points]
     ys = [100 * p["collision_free_rate"] for p in points]
-    ax.plot(xs, ys, **style)
+    ax.plot(xs, ys, *fmt, **style)
 
 
 def _agent(ax: Any, row: Mapping[str, Any], label: str, color: str | None = None) -> None:
@@ -49,7 +49,7 @@ def _agent(ax: Any, row: Mapping[str, Any], label: str, color: str | None = None
     )
     seeds = row.get("per_seed") or []
     if len(seeds) > 1:
-        _points(ax, seeds, {"ls": "none", "marker": ".", "alpha": 0.5, "color": bar[0].get_color()})
+        _points(ax, seeds, ls="none", marker=".", alpha=0.5, color=bar[0].get_color())
 
 
 def plot_safety_speed(
@@ -60,27 +60,14 @@ def plot_safety_speed(
     fig = figure(8, 5.5)
     ax = fig.subplots()
     rule = frontier["rule_based"]["points"]
-    vertices = frontier_vertices(rule)
-    ax.plot(
-        [v for v, _ in vertices],
-        [100 * r for _, r in vertices],
-        "-",
-        color="0.35",
-        label=f"rule-based frontier ({frontier['rule_based']['swept']} settings swept)",
-    )
-    _points(ax, rule, {"ls": "none", "marker": "x", "color": "0.35", "label": "its Pareto points"})
+    vertices = [{"avg_speed_kmh": v, "collision_free_rate": r} for v, r in frontier_vertices(rule)]
+    swept = frontier["rule_based"]["swept"]
+    _points(ax, vertices, "-", color="0.35", label=f"rule-based frontier ({swept} settings swept)")
+    _points(ax, rule, ls="none", marker="x", color="0.35", label="its Pareto points")
     if "planner" in frontier:
         caps = sorted(frontier["planner"]["points"], key=lambda p: p["avg_speed_kmh"])
-        _points(
-            ax,
-            caps,
-            {
-                "ls": "--",
-                "marker": "^",
-                "color": "tab:green",
-                "label": "privileged planner (true state + simulator): ceiling",
-            },
-        )
+        ceiling = "privileged planner (true state + simulator): ceiling"
+        _points(ax, caps, ls="--", marker="^", color="tab:green", label=ceiling)
     for row in rows:
         if row["world"] == PAPER_WORLD:
             _agent(ax, row, f"paper (CARLA), 10 episodes: {row['agent']}", color="k")

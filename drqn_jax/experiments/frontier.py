@@ -39,16 +39,14 @@ __all__ = [
     "RULE_BASED_SETTINGS",
     "WIDE_GRID",
     "above_speed_limit",
-    "family_points",
     "frontier_margin",
     "frontier_rate",
     "frontier_vertices",
     "grid_settings",
     "pareto_points",
-    "planner_frontier",
     "random_settings",
     "reviewer_check",
-    "rule_based_frontier",
+    "seed_margins",
     "sweep_family",
     "with_margin",
     "world_frontier",
@@ -108,24 +106,8 @@ _SETTINGS = (
     (15.0, 3.5, 0.0, 0.0),
 )
 RULE_BASED_SETTINGS: tuple[dict[str, float], ...] = tuple(
-    dict(zip(("v_max_kmh", "lookahead", "horizon", "corridor_margin"), s, strict=True))
-    for s in _SETTINGS
+    dict(zip(WIDE_GRID, s, strict=True)) for s in _SETTINGS
 )
-
-
-def _rule_based_params(settings: Sequence[Mapping[str, float]]) -> RuleBasedParams:
-    """The settings as one batched :class:`RuleBasedParams` (leaves (S,); band ±1 km/h default)."""
-    each = [
-        RuleBasedParams(
-            v_max=s["v_max_kmh"] * KMH,
-            speed_band=s.get("speed_band_kmh", 1.0) * KMH,
-            lookahead=s["lookahead"],
-            horizon=s["horizon"],
-            corridor_margin=s["corridor_margin"],
-        )
-        for s in settings
-    ]
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *each)
 
 
 @jit_in_store("make_agent", "env", "batch_size")
@@ -155,17 +137,6 @@ def sweep_family(
         )
 
     return jax.lax.map(one, settings)
-
-
-def family_points(
-    metrics: EpisodeMetrics, settings: Sequence[Mapping[str, float]]
-) -> list[dict[str, Any]]:
-    """One point per setting: ``summarize_outcomes`` of its episodes and its ``params``."""
-    host = jax.tree.map(np.asarray, metrics)
-    return [
-        {"params": dict(s), **summarize_outcomes(jax.tree.map(lambda x, i=i: x[i], host))}
-        for i, s in enumerate(settings)
-    ]
 
 
 def pareto_points(points: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
@@ -213,6 +184,15 @@ def above_speed_limit(speeds_kmh: Sequence[float], limit_kmh: float) -> bool:
     return max(speeds_kmh) > limit_kmh * (1 + 1e-6)
 
 
+def seed_margins(
+    runs: Sequence[Mapping[str, Any]], vertices: Sequence[Sequence[float]]
+) -> np.ndarray:
+    """(n,): each run's collision-free rate minus the frontier at the run's own speed."""
+    rates = np.array([r["collision_free_rate"] for r in runs], np.float64)
+    speeds = np.array([r["avg_speed_kmh"] for r in runs], np.float64)
+    return rates - frontier_rate(vertices, speeds)
+
+
 def frontier_margin(
     row: Mapping[str, Any], vertices: Sequence[Sequence[float]], limit_kmh: float
 ) -> tuple[float, tuple[float, float]] | None:
@@ -227,8 +207,7 @@ def frontier_margin(
     if above_speed_limit(speeds, limit_kmh):
         return None
     if len(seeds) > 1:
-        rates = np.array([s["collision_free_rate"] for s in seeds], np.float64)
-        margins = rates - frontier_rate(vertices, np.array(speeds, np.float64))
+        margins = seed_margins(seeds, vertices)
         return float(margins.mean()), t_interval(margins)
     at = float(frontier_rate(vertices, row["avg_speed_kmh"]))
     low, high = row["collision_free_ci"]
@@ -237,51 +216,26 @@ def frontier_margin(
 
 def _sweep_points(
     make_agent: Callable[[Any], Agent],
-    batched: Any,
+    each: Sequence[Any],
     settings: Sequence[Mapping[str, float]],
     key: jax.Array,
     num_episodes: int,
     env: UrbanPedestrians,
     params: EnvParams,
     batch_size: int | None,
-) -> list[dict[str, Any]]:
+) -> tuple[list[dict[str, Any]], float]:
+    """One point per setting (``each``: its agent's params) on episodes ``fold_in(key, i)``,
+    i < N: ``summarize_outcomes`` of its episodes and its ``params``; and the wall time."""
+    start = time.perf_counter()
     keys = episode_keys(key, num_episodes)
-    metrics = sweep_family(make_agent, batched, keys, env, params, batch_size)
-    return family_points(metrics, settings)
-
-
-def rule_based_frontier(
-    key: jax.Array,
-    num_episodes: int,
-    env: UrbanPedestrians,
-    params: EnvParams,
-    settings: Sequence[Mapping[str, float]] = RULE_BASED_SETTINGS,
-    batch_size: int | None = None,
-) -> list[dict[str, Any]]:
-    """One point per rule-based setting on episodes ``fold_in(key, i)``, i < N."""
-    batched = _rule_based_params(settings)
-    return _sweep_points(
-        rule_based_agent, batched, settings, key, num_episodes, env, params, batch_size
-    )
-
-
-def planner_frontier(
-    key: jax.Array,
-    num_episodes: int,
-    env: UrbanPedestrians,
-    params: EnvParams,
-    caps_kmh: Sequence[float] = PLANNER_CAPS_KMH,
-    planner: PlannerParams | None = None,
-    batch_size: int | None = None,
-) -> list[dict[str, Any]]:
-    """One point per speed cap of the privileged planner, on the frontier's episodes."""
-    base = PlannerParams() if planner is None else planner
-    settings = [{"v_cap_kmh": float(c), "horizon_steps": base.horizon_steps} for c in caps_kmh]
-    each = [base.replace(v_cap=jnp.float32(c * KMH)) for c in caps_kmh]
     batched = jax.tree.map(lambda *xs: jnp.stack(xs), *each)
-    return _sweep_points(
-        planner_agent, batched, settings, key, num_episodes, env, params, batch_size
-    )
+    metrics = sweep_family(make_agent, batched, keys, env, params, batch_size)
+    host = jax.tree.map(np.asarray, metrics)
+    points = [
+        {"params": dict(s), **summarize_outcomes(jax.tree.map(lambda x, i=i: x[i], host))}
+        for i, s in enumerate(settings)
+    ]
+    return points, time.perf_counter() - start
 
 
 def with_margin(
@@ -365,25 +319,26 @@ def world_frontier(
     too_fast = [v for v in speeds if v > limit_kmh * (1 + 1e-6)]
     if too_fast:
         raise ValueError(f"speed {too_fast[0]} km/h: above the speed limit {limit_kmh:g} km/h")
-    start = time.perf_counter()
-    points = _sweep_points(
-        rule_based_agent,
-        _rule_based_params(chosen),
-        chosen,
-        key,
-        num_episodes,
-        env,
-        params,
-        batch_size,
-    )
-    rule = {"points": pareto_points(points), "swept": len(points)}
-    rule["wall_time_s"] = time.perf_counter() - start
+    sweep = (key, num_episodes, env, params, batch_size)
+    each = [
+        RuleBasedParams(
+            v_max=s["v_max_kmh"] * KMH,
+            speed_band=s.get("speed_band_kmh", 1.0) * KMH,  # ±1 km/h unless set
+            lookahead=s["lookahead"],
+            horizon=s["horizon"],
+            corridor_margin=s["corridor_margin"],
+        )
+        for s in chosen
+    ]
+    points, wall = _sweep_points(rule_based_agent, each, chosen, *sweep)
+    rule = {"points": pareto_points(points), "swept": len(points), "wall_time_s": wall}
     if keep_all:
         rule["swept_points"] = points
     record = {"world": world, "episodes": num_episodes, "seed": seed}
     record |= {"speed_limit_kmh": limit_kmh, "rule_based": rule}
     if planner is not None:
-        start = time.perf_counter()
-        found = planner_frontier(key, num_episodes, env, params, caps_kmh, planner, batch_size)
-        record["planner"] = {"points": found, "wall_time_s": time.perf_counter() - start}
+        caps = [{"v_cap_kmh": float(c), "horizon_steps": planner.horizon_steps} for c in caps_kmh]
+        each = [planner.replace(v_cap=jnp.float32(c * KMH)) for c in caps_kmh]
+        found, wall = _sweep_points(planner_agent, each, caps, *sweep)
+        record["planner"] = {"points": found, "wall_time_s": wall}
     return record

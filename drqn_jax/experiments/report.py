@@ -127,11 +127,6 @@ def note_progress(
     _save_record(path, record)
 
 
-def _nan(row: Mapping[str, Any]) -> dict[str, Any]:
-    """A stored row with None (JSON's stand-in) back as NaN for the table."""
-    return {k: math.nan if v is None else v for k, v in row.items()}
-
-
 def render_section(record: Mapping[str, Any], section: str, form: str = "") -> str:
     """Markdown of one section in ``form`` (:data:`FORMS`, module docstring)."""
     if form not in FORMS:
@@ -144,7 +139,7 @@ def render_section(record: Mapping[str, Any], section: str, form: str = "") -> s
     about = record["sections"][section]
     if "wall_time_s" not in about:  # interrupted before its table: what has finished
         return _in_progress(about)
-    rows = [_nan(r) for r in record["rows"] if r.get("section") == section]
+    rows = [r for r in record["rows"] if r.get("section") == section]
     if form == "brief":
         return _brief(rows, about["comparisons"])
     tables = TABLES[:1] if form == "safety" else TABLES
@@ -280,9 +275,8 @@ def _free_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
 
 
 def _speed_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
-    speed = _cell(row["avg_speed_kmh"], ".2f")
-    std = row["avg_speed_kmh_std"]
-    return speed + (f" ± {std:.2f}" if math.isfinite(std) else "")
+    std = _cell(row["avg_speed_kmh_std"], ".2f")
+    return _cell(row["avg_speed_kmh"], ".2f") + ("" if std == "–" else f" ± {std}")
 
 
 def _metric(key: str, spec: str, scale: float = 1.0) -> Callable[..., str]:

@@ -127,29 +127,27 @@ def frontier_rows(record: Mapping[str, Any], limit_kmh: float) -> list[dict[str,
 
 def paper_rows() -> list[dict[str, Any]]:
     """The paper's Table III as rows, with the Wilson interval its 10 episodes allow."""
-    rows = []
-    for agent, free, speed, distance in PAPER_TABLE_III:
-        rows.append(
-            {
-                "label": "paper (CARLA)",
-                "agent": agent,
-                "world": PAPER_WORLD,
-                "teacher": False,
-                "learned": NOT_LEARNED if agent == "rule-based" else REWARD_ALONE,
-                "seeds": 1,
-                "episodes": PAPER_EPISODES,
-                "diverged": 0,
-                "collision_free_rate": free / PAPER_EPISODES,
-                "collision_free_ci": wilson_interval(free, PAPER_EPISODES),
-                "interval": "Wilson over episodes",
-                "avg_speed_kmh": speed,
-                "avg_speed_kmh_std": math.nan,
-                "avg_speed_authors_kmh": math.nan,
-                "struck_while_stopped_rate": math.nan,
-                "avg_distance_m": distance,
-                "avg_distance_collision_free_m": math.nan,
-                "goal_rate": math.nan,
-                "collisions_per_km": math.nan,
-            }
-        )
-    return rows
+    return [
+        {
+            "label": "paper (CARLA)",
+            "agent": agent,
+            "world": PAPER_WORLD,
+            "teacher": False,
+            "learned": NOT_LEARNED if agent == "rule-based" else REWARD_ALONE,
+            "seeds": 1,
+            "episodes": PAPER_EPISODES,
+            "diverged": 0,
+            "collision_free_rate": free / PAPER_EPISODES,
+            "collision_free_ci": wilson_interval(free, PAPER_EPISODES),
+            "interval": "Wilson over episodes",
+            "avg_speed_kmh": speed,
+            "avg_speed_kmh_std": math.nan,
+            "avg_speed_authors_kmh": math.nan,
+            "struck_while_stopped_rate": math.nan,
+            "avg_distance_m": distance,
+            "avg_distance_collision_free_m": math.nan,
+            "goal_rate": math.nan,
+            "collisions_per_km": math.nan,
+        }
+        for agent, free, speed, distance in PAPER_TABLE_III
+    ]

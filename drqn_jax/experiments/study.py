@@ -51,10 +51,6 @@ class Arm:
         """The first seed's resolved config (the others differ only in ``run.seed``)."""
         return self.sweep.points[0].config
 
-    def cross_config(self, env_id: str) -> Config:
-        """:attr:`config` with ``env.id = env_id``: evaluation among its pedestrians."""
-        return load_config(self.config.values, [f"env.id={env_id}"])
-
 
 def plan_study(
     configs: Sequence[str],
@@ -92,36 +88,17 @@ def plan_study(
     return arms
 
 
-# ----------------------------------------------------------------------------- how runs trained
-
-_TRAINING_FACTS = ("env_steps", "trained_on")
-
-
-def _training_facts(
-    runs: Sequence[Mapping[str, Any]], timings: Mapping[int, float | None]
-) -> dict[int, dict[str, Any]]:
-    """By run index: env steps, device and wall time of its training."""
-    return {
-        r["index"]: {
-            **{k: r[k] for k in _TRAINING_FACTS if k in r},
-            "train_wall_s": timings.get(r["index"]),
-        }
-        for r in runs
-    }
-
-
 # ----------------------------------------------------------------------------- running it
 
 
 @dataclasses.dataclass
 class StudyOutcome:
-    """``finished`` (rows, runs, comparisons to frontiers, frontiers) or ``interrupted``
+    """``finished`` (rows, comparisons to frontiers, frontiers) or ``interrupted``
     (``finished_runs``: each arm's, for a runs store). ``continued``: an earlier invocation
     trained some runs, so this wall time does not cover them."""
 
     status: str
     rows: list[dict[str, Any]] = dataclasses.field(default_factory=list)
-    runs: dict[str, list[dict[str, Any]]] = dataclasses.field(default_factory=dict)
     table: str = ""
     comparisons: list[str] = dataclasses.field(default_factory=list)
     continued: bool = False
@@ -161,7 +138,7 @@ def run_study(
     atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
     if done:
         _write_figures(out, done, runs, rows, frontiers, smooth, png)
-    return StudyOutcome("finished", rows, runs, table, comparisons, continued, frontiers)
+    return StudyOutcome("finished", rows, table, comparisons, continued, frontiers)
 
 
 def _train_arms(
@@ -226,7 +203,10 @@ def _study_rows(
     the cross-env evaluations and the frontiers."""
     from drqn_jax.experiments.sweep_outputs import run_timings
 
-    cross_configs = {a.name: {e: a.cross_config(e) for e in a.cross_envs} for a in done}
+    cross_configs = {  # each arm's config among another env's pedestrians
+        a.name: {e: load_config(a.config.values, [f"env.id={e}"]) for e in a.cross_envs}
+        for a in done
+    }
     cross = {
         arm.name: {
             env: cross_results(arm.name, config, runs[arm.name], out)
@@ -238,14 +218,14 @@ def _study_rows(
     frontiers = frontier_results(
         configs, out, {frontier_key(done[0].config)} if done else set(), quiet=quiet
     )
-    baselines = {
-        key: with_margin(
-            baseline_row(f"drqn_jax: {c['env']['id']}", r, world=c["env"]["id"]),
-            frontiers[frontier_key(c)],
-            c.speed_limit_kmh(),
-        )
-        for key, (c, r) in rule_based_results(configs, out).items()
-    }
+
+    def judged(row: dict[str, Any], config: Config) -> dict[str, Any]:
+        return with_margin(row, frontiers[frontier_key(config)], config.speed_limit_kmh())
+
+    baselines = [
+        judged(baseline_row(f"drqn_jax: {c['env']['id']}", r, world=c["env"]["id"]), c)
+        for c, r in rule_based_results(configs, out).values()
+    ]
     trained: list[tuple[dict[str, Any], Config]] = []  # each row and the config it was evaluated on
     for arm in done:
         agent = agent_name(arm.config.train_config())
@@ -254,14 +234,20 @@ def _study_rows(
             (f"{arm.name} on {env}", cross_configs[arm.name][env], results)
             for env, results in cross[arm.name].items()
         ]
-        training = _training_facts(runs[arm.name], run_timings(out / arm.name))
+        timings = run_timings(out / arm.name)
+        training = {  # how each run trained: env steps, device, wall time
+            r["index"]: {
+                **{k: r[k] for k in ("env_steps", "trained_on") if k in r},
+                "train_wall_s": timings.get(r["index"]),
+            }
+            for r in runs[arm.name]
+        }
         for name, config, results in evaluated:  # a cross row evaluates the arm's agents
             trained_runs = [{**r, **training[r["index"]]} for r in results]
             row = study_row(f"drqn_jax: {name}", agent, trained_runs, world=config["env"]["id"])
-            margin = with_margin(row, frontiers[frontier_key(config)], config.speed_limit_kmh())
-            trained.append((margin, config))
+            trained.append((judged(row, config), config))
     # configs that differ only in what the rule-based agent ignores (the reward) share its row
-    shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines.values()}
+    shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines}
     rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]
     return rows, trained, cross, frontiers
 

@@ -11,15 +11,13 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-import numpy as np
-
 from drqn_jax.config import Config
 from drqn_jax.experiments.baselines import frontier_key
 from drqn_jax.experiments.frontier import (
     above_speed_limit,
     frontier_margin,
-    frontier_rate,
     frontier_vertices,
+    seed_margins,
 )
 from drqn_jax.experiments.report import CLAIM, GOAL, PAPER_DRQN_SPEED_KMH, margin_cell
 from drqn_jax.experiments.stats import t_interval
@@ -137,11 +135,10 @@ def paired_margin(
     for label, own in zip(names, (mine, theirs), strict=True):
         if above_speed_limit([own[k]["avg_speed_kmh"] for k in common], limit_kmh):
             return Paired(len(common), too_fast=label)
-
-    def margin(run: Mapping[str, Any]) -> float:
-        return run["collision_free_rate"] - float(frontier_rate(vertices, run["avg_speed_kmh"]))
-
-    diff = np.array([margin(mine[k]) - margin(theirs[k]) for k in common])
+    mine_margins, their_margins = (
+        seed_margins([own[k] for k in common], vertices) for own in (mine, theirs)
+    )
+    diff = mine_margins - their_margins
     return Paired(len(common), float(diff.mean()), t_interval(diff))
 
 

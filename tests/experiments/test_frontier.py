@@ -24,8 +24,8 @@ from drqn_jax.experiments.frontier import (
     pareto_points,
     random_settings,
     reviewer_check,
-    rule_based_frontier,
     with_margin,
+    world_frontier,
 )
 from drqn_jax.experiments.report import load_results
 from drqn_jax.experiments.stats import t_interval
@@ -167,7 +167,17 @@ def small_sweep(env, params):
         "horizon": (0.0, 2.0),
         "corridor_margin": (0.5,),
     }
-    return rule_based_frontier(jax.random.key(3), 6, env, params, grid_settings(grid))
+    found = world_frontier(
+        env,
+        params,
+        jax.random.key(3),
+        6,
+        world="w",
+        seed=3,
+        settings=grid_settings(grid),
+        keep_all=True,
+    )
+    return found["rule_based"]["swept_points"]
 
 
 def test_sweep_points_equal_evaluations_of_the_same_settings(env, params, small_sweep):
