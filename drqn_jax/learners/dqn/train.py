@@ -15,7 +15,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.learners.common import epsilon_of, init_counters, init_metrics, record_episodes
+from drqn_jax.learners.common import epsilon_of, init_fields, record_episodes
 from drqn_jax.learners.dqn.acting import explore
 from drqn_jax.learners.dqn.replay import (
     EpisodeReplay,
@@ -26,18 +26,8 @@ from drqn_jax.learners.dqn.replay import (
 )
 from drqn_jax.learners.dqn.state import TrainState
 from drqn_jax.learners.dqn.update import Learner, gradient_update, learn
-from drqn_jax.learners.hyperparams import (
-    Hyperparams,
-    TrainConfig,
-    annealed,
-    step_share,
-)
-from drqn_jax.learners.optim import optimizer
-from drqn_jax.learners.selection import (
-    SELECT_SAFE,
-    take_snapshot,
-    unvalidated,
-)
+from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
+from drqn_jax.learners.selection import SELECT_SAFE, take_snapshot, unvalidated
 from drqn_jax.learners.task import Step, Task, make_task
 from drqn_jax.learners.trainer import Trainer, make_trainer
 from drqn_jax.networks import Network, make_network
@@ -53,13 +43,6 @@ def _small_leaves(state: TrainState) -> TrainState:
     return state.replace(
         replay=None, online=None, target=None, opt_state=None, metrics=None, snapshots=None
     )
-
-
-def make_dqn(config: TrainConfig) -> Trainer:
-    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "dqn"`` config."""
-    if config.algorithm != "dqn":
-        raise ValueError(f"make_dqn: TrainConfig.algorithm = {config.algorithm!r}; use 'dqn'")
-    return _make_dqn(config)
 
 
 def _check_task(config: TrainConfig, task: Task) -> None:
@@ -79,16 +62,14 @@ def _check_task(config: TrainConfig, task: Task) -> None:
 
 
 @cached_program
-def _make_dqn(config: TrainConfig) -> Trainer:
+def make_dqn(config: TrainConfig) -> Trainer:
+    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "dqn"`` config."""
+    if config.algorithm != "dqn":
+        raise ValueError(f"make_dqn: TrainConfig.algorithm = {config.algorithm!r}; use 'dqn'")
     task = make_task(config.env_id, config.env_overrides)
     _check_task(config, task)
     network = make_network(task.network(config.network))
     n_episodes = config.num_episodes
-
-    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
-        hp = config.hyperparams if hparams is None else hparams
-        env_params = task.env_params if env_params is None else env_params
-        return _init_state(config, task, network, key, hp, env_params)
 
     def act(state: TrainState, key: jax.Array) -> tuple[jax.Array, Any]:
         """ε-greedy actions (N,) and the advanced network carry."""
@@ -112,6 +93,7 @@ def _make_dqn(config: TrainConfig) -> Trainer:
         state, _ = jax.lax.scan(body, state, None, length=num_iterations)
         return state
 
+    init = functools.partial(_init_state, config, task, network)
     return make_trainer(config, task, network, init, act, run, update)
 
 
@@ -119,37 +101,23 @@ def _init_state(
     config: TrainConfig, task: Task, network: Network, key: jax.Array, hp: Hyperparams, env_params
 ) -> TrainState:
     """N envs reset, their first observations in the replay, fresh networks and Adam."""
-    n_env, n_episodes = config.num_envs, config.num_episodes
-    key, k_net, k_env = jax.random.split(key, 3)
-    online = network.init(k_net)
-    opt = optimizer(config.optimizer, hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
-    obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
+    n_env = config.num_envs
+    fields = init_fields(config, task, network, key, hp, env_params, ("epsilon",))
     stored = network.initial_carry(()) if config.stored_state else None
     replay = init_replay(config.replay_episodes, task.max_steps, n_env, task.record, stored)
-    first = jax.vmap(task.to_record)(obs, env_state)
+    first = jax.vmap(task.to_record)(fields["obs"], fields["env_state"])
     replay = begin_episodes(
         replay, jnp.ones((n_env,), bool), first, network.initial_carry((n_env,))
     )
-    counters = init_counters(n_env, config.num_env_steps)
-    metrics = init_metrics(task, n_episodes, ("epsilon",))
     snapshots = validation = None
     if config.snapshots:
-        snapshots = jax.tree.map(lambda p: jnp.stack([p] * config.snapshots), online)
+        snapshots = jax.tree.map(lambda p: jnp.stack([p] * config.snapshots), fields["online"])
         validation = unvalidated(config.snapshots, task.validation_metrics)
     return TrainState(
-        key=key,
-        hparams=hp,
-        env_params=env_params,
-        env_state=env_state,
-        obs=obs,
-        carry=network.initial_carry((n_env,)),
-        online=online,
-        target=online,
-        opt_state=opt.init(online),
+        **fields,
+        target=fields["online"],
         replay=replay,
-        epsilon=epsilon_of(counters["episode"], hp, n_episodes),
-        metrics=metrics,
-        **counters,
+        epsilon=epsilon_of(fields["episode"], hp, config.num_episodes),
         snapshots=snapshots,
         validation=validation,
     )
