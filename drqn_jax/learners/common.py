@@ -1,7 +1,7 @@
-"""What the learners share (paper §V-B; SPEC §7): per-episode bookkeeping of N envs
-whose episodes end out of order (metrics written at each episode's index of
-(num_episodes,) buffers), the ε schedule, and the on-policy learners' rollout,
-minibatch epochs and update scan.
+"""What the learners share (paper §V-B; SPEC §7): the state's start, per-episode
+bookkeeping of N envs whose episodes end out of order (metrics written at each
+episode's index of (num_episodes,) buffers), the ε schedule, and the on-policy
+learners' state, rollout, minibatch epochs and trainer.
 """
 
 from __future__ import annotations
@@ -25,17 +25,6 @@ from drqn_jax.learners.trainer import Trainer, make_trainer
 from drqn_jax.networks import Network
 from drqn_jax.pytree import pytree_dataclass, tree_where
 
-
-def per_decision(hp: Hyperparams, task: Task) -> Hyperparams:
-    """``hp`` with the discount and the λs of one decision of k = ``task.decision_steps``
-    ticks: their per-tick values ** k, so ``train.gamma`` keeps its horizon in seconds
-    (SPEC §7); ``hp`` itself for k = 1."""
-    k = task.decision_steps
-    if k == 1:
-        return hp
-    return hp.replace(gamma=hp.gamma**k, gae_lambda=hp.gae_lambda**k, q_lambda=hp.q_lambda**k)
-
-
 __all__ = [
     "OnPolicyState",
     "epsilon_of",
@@ -43,6 +32,7 @@ __all__ = [
     "make_on_policy",
     "minibatch_epochs",
     "optimizer_of",
+    "per_decision",
     "record_episodes",
     "restarted",
     "rollout",
@@ -52,6 +42,16 @@ __all__ = [
 #: Per-episode metrics of every learner and task; a learner adds its own (the
 #: DQN: ε), a task its own (the paper's env: collision, goal, distance, speed).
 BASE_METRICS = ("episode_return", "length", "mean_loss")
+
+
+def per_decision(hp: Hyperparams, task: Task) -> Hyperparams:
+    """``hp`` with the discount and the λs of one decision of k = ``task.decision_steps``
+    ticks: their per-tick values ** k, so ``train.gamma`` keeps its horizon in seconds
+    (SPEC §7); ``hp`` itself for k = 1."""
+    k = task.decision_steps
+    if k == 1:
+        return hp
+    return hp.replace(gamma=hp.gamma**k, gae_lambda=hp.gae_lambda**k, q_lambda=hp.q_lambda**k)
 
 
 def budget_met(state: Any) -> jax.Array:
@@ -85,6 +85,8 @@ def init_fields(
     online = network.init(k_net)
     obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
     zeros_f, zeros_i = jnp.zeros((n_env,), jnp.float32), jnp.zeros((n_env,), jnp.int32)
+    dtypes = dict.fromkeys((*BASE_METRICS, *extra), jnp.float32)
+    dtypes = {**dtypes, "length": jnp.int32, **dict(task.metrics)}
     return {
         "key": key,
         "hparams": hp,
@@ -104,15 +106,8 @@ def init_fields(
         "grad_steps": jnp.zeros((), jnp.int32),
         "env_steps": jnp.zeros((), jnp.int32),
         "step_budget": jnp.asarray(config.num_env_steps, jnp.int32),
-        "metrics": init_metrics(task, config.num_episodes, extra),
+        "metrics": {name: jnp.zeros((config.num_episodes,), t) for name, t in dtypes.items()},
     }
-
-
-def init_metrics(task: Task, num_episodes: int, extra: tuple[str, ...] = ()) -> dict:
-    """Empty (num_episodes,) buffers of ``BASE_METRICS``, ``extra`` and the task's."""
-    dtypes = {**dict.fromkeys((*BASE_METRICS, *extra), jnp.float32), "length": jnp.int32}
-    dtypes.update(dict(task.metrics))
-    return {name: jnp.zeros((num_episodes,), dtype) for name, dtype in dtypes.items()}
 
 
 def record_episodes(
