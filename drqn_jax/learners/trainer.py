@@ -6,6 +6,7 @@ functions, all the host loop, sweeps, checkpoints and evaluation use. Every stat
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -53,11 +54,8 @@ def make_trainer(
         hp = config.hyperparams if hparams is None else hparams
         return init(key, hp, task.env_params if env_params is None else env_params)
 
-    def validation_metrics(state: Any) -> dict[str, jax.Array]:
-        return candidate_metrics(config, task, network, state)
-
-    def agent_params(state: Any) -> Any:
-        return run_agent(config, state)
+    validation_metrics = functools.partial(candidate_metrics, config, task, network)
+    agent_params = functools.partial(run_agent, config)
 
     def train(key: jax.Array, hparams: Any = None, env_params: Any = None):
         """Init, chunks in a ``lax.while_loop`` until finished, then the agent's choice:

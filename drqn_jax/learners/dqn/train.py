@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -69,11 +68,7 @@ def make_dqn(config: TrainConfig) -> Trainer:
     task = make_task(config.env_id, config.env_overrides)
     _check_task(config, task)
     network = make_network(task.network(config.network))
-    n_episodes = config.num_episodes
-
-    def act(state: TrainState, key: jax.Array) -> tuple[jax.Array, Any]:
-        """ε-greedy actions (N,) and the advanced network carry."""
-        return explore(task, network, n_episodes, state, key)
+    act = functools.partial(explore, task, network, config.num_episodes)
 
     def update(learner: tuple, key, replay, hp, env_params) -> tuple[tuple, jax.Array]:
         """One gradient step on ``learner`` = (online, target, opt_state, grad_steps)."""
@@ -81,17 +76,13 @@ def make_dqn(config: TrainConfig) -> Trainer:
         learner, loss = gradient_update(config, task, network, learner, key, replay, hp, env_params)
         return tuple(learner), loss
 
-    def iteration(state: TrainState) -> TrainState:
-        return _iteration(config, task, network, act, state)
-
     def run(state: TrainState, num_iterations: int) -> TrainState:
         """``num_iterations`` iterations; those after the run finished change nothing."""
 
         def body(state, _):
-            return iteration(state), None
+            return _iteration(config, task, network, act, state), None
 
-        state, _ = jax.lax.scan(body, state, None, length=num_iterations)
-        return state
+        return jax.lax.scan(body, state, None, length=num_iterations)[0]
 
     init = functools.partial(_init_state, config, task, network)
     return make_trainer(config, task, network, init, act, run, update)
