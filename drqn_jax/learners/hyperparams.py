@@ -188,8 +188,7 @@ class Hyperparams:
     def __post_init__(self) -> None:
         validate(self)
         check_sums_to_one(
-            self,
-            ("explore_accelerate", "explore_slow_down", "explore_brake", "explore_steer"),
+            self, ("explore_accelerate", "explore_slow_down", "explore_brake", "explore_steer")
         )
 
 

@@ -23,14 +23,7 @@ from drqn_jax.learners.trainer import Trainer
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
 
-__all__ = [
-    "Transition",
-    "actor_critic",
-    "gae",
-    "make_ppo",
-    "policy_network",
-    "ppo_loss",
-]
+__all__ = ["Transition", "actor_critic", "gae", "make_ppo", "policy_network", "ppo_loss"]
 
 
 class Transition(NamedTuple):
