@@ -1,5 +1,4 @@
-"""The replay DQN's :class:`TrainState` (paper §V-B; SPEC §7), its own module so that
-acting and train read it without importing each other."""
+"""The replay DQN's :class:`TrainState` (paper §V-B; SPEC §7)."""
 
 from __future__ import annotations
 

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 
 from drqn_jax.learners.common import epsilon_of, init_fields, record_episodes
-from drqn_jax.learners.dqn.acting import explore
 from drqn_jax.learners.dqn.replay import (
     EpisodeReplay,
     add_transition,
@@ -33,7 +33,11 @@ from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
 from drqn_jax.pytree import tree_where
 
-__all__ = ["make_dqn"]
+__all__ = ["explore", "make_dqn"]
+
+#: ``fold_in`` index of the guided-action draw: its own stream, so that
+#: ``explore_guide = 0`` leaves every other draw as it was.
+GUIDE_STREAM = 1
 
 
 def _small_leaves(state: TrainState) -> TrainState:
@@ -86,6 +90,29 @@ def make_dqn(config: TrainConfig) -> Trainer:
 
     init = functools.partial(_init_state, config, task, network)
     return make_trainer(config, task, network, init, act, run, update)
+
+
+def explore(
+    task: Task, network: Network, num_episodes: int, state: TrainState, key: jax.Array
+) -> tuple[jax.Array, Any]:
+    """ε-greedy actions (N,) int32 and the advanced network carry (paper §V-B). Random
+    actions follow the task's biased distribution for the first ``explore_bias_fraction``
+    of episodes, then uniform; with ``explore_guide`` = g > 0 (not the paper's) they are
+    the rule-based agent's (SPEC §6) with probability g."""
+    hp = state.hparams
+    n_env = state.episode.shape[0]
+    k_explore, k_random = jax.random.split(key)
+    q, carry = network.step(state.online, state.obs, state.carry)
+    greedy = jnp.argmax(q, axis=-1).astype(jnp.int32)
+    biased = state.episode < hp.explore_bias_fraction * num_episodes
+    probs = jnp.where(biased[:, None], task.explore_bias(hp), 1.0 / task.num_actions)
+    random_action = jax.random.categorical(k_random, jnp.log(probs)).astype(jnp.int32)
+    if task.teacher is not None:
+        guided = jax.random.uniform(jax.random.fold_in(k_random, GUIDE_STREAM), (n_env,))
+        guide_action = jax.vmap(task.teacher.act, (0, None))(state.env_state, state.env_params)
+        random_action = jnp.where(guided < hp.explore_guide, guide_action, random_action)
+    explore_now = jax.random.uniform(k_explore, (n_env,)) < state.epsilon
+    return jnp.where(explore_now, random_action, greedy), carry
 
 
 def _init_state(
