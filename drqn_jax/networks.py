@@ -266,9 +266,8 @@ def make_network(config: NetworkConfig | None = None) -> Network:
             h1, s1 = cell(params[layers[0]], features, carry[0])
             h2, s2 = cell(params[layers[1]], jnp.concatenate([h1, extra], -1), carry[1])
             return h2, (s1, s2)
-        h1 = jax.nn.relu(affine(features, params["dense1"]["w"], params["dense1"]["b"]))
-        x2 = jnp.concatenate([h1, extra], -1)
-        return jax.nn.relu(affine(x2, params["dense2"]["w"], params["dense2"]["b"])), carry
+        h1 = dense_relu(params["dense1"], features)
+        return dense_relu(params["dense2"], jnp.concatenate([h1, extra], -1)), carry
 
     def head(params: Params, h2: jax.Array) -> jax.Array:
         """Q-values (..., A) of the core's outputs (..., H): FC + ReLU, then linear."""

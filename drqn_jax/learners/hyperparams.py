@@ -59,11 +59,7 @@ class Hyperparams:
 
     learning_rate: float = param(1e-3, low=0.0, low_open=True)
     learning_rate_end: float = param(
-        1.0,
-        low=0.0,
-        high=1.0,
-        doc="fraction of learning_rate reached at the last training episode, linear in "
-        "recorded episodes; 1 keeps it constant (paper)",
+        1.0, low=0.0, high=1.0, doc="learning_rate's fraction at the end (linear); 1 = the paper"
     )
     adam_b1: float = param(0.9, low=0.0, high=1.0, high_open=True)
     adam_b2: float = param(0.999, low=0.0, high=1.0, high_open=True)
@@ -85,11 +81,7 @@ class Hyperparams:
     explore_brake: float = param(0.1, low=0.0, high=1.0)
     explore_steer: float = param(0.4, low=0.0, high=1.0)
     explore_guide: float = param(
-        0.0,
-        low=0.0,
-        high=1.0,
-        doc="share of exploratory actions taken from the rule-based agent (SPEC §6) "
-        "instead of at random; 0 = the paper",
+        0.0, low=0.0, high=1.0, doc="rule-based agent's share of exploratory actions; 0 = the paper"
     )
     target_period: int = param(10_000, low=1, doc="gradient steps between target copies")
     learning_starts: int = param(4, low=1, doc="complete episodes in replay before learning")
@@ -116,30 +108,22 @@ class Hyperparams:
         "(a pedestrian in its corridor) or 'all' states",
     )
     imitation_lookahead: float = param(
-        7.0,
-        low=0.0,
-        doc="m: the look-ahead of the rule-based agent whose actions are imitated "
-        "(SPEC §6: 7; exploration's guide keeps 7)",
+        7.0, low=0.0, doc="m: the imitated rule-based agent's look-ahead (SPEC §6: 7)"
     )
     imitation_corridor_margin: float = param(
-        0.5,
-        low=0.0,
-        doc="m: the corridor margin of the rule-based agent whose actions are imitated "
-        "(SPEC §6: 0.5; exploration's guide keeps 0.5)",
+        0.5, low=0.0, doc="m: the imitated rule-based agent's corridor margin (SPEC §6: 0.5)"
     )
     imitation_v_max: float = param(
         15.0 * KMH,
         low=0.0,
         low_open=True,
-        doc="m/s: the speed the imitated rule-based agent tracks, within ±1 km/h "
-        "(SPEC §6: 15 km/h, the limit; exploration's guide keeps 15 km/h)",
+        doc="m/s: the speed the imitated rule-based agent tracks (SPEC §6: 15 km/h)",
     )
     imitation_horizon: float = param(
         0.0,
         low=0.0,
         doc="s: the imitated rule-based agent also brakes for a pedestrian walking into its "
-        "corridor within this time (RuleBasedParams.horizon; 0 = SPEC §6's rule; "
-        "exploration's guide keeps 0)",
+        "corridor within this time (RuleBasedParams.horizon; 0 = SPEC §6's rule)",
     )
     value_rescale: int = param(
         0,
@@ -201,15 +185,8 @@ REWARD_ALONE = "none (reward alone)"
 def teacher_label(hp: Hyperparams) -> str:
     """How an agent trained with ``hp`` learned (SPEC §8: every table says it): from the
     reward alone, or with guided exploration and/or imitation of the rule-based agent."""
-    teachers = [
-        name
-        for name, value in (
-            ("guided exploration", hp.explore_guide),
-            ("imitation", hp.imitation_weight),
-        )
-        if float(value) > 0.0
-    ]
-    return " + ".join(teachers) or REWARD_ALONE
+    pairs = (("guided exploration", hp.explore_guide), ("imitation", hp.imitation_weight))
+    return " + ".join(name for name, value in pairs if float(value) > 0.0) or REWARD_ALONE
 
 
 #: Names of trained agents in results tables (:func:`agent_name`).
