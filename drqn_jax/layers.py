@@ -35,12 +35,9 @@ __all__ = [
 
 
 def _rows_product(x: jax.Array, g: jax.Array) -> jax.Array:
-    """``xᵀ g`` summed over every leading axis: (..., m), (..., n) -> (m, n).
-
-    XLA:CPU gives ``x.T @ g`` to Eigen, whose sums split by thread-pool size; a
-    row-major product (YNNPACK) does not, so ``xᵀ`` is materialised behind an
-    ``optimization_barrier`` (one copy of ``x``) to keep the same bits.
-    """
+    """``xᵀ g`` summed over every leading axis: (..., m), (..., n) -> (m, n). ``xᵀ`` is
+    materialised behind an ``optimization_barrier``: XLA:CPU would give ``x.T @ g`` to
+    Eigen, whose sums split by thread-pool size."""
     rows = _rows(x)
     return jax.lax.optimization_barrier(rows.T) @ _rows(g)
 
@@ -52,11 +49,8 @@ def _rows(x: jax.Array) -> jax.Array:
 
 @jax.custom_vjp
 def affine(x: jax.Array, w: jax.Array, b: jax.Array) -> jax.Array:
-    """``x @ w + b``: (..., n_in) @ (n_in, n_out) + (n_out,), with a vmap-stable gradient.
-
-    Both gradients come from one product ``[x, 1]ᵀ g`` (:func:`_rows_product`): a
-    plain reduction for ``b`` is reordered under ``vmap`` and would drift by an ulp.
-    """
+    """``x @ w + b``: (..., n_in) @ (n_in, n_out) + (n_out,); both gradients from one
+    product ``[x, 1]ᵀ g`` (a plain reduction for ``b`` is reordered under ``vmap``)."""
     return x @ w + b
 
 
@@ -66,8 +60,7 @@ def _affine_fwd(x: jax.Array, w: jax.Array, b: jax.Array) -> tuple[jax.Array, tu
 
 def _affine_bwd(res: tuple, g: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     x, w = res
-    # the ones join the 2-D rows (before the reshape XLA allocates more temporaries)
-    rows = _rows(x)
+    rows = _rows(x)  # the ones join the 2-D rows (fewer temporaries than before the reshape)
     rows = jnp.concatenate([rows, jnp.ones((rows.shape[0], 1), rows.dtype)], axis=1)
     grad_wb = _rows_product(rows, g)  # (n_in + 1, n_out)
     return g @ w.T, grad_wb[:-1], grad_wb[-1]
@@ -123,10 +116,8 @@ def dense_relu(layer: Params, x: jax.Array) -> jax.Array:
 
 
 def patches(x: jax.Array, kh: int, kw: int, stride: int) -> jax.Array:
-    """(N, H, W, C) -> (N, H', W', kh·kw·C) VALID patches, by strided slices (exact copies).
-
-    Times :func:`kernel_matrix` this is a convolution that ``vmap`` does not reorder.
-    """
+    """(N, H, W, C) -> (N, H', W', kh·kw·C) VALID patches by strided slices; times
+    :func:`kernel_matrix`, a convolution that ``vmap`` does not reorder."""
     _, h, w, _ = x.shape
     h_out, w_out = (h - kh) // stride + 1, (w - kw) // stride + 1
     rows = [
@@ -154,8 +145,7 @@ def kernel_matrix(w: jax.Array) -> jax.Array:
 
 
 def lstm_init(key: jax.Array, n_in: int, n_hidden: int) -> Params:
-    """Weights (n_in + H, 4H) of [x, h] -> 4 gates (i, f, g, o) and their biases (4H,);
-    forget bias 1."""
+    """Weights (n_in + H, 4H) of [x, h] -> gates (i, f, g, o), biases (4H,), forget's 1."""
     w = glorot(key, (n_in + n_hidden, 4 * n_hidden), n_in + n_hidden, n_hidden)
     b = jnp.zeros((4, n_hidden), jnp.float32).at[1].set(1.0).reshape(-1)
     return {"w": w, "b": b}

@@ -92,17 +92,15 @@ class NetworkConfig:
             raise ValueError(
                 f"NetworkConfig.layer_norm = {self.layer_norm!r}: must be true or false"
             )
-        if self.kind not in NETWORK_KINDS:
-            raise ValueError(f"NetworkConfig.kind = {self.kind!r}: must be one of {NETWORK_KINDS}")
-        if self.cell not in CELLS:
-            raise ValueError(f"NetworkConfig.cell = {self.cell!r}: must be one of {CELLS}")
+        for name, choices in (("kind", NETWORK_KINDS), ("cell", CELLS), ("torso", TORSOS)):
+            if getattr(self, name) not in choices:
+                value = getattr(self, name)
+                raise ValueError(f"NetworkConfig.{name} = {value!r}: must be one of {choices}")
         if self.cell != "lstm" and self.kind != "drqn":
             raise ValueError(
                 f"NetworkConfig.cell = {self.cell!r}: a cell is for kind 'drqn' (kind "
                 f"{self.kind!r} has none); use 'lstm'"
             )
-        if self.torso not in TORSOS:
-            raise ValueError(f"NetworkConfig.torso = {self.torso!r}: must be one of {TORSOS}")
         if self.torso == "mlp":
             if self.obs_size < 1 or any(not isinstance(w, int) or w < 1 for w in self.mlp):
                 raise ValueError(
@@ -123,20 +121,13 @@ class NetworkConfig:
                 f"NetworkConfig.frames = {self.frames}: stacking grids is for kind 'dqn' "
                 f"(kind {self.kind!r} remembers through its LSTMs); use 1"
             )
-        if self.torso == "conv":
-            self._check_conv()
-
-    def _check_conv(self) -> None:
-        h, w, _ = self.grid_shape
-        for kh, kw, stride, filters in self.conv:
-            if min(kh, kw, stride, filters) < 1:
-                raise ValueError(f"NetworkConfig.conv = {self.conv!r}: all sizes must be >= 1")
-            h, w = (h - kh) // stride + 1, (w - kw) // stride + 1
-            if h < 1 or w < 1:
-                raise ValueError(
-                    f"NetworkConfig.conv = {self.conv!r}: the grid {self.grid_shape} shrinks to "
-                    "nothing; the conv stack needs at least a 1×1 output"
-                )
+        if self.torso == "conv" and any(min(layer) < 1 for layer in self.conv):
+            raise ValueError(f"NetworkConfig.conv = {self.conv!r}: all sizes must be >= 1")
+        if self.torso == "conv" and min(self.conv_output_shape[:2]) < 1:
+            raise ValueError(
+                f"NetworkConfig.conv = {self.conv!r}: the grid {self.grid_shape} shrinks to "
+                "nothing; the conv stack needs at least a 1×1 output"
+            )
 
     @property
     def conv_output_shape(self) -> tuple[int, int, int]:
@@ -275,9 +266,8 @@ def make_network(config: NetworkConfig | None = None) -> Network:
             h1, s1 = cell(params[layers[0]], features, carry[0])
             h2, s2 = cell(params[layers[1]], jnp.concatenate([h1, extra], -1), carry[1])
             return h2, (s1, s2)
-        h1 = jax.nn.relu(affine(features, params["dense1"]["w"], params["dense1"]["b"]))
-        x2 = jnp.concatenate([h1, extra], -1)
-        return jax.nn.relu(affine(x2, params["dense2"]["w"], params["dense2"]["b"])), carry
+        h1 = dense_relu(params["dense1"], features)
+        return dense_relu(params["dense2"], jnp.concatenate([h1, extra], -1)), carry
 
     def head(params: Params, h2: jax.Array) -> jax.Array:
         """Q-values (..., A) of the core's outputs (..., H): FC + ReLU, then linear."""

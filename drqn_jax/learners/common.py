@@ -1,22 +1,47 @@
-"""What the learners share (paper §V-B; SPEC §7): per-episode bookkeeping of N envs
-whose episodes end out of order (metrics written at each episode's index of
-(num_episodes,) buffers), the ε schedule, and the on-policy learners' rollout,
-minibatch epochs and update scan.
+"""What the learners share (paper §V-B; SPEC §7): the state's start, per-episode
+bookkeeping of N envs whose episodes end out of order (metrics written at each
+episode's index of (num_episodes,) buffers), the ε schedule, and the on-policy
+learners' state, rollout, minibatch epochs and trainer.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig
-from drqn_jax.learners.optim import apply_updates, clip_by_global_norm, optimizer
+from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
+from drqn_jax.learners.optim import (
+    GradientTransformation,
+    apply_updates,
+    clip_by_global_norm,
+    optimizer,
+)
 from drqn_jax.learners.task import Step, Task
+from drqn_jax.learners.trainer import Trainer, make_trainer
 from drqn_jax.networks import Network
-from drqn_jax.pytree import tree_where
+from drqn_jax.pytree import pytree_dataclass, tree_where
+
+__all__ = [
+    "OnPolicyState",
+    "epsilon_of",
+    "init_fields",
+    "make_on_policy",
+    "minibatch_epochs",
+    "optimizer_of",
+    "per_decision",
+    "record_episodes",
+    "restarted",
+    "rollout",
+    "run_updates",
+]
+
+#: Per-episode metrics of every learner and task; a learner adds its own (the
+#: DQN: ε), a task its own (the paper's env: collision, goal, distance, speed).
+BASE_METRICS = ("episode_return", "length", "mean_loss")
 
 
 def per_decision(hp: Hyperparams, task: Task) -> Hyperparams:
@@ -29,52 +54,60 @@ def per_decision(hp: Hyperparams, task: Task) -> Hyperparams:
     return hp.replace(gamma=hp.gamma**k, gae_lambda=hp.gae_lambda**k, q_lambda=hp.q_lambda**k)
 
 
-__all__ = [
-    "BASE_METRICS",
-    "budget_met",
-    "epsilon_of",
-    "init_counters",
-    "init_metrics",
-    "minibatch_epochs",
-    "record_episodes",
-    "restarted",
-    "rollout",
-    "run_updates",
-]
-
-#: Per-episode metrics of every learner and task; a learner adds its own (the
-#: DQN: ε), a task its own (the paper's env: collision, goal, distance, speed).
-BASE_METRICS = ("episode_return", "length", "mean_loss")
-
-
 def budget_met(state: Any) -> jax.Array:
     """() bool: all ``num_episodes`` recorded, or ``step_budget`` (0: none) steps taken."""
     by_steps = (state.step_budget > 0) & (state.env_steps >= state.step_budget)
     return (state.recorded >= state.metrics["length"].shape[-1]) | by_steps
 
 
-def init_counters(num_envs: int, num_env_steps: int) -> dict[str, jax.Array]:
-    """A state's starting counters: env i in episode i, running sums (N,) at zero."""
-    zeros_f, zeros_i = jnp.zeros((num_envs,), jnp.float32), jnp.zeros((num_envs,), jnp.int32)
+def optimizer_of(
+    config: TrainConfig, hp: Hyperparams, learning_rate: jax.Array | None = None
+) -> GradientTransformation:
+    """``config.optimizer`` at ``hp``'s settings (``learning_rate``: its own by default)."""
+    lr = hp.learning_rate if learning_rate is None else learning_rate
+    return optimizer(config.optimizer, lr, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+
+
+def init_fields(
+    config: TrainConfig,
+    task: Task,
+    network: Network,
+    key: jax.Array,
+    hp: Hyperparams,
+    env_params: Any,
+    extra: tuple[str, ...] = (),
+) -> dict[str, Any]:
+    """The fields every learner's state starts with: N envs reset, fresh ``online``
+    parameters and optimiser, zero carries, env i in episode i, running sums (N,) at
+    zero and empty metrics (``extra``: the learner's own)."""
+    n_env = config.num_envs
+    key, k_net, k_env = jax.random.split(key, 3)
+    online = network.init(k_net)
+    obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
+    zeros_f, zeros_i = jnp.zeros((n_env,), jnp.float32), jnp.zeros((n_env,), jnp.int32)
+    dtypes = dict.fromkeys((*BASE_METRICS, *extra), jnp.float32)
+    dtypes = {**dtypes, "length": jnp.int32, **dict(task.metrics)}
     return {
-        "episode": jnp.arange(num_envs, dtype=jnp.int32),
+        "key": key,
+        "hparams": hp,
+        "env_params": env_params,
+        "env_state": env_state,
+        "obs": obs,
+        "carry": network.initial_carry((n_env,)),
+        "online": online,
+        "opt_state": optimizer_of(config, hp).init(online),
+        "episode": jnp.arange(n_env, dtype=jnp.int32),
         "ep_return": zeros_f,
         "ep_length": zeros_i,
         "ep_loss_sum": zeros_f,
         "ep_loss_count": zeros_i,
-        "episodes_started": jnp.asarray(num_envs, jnp.int32),
+        "episodes_started": jnp.asarray(n_env, jnp.int32),
         "recorded": jnp.zeros((), jnp.int32),
         "grad_steps": jnp.zeros((), jnp.int32),
         "env_steps": jnp.zeros((), jnp.int32),
-        "step_budget": jnp.asarray(num_env_steps, jnp.int32),
+        "step_budget": jnp.asarray(config.num_env_steps, jnp.int32),
+        "metrics": {name: jnp.zeros((config.num_episodes,), t) for name, t in dtypes.items()},
     }
-
-
-def init_metrics(task: Task, num_episodes: int, extra: tuple[str, ...] = ()) -> dict:
-    """Empty (num_episodes,) buffers of ``BASE_METRICS``, ``extra`` and the task's."""
-    dtypes = {**dict.fromkeys((*BASE_METRICS, *extra), jnp.float32), "length": jnp.int32}
-    dtypes.update(dict(task.metrics))
-    return {name: jnp.zeros((num_episodes,), dtype) for name, dtype in dtypes.items()}
 
 
 def record_episodes(
@@ -174,19 +207,25 @@ def rollout(
 def minibatch_epochs(
     config: TrainConfig,
     state: Any,
-    learning_rate: jax.Array,
-    grads_of: Callable[[Any, jax.Array], tuple[Any, jax.Array]],
+    loss_of: Callable[[Any, Any, Any], tuple[jax.Array, jax.Array]],
+    sequences: Any,
+    per_env: Any,
 ) -> Any:
     """``update_epochs`` passes of ``num_minibatches`` random minibatches of whole env
-    sequences; ``grads_of(params, envs (N / M,))`` -> (grads, loss), clipped to
-    ``max_grad_norm``. The mean loss joins every running episode's."""
+    sequences at the annealed rate; ``loss_of(params, sequences (T, N / M, …), per_env
+    (N / M, …))`` -> (loss, loss), its gradients clipped to ``max_grad_norm``. The
+    mean loss joins every running episode's."""
     hp = state.hparams
-    opt = optimizer(config.optimizer, learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+    steps = step_share(config, state.env_steps)
+    lr = annealed(hp, state.recorded, config.num_episodes, steps).learning_rate
+    opt = optimizer_of(config, hp, lr)
     per_mb = config.num_envs // config.num_minibatches
 
     def minibatch(learner, envs):
         params, opt_state = learner
-        grads, loss = grads_of(params, envs)
+        seqs = jax.tree.map(functools.partial(jnp.take, indices=envs, axis=1), sequences)
+        starts = jax.tree.map(functools.partial(jnp.take, indices=envs, axis=0), per_env)
+        grads, loss = jax.grad(loss_of, has_aux=True)(params, seqs, starts)
         grads, _ = clip_by_global_norm(hp.max_grad_norm).update(grads, ())
         updates, opt_state = opt.update(grads, opt_state, params)
         return (apply_updates(params, updates), opt_state), loss
@@ -222,3 +261,67 @@ def run_updates(update: Callable[[Any], Any]) -> Callable[[Any, int], Any]:
         return jax.lax.scan(body, state, None, length=num_iterations)[0]
 
     return run
+
+
+@pytree_dataclass
+class OnPolicyState:
+    """Everything a PPO or PQN run carries between updates (and checkpoints); per-env
+    leaves (N, …), ``online`` the network's parameters, ``done`` (N,) restarts the carry."""
+
+    key: jax.Array
+    hparams: Hyperparams
+    env_params: Any
+    env_state: Any
+    obs: Any
+    carry: Any
+    done: jax.Array
+    online: Any
+    opt_state: Any
+    episode: jax.Array
+    ep_return: jax.Array
+    ep_length: jax.Array
+    ep_loss_sum: jax.Array
+    ep_loss_count: jax.Array
+    episodes_started: jax.Array
+    recorded: jax.Array
+    grad_steps: jax.Array
+    env_steps: jax.Array
+    step_budget: jax.Array  # () int32 TrainConfig.num_env_steps (0: none)
+    metrics: dict[str, jax.Array]
+    #: The protocol's candidates' validation metrics: none, no snapshot is selected.
+    validation: ClassVar[None] = None
+
+    @property
+    def finished(self) -> jax.Array:
+        return budget_met(self)
+
+
+def make_on_policy(
+    config: TrainConfig,
+    task: Task,
+    network: Network,
+    agent: Network,
+    policy: Policy,
+    transition: Callable[..., Any],
+    learn: Callable[[OnPolicyState, Any, Any], OnPolicyState],
+    extra: tuple[str, ...] = (),
+) -> Trainer:
+    """The :class:`Trainer` of a learner without a replay (PPO, PQN): each update a
+    :func:`rollout` by ``policy`` into ``transition``s, then ``learn(state, traj,
+    carry before the rollout)``; ``agent`` is the network the run's agent acts with,
+    ``extra`` the learner's own metrics."""
+
+    def init(key: jax.Array, hp: Hyperparams, env_params: Any) -> OnPolicyState:
+        fields = init_fields(config, task, network, key, hp, env_params, extra)
+        return OnPolicyState(**fields, done=jnp.zeros((config.num_envs,), bool))
+
+    def act(state: OnPolicyState, key: jax.Array) -> tuple[jax.Array, Any]:
+        action, carry, _, _ = policy(state, key)
+        return action, carry
+
+    def update(state: OnPolicyState) -> OnPolicyState:
+        carry0 = state.carry
+        state, traj = rollout(config, task, policy, transition, state)
+        return learn(state, traj, carry0)
+
+    return make_trainer(config, task, agent, init, act, run_updates(update))

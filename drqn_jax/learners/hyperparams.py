@@ -1,13 +1,7 @@
-"""What a training run is configured with (paper Table II; SPEC §7).
-
-* :class:`Hyperparams`: the traced hyperparameters (learning rate, γ, ε
-  schedule, target period, clip mode, teachers, R2D2's options, selection), so
-  a sweep can ``vmap`` over them;
-* :class:`TrainConfig`: the shape-setting settings (hashable; a change
-  recompiles) — the environment, the network, sizes of the run, replay and
-  minibatch;
-* :func:`teacher_label`: how an agent trained with given hyperparameters
-  learned (every results table says it).
+"""What a training run is configured with (paper Table II; SPEC §7): the traced
+:class:`Hyperparams` (a sweep ``vmap``s over them), the shape-setting
+:class:`TrainConfig` (hashable; a change recompiles), and how a trained agent is
+named in results tables (:func:`teacher_label`, :func:`agent_name`).
 """
 
 from __future__ import annotations
@@ -44,20 +38,16 @@ __all__ = [
 ]
 
 #: The replay DQN's TD loss (``Hyperparams.clip``): Huber, or the squared error
-#: with its gradient clipped (:mod:`drqn_jax.learners.dqn.loss`).
+#: with its gradient clipped.
 CLIP_MODES = ("huber", "grad")
-#: Where a replay window may start (``Hyperparams.window_start``): inside the
-#: episode (SPEC §7) or at any of its steps, padded past its end
-#: (:mod:`drqn_jax.learners.dqn.replay`).
+#: Where a replay window may start (``Hyperparams.window_start``).
 WINDOW_STARTS = ("inside", "anywhere")
 #: Where the imitation term applies (``Hyperparams.imitation_states``).
 IMITATION_STATES = ("brake", "all")
 IMITATION_ALL = IMITATION_STATES.index("all")
 #: How the run's agent is chosen among its candidates (``Hyperparams.select_by``).
 SELECT_BY = ("return", "safe")
-#: The learners (``TrainConfig.algorithm``): the paper's (D)RQN, trained by
-#: Double-DQN on an episode replay, recurrent PPO (:mod:`drqn_jax.learners.ppo`) or
-#: recurrent PQN (:mod:`drqn_jax.learners.pqn`).
+#: The learners (``TrainConfig.algorithm``).
 ALGORITHMS = ("dqn", "ppo", "pqn")
 #: The learners without a replay: each update learns from a rollout of every env.
 ON_POLICY = ("ppo", "pqn")
@@ -69,11 +59,7 @@ class Hyperparams:
 
     learning_rate: float = param(1e-3, low=0.0, low_open=True)
     learning_rate_end: float = param(
-        1.0,
-        low=0.0,
-        high=1.0,
-        doc="fraction of learning_rate reached at the last training episode, linear in "
-        "recorded episodes; 1 keeps it constant (paper)",
+        1.0, low=0.0, high=1.0, doc="learning_rate's fraction at the end (linear); 1 = the paper"
     )
     adam_b1: float = param(0.9, low=0.0, high=1.0, high_open=True)
     adam_b2: float = param(0.999, low=0.0, high=1.0, high_open=True)
@@ -95,11 +81,7 @@ class Hyperparams:
     explore_brake: float = param(0.1, low=0.0, high=1.0)
     explore_steer: float = param(0.4, low=0.0, high=1.0)
     explore_guide: float = param(
-        0.0,
-        low=0.0,
-        high=1.0,
-        doc="share of exploratory actions taken from the rule-based agent (SPEC §6) "
-        "instead of at random; 0 = the paper",
+        0.0, low=0.0, high=1.0, doc="rule-based agent's share of exploratory actions; 0 = the paper"
     )
     target_period: int = param(10_000, low=1, doc="gradient steps between target copies")
     learning_starts: int = param(4, low=1, doc="complete episodes in replay before learning")
@@ -126,30 +108,22 @@ class Hyperparams:
         "(a pedestrian in its corridor) or 'all' states",
     )
     imitation_lookahead: float = param(
-        7.0,
-        low=0.0,
-        doc="m: the look-ahead of the rule-based agent whose actions are imitated "
-        "(SPEC §6: 7; exploration's guide keeps 7)",
+        7.0, low=0.0, doc="m: the imitated rule-based agent's look-ahead (SPEC §6: 7)"
     )
     imitation_corridor_margin: float = param(
-        0.5,
-        low=0.0,
-        doc="m: the corridor margin of the rule-based agent whose actions are imitated "
-        "(SPEC §6: 0.5; exploration's guide keeps 0.5)",
+        0.5, low=0.0, doc="m: the imitated rule-based agent's corridor margin (SPEC §6: 0.5)"
     )
     imitation_v_max: float = param(
         15.0 * KMH,
         low=0.0,
         low_open=True,
-        doc="m/s: the speed the imitated rule-based agent tracks, within ±1 km/h "
-        "(SPEC §6: 15 km/h, the limit; exploration's guide keeps 15 km/h)",
+        doc="m/s: the speed the imitated rule-based agent tracks (SPEC §6: 15 km/h)",
     )
     imitation_horizon: float = param(
         0.0,
         low=0.0,
         doc="s: the imitated rule-based agent also brakes for a pedestrian walking into its "
-        "corridor within this time (RuleBasedParams.horizon; 0 = SPEC §6's rule; "
-        "exploration's guide keeps 0)",
+        "corridor within this time (RuleBasedParams.horizon; 0 = SPEC §6's rule)",
     )
     value_rescale: int = param(
         0,
@@ -198,8 +172,7 @@ class Hyperparams:
     def __post_init__(self) -> None:
         validate(self)
         check_sums_to_one(
-            self,
-            ("explore_accelerate", "explore_slow_down", "explore_brake", "explore_steer"),
+            self, ("explore_accelerate", "explore_slow_down", "explore_brake", "explore_steer")
         )
 
 
@@ -210,19 +183,10 @@ REWARD_ALONE = "none (reward alone)"
 
 
 def teacher_label(hp: Hyperparams) -> str:
-    """How an agent trained with ``hp`` learned (SPEC §8: every table says it):
-    ``"none (reward alone)"``, or the teacher it had — exploration guided by the
-    rule-based agent (``explore_guide`` > 0), imitation of its actions
-    (``imitation_weight`` > 0), or both."""
-    teachers = [
-        name
-        for name, value in (
-            ("guided exploration", hp.explore_guide),
-            ("imitation", hp.imitation_weight),
-        )
-        if float(value) > 0.0
-    ]
-    return " + ".join(teachers) or REWARD_ALONE
+    """How an agent trained with ``hp`` learned (SPEC §8: every table says it): from the
+    reward alone, or with guided exploration and/or imitation of the rule-based agent."""
+    pairs = (("guided exploration", hp.explore_guide), ("imitation", hp.imitation_weight))
+    return " + ".join(name for name, value in pairs if float(value) > 0.0) or REWARD_ALONE
 
 
 #: Names of trained agents in results tables (:func:`agent_name`).
@@ -230,9 +194,8 @@ LEARNED_AGENTS = ("drqn", "dqn", "ppo", "ppo-ff", "pqn", "pqn-ff")
 
 
 def agent_name(config: TrainConfig) -> str:
-    """The name of the agent ``config`` trains, in results tables: the network kind
-    of the paper's learner (``"drqn"``, ``"dqn"``), or ``"ppo"`` / ``"pqn"``
-    (recurrent) and ``"ppo-ff"`` / ``"pqn-ff"`` (feed-forward, network kind ``"dqn"``)."""
+    """The name of the agent ``config`` trains in results tables: the network kind of the
+    paper's learner, or ``"ppo"``/``"pqn"``, ``-ff`` when feed-forward (kind ``"dqn"``)."""
     if config.algorithm in ON_POLICY:
         name = config.algorithm
         return name if config.network.kind == "drqn" else f"{name}-ff"
@@ -261,11 +224,9 @@ def step_share(config: TrainConfig, env_steps: jax.Array) -> jax.Array | None:
 def annealed(
     hp: Hyperparams, recorded: jax.Array, num_episodes: int, steps: jax.Array | None = None
 ) -> Hyperparams:
-    """``hp`` with the learning rate of this point of the run: linear from
-    ``learning_rate`` (no episode recorded) to ``learning_rate · learning_rate_end``
-    (all ``num_episodes`` recorded, or the ``steps`` share of a step budget
-    (:func:`step_share`) reached 1, whichever is further); exactly
-    ``learning_rate`` when ``learning_rate_end`` = 1 (the paper's constant rate)."""
+    """``hp`` with this point of the run's learning rate: linear from ``learning_rate``
+    to ``learning_rate · learning_rate_end`` over the recorded episodes or the ``steps``
+    share of a step budget (:func:`step_share`), the further; constant at end 1."""
     frac = jnp.minimum(recorded * (1.0 / num_episodes), 1.0)
     if steps is not None:
         frac = jnp.maximum(frac, steps)
@@ -273,136 +234,93 @@ def annealed(
     return hp.replace(learning_rate=hp.learning_rate * scale)
 
 
+def _field(default: Any, doc: str, choices: tuple[str, ...] | None = None) -> Any:
+    """A :class:`TrainConfig` field with its ``doc`` (and ``choices``) for the config schema."""
+    meta = {"doc": doc} if choices is None else {"doc": doc, "choices": choices}
+    return dataclasses.field(default=default, metadata=meta)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class TrainConfig:
-    """Shape-setting training settings (hashable; a change recompiles).
+    """Shape-setting training settings (hashable; a change recompiles); the defaults
+    are the paper's protocol (SPEC §7).
 
-    The defaults are the paper's protocol (SPEC §7): one environment, 200
-    episodes, replay of 50 episodes, minibatch 32 windows × 8 steps, one
-    gradient step per environment step.
-
-    ``hyperparams`` is only the default a run starts from: ``init`` copies it
-    (or the ``hparams`` it is given) into the state, and everything traced
-    reads that copy alone (``state.hparams``), which sweeps ``vmap`` over and a
-    resume restores. Equality and hashing compare it; the compiled programs
-    depend on :meth:`program_key`, which leaves it out.
+    ``hyperparams`` is only the default a run starts from: ``init`` copies it (or the
+    ``hparams`` it is given) into the state, which everything traced reads. Equality
+    and hashing compare it; the compiled programs depend on :meth:`program_key` alone.
     """
 
     env_id: str = "UrbanPedestrians-v0"
     env_overrides: tuple[tuple[str, Any], ...] = ()
     network: NetworkConfig = dataclasses.field(default_factory=NetworkConfig)
-    algorithm: str = dataclasses.field(
-        default="dqn",
-        metadata={
-            "choices": ALGORITHMS,
-            "doc": "the learner: 'dqn' (the paper: Double-DQN on an episode replay), 'ppo' "
-            "(recurrent PPO, PureJaxRL's ppo_rnn; the replay and ε fields are unused) or "
-            "'pqn' (recurrent PQN, purejaxql's pqn_rnn: ε-greedy rollouts, Q(λ) targets, "
-            "no replay and no target network)",
-        },
+    algorithm: str = _field(
+        "dqn",
+        "the learner: 'dqn' (the paper: Double-DQN on an episode replay), 'ppo' "
+        "(recurrent PPO, PureJaxRL's ppo_rnn; the replay and ε fields are unused) or "
+        "'pqn' (recurrent PQN, purejaxql's pqn_rnn: ε-greedy rollouts, Q(λ) targets, "
+        "no replay and no target network)",
+        ALGORITHMS,
     )
     num_envs: int = 1
     num_episodes: int = 200
-    num_env_steps: int = dataclasses.field(
-        default=0,
-        metadata={
-            "doc": "if > 0, the run also ends after this many env steps (all envs together), "
-            "and ε and the learning rate follow the larger share of either budget; "
-            "0 = the paper: num_episodes alone"
-        },
+    num_env_steps: int = _field(
+        0,
+        "if > 0, the run also ends after this many env steps (all envs together), "
+        "and ε and the learning rate follow the larger share of either budget; "
+        "0 = the paper: num_episodes alone",
     )
     replay_episodes: int = 50
     batch_size: int = 32
     window: int = 8
-    n_step: int = dataclasses.field(
-        default=1,
-        metadata={"doc": "rewards summed per TD target, <= window (1 = the paper)"},
+    n_step: int = _field(1, "rewards summed per TD target, <= window (1 = the paper)")
+    burn_in: int = _field(
+        0,
+        "steps before each replayed window that only warm the LSTM, without "
+        "loss or gradient (R2D2's burn-in; 0 = the paper: the LSTM starts from zeros)",
     )
-    burn_in: int = dataclasses.field(
-        default=0,
-        metadata={
-            "doc": "steps before each replayed window that only warm the LSTM, without "
-            "loss or gradient (R2D2's burn-in; 0 = the paper: the LSTM starts from zeros)"
-        },
-    )
-    stored_state: int = dataclasses.field(
-        default=0,
-        metadata={
-            "doc": "1: the replay keeps the acting LSTM's state with every observation and "
-            "each replayed window starts from it (R2D2's stored state; drqn only; 0 = the "
-            "paper: from zeros)"
-        },
+    stored_state: int = _field(
+        0,
+        "1: the replay keeps the acting LSTM's state with every observation and "
+        "each replayed window starts from it (R2D2's stored state; drqn only; 0 = the "
+        "paper: from zeros)",
     )
     updates_per_step: int = 1
-    chunk_iterations: int = dataclasses.field(
-        default=1000,
-        metadata={"doc": "iterations per host chunk: env steps (dqn) or updates (ppo)"},
+    chunk_iterations: int = _field(
+        1000, "iterations per host chunk: env steps (dqn) or updates (ppo)"
     )
-    snapshots: int = dataclasses.field(
-        default=0,
-        metadata={
-            "doc": "parameter snapshots kept during training, the agent then chosen among them "
-            "and the final parameters on validation episodes (0 = the paper: the final ones)"
-        },
+    snapshots: int = _field(
+        0,
+        "parameter snapshots kept during training, the agent then chosen among them "
+        "and the final parameters on validation episodes (0 = the paper: the final ones)",
     )
-    validation_episodes: int = dataclasses.field(
-        default=100,
-        metadata={"doc": "greedy episodes per candidate when snapshots > 0"},
+    validation_episodes: int = _field(100, "greedy episodes per candidate when snapshots > 0")
+    rollout_steps: int = _field(128, "ppo, pqn: steps per env in each update's rollout")
+    update_epochs: int = _field(4, "ppo, pqn: passes over each rollout")
+    num_minibatches: int = _field(
+        4, "ppo, pqn: minibatches per pass, of whole env sequences; divides num_envs"
     )
-    rollout_steps: int = dataclasses.field(
-        default=128, metadata={"doc": "ppo, pqn: steps per env in each update's rollout"}
-    )
-    update_epochs: int = dataclasses.field(
-        default=4, metadata={"doc": "ppo, pqn: passes over each rollout"}
-    )
-    num_minibatches: int = dataclasses.field(
-        default=4,
-        metadata={
-            "doc": "ppo, pqn: minibatches per pass, of whole env sequences; divides num_envs"
-        },
-    )
-    optimizer: str = dataclasses.field(
-        default="adam",
-        metadata={
-            "choices": OPTIMIZERS,
-            "doc": "'adam' (the paper's) or 'radam' (rectified Adam, purejaxql's PQN); "
-            "its settings are adam_b1, adam_b2, adam_eps",
-        },
+    optimizer: str = _field(
+        "adam",
+        "'adam' (the paper's) or 'radam' (rectified Adam, purejaxql's PQN); "
+        "its settings are adam_b1, adam_b2, adam_eps",
+        OPTIMIZERS,
     )
     hyperparams: Hyperparams = dataclasses.field(default_factory=Hyperparams)
 
     def __post_init__(self) -> None:
-        check_counts(
-            self,
-            (
-                "num_envs",
-                "num_episodes",
-                "replay_episodes",
-                "batch_size",
-                "window",
-                "n_step",
-                "updates_per_step",
-                "chunk_iterations",
-                "validation_episodes",
-                "rollout_steps",
-                "update_epochs",
-                "num_minibatches",
-            ),
-        )
+        counts = ("num_envs", "num_episodes", "replay_episodes", "batch_size", "window")
+        counts += ("n_step", "updates_per_step", "chunk_iterations", "validation_episodes")
+        check_counts(self, (*counts, "rollout_steps", "update_epochs", "num_minibatches"))
         check_counts(self, ("burn_in", "num_env_steps"), low=0)
         if self.num_env_steps and self.snapshots:
             raise ValueError(
                 f"TrainConfig.snapshots = {self.snapshots}: snapshots are taken at shares of "
                 "num_episodes, which a run with num_env_steps > 0 may not reach; use 0"
             )
-        if self.optimizer not in OPTIMIZERS:
-            raise ValueError(
-                f"TrainConfig.optimizer = {self.optimizer!r}: must be one of {OPTIMIZERS}"
-            )
-        if self.algorithm not in ALGORITHMS:
-            raise ValueError(
-                f"TrainConfig.algorithm = {self.algorithm!r}: must be one of {ALGORITHMS}"
-            )
+        for name, choices in (("optimizer", OPTIMIZERS), ("algorithm", ALGORITHMS)):
+            if getattr(self, name) not in choices:
+                value = getattr(self, name)
+                raise ValueError(f"TrainConfig.{name} = {value!r}: must be one of {choices}")
         if self.stored_state not in (0, 1) or isinstance(self.stored_state, bool):
             raise ValueError(f"TrainConfig.stored_state = {self.stored_state!r}: must be 0 or 1")
         if not isinstance(self.snapshots, int) or isinstance(self.snapshots, bool):
@@ -443,8 +361,8 @@ class TrainConfig:
                 f"({2 * self.num_envs}); each environment writes its own replay slots"
             )
         most_complete = self.num_envs * (self.replay_episodes // self.num_envs - 1)
-        if int(self.hyperparams.learning_starts) > most_complete:
-            starts = int(self.hyperparams.learning_starts)
+        starts = int(self.hyperparams.learning_starts)
+        if starts > most_complete:
             raise ValueError(
                 f"Hyperparams.learning_starts = {starts}: must be <= {most_complete}, the most "
                 f"complete episodes a replay of {self.replay_episodes} holds while "
@@ -453,8 +371,7 @@ class TrainConfig:
 
     def _check_on_policy(self) -> None:
         """The rules of the learners without a replay (``ON_POLICY``): whole env
-        sequences per minibatch, and none of the replay learner's options that
-        would change what they learn."""
+        sequences per minibatch, none of the replay learner's options."""
         name = self.algorithm
         if self.num_envs % self.num_minibatches:
             raise ValueError(
@@ -476,9 +393,8 @@ class TrainConfig:
 
     def program_key(self) -> tuple:
         """Every field but ``hyperparams``: what a compiled program of ``make_train``'s
-        functions depends on when it takes the hyperparameters as arguments (in the
-        state, or as ``init``'s), as the runners' programs do. Configs that differ in
-        hyperparameter values only share those programs."""
+        functions depends on when it takes the hyperparameters as arguments (as the
+        runners' programs do); configs differing in hyperparameter values share it."""
         return tuple(
             getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "hyperparams"
         )

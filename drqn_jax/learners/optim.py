@@ -66,9 +66,7 @@ def adam(
         mu_scale = 1.0 / (1.0 - b1**t)
         nu_scale = 1.0 / (1.0 - b2**t)
         updates = jax.tree.map(
-            lambda m, v: -learning_rate * (m * mu_scale) / (jnp.sqrt(v * nu_scale) + eps),
-            mu,
-            nu,
+            lambda m, v: -learning_rate * (m * mu_scale) / (jnp.sqrt(v * nu_scale) + eps), mu, nu
         )
         return updates, AdamState(count=count, mu=mu, nu=nu)
 

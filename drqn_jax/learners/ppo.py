@@ -11,71 +11,19 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Any, ClassVar, NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.learners.common import (
-    budget_met,
-    init_counters,
-    init_metrics,
-    minibatch_epochs,
-    per_decision,
-    restarted,
-    rollout,
-    run_updates,
-)
-from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
-from drqn_jax.learners.optim import optimizer
+from drqn_jax.learners.common import make_on_policy, minibatch_epochs, per_decision, restarted
+from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig
 from drqn_jax.learners.task import Task, make_task
-from drqn_jax.learners.trainer import Trainer, make_trainer
+from drqn_jax.learners.trainer import Trainer
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
-from drqn_jax.pytree import pytree_dataclass
 
-__all__ = [
-    "PPOState",
-    "Transition",
-    "actor_critic",
-    "gae",
-    "make_ppo",
-    "policy_network",
-    "ppo_loss",
-]
-
-
-@pytree_dataclass
-class PPOState:
-    """Everything a PPO run carries between updates (and checkpoints); per-env leaves
-    (N, …), ``online`` the actor-critic's parameters, ``done`` (N,) restarts the carry."""
-
-    key: jax.Array
-    hparams: Hyperparams
-    env_params: Any
-    env_state: Any
-    obs: Any
-    carry: Any
-    done: jax.Array
-    online: Any
-    opt_state: Any
-    episode: jax.Array
-    ep_return: jax.Array
-    ep_length: jax.Array
-    ep_loss_sum: jax.Array
-    ep_loss_count: jax.Array
-    episodes_started: jax.Array
-    recorded: jax.Array
-    grad_steps: jax.Array
-    env_steps: jax.Array
-    step_budget: jax.Array  # () int32 TrainConfig.num_env_steps (0: none)
-    metrics: dict[str, jax.Array]
-    #: The protocol's candidates' validation metrics: none, PPO selects no snapshot.
-    validation: ClassVar[None] = None
-
-    @property
-    def finished(self) -> jax.Array:
-        return budget_met(self)
+__all__ = ["Transition", "actor_critic", "gae", "make_ppo", "policy_network", "ppo_loss"]
 
 
 class Transition(NamedTuple):
@@ -158,72 +106,26 @@ def ppo_loss(
     return total, {"actor": actor, "critic": critic, "entropy": entropy}
 
 
+@cached_program
 def make_ppo(config: TrainConfig) -> Trainer:
     """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "ppo"`` config."""
     if config.algorithm != "ppo":
         raise ValueError(f"make_ppo: TrainConfig.algorithm = {config.algorithm!r}; use 'ppo'")
-    return _make_ppo(config)
-
-
-@cached_program
-def _make_ppo(config: TrainConfig) -> Trainer:
     task = make_task(config.env_id, config.env_overrides)
-    n_act = task.num_actions
     network = actor_critic(config, task)
-    policy = policy_network(network, n_act)
-
-    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
-        """The state before the first update."""
-        hp = config.hyperparams if hparams is None else hparams
-        env_params = task.env_params if env_params is None else env_params
-        return _init_state(config, task, network, key, hp, env_params)
-
-    def act(state: PPOState, key: jax.Array) -> tuple[jax.Array, Any]:
-        """Actions (N,) sampled from the policy and the advanced carry."""
-        out, carry = network.step(state.online, state.obs, restarted(network, state))
-        return jax.random.categorical(key, out[..., :n_act]).astype(jnp.int32), carry
-
-    def update(state: PPOState) -> PPOState:
-        """One update: a rollout, GAE, then epochs of clipped-surrogate steps."""
-        carry0 = state.carry
-        state, traj = _rollout(config, task, network, state)
-        return _learn(config, task, network, n_act, state, traj, carry0)
-
-    return make_trainer(config, task, policy, init, act, run_updates(update))
-
-
-def _init_state(
-    config: TrainConfig,
-    task: Task,
-    network: Network,
-    key: jax.Array,
-    hp: Hyperparams,
-    env_params: Any,
-) -> PPOState:
-    """N envs reset, a fresh actor-critic and Adam, empty metrics."""
-    n_env = config.num_envs
-    key, k_net, k_env = jax.random.split(key, 3)
-    params = network.init(k_net)
-    obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
-    return PPOState(
-        key=key,
-        hparams=hp,
-        env_params=env_params,
-        env_state=env_state,
-        obs=obs,
-        carry=network.initial_carry((n_env,)),
-        done=jnp.zeros((n_env,), bool),
-        online=params,
-        opt_state=optimizer(
-            config.optimizer, hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps
-        ).init(params),
-        metrics=init_metrics(task, config.num_episodes),
-        **init_counters(n_env, config.num_env_steps),
+    return make_on_policy(
+        config,
+        task,
+        network,
+        policy_network(network, task.num_actions),
+        functools.partial(_sample, task, network),
+        Transition,
+        functools.partial(_learn, config, task, network),
     )
 
 
 def _sample(
-    task: Task, network: Network, state: PPOState, key: jax.Array
+    task: Task, network: Network, state: Any, key: jax.Array
 ) -> tuple[jax.Array, Any, dict[str, jax.Array], None]:
     """The sampling policy: actions (N,) int32, the carry, value and log-prob (N,)."""
     n_act = task.num_actions
@@ -234,43 +136,17 @@ def _sample(
     return action, carry, {"value": value, "log_prob": log_prob}, None
 
 
-def _rollout(
-    config: TrainConfig, task: Task, network: Network, state: PPOState
-) -> tuple[PPOState, Transition]:
-    """``rollout_steps`` sampled steps: the moved state and the trajectory (T, N, …)."""
-    return rollout(config, task, functools.partial(_sample, task, network), Transition, state)
-
-
 def _learn(
-    config: TrainConfig,
-    task: Task,
-    network: Network,
-    n_act: int,
-    state: PPOState,
-    traj: Transition,
-    carry0: Any,
-) -> PPOState:
-    """One rollout's update: GAE, then minibatch epochs at the annealed rate."""
-    hp = state.hparams
+    config: TrainConfig, task: Task, network: Network, state: Any, traj: Transition, carry0: Any
+) -> Any:
+    """One rollout's update: GAE, then minibatch epochs of :func:`ppo_loss`."""
+    hp, n_act = state.hparams, task.num_actions
     out, _ = network.step(state.online, state.obs, restarted(network, state))
     last_value = out[..., n_act]
     advantage, target = gae(traj.value, traj.reward, traj.done, last_value, per_decision(hp, task))
-    lr = annealed(
-        hp, state.recorded, config.num_episodes, step_share(config, state.env_steps)
-    ).learning_rate
 
-    def grads_of(params, envs):
-        take = functools.partial(jnp.take, indices=envs, axis=1)
-        batch = jax.tree.map(take, traj)
-        mb_carry = jax.tree.map(functools.partial(jnp.take, indices=envs, axis=0), carry0)
-        return jax.grad(_total_loss, has_aux=True)(
-            params, network, n_act, mb_carry, batch, take(advantage), take(target), hp
-        )
+    def loss_of(params, sequences, carry):
+        total, _ = ppo_loss(params, network, n_act, carry, *sequences, hp)
+        return total, total
 
-    return minibatch_epochs(config, state, lr, grads_of)
-
-
-def _total_loss(*args: Any) -> tuple[jax.Array, jax.Array]:
-    """:func:`ppo_loss` with the total as its auxiliary output too."""
-    total, _ = ppo_loss(*args)
-    return total, total
+    return minibatch_epochs(config, state, loss_of, (traj, advantage, target), carry0)

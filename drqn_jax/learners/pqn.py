@@ -9,67 +9,25 @@ bootstrap from the observation after the rollout (purejaxql drops the last step)
 from __future__ import annotations
 
 import functools
-from typing import Any, ClassVar, NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from drqn_jax.learners.common import (
-    budget_met,
     epsilon_of,
-    init_counters,
-    init_metrics,
+    make_on_policy,
     minibatch_epochs,
     per_decision,
     restarted,
-    rollout,
-    run_updates,
 )
-from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
-from drqn_jax.learners.optim import optimizer
+from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, step_share
 from drqn_jax.learners.task import Task, make_task
-from drqn_jax.learners.trainer import Trainer, make_trainer
+from drqn_jax.learners.trainer import Trainer
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
-from drqn_jax.pytree import pytree_dataclass
 
-__all__ = ["PQNState", "QTransition", "make_pqn", "pqn_loss", "q_lambda_targets"]
-
-#: The per-episode metrics PQN adds to the shared ones: the ε the episode ran with.
-PQN_METRICS = ("epsilon",)
-
-
-@pytree_dataclass
-class PQNState:
-    """Everything a PQN run carries between updates (and checkpoints); per-env leaves
-    (N, …), ``online`` the Q-network's parameters, ``done`` (N,) restarts the carry."""
-
-    key: jax.Array
-    hparams: Hyperparams
-    env_params: Any
-    env_state: Any
-    obs: Any
-    carry: Any
-    done: jax.Array
-    online: Any
-    opt_state: Any
-    episode: jax.Array
-    ep_return: jax.Array
-    ep_length: jax.Array
-    ep_loss_sum: jax.Array
-    ep_loss_count: jax.Array
-    episodes_started: jax.Array
-    recorded: jax.Array
-    grad_steps: jax.Array
-    env_steps: jax.Array
-    step_budget: jax.Array  # () int32 TrainConfig.num_env_steps (0: none)
-    metrics: dict[str, jax.Array]
-    #: The protocol's candidates' validation metrics: none, PQN selects no snapshot.
-    validation: ClassVar[None] = None
-
-    @property
-    def finished(self) -> jax.Array:
-        return budget_met(self)
+__all__ = ["QTransition", "make_pqn", "pqn_loss", "q_lambda_targets"]
 
 
 class QTransition(NamedTuple):
@@ -122,70 +80,21 @@ def pqn_loss(
     return loss, loss
 
 
+@cached_program
 def make_pqn(config: TrainConfig) -> Trainer:
-    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "pqn"`` config."""
+    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "pqn"`` config;
+    its episodes also record the ε they ran with."""
     if config.algorithm != "pqn":
         raise ValueError(f"make_pqn: TrainConfig.algorithm = {config.algorithm!r}; use 'pqn'")
-    return _make_pqn(config)
-
-
-@cached_program
-def _make_pqn(config: TrainConfig) -> Trainer:
     task = make_task(config.env_id, config.env_overrides)
     network = make_network(task.network(config.network))
-
-    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
-        """The state before the first update."""
-        hp = config.hyperparams if hparams is None else hparams
-        env_params = task.env_params if env_params is None else env_params
-        return _init_state(config, task, network, key, hp, env_params)
-
-    def act(state: PQNState, key: jax.Array) -> tuple[jax.Array, Any]:
-        """ε-greedy actions (N,) and the advanced carry."""
-        action, carry, _, _ = _explore(config, task, network, state, key)
-        return action, carry
-
-    def update(state: PQNState) -> PQNState:
-        """One update: a rollout, then epochs of minibatch steps on its TD errors."""
-        carry0 = state.carry
-        state, traj = _rollout(config, task, network, state)
-        return _learn(config, task, network, state, traj, carry0)
-
-    return make_trainer(config, task, network, init, act, run_updates(update))
-
-
-def _init_state(
-    config: TrainConfig,
-    task: Task,
-    network: Network,
-    key: jax.Array,
-    hp: Hyperparams,
-    env_params: Any,
-) -> PQNState:
-    """N envs reset, a fresh Q-network and optimiser, empty metrics."""
-    n_env = config.num_envs
-    key, k_net, k_env = jax.random.split(key, 3)
-    params = network.init(k_net)
-    obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
-    return PQNState(
-        key=key,
-        hparams=hp,
-        env_params=env_params,
-        env_state=env_state,
-        obs=obs,
-        carry=network.initial_carry((n_env,)),
-        done=jnp.zeros((n_env,), bool),
-        online=params,
-        opt_state=optimizer(
-            config.optimizer, hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps
-        ).init(params),
-        metrics=init_metrics(task, config.num_episodes, PQN_METRICS),
-        **init_counters(n_env, config.num_env_steps),
-    )
+    policy = functools.partial(_explore, config, task, network)
+    learn = functools.partial(_learn, config, task, network)
+    return make_on_policy(config, task, network, network, policy, QTransition, learn, ("epsilon",))
 
 
 def _explore(
-    config: TrainConfig, task: Task, network: Network, state: PQNState, key: jax.Array
+    config: TrainConfig, task: Task, network: Network, state: Any, key: jax.Array
 ) -> tuple[jax.Array, Any, dict[str, jax.Array], dict[str, jax.Array]]:
     """The ε-greedy policy: actions (N,) int32, the carry, Q-values (N, A) and ε (N,)."""
     hp = state.hparams
@@ -199,35 +108,15 @@ def _explore(
     return action, carry, {"q": q}, {"epsilon": eps}
 
 
-def _rollout(
-    config: TrainConfig, task: Task, network: Network, state: PQNState
-) -> tuple[PQNState, QTransition]:
-    """``rollout_steps`` ε-greedy steps: the moved state and the trajectory (T, N, …)."""
-    policy = functools.partial(_explore, config, task, network)
-    return rollout(config, task, policy, QTransition, state)
-
-
 def _learn(
-    config: TrainConfig,
-    task: Task,
-    network: Network,
-    state: PQNState,
-    traj: QTransition,
-    carry0: Any,
-) -> PQNState:
-    """One rollout's update: minibatch epochs on :func:`pqn_loss` at the annealed rate."""
-    hp = state.hparams
-    td_hp = per_decision(hp, task)
+    config: TrainConfig, task: Task, network: Network, state: Any, traj: QTransition, carry0: Any
+) -> Any:
+    """One rollout's update: minibatch epochs of :func:`pqn_loss`."""
+    td_hp = per_decision(state.hparams, task)
     last = jax.tree.map(lambda x: x[0], traj)._replace(obs=state.obs, reset=state.done)
-    lr = annealed(
-        hp, state.recorded, config.num_episodes, step_share(config, state.env_steps)
-    ).learning_rate
 
-    def grads_of(params, envs):
-        take = functools.partial(jnp.take, indices=envs, axis=1)
-        take0 = functools.partial(jnp.take, indices=envs, axis=0)
-        batch, mb_last = jax.tree.map(take, traj), jax.tree.map(take0, last)
-        mb_carry = jax.tree.map(take0, carry0)
-        return jax.grad(pqn_loss, has_aux=True)(params, network, mb_carry, batch, mb_last, td_hp)
+    def loss_of(params, batch, per_env):
+        carry, mb_last = per_env
+        return pqn_loss(params, network, carry, batch, mb_last, td_hp)
 
-    return minibatch_epochs(config, state, lr, grads_of)
+    return minibatch_epochs(config, state, loss_of, traj, (carry0, last))

@@ -34,7 +34,6 @@ __all__ = [
     "gymnax_task",
     "make_task",
     "observations",
-    "play_greedy",
     "urban_task",
 ]
 
@@ -271,46 +270,29 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
 def greedy_returns(
     task: Task, network: Any, params: Any, keys: jax.Array, env_params: Any = None
 ) -> jax.Array:
-    """(E,) float32 greedy (``argmax Q``) returns, one episode per key of ``keys`` (E,)."""
-
-    def act(obs, carry):
-        q, carry = network.step(params, obs, carry)
-        return jnp.argmax(q).astype(jnp.int32), carry
-
-    def play(key):
-        return play_greedy(task, act, network.initial_carry(()), key, env_params)[0]
-
-    return jax.vmap(play)(keys)
-
-
-def play_greedy(
-    task: Task,
-    act: Callable[[Any, Any], tuple[jax.Array, Any]],
-    carry: Any,
-    key: jax.Array,
-    env_params: Any = None,
-) -> tuple[jax.Array, jax.Array]:
-    """One episode with ``act(obs, carry) -> (action, carry)``: return () float32 and
-    length () int32; ``max_steps`` steps, branch-free, those after the end not counted."""
+    """(E,) float32 greedy (``argmax Q``) returns, one episode per key of ``keys`` (E,):
+    ``max_steps`` steps each, branch-free, those after the episode's end not counted."""
     env_params = task.env_params if env_params is None else env_params
-    k_reset, k_run = jax.random.split(key)
-    obs, state = task.reset(k_reset, env_params)
 
     def body(loop, k):
-        obs, state, carry, ret, length, done = loop
-        action, carry = act(obs, carry)
-        out = task.step(k, state, action, env_params)
-        live = ~done
-        ret = ret + jnp.where(live, out.reward, 0.0)
-        length = length + live.astype(jnp.int32)
+        obs, state, carry, ret, done = loop
+        q, carry = network.step(params, obs, carry)
+        out = task.step(k, state, jnp.argmax(q).astype(jnp.int32), env_params)
+        ret = ret + jnp.where(~done, out.reward, 0.0)
         done = done | out.terminated | out.truncated
-        return (out.obs, out.state, carry, ret, length, done), None
+        return (out.obs, out.state, carry, ret, done), None
 
-    zero_f, zero_i, false = (
-        jnp.zeros((), jnp.float32),
-        jnp.zeros((), jnp.int32),
-        jnp.zeros((), bool),
-    )
-    init = (obs, state, carry, zero_f, zero_i, false)
-    (_, _, _, ret, length, _), _ = jax.lax.scan(body, init, jax.random.split(k_run, task.max_steps))
-    return ret, length
+    def play(key: jax.Array) -> jax.Array:
+        k_reset, k_run = jax.random.split(key)
+        obs, state = task.reset(k_reset, env_params)
+        init = (
+            obs,
+            state,
+            network.initial_carry(()),
+            jnp.zeros((), jnp.float32),
+            jnp.asarray(False),
+        )
+        steps = jax.random.split(k_run, task.max_steps)
+        return jax.lax.scan(body, init, steps)[0][3]
+
+    return jax.vmap(play)(keys)

@@ -6,6 +6,7 @@ functions, all the host loop, sweeps, checkpoints and evaluation use. Every stat
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -46,18 +47,20 @@ def make_trainer(
     run: Callable[[Any, int], Any],
     gradient_update: Callable[..., tuple[tuple, jax.Array]] | None = None,
 ) -> Trainer:
-    """A learner's :class:`Trainer` from its ``init``, ``act`` and ``run``."""
+    """A learner's :class:`Trainer` from its ``act``, ``run`` and ``init(key, hp,
+    env_params)``, whose last two default to the config's and the task's."""
 
-    def validation_metrics(state: Any) -> dict[str, jax.Array]:
-        return candidate_metrics(config, task, network, state)
+    def init_state(key: jax.Array, hparams: Any = None, env_params: Any = None) -> Any:
+        hp = config.hyperparams if hparams is None else hparams
+        return init(key, hp, task.env_params if env_params is None else env_params)
 
-    def agent_params(state: Any) -> Any:
-        return run_agent(config, state)
+    validation_metrics = functools.partial(candidate_metrics, config, task, network)
+    agent_params = functools.partial(run_agent, config)
 
     def train(key: jax.Array, hparams: Any = None, env_params: Any = None):
         """Init, chunks in a ``lax.while_loop`` until finished, then the agent's choice:
         ``(agent params, metrics)``; ``vmap`` it over seeds."""
-        state = init(key, hparams, env_params)
+        state = init_state(key, hparams, env_params)
         state = jax.lax.while_loop(
             lambda s: ~s.finished, lambda s: run(s, config.chunk_iterations), state
         )
@@ -71,7 +74,7 @@ def make_trainer(
         env=task.env,
         env_params=task.env_params,
         network=network,
-        init=init,
+        init=init_state,
         act=act,
         run=run,
         train=train,

@@ -5,6 +5,7 @@ per-episode bookkeeping and budget it shares with the DQN, and learning."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -13,7 +14,8 @@ import pytest
 
 from benchmarks.gymnax_validation import ppo_config, run_recipe
 from drqn_jax.learners import Hyperparams, TrainConfig, make_train
-from drqn_jax.learners.ppo import _rollout, actor_critic, gae, ppo_loss
+from drqn_jax.learners.common import rollout as common_rollout
+from drqn_jax.learners.ppo import Transition, _sample, actor_critic, gae, ppo_loss
 
 HP = ppo_config().hyperparams
 
@@ -44,7 +46,10 @@ def rollout():
     network = actor_critic(config, trainer.task)
     state = trainer.init(jax.random.key(0))
     carry0 = state.carry
-    after, traj = jax.jit(lambda s: _rollout(config, trainer.task, network, s))(state)
+    policy = functools.partial(_sample, trainer.task, network)
+    after, traj = jax.jit(lambda s: common_rollout(config, trainer.task, policy, Transition, s))(
+        state
+    )
     return trainer, network, state, carry0, after, traj
 
 

@@ -6,6 +6,7 @@ the benchmarks do not use, and the config's rules."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -14,10 +15,9 @@ import pytest
 
 from benchmarks.gymnax_validation import SMALL, pqn_config
 from drqn_jax.config import load_config
-from drqn_jax.learners import Hyperparams, TrainConfig, make_train
-from drqn_jax.learners.common import restarted
+from drqn_jax.learners import Hyperparams, TrainConfig, common, make_train
 from drqn_jax.learners.hyperparams import agent_name
-from drqn_jax.learners.pqn import _rollout, pqn_loss, q_lambda_targets
+from drqn_jax.learners.pqn import QTransition, _explore, pqn_loss, q_lambda_targets
 from drqn_jax.networks import NetworkConfig
 
 
@@ -45,7 +45,10 @@ def rollout():
     config = dataclasses.replace(pqn_config(), num_envs=4, num_minibatches=2)
     trainer = make_train(config)
     state = trainer.init(jax.random.key(0))
-    after, traj = jax.jit(lambda s: _rollout(config, trainer.task, trainer.network, s))(state)
+    policy = functools.partial(_explore, config, trainer.task, trainer.network)
+    after, traj = jax.jit(lambda s: common.rollout(config, trainer.task, policy, QTransition, s))(
+        state
+    )
     return trainer, state, after, traj
 
 
@@ -71,7 +74,7 @@ def test_loss_is_half_the_squared_error_against_the_q_lambda_targets(rollout):
     rollout and the scaled rewards."""
     trainer, state, after, traj = rollout
     hp = state.hparams
-    carry = restarted(trainer.network, after)
+    carry = common.restarted(trainer.network, after)
     q_after, _ = jax.jit(trainer.network.step)(state.online, after.obs, carry)  # not op by op
     q_next = jnp.concatenate([traj.q[1:], q_after[None]]).max(axis=-1)
     reward = traj.reward * hp.reward_scale  # purejaxql's 0.1 in pqn_config

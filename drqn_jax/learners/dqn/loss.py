@@ -127,10 +127,8 @@ def _unroll(network: Network, params: Any, windows: Windows, carry: Any, burn_in
     the first L observations is cut from the gradient, as R2D2 does."""
     if not burn_in:
         return network.unroll(params, windows.obs, carry, windows.resets)[0]
-    first, rest = (
-        jax.tree.map(lambda x: x[:burn_in], windows.obs),
-        jax.tree.map(lambda x: x[burn_in:], windows.obs),
-    )
+    first = jax.tree.map(lambda x: x[:burn_in], windows.obs)
+    rest = jax.tree.map(lambda x: x[burn_in:], windows.obs)
     q_burn, carry = network.unroll(params, first, carry, windows.resets[:burn_in])
     carry = jax.lax.stop_gradient(carry)
     q_rest, _ = network.unroll(params, rest, carry, windows.resets[burn_in:])

@@ -133,6 +133,21 @@ def _set(buffer: jax.Array, where: jax.Array, index: tuple, value: jax.Array) ->
     return buffer.at[(slot, *index[1:])].set(value, mode="drop", unique_indices=True)
 
 
+def _write(
+    replay: EpisodeReplay, where: jax.Array, index: tuple, record: Any, carry: Any
+) -> EpisodeReplay:
+    """``replay`` with ``record`` (and ``carry`` where states are stored) at ``index``
+    for writers where ``where`` (N,)."""
+
+    def write(buf: jax.Array, x: jax.Array) -> jax.Array:
+        return _set(buf, where, index, x)
+
+    records = jax.tree.map(write, replay.records, record)
+    if replay.carry is None:
+        return replay.replace(records=records)
+    return replay.replace(records=records, carry=jax.tree.map(write, replay.carry, carry))
+
+
 def begin_episodes(
     replay: EpisodeReplay, starting: jax.Array, first: Any, first_carry: Any = None
 ) -> EpisodeReplay:
@@ -143,16 +158,7 @@ def begin_episodes(
     writer = jnp.arange(n, dtype=jnp.int32)
     slot = jnp.where(starting, writer * per_writer + replay.episodes % per_writer, replay.slot)
     zero = jnp.zeros((n,), jnp.int32)
-    records = jax.tree.map(
-        lambda buf, x: _set(buf, starting, (slot, zero), x), replay.records, first
-    )
-    if replay.carry is not None:
-        carry = jax.tree.map(
-            lambda buf, x: _set(buf, starting, (slot, zero), x), replay.carry, first_carry
-        )
-        replay = replay.replace(carry=carry)
-    return replay.replace(
-        records=records,
+    return _write(replay, starting, (slot, zero), first, first_carry).replace(
         length=_set(replay.length, starting, (slot,), zero),
         complete=_set(replay.complete, starting, (slot,), jnp.zeros((n,), bool)),
         slot=slot,
@@ -177,16 +183,7 @@ def add_transition(
     active = active & (t < replay.max_length)
     t = jnp.minimum(t, replay.max_length - 1)
     slot = replay.slot
-    records = jax.tree.map(
-        lambda buf, x: _set(buf, active, (slot, t + 1), x), replay.records, next_record
-    )
-    if replay.carry is not None:
-        carry = jax.tree.map(
-            lambda buf, x: _set(buf, active, (slot, t + 1), x), replay.carry, next_carry
-        )
-        replay = replay.replace(carry=carry)
-    return replay.replace(
-        records=records,
+    return _write(replay, active, (slot, t + 1), next_record, next_carry).replace(
         action=_set(replay.action, active, (slot, t), action.astype(jnp.int32)),
         reward=_set(replay.reward, active, (slot, t), reward.astype(jnp.float32)),
         terminated=_set(replay.terminated, active, (slot, t), terminated),

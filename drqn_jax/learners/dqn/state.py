@@ -1,5 +1,4 @@
-"""The replay DQN's :class:`TrainState` (paper §V-B; SPEC §7), its own module so that
-acting and train read it without importing each other."""
+"""The replay DQN's :class:`TrainState` (paper §V-B; SPEC §7)."""
 
 from __future__ import annotations
 
@@ -7,16 +6,12 @@ from typing import Any
 
 import jax
 
-from drqn_jax.learners.common import BASE_METRICS, budget_met
+from drqn_jax.learners.common import budget_met
 from drqn_jax.learners.dqn.replay import EpisodeReplay
 from drqn_jax.learners.hyperparams import Hyperparams
 from drqn_jax.pytree import pytree_dataclass
 
-__all__ = ["METRIC_NAMES", "TrainState"]
-
-#: Per-episode metrics of the DQN learner on every task; a task adds its own
-#: (the paper's env: collision, goal, distance, mean speed).
-METRIC_NAMES = (*BASE_METRICS, "epsilon")
+__all__ = ["TrainState"]
 
 
 @pytree_dataclass

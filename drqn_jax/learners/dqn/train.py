@@ -15,8 +15,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.learners.common import epsilon_of, init_counters, init_metrics, record_episodes
-from drqn_jax.learners.dqn.acting import explore
+from drqn_jax.learners.common import epsilon_of, init_fields, record_episodes
 from drqn_jax.learners.dqn.replay import (
     EpisodeReplay,
     add_transition,
@@ -26,25 +25,19 @@ from drqn_jax.learners.dqn.replay import (
 )
 from drqn_jax.learners.dqn.state import TrainState
 from drqn_jax.learners.dqn.update import Learner, gradient_update, learn
-from drqn_jax.learners.hyperparams import (
-    Hyperparams,
-    TrainConfig,
-    annealed,
-    step_share,
-)
-from drqn_jax.learners.optim import optimizer
-from drqn_jax.learners.selection import (
-    SELECT_SAFE,
-    take_snapshot,
-    unvalidated,
-)
+from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
+from drqn_jax.learners.selection import SELECT_SAFE, take_snapshot, unvalidated
 from drqn_jax.learners.task import Step, Task, make_task
 from drqn_jax.learners.trainer import Trainer, make_trainer
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
 from drqn_jax.pytree import tree_where
 
-__all__ = ["make_dqn"]
+__all__ = ["explore", "make_dqn"]
+
+#: ``fold_in`` index of the guided-action draw: its own stream, so that
+#: ``explore_guide = 0`` leaves every other draw as it was.
+GUIDE_STREAM = 1
 
 
 def _small_leaves(state: TrainState) -> TrainState:
@@ -53,13 +46,6 @@ def _small_leaves(state: TrainState) -> TrainState:
     return state.replace(
         replay=None, online=None, target=None, opt_state=None, metrics=None, snapshots=None
     )
-
-
-def make_dqn(config: TrainConfig) -> Trainer:
-    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "dqn"`` config."""
-    if config.algorithm != "dqn":
-        raise ValueError(f"make_dqn: TrainConfig.algorithm = {config.algorithm!r}; use 'dqn'")
-    return _make_dqn(config)
 
 
 def _check_task(config: TrainConfig, task: Task) -> None:
@@ -79,20 +65,14 @@ def _check_task(config: TrainConfig, task: Task) -> None:
 
 
 @cached_program
-def _make_dqn(config: TrainConfig) -> Trainer:
+def make_dqn(config: TrainConfig) -> Trainer:
+    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "dqn"`` config."""
+    if config.algorithm != "dqn":
+        raise ValueError(f"make_dqn: TrainConfig.algorithm = {config.algorithm!r}; use 'dqn'")
     task = make_task(config.env_id, config.env_overrides)
     _check_task(config, task)
     network = make_network(task.network(config.network))
-    n_episodes = config.num_episodes
-
-    def init(key: jax.Array, hparams: Hyperparams | None = None, env_params: Any = None):
-        hp = config.hyperparams if hparams is None else hparams
-        env_params = task.env_params if env_params is None else env_params
-        return _init_state(config, task, network, key, hp, env_params)
-
-    def act(state: TrainState, key: jax.Array) -> tuple[jax.Array, Any]:
-        """ε-greedy actions (N,) and the advanced network carry."""
-        return explore(task, network, n_episodes, state, key)
+    act = functools.partial(explore, task, network, config.num_episodes)
 
     def update(learner: tuple, key, replay, hp, env_params) -> tuple[tuple, jax.Array]:
         """One gradient step on ``learner`` = (online, target, opt_state, grad_steps)."""
@@ -100,56 +80,62 @@ def _make_dqn(config: TrainConfig) -> Trainer:
         learner, loss = gradient_update(config, task, network, learner, key, replay, hp, env_params)
         return tuple(learner), loss
 
-    def iteration(state: TrainState) -> TrainState:
-        return _iteration(config, task, network, act, state)
-
     def run(state: TrainState, num_iterations: int) -> TrainState:
         """``num_iterations`` iterations; those after the run finished change nothing."""
 
         def body(state, _):
-            return iteration(state), None
+            return _iteration(config, task, network, act, state), None
 
-        state, _ = jax.lax.scan(body, state, None, length=num_iterations)
-        return state
+        return jax.lax.scan(body, state, None, length=num_iterations)[0]
 
+    init = functools.partial(_init_state, config, task, network)
     return make_trainer(config, task, network, init, act, run, update)
+
+
+def explore(
+    task: Task, network: Network, num_episodes: int, state: TrainState, key: jax.Array
+) -> tuple[jax.Array, Any]:
+    """ε-greedy actions (N,) int32 and the advanced network carry (paper §V-B). Random
+    actions follow the task's biased distribution for the first ``explore_bias_fraction``
+    of episodes, then uniform; with ``explore_guide`` = g > 0 (not the paper's) they are
+    the rule-based agent's (SPEC §6) with probability g."""
+    hp = state.hparams
+    n_env = state.episode.shape[0]
+    k_explore, k_random = jax.random.split(key)
+    q, carry = network.step(state.online, state.obs, state.carry)
+    greedy = jnp.argmax(q, axis=-1).astype(jnp.int32)
+    biased = state.episode < hp.explore_bias_fraction * num_episodes
+    probs = jnp.where(biased[:, None], task.explore_bias(hp), 1.0 / task.num_actions)
+    random_action = jax.random.categorical(k_random, jnp.log(probs)).astype(jnp.int32)
+    if task.teacher is not None:
+        guided = jax.random.uniform(jax.random.fold_in(k_random, GUIDE_STREAM), (n_env,))
+        guide_action = jax.vmap(task.teacher.act, (0, None))(state.env_state, state.env_params)
+        random_action = jnp.where(guided < hp.explore_guide, guide_action, random_action)
+    explore_now = jax.random.uniform(k_explore, (n_env,)) < state.epsilon
+    return jnp.where(explore_now, random_action, greedy), carry
 
 
 def _init_state(
     config: TrainConfig, task: Task, network: Network, key: jax.Array, hp: Hyperparams, env_params
 ) -> TrainState:
     """N envs reset, their first observations in the replay, fresh networks and Adam."""
-    n_env, n_episodes = config.num_envs, config.num_episodes
-    key, k_net, k_env = jax.random.split(key, 3)
-    online = network.init(k_net)
-    opt = optimizer(config.optimizer, hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
-    obs, env_state = jax.vmap(task.reset, (0, None))(jax.random.split(k_env, n_env), env_params)
+    n_env = config.num_envs
+    fields = init_fields(config, task, network, key, hp, env_params, ("epsilon",))
     stored = network.initial_carry(()) if config.stored_state else None
     replay = init_replay(config.replay_episodes, task.max_steps, n_env, task.record, stored)
-    first = jax.vmap(task.to_record)(obs, env_state)
+    first = jax.vmap(task.to_record)(fields["obs"], fields["env_state"])
     replay = begin_episodes(
         replay, jnp.ones((n_env,), bool), first, network.initial_carry((n_env,))
     )
-    counters = init_counters(n_env, config.num_env_steps)
-    metrics = init_metrics(task, n_episodes, ("epsilon",))
     snapshots = validation = None
     if config.snapshots:
-        snapshots = jax.tree.map(lambda p: jnp.stack([p] * config.snapshots), online)
+        snapshots = jax.tree.map(lambda p: jnp.stack([p] * config.snapshots), fields["online"])
         validation = unvalidated(config.snapshots, task.validation_metrics)
     return TrainState(
-        key=key,
-        hparams=hp,
-        env_params=env_params,
-        env_state=env_state,
-        obs=obs,
-        carry=network.initial_carry((n_env,)),
-        online=online,
-        target=online,
-        opt_state=opt.init(online),
+        **fields,
+        target=fields["online"],
         replay=replay,
-        epsilon=epsilon_of(counters["episode"], hp, n_episodes),
-        metrics=metrics,
-        **counters,
+        epsilon=epsilon_of(fields["episode"], hp, config.num_episodes),
         snapshots=snapshots,
         validation=validation,
     )

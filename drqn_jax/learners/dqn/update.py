@@ -12,11 +12,11 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.env.state import BRAKE
-from drqn_jax.learners.common import per_decision
+from drqn_jax.learners.common import optimizer_of, per_decision
 from drqn_jax.learners.dqn.loss import CLIP_GRAD, sequence_loss
 from drqn_jax.learners.dqn.replay import EpisodeReplay, sample_windows
 from drqn_jax.learners.hyperparams import IMITATION_ALL, Hyperparams, TrainConfig
-from drqn_jax.learners.optim import apply_updates, clip, optimizer
+from drqn_jax.learners.optim import apply_updates, clip
 from drqn_jax.learners.task import Task
 from drqn_jax.networks import Network
 
@@ -53,7 +53,7 @@ def gradient_update(
     env_params: Any,
 ) -> tuple[Learner, jax.Array]:
     """One Double-DQN gradient step on ``learner``; the new learner and the () loss."""
-    opt = optimizer(config.optimizer, hp.learning_rate, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+    opt = optimizer_of(config, hp)
     windows = sample_windows(
         replay,
         key,
