@@ -18,7 +18,7 @@ from drqn_jax.networks import Network
 from drqn_jax.programs import cached_program, jit_in_store
 from drqn_jax.pytree import pytree_dataclass
 
-__all__ = ["EpisodeRecord", "collect_episodes", "with_q_values"]
+__all__ = ["EpisodeRecord", "collect_episodes"]
 
 
 @pytree_dataclass
@@ -58,14 +58,10 @@ def _stack_last(seq: Any, last: Any) -> Any:
     return jax.tree.map(lambda s, x: jnp.concatenate([s, x[None]], axis=0), seq, last)
 
 
-def with_q_values(agent: Agent, network: Network, network_params: Any) -> Agent:
-    """``agent`` with ``network`` beside it: carry ``(agent carry, network carry, Q (4,))``."""
-    init, act = _q_values_beside(agent.init_fn, agent.act_fn, network)
-    return Agent(params=(agent.params, network_params), name=agent.name, init_fn=init, act_fn=act)
-
-
 @cached_program
 def _q_values_beside(init_fn: InitFn, act_fn: ActFn, network: Network) -> tuple[InitFn, ActFn]:
+    """An agent's functions with ``network`` beside it: carry ``(agent carry, network
+    carry, Q (4,))``, params ``(agent params, network params)``."""
 
     def init(params: Any, key: jax.Array) -> Any:
         inner, _ = params
@@ -85,14 +81,8 @@ _STEP_FIELDS = ("reward", "truncated", "ttc", "collision", "struck_while_stopped
 
 
 def _record_decision(d: Decision) -> dict[str, Any]:
-    info = {k: d.info[k] for k in _STEP_FIELDS[2:]}
-    return {
-        "state": d.state,
-        "grid": d.obs.grid,
-        "reward": d.reward,
-        "truncated": d.truncated,
-        **info,
-    }
+    out = {"state": d.state, "grid": d.obs.grid, "reward": d.reward, "truncated": d.truncated}
+    return out | {k: d.info[k] for k in _STEP_FIELDS[2:]}
 
 
 @jit_in_store("env", "with_q")
@@ -110,11 +100,6 @@ def _decisions(
     return map_episodes(one, keys)
 
 
-def _replaying(actions: jax.Array) -> Agent:
-    """An agent that takes ``actions`` (T,) in turn."""
-    return Agent(params=actions, name="replay", init_fn=_first_decision, act_fn=_next_action)
-
-
 def _first_decision(actions: jax.Array, key: jax.Array) -> jax.Array:
     return jnp.zeros((), jnp.int32)
 
@@ -130,9 +115,8 @@ def _rollouts(
     """``actions`` (N, T) replayed in one episode per key, every state traced."""
 
     def one(actions: jax.Array, key: jax.Array) -> EpisodeRecord:
-        metrics, out, obs, state = play_episode(
-            _replaying(actions), key, env, params, _record_decision
-        )
+        replay = Agent(params=actions, name="replay", init_fn=_first_decision, act_fn=_next_action)
+        metrics, out, obs, state = play_episode(replay, key, env, params, _record_decision)
         states = _stack_last(out["state"], state)
         centre, half = ego_box(states.ego.s, params)
         return EpisodeRecord(
@@ -169,7 +153,10 @@ def collect_episodes(
     env_params = env.default_params if env_params is None else env.check_params(env_params)
     keys = episode_keys(key, num_episodes)
     if network is not None:
-        agent = with_q_values(agent, network, network_params)
+        init, act = _q_values_beside(agent.init_fn, agent.act_fn, network)
+        agent = Agent(
+            params=(agent.params, network_params), name=agent.name, init_fn=init, act_fn=act
+        )
     decided = _decisions(agent, padded_keys(keys), env, env_params, network is not None)
     actions, q_values = jax.tree.map(lambda x: x[:num_episodes], decided)
     record = _rollouts(actions, keys, env, env_params).replace(q_values=q_values)

@@ -205,29 +205,48 @@ def _single_fns(env: UrbanPedestrians) -> _SingleFns:
     )
 
 
-class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
-    """The urban-pedestrian env (paper §V-D); ``overrides`` go to :func:`drqn_jax.make`.
-    Raises ``ResetNeeded`` itself (so no order/checker wrappers); no auto-reset."""
+class JaxBacked:
+    """What the single and vector envs share: the JAX env of ``env_id`` and its rendering."""
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}  # 1/dt
 
-    def __init__(
-        self, env_id: str = "UrbanPedestrians-v0", render_mode: str | None = None, **overrides: Any
-    ) -> None:
+    def _load(self, env_id: str, render_mode: str | None, overrides: dict) -> spaces.Dict:
+        """Make the JAX env (``overrides`` to :func:`drqn_jax.make`); one env's obs space."""
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode={render_mode!r} is not supported; "
                 f"render modes: {self.metadata['render_modes']}"
             )
         self.env_id = env_id
-        self.jax_env, params = make_jax_env(env_id, **overrides)
-        self.params = params
-        self._device_params = jax.device_put(params)
+        self.jax_env, self.params = make_jax_env(env_id, **overrides)
+        self._device_params = jax.device_put(self.params)
         self.render_mode = render_mode
-        self.observation_space = gymnasium_observation_space(self.jax_env, params)
+        return gymnasium_observation_space(self.jax_env, self.params)
+
+    def _render(self, render: Any, state: EnvState | None) -> np.ndarray | None:
+        """``render(state, params)`` as NumPy, ``None`` (a warning) without a render mode."""
+        if self.render_mode is None:
+            gymnasium.logger.warn(
+                "render() called without a render_mode; e.g. "
+                'gymnasium.make("drqn_jax/UrbanPedestrians-v0", render_mode="rgb_array")'
+            )
+            return None
+        if state is None:
+            raise ResetNeeded(f"Cannot call {type(self).__name__}.render before reset")
+        return np.array(render(state, self._device_params))
+
+
+class UrbanPedestriansGymEnv(JaxBacked, gymnasium.Env[dict[str, Any], Any]):
+    """The urban-pedestrian env (paper §V-D); ``overrides`` go to :func:`drqn_jax.make`.
+    Raises ``ResetNeeded`` itself (so no order/checker wrappers); no auto-reset."""
+
+    def __init__(
+        self, env_id: str = "UrbanPedestrians-v0", render_mode: str | None = None, **overrides: Any
+    ) -> None:
+        self.observation_space = self._load(env_id, render_mode, overrides)
         self.action_space = spaces.Discrete(NUM_ACTIONS)
         self._fns = _single_fns(self.jax_env)
-        self._info_dtypes = _info_dtypes(self.jax_env, params)
+        self._info_dtypes = _info_dtypes(self.jax_env, self.params)
         self._key_data: jax.Array | None = None
         self._state: EnvState | None = None
 
@@ -256,15 +275,7 @@ class UrbanPedestriansGymEnv(gymnasium.Env[dict[str, Any], Any]):
 
     def render(self) -> np.ndarray | None:
         """(240, 480, 3) uint8 frame of :func:`drqn_jax.env.viewer.render_frame`."""
-        if self.render_mode is None:
-            gymnasium.logger.warn(
-                "render() called without a render_mode; e.g. "
-                'gymnasium.make("drqn_jax/UrbanPedestrians-v0", render_mode="rgb_array")'
-            )
-            return None
-        if self._state is None:
-            raise ResetNeeded("Cannot call UrbanPedestriansGymEnv.render before reset")
-        return np.array(self._fns.render(self._state, self._device_params))
+        return self._render(self._fns.render, self._state)
 
 
 def gymnasium_ids() -> tuple[str, ...]:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import functools
 from typing import Any, NamedTuple
 
-import gymnasium
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -21,9 +20,8 @@ from drqn_jax.env.params import EnvParams
 from drqn_jax.env.state import NUM_ACTIONS, EnvState
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.interop.gymnasium_env import (
-    UrbanPedestriansGymEnv,
+    JaxBacked,
     draw_key_data,
-    gymnasium_observation_space,
     key_data_shape,
     numpy_observation,
     single_reset,
@@ -31,7 +29,6 @@ from drqn_jax.interop.gymnasium_env import (
     valid_action,
 )
 from drqn_jax.programs import cached_program
-from drqn_jax.registry import make as make_jax_env
 
 __all__ = ["SPARSE_RESETS", "UrbanPedestriansVectorEnv"]
 
@@ -146,7 +143,7 @@ def _batched_info(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, 
     return out
 
 
-class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
+class UrbanPedestriansVectorEnv(JaxBacked, VectorEnv[dict[str, Any], Any, np.ndarray]):
     """``num_envs`` envs in one jitted call; ``autoreset_mode`` NEXT_STEP, SAME_STEP (as
     ``SyncVectorEnv``) or DISABLED (``reset(options={"reset_mask": mask})``)."""
 
@@ -161,16 +158,9 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs = {num_envs!r}: must be an integer >= 1")
         self.autoreset_mode = AutoresetMode(autoreset_mode)
-        if render_mode is not None and render_mode != "rgb_array":
-            raise ValueError(f"render_mode={render_mode!r} is not supported; use 'rgb_array'")
         self.num_envs = num_envs
-        self.env_id = env_id
-        self.jax_env, params = make_jax_env(env_id, **overrides)
-        self.params = params
-        self._device_params = jax.device_put(params)
-        self.render_mode = render_mode
-        self.metadata = {**UrbanPedestriansGymEnv.metadata, "autoreset_mode": self.autoreset_mode}
-        self.single_observation_space = gymnasium_observation_space(self.jax_env, params)
+        self.single_observation_space = self._load(env_id, render_mode, overrides)
+        self.metadata = {**JaxBacked.metadata, "autoreset_mode": self.autoreset_mode}
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.single_action_space = spaces.Discrete(NUM_ACTIONS)
         self.action_space = batch_space(self.single_action_space, num_envs)
@@ -303,10 +293,5 @@ class UrbanPedestriansVectorEnv(VectorEnv[dict[str, Any], Any, np.ndarray]):
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         """N (240, 480, 3) uint8 frames for ``"rgb_array"``."""
-        if self.render_mode is None:
-            gymnasium.logger.warn("render() called without a render_mode")
-            return None
-        if self._states is None:
-            raise ResetNeeded("Cannot call UrbanPedestriansVectorEnv.render before reset")
-        frames = np.array(self._fns.render(self._states, self._device_params))
-        return tuple(frames)
+        frames = self._render(self._fns.render, self._states)
+        return None if frames is None else tuple(frames)

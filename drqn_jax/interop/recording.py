@@ -1,15 +1,12 @@
-"""Rerun recordings of evaluated episodes (paper §V-E; SPEC §1–5, §8).
-:func:`record_episodes` writes :func:`collect_episodes`' episodes to one ``.rrd``
-file: a static ``map/``, and per episode ``episode/<i>/`` holds ``world/`` (ego,
-pedestrians, headings), ``grid/<channel>`` images, ``speed_kmh``, ``action``,
-``q/<action>``, ``reward``, ``ttc`` scalars and an ``events`` text log, on the
-``"step"`` timeline (``state.time``). Step t shows the state before decision t;
-``reward``/``ttc`` at t come from the step into state t (a collision's −10 sits on
-the frame that shows it). Coordinates: :func:`~drqn_jax.interop.rerun_map.to_view`.
-"""
+"""Rerun recordings of evaluated episodes (paper §V-E; SPEC §1–5, §8): a static ``map/``;
+per episode ``episode/<i>/`` holds ``world/`` (ego, pedestrians, headings), ``grid/<channel>``
+images, scalars and an ``events`` log on the ``"step"`` timeline. Step t shows the state
+before decision t; ``reward``/``ttc`` at t come from the step into state t."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -19,7 +16,6 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from drqn_jax.agents.base import Agent
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.road_map import OFF_ROAD
 from drqn_jax.env.state import ACTIONS
@@ -34,9 +30,8 @@ from drqn_jax.env.viewer import (
     hud_glyphs,
     hud_text,
 )
-from drqn_jax.interop.episode_record import EpisodeRecord, collect_episodes
+from drqn_jax.interop.episode_record import EpisodeRecord
 from drqn_jax.interop.rerun_map import log_map, map_extent, to_view
-from drqn_jax.networks import Network
 from drqn_jax.programs import cached_program
 
 __all__ = [
@@ -44,11 +39,10 @@ __all__ = [
     "GRID_CHANNELS",
     "OCCLUDED_ALPHA",
     "STEP_TIMELINE",
-    "close_recording",
+    "collapsed_blueprint",
     "episode_blueprint",
     "hud_labels",
-    "open_recording",
-    "record_episodes",
+    "recording_file",
     "send_scalars",
     "write_episodes",
 ]
@@ -67,8 +61,12 @@ def send_scalars(
     steps: np.ndarray,
     values: np.ndarray,
     timeline: str = STEP_TIMELINE,
+    style: Any = None,
 ) -> None:
-    """``values`` (E,) at the sequence ``steps`` (E,) of ``timeline``, as float64 scalars."""
+    """``values`` (E,) at the sequence ``steps`` (E,) of ``timeline``, as float64 scalars;
+    ``style`` (e.g. ``rr.SeriesLines``) is logged static beside them."""
+    if style is not None:
+        rec.log(entity, style, static=True)
     if len(steps):
         rec.send_columns(
             entity,
@@ -87,21 +85,6 @@ def _hud_program(env: UrbanPedestrians) -> Any:
 def hud_labels(record: EpisodeRecord, env: UrbanPedestrians, params: EnvParams) -> np.ndarray:
     """(N, T + 1, 2, L) int32 :func:`hud_glyphs` of every recorded state, one jitted call."""
     return np.asarray(_hud_program(env)(record.state, params))
-
-
-def _log_episode(
-    rec: rr.RecordingStream,
-    record: EpisodeRecord,
-    i: int,
-    env: UrbanPedestrians,
-    params: EnvParams,
-    hud: np.ndarray,
-) -> None:
-    """Log episode ``i`` under ``episode/<i>``; ``hud`` (T + 1, 2, L): its HUD glyphs."""
-    _log_world(rec, record, i, hud, float(params.ped_radius), env.static.ttc_horizon)
-    _log_grid(rec, record, i, env.static.grid_shape)
-    _log_series(rec, record, i)
-    _log_events(rec, record, i)
 
 
 def _span(record: EpisodeRecord, i: int) -> tuple[str, int, np.ndarray]:
@@ -188,27 +171,22 @@ def _log_series(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
     """Episode ``i``'s time series: speed, action, Q-values, reward and finite TTC."""
     root, n, states = _span(record, i)
     decisions = np.arange(n)  # decision steps 0…L-1
-    speed_kmh = record.state.ego.v[i, : n + 1].astype(np.float64) * 3.6
-    send_scalars(rec, f"{root}/speed_kmh", states, speed_kmh)
-    actions = record.action[i, :n]
-    send_scalars(rec, f"{root}/action", decisions, actions)
-    if record.q_values is not None:
-        for a, name in enumerate(ACTIONS):
-            rec.log(
-                f"{root}/q/{name}",
-                rr.SeriesLines(names=name, colors=ACTION_COLOURS[a]),
-                static=True,
-            )
-            send_scalars(rec, f"{root}/q/{name}", decisions, record.q_values[i, :n, a])
-    send_scalars(rec, f"{root}/reward", decisions + 1, record.reward[i, :n])
     ttc = record.ttc[i, :n]
     finite = np.isfinite(ttc)
-    send_scalars(rec, f"{root}/ttc", (decisions + 1)[finite], ttc[finite])
-
-    rec.log(f"{root}/action", rr.SeriesPoints(names="action", marker_sizes=2.0), static=True)
-    rec.log(f"{root}/ttc", rr.SeriesPoints(names="TTC (s)", marker_sizes=2.0), static=True)
-    rec.log(f"{root}/reward", rr.SeriesLines(names="reward"), static=True)
-    rec.log(f"{root}/speed_kmh", rr.SeriesLines(names="speed (km/h)"), static=True)
+    speed_kmh = record.state.ego.v[i, : n + 1].astype(np.float64) * 3.6
+    points = partial(rr.SeriesPoints, marker_sizes=2.0)
+    series = {
+        "speed_kmh": (rr.SeriesLines(names="speed (km/h)"), states, speed_kmh),
+        "action": (points(names="action"), decisions, record.action[i, :n]),
+        "reward": (rr.SeriesLines(names="reward"), decisions + 1, record.reward[i, :n]),
+        "ttc": (points(names="TTC (s)"), (decisions + 1)[finite], ttc[finite]),
+    }
+    if record.q_values is not None:
+        for a, name in enumerate(ACTIONS):
+            style = rr.SeriesLines(names=name, colors=ACTION_COLOURS[a])
+            series[f"q/{name}"] = (style, decisions, record.q_values[i, :n, a])
+    for entity, (style, at, values) in series.items():
+        send_scalars(rec, f"{root}/{entity}", at, values, style=style)
 
 
 def _log_events(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
@@ -282,32 +260,35 @@ def episode_blueprint(
                 name=f"episode {i}",
             )
         )
+    return collapsed_blueprint(rrb.Tabs(*tabs), STEP_TIMELINE)
+
+
+def collapsed_blueprint(layout: Any, timeline: str) -> rrb.Blueprint:
+    """``layout`` with the blueprint, selection and time (on ``timeline``) panels collapsed."""
     return rrb.Blueprint(
-        rrb.Tabs(*tabs),
+        layout,
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(state="collapsed", timeline=STEP_TIMELINE),
+        rrb.TimePanel(state="collapsed", timeline=timeline),
     )
 
 
-def open_recording(
-    path: str | Path, application_id: str, blueprint: rrb.Blueprint
-) -> rr.RecordingStream:
-    """A recording stream saving to ``path`` (parents created); OSError if it cannot be written."""
+@contextmanager
+def recording_file(path: str | Path, blueprint: rrb.Blueprint) -> Iterator[rr.RecordingStream]:
+    """A recording stream saving to ``path`` (parents created), flushed and closed (the
+    footer written) on exit; OSError if the file cannot be written."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    rec = rr.RecordingStream(application_id)
+    rec = rr.RecordingStream("drqn_jax")
     try:
         rec.save(path, default_blueprint=blueprint)
     except RuntimeError as err:  # rerun reports file errors as RuntimeError
         raise OSError(f"cannot write {path}: {err}") from err
-    return rec
-
-
-def close_recording(rec: rr.RecordingStream) -> None:
-    """Flush ``rec`` and close its file (disconnecting writes the footer)."""
-    rec.flush()
-    rec.disconnect()
+    try:
+        yield rec
+    finally:
+        rec.flush()
+        rec.disconnect()
 
 
 def write_episodes(
@@ -316,38 +297,17 @@ def write_episodes(
     env: UrbanPedestrians,
     env_params: EnvParams | None = None,
     *,
-    application_id: str = "drqn_jax",
     blueprint: rrb.Blueprint | None = None,
 ) -> None:
     """Log :func:`collect_episodes`' episodes to a new ``.rrd`` file (layout ``blueprint``)."""
-    env_params = env.default_params if env_params is None else env_params
+    params = env.default_params if env_params is None else env_params
     if blueprint is None:
-        has_q = record.q_values is not None
-        blueprint = episode_blueprint(record.num_episodes, has_q, env, env_params)
-    rec = open_recording(path, application_id, blueprint)
-    try:
-        log_map(rec, env, env_params)
-        hud = hud_labels(record, env, env_params)
+        blueprint = episode_blueprint(record.num_episodes, record.q_values is not None, env, params)
+    with recording_file(path, blueprint) as rec:
+        log_map(rec, env, params)
+        hud = hud_labels(record, env, params)
         for i in range(record.num_episodes):
-            _log_episode(rec, record, i, env, env_params, hud[i])
-    finally:
-        close_recording(rec)
-
-
-def record_episodes(
-    path: str | Path,
-    agent: Agent,
-    key: jax.Array,
-    num_episodes: int,
-    env: UrbanPedestrians,
-    env_params: EnvParams | None = None,
-    *,
-    network: Network | None = None,
-    network_params: Any = None,
-    application_id: str = "drqn_jax",
-) -> None:
-    """Record the episodes :func:`drqn_jax.evaluate` plays with ``key``; ``network`` adds Q."""
-    record = collect_episodes(
-        agent, key, num_episodes, env, env_params, network=network, network_params=network_params
-    )
-    write_episodes(path, record, env, env_params, application_id=application_id)
+            _log_world(rec, record, i, hud[i], float(params.ped_radius), env.static.ttc_horizon)
+            _log_grid(rec, record, i, env.static.grid_shape)
+            _log_series(rec, record, i)
+            _log_events(rec, record, i)

@@ -11,7 +11,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from drqn_jax.interop.recording import close_recording, open_recording, send_scalars
+from drqn_jax.interop.recording import collapsed_blueprint, recording_file, send_scalars
 
 __all__ = [
     "COLLISION_RATE_WINDOW",
@@ -38,9 +38,7 @@ def running_mean(values: np.ndarray, window: int = COLLISION_RATE_WINDOW) -> np.
     return (total[k + 1] - total[start]) / (k + 1 - start)
 
 
-def record_training(
-    path: str | Path, metrics: Mapping[str, np.ndarray], *, application_id: str = "drqn_jax"
-) -> None:
+def record_training(path: str | Path, metrics: Mapping[str, np.ndarray]) -> None:
     """Save training curves to ``path``: ``metrics`` (N,) arrays per recorded episode, as
     ``recorded_metrics`` returns them; rates are running means."""
     missing = [name for name in _REQUIRED_METRICS if name not in metrics]
@@ -64,45 +62,23 @@ def record_training(
     if "mean_speed" in m:
         curves["mean_speed_kmh"] = m["mean_speed"].astype(np.float64) * 3.6
     blueprint = _series_blueprint({name: f"/training/{name}" for name in curves})
-    rec = open_recording(path, application_id, blueprint)
-    try:
+    with recording_file(path, blueprint) as rec:
         for name, values in curves.items():
-            _send_series(rec, f"training/{name}", name, episodes, values)
-    finally:
-        close_recording(rec)
+            style = rr.SeriesLines(names=name)
+            send_scalars(rec, f"training/{name}", episodes, values, EPISODE_TIMELINE, style)
 
 
 def _series_blueprint(views: Mapping[str, str], timeline: str = EPISODE_TIMELINE) -> rrb.Blueprint:
     """One time-series view per ``name → origin entity``, on ``timeline``."""
-    return rrb.Blueprint(
-        rrb.Grid(*[rrb.TimeSeriesView(name=name, origin=o) for name, o in views.items()]),
-        rrb.BlueprintPanel(state="collapsed"),
-        rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(state="collapsed", timeline=timeline),
-    )
+    series = [rrb.TimeSeriesView(name=name, origin=o) for name, o in views.items()]
+    return collapsed_blueprint(rrb.Grid(*series), timeline)
 
 
-def _send_series(
-    rec: rr.RecordingStream,
-    entity: str,
-    name: str,
-    at: np.ndarray,
-    values: np.ndarray,
-    timeline: str = EPISODE_TIMELINE,
-) -> None:
-    """A line named ``name`` at ``entity``: ``values`` (E,) at ``at`` (E,) of ``timeline``."""
-    rec.log(entity, rr.SeriesLines(names=name), static=True)
-    send_scalars(rec, entity, at, values, timeline)
-
-
-def record_study_curves(
-    path: str | Path, curves: Mapping[str, Mapping[str, Any]], *, application_id: str = "drqn_jax"
-) -> None:
+def record_study_curves(path: str | Path, curves: Mapping[str, Mapping[str, Any]]) -> None:
     """Save ``load_curves`` per config as ``curves/<metric>/<config>/{mean,low,high,seed<k>}``."""
     metrics = sorted({m for by_metric in curves.values() for m in by_metric})
     views = {m: f"/curves/{m}" for m in metrics}
-    rec = open_recording(path, application_id, _series_blueprint(views, ENV_STEPS_TIMELINE))
-    try:
+    with recording_file(path, _series_blueprint(views, ENV_STEPS_TIMELINE)) as rec:
         for name, by_metric in curves.items():
             for metric, c in by_metric.items():
                 series = {part: (c.env_steps, getattr(c, part)) for part in ("mean", "low", "high")}
@@ -111,6 +87,5 @@ def record_study_curves(
                 }
                 for part, (at, values) in series.items():
                     entity = f"curves/{metric}/{name}/{part}"
-                    _send_series(rec, entity, f"{name} {part}", at, values, ENV_STEPS_TIMELINE)
-    finally:
-        close_recording(rec)
+                    style = rr.SeriesLines(names=f"{name} {part}")
+                    send_scalars(rec, entity, at, values, ENV_STEPS_TIMELINE, style)

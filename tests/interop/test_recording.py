@@ -156,7 +156,8 @@ def rule_based(tmp_path_factory, env_params, key):
     env, params = env_params
     agent = drqn_jax.rule_based_agent()
     path = tmp_path_factory.mktemp("rec") / "rule_based.rrd"
-    recording.record_episodes(path, agent, key, NUM_EPISODES, env, params)
+    record = episode_record.collect_episodes(agent, key, NUM_EPISODES, env, params)
+    recording.write_episodes(path, record, env, params)
     return read_rrd(path), reference_episodes(agent, key, env, params)
 
 
@@ -168,9 +169,10 @@ def drqn(tmp_path_factory, env_params, key):
     weights = network.init(jax.random.key(3))
     agent = drqn_jax.drqn_agent(network, weights)
     path = tmp_path_factory.mktemp("rec") / "drqn.rrd"
-    recording.record_episodes(
-        path, agent, key, NUM_EPISODES, env, params, network=network, network_params=weights
+    record = episode_record.collect_episodes(
+        agent, key, NUM_EPISODES, env, params, network=network, network_params=weights
     )
+    recording.write_episodes(path, record, env, params)
     return read_rrd(path), reference_episodes(agent, key, env, params, network, weights)
 
 
