@@ -39,6 +39,7 @@ __all__ = [
     "UNHASHED",
     "Config",
     "ConfigError",
+    "config_hash",
     "config_names",
     "load_config",
     "parse_override",
@@ -70,30 +71,23 @@ class _Field:
     default: Any
     kind: str  # "int" | "float" | "bool" | "str" | "conv"
     choices: tuple[str, ...] | None = None
-    doc: str = ""
 
 
 def _fields_of(cls: type, skip: Sequence[str] = ()) -> dict[str, _Field]:
     """Schema entries from a dataclass's defaults and :func:`param` metadata."""
     out = {}
     for f in dataclasses.fields(cls):
+        choices, default = f.metadata.get("choices"), f.default
+        kind = next((k.__name__ for k in (bool, int, float, str) if isinstance(default, k)), None)
         if f.name in skip:
             continue
-        choices = f.metadata.get("choices")
-        default = f.default
         if choices is not None:  # an index (a traced switch) or the name itself
             name = default if isinstance(default, str) else choices[default]
-            out[f.name] = _Field(name, "str", choices, f.metadata.get("doc", ""))
-        elif isinstance(default, bool):
-            out[f.name] = _Field(default, "bool", doc=f.metadata.get("doc", ""))
-        elif isinstance(default, int):
-            out[f.name] = _Field(default, "int", doc=f.metadata.get("doc", ""))
-        elif isinstance(default, float):
-            out[f.name] = _Field(default, "float", doc=f.metadata.get("doc", ""))
+            out[f.name] = _Field(name, "str", choices)
         elif f.name == "conv":
             out[f.name] = _Field([list(layer) for layer in default], "conv")
-        elif isinstance(default, str):
-            out[f.name] = _Field(default, "str")
+        elif kind is not None:  # bool before int: a bool is an int
+            out[f.name] = _Field(default, kind)
     return out
 
 
@@ -105,10 +99,7 @@ def _schema() -> dict[str, dict[str, _Field]]:
     network["cell"] = dataclasses.replace(network["cell"], choices=CELLS)
     train_sizes = _fields_of(TrainConfig)
     return {
-        "run": {
-            "seed": _Field(0, "int", doc="training key split(key(seed))[0], evaluation [1]"),
-            "checkpoint_every_s": _Field(60.0, "float", doc="seconds between checkpoints"),
-        },
+        "run": {"seed": _Field(0, "int"), "checkpoint_every_s": _Field(60.0, "float")},
         "env": {
             "id": _Field("UrbanPedestrians-v0", "str", registered_envs()),
             **_fields_of(StaticEnvParams),
@@ -118,12 +109,8 @@ def _schema() -> dict[str, dict[str, _Field]]:
         "train": {**{n: train_sizes[n] for n in TRAIN_SIZES}, **_fields_of(Hyperparams)},
         "rule_based": _fields_of(RuleBasedParams),
         "planner": _fields_of(PlannerParams),
-        "evaluate": {
-            "episodes": _Field(1000, "int", doc="episodes per agent"),
-            "batch_size": _Field(
-                0, "int", doc=f"episodes per jitted batch: 0 = all at once, else >= {MIN_BATCH}"
-            ),
-        },
+        # episodes per agent, and per jitted batch (0: all at once)
+        "evaluate": {"episodes": _Field(1000, "int"), "batch_size": _Field(0, "int")},
     }
 
 
@@ -425,13 +412,18 @@ class Config:
         return out
 
     def training_hash(self) -> str:
-        """sha256 of :meth:`training_dict` (canonical JSON)."""
-        text = json.dumps(self.training_dict(), sort_keys=True, separators=(",", ":"))
-        return hashlib.sha256(text.encode()).hexdigest()
+        """:func:`config_hash` of :meth:`training_dict`."""
+        return config_hash(self.training_dict())
 
     def training_identity(self) -> dict[str, Any]:
         """What a checkpoint stores and loading one checks: the dict and its hash."""
         return {"config": self.training_dict(), "config_hash": self.training_hash()}
+
+
+def config_hash(config: dict[str, Any]) -> str:
+    """SHA-256 hex digest of ``json.dumps(config, sort_keys=True, separators=(",", ":"))``."""
+    text = json.dumps(config, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def _in_config_words(message: str) -> str:

@@ -1,11 +1,8 @@
 """Evaluation of an agent over many episodes (paper §V-E, Table III; SPEC §8).
 
-:func:`run_episodes` plays one episode per key, all in parallel under one
-``jit`` (``vmap`` over episodes of a ``lax.scan`` over ``max_steps``), and
-returns per-episode metrics; :func:`summarize` turns them into the §8
-metrics; :func:`evaluate` does both. Episode *i* of an evaluation uses
-``fold_in(key, i)``, so it is the same episode whatever ``num_episodes`` is
-and whichever episodes run beside it.
+:func:`run_episodes` plays one episode per key in parallel under one ``jit``;
+:func:`summarize` turns the per-episode metrics into the §8 metrics; :func:`evaluate`
+does both. Episode *i* uses ``fold_in(key, i)``, whatever episodes run beside it.
 """
 
 from __future__ import annotations
@@ -35,7 +32,7 @@ __all__ = [
     "metrics_table",
     "padded_keys",
     "play_episode",
-    "rollout_episode",
+    "rollouts",
     "run_episodes",
     "summarize",
     "summarize_outcomes",
@@ -59,18 +56,14 @@ class EpisodeMetrics:
     """What one episode produced; every leaf gains a leading axis when batched.
 
     Attributes:
-        episode_return: () float32, sum of rewards.
-        length: () int32, steps until termination or truncation.
-        collision: () bool; goal: () bool (route end reached).
-        distance: () float32, metres travelled along the route.
-        mean_speed: () float32, distance / duration (m/s).
-        min_ttc: () float32, smallest TTC of the episode (s, inf if never finite).
+        episode_return: () float32, sum of rewards; length: () int32, steps played.
+        collision, goal (route end reached), struck_while_stopped (a pedestrian met the
+            collision test while the ego stood; SPEC §5: not a collision): () bool.
+        distance: () float32, metres along the route; mean_speed: distance / duration.
+        min_ttc: () float32, smallest TTC (s, inf if never finite).
         near_collision_steps: () int32, steps with ``TTC <= ttc_threshold``.
-        struck_while_stopped: () bool, a pedestrian met the collision test while
-            the ego stood (SPEC §5: not the ego's collision).
-        moving_steps: () int32, steps with ``v > AUTHORS_MOVING_SPEED``.
-        authors_speed: () float32, the authors' average speed (carla-gym
-            ``tester.py``): mean speed over the moving steps (m/s; 0 if none).
+        moving_steps: () int32, steps with ``v > AUTHORS_MOVING_SPEED``; authors_speed:
+            () float32, mean speed over them (carla-gym ``tester.py``; m/s, 0 if none).
     """
 
     episode_return: jax.Array
@@ -93,14 +86,9 @@ def episode_keys(key: jax.Array, num_episodes: int, offset: int = 0) -> jax.Arra
 
 
 class Decision(NamedTuple):
-    """One decision of an episode, as :func:`play_episode` hands it to ``trace``.
-
-    Attributes:
-        obs: the Observation the action was chosen on; state: its EnvState.
-        carry: the agent's carry after choosing (a recording reads its Q-values there).
-        action: () int32; reward: () float32; terminated, truncated: () bool.
-        info: ``step_env``'s info of the step the action led to.
-    """
+    """One decision of an episode, as :func:`play_episode` hands it to ``trace``: the
+    Observation and EnvState the action was chosen on, the agent's carry after choosing,
+    () int32 ``action``, () float32 ``reward``, () bool flags, ``step_env``'s info."""
 
     obs: Any
     state: Any
@@ -173,19 +161,17 @@ def play_episode(
     params: EnvParams,
     trace: Callable[[Decision], Any] | None = None,
 ) -> tuple[EpisodeMetrics, Any, Any, Any]:
-    """Play one episode to its end (at most ``max_steps`` ticks) and measure it: the one
-    rollout of evaluation (:func:`rollout_episode`) and recording (``drqn_jax.interop.recording``).
+    """Play one episode (at most ``max_steps`` ticks) and measure it: the one rollout of
+    evaluation and recording (``drqn_jax.interop.recording``).
 
-    The scan always runs T = ceil(max_steps / decision_steps) decisions (branch-free
-    under ``vmap``); those after the episode ended are not counted. Keys: ``key``
-    splits into the reset, the agent's carry and the run; each decision's key into the
-    action's and the env's. An ``every_tick`` agent (the rule-based agent, the planner)
-    plays the world at one decision per tick.
+    The scan runs T = ceil(max_steps / decision_steps) decisions (branch-free under
+    ``vmap``); those after the episode ended count nothing. ``key`` splits into the
+    reset's, the carry's and the run's; each decision's into the action's and the env's.
+    An ``every_tick`` agent plays at one decision per tick.
 
-    Returns:
-        ``(metrics, traced, obs, state)``: the :class:`EpisodeMetrics`; ``trace``'s
-        output for each :class:`Decision`, leaves (T, ...) (None without ``trace``);
-        the Observation and EnvState after the T-th decision.
+    Returns ``(metrics, traced, obs, state)``: the :class:`EpisodeMetrics`, ``trace``'s
+    output per :class:`Decision` (leaves (T, ...); None without ``trace``), and the
+    Observation and EnvState after the T-th decision.
     """
     if agent.every_tick and env.static.decision_steps > 1:
         env = dataclasses.replace(env, static=dataclasses.replace(env.static, decision_steps=1))
@@ -219,13 +205,6 @@ def play_episode(
     return m, traced, obs, state
 
 
-def rollout_episode(
-    agent: Agent, key: jax.Array, env: UrbanPedestrians, params: EnvParams
-) -> EpisodeMetrics:
-    """The :class:`EpisodeMetrics` of one episode (:func:`play_episode`)."""
-    return play_episode(agent, key, env, params)[0]
-
-
 def run_episodes(
     agent: Agent,
     keys: jax.Array,
@@ -233,46 +212,38 @@ def run_episodes(
     params: EnvParams,
     batch_size: int | None = None,
 ) -> EpisodeMetrics:
-    """One episode per key, in parallel under one ``jit``.
+    """EpisodeMetrics (N, ...) of one episode per key (N,), in parallel under one ``jit``.
 
-    Args:
-        keys: (N,) PRNG keys (see :func:`episode_keys`).
-        batch_size: run the episodes ``batch_size`` (>= :data:`MIN_BATCH`) at a time
-            (``lax.map``) to bound memory; ``None`` runs all N at once. Results do not
-            depend on it.
-    Returns:
-        EpisodeMetrics with leaves of leading size N. The keys are padded
-        (:func:`padded_keys`) before the program, so every N up to :data:`MIN_BATCH`
-        runs one compiled program.
+    ``batch_size`` (>= :data:`MIN_BATCH`) runs the episodes that many at a time to bound
+    memory; ``None`` all at once; results do not depend on it. The keys are padded
+    (:func:`padded_keys`) before the program, so every N up to :data:`MIN_BATCH` runs one.
     """
     n = keys.shape[0]
     out = _run_padded(agent, padded_keys(keys, batch_size), env, params, batch_size)
     return jax.tree.map(lambda x: x[:n], out)
 
 
-@jit_in_store("env", "batch_size")
-def _run_padded(
+def rollouts(
     agent: Agent,
     keys: jax.Array,
     env: UrbanPedestrians,
     params: EnvParams,
-    batch_size: int | None,
+    batch_size: int | None = None,
 ) -> EpisodeMetrics:
-    return map_episodes(lambda key: rollout_episode(agent, key, env, params), keys, batch_size)
+    """:func:`map_episodes` of :func:`play_episode`'s metrics, not jitted."""
+    return map_episodes(lambda key: play_episode(agent, key, env, params)[0], keys, batch_size)
+
+
+_run_padded = jit_in_store("env", "batch_size")(rollouts)
 
 
 def padded_keys(keys: jax.Array, batch_size: int | None = None) -> jax.Array:
-    """``keys`` (N,) and copies of its first key, to a multiple of the batch: the
-    batch is ``batch_size`` (all N for None), and at least :data:`MIN_BATCH`.
+    """``keys`` (N,) and copies of its first key, to a multiple of the batch
+    (``batch_size``, all N for None, at least :data:`MIN_BATCH`); ValueError below it.
 
-    YNNPACK, which runs XLA:CPU's matrix products, picks its kernel by the number
-    of rows: the paper network's products round differently with fewer than 61–81
-    rows (by shape) than with more, and a batch of one goes to matrix-vector kernels, so
-    without the padding episode i would not be bit-identical whatever the number
-    of episodes beside it. Rows are independent, so padding changes nothing else.
-
-    Raises:
-        ValueError: ``batch_size`` below :data:`MIN_BATCH`.
+    XLA:CPU's matrix kernels (YNNPACK) round the network's products differently with
+    fewer than 61–81 rows, so without the padding episode i's bits would depend on the
+    episodes beside it. Rows are independent: padding changes nothing else.
     """
     if batch_size is not None and batch_size < MIN_BATCH:
         raise ValueError(
@@ -281,10 +252,15 @@ def padded_keys(keys: jax.Array, batch_size: int | None = None) -> jax.Array:
         )
     n = keys.shape[0]
     size = max(MIN_BATCH, n if batch_size is None else batch_size)
-    padded = -(-n // size) * size
-    if padded == n:
+    return _pad(keys, -(-n // size) * size)
+
+
+def _pad(keys: jax.Array, size: int) -> jax.Array:
+    """``keys`` (N,) and copies of its first key, to ``size`` >= N."""
+    n = keys.shape[0]
+    if size == n:
         return keys
-    return jnp.concatenate([keys, jnp.broadcast_to(keys[:1], (padded - n, *keys.shape[1:]))])
+    return jnp.concatenate([keys, jnp.broadcast_to(keys[:1], (size - n, *keys.shape[1:]))])
 
 
 def map_episodes(fn: Any, keys: jax.Array, batch_size: int | None = None) -> Any:
@@ -317,10 +293,8 @@ def _nearest_quantile(values: np.ndarray, q: float) -> float:
 
 
 def summarize_outcomes(episodes: EpisodeMetrics) -> dict[str, Any]:
-    """The §8 metrics that need no time to collision (host-side, float64): what
-    :func:`summarize` returns but its ``min_ttc_*`` and ``near_collision_*`` keys, so a
-    sweep that drops the TTC from its program (:mod:`drqn_jax.experiments.frontier`) reads the
-    same numbers as an evaluation."""
+    """:func:`summarize` but its ``min_ttc_*`` and ``near_collision_*`` keys, for a sweep
+    that drops the TTC from its program (:mod:`drqn_jax.experiments.frontier`)."""
     ep = jax.tree.map(np.asarray, episodes)
     n = int(ep.collision.shape[0])
     collided = ep.collision.astype(bool)
@@ -350,21 +324,12 @@ def summarize_outcomes(episodes: EpisodeMetrics) -> dict[str, Any]:
 
 
 def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str, Any]:
-    """The §8 metrics from per-episode results (host-side, float64).
+    """The §8 metrics of per-episode results, as Python numbers (host-side, float64).
 
-    Returns a dict of Python numbers: ``num_episodes``; ``collision_free_rate``
-    and its 95 % Wilson interval ``collision_free_ci`` (low, high);
-    ``goal_rate``; ``struck_while_stopped_rate`` (episodes where a pedestrian met
-    the collision test while the ego stood); ``avg_speed_kmh`` (mean over
-    episodes of distance/time); ``avg_speed_authors_kmh`` (the authors' average
-    speed, SPEC §8: the mean speed over every step faster than 0.5 km/h of all
-    the episodes pooled, as carla-gym ``tester.py`` accumulates it);
-    ``avg_distance_m`` (all) and ``avg_distance_collision_free_m``;
-    ``collisions_per_km``; ``avg_return``; ``avg_length`` (those are
-    :func:`summarize_outcomes`); min-TTC statistics:
-    ``min_ttc_p05_s``, ``min_ttc_median_s`` (inf when most episodes never have a
-    finite TTC), ``min_ttc_mean_finite_s``, ``near_collision_episode_rate``
-    (min TTC <= threshold) and ``near_collision_step_share``.
+    ``collision_free_ci`` is the 95 % Wilson interval; ``avg_speed_authors_kmh`` the mean
+    speed over every step faster than 0.5 km/h of all episodes pooled (carla-gym
+    ``tester.py``); ``min_ttc_median_s`` is inf when most episodes never have a finite
+    TTC; ``near_collision_episode_rate`` counts min TTC <= ``ttc_threshold``.
     """
     ep = jax.tree.map(np.asarray, episodes)
     n = int(ep.collision.shape[0])
@@ -391,14 +356,13 @@ def evaluate(
     batch_size: int | None = None,
     on_episodes: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
-    """Evaluate ``agent`` on ``num_episodes`` episodes (SPEC §8).
+    """Evaluate ``agent`` on ``num_episodes`` episodes (SPEC §8), episode *i* from
+    ``fold_in(key, i)``, in parallel under one ``jit``.
 
-    Episodes run in parallel under one ``jit``; episode *i* uses
-    ``fold_in(key, i)``. With ``on_episodes`` (a progress bar), they run in host
-    calls of :data:`PROGRESS_EPISODES` (one compiled program; the same results, as
-    no episode depends on those beside it) and ``on_episodes(done)`` follows each.
-    Returns :func:`summarize`'s dict plus ``agent`` and ``episodes`` (the
-    per-episode :class:`EpisodeMetrics` as NumPy arrays).
+    With ``on_episodes`` (a progress bar) they run in host calls of
+    :data:`PROGRESS_EPISODES` (one program, the last call padded; the same results) and
+    ``on_episodes(done)`` follows each. Returns :func:`summarize`'s dict plus ``agent``
+    and ``episodes`` (the per-episode :class:`EpisodeMetrics`, NumPy leaves (N, ...)).
     """
     if not isinstance(num_episodes, int) or num_episodes < 1:
         raise ValueError(f"evaluate: num_episodes = {num_episodes!r}, must be an integer >= 1")
@@ -408,41 +372,22 @@ def evaluate(
         )
     params = env.default_params if params is None else env.check_params(params)
     keys = episode_keys(key, num_episodes)
-    if on_episodes is None:
-        episodes = jax.tree.map(np.asarray, run_episodes(agent, keys, env, params, batch_size))
-    else:
-        episodes = _in_host_calls(agent, keys, env, params, batch_size, on_episodes)
+    size = num_episodes if on_episodes is None else min(PROGRESS_EPISODES, num_episodes)
+    parts = []
+    for start in range(0, num_episodes, size):
+        real = min(size, num_episodes - start)
+        out = run_episodes(agent, _pad(keys[start : start + real], size), env, params, batch_size)
+        parts.append(jax.tree.map(lambda x, real=real: np.asarray(x)[:real], out))
+        if on_episodes is not None:
+            on_episodes(start + real)
+    episodes = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
     result = summarize(episodes, float(np.asarray(params.ttc_threshold)))
     return {"agent": agent.name, **result, "episodes": episodes}
 
 
-def _in_host_calls(
-    agent: Agent,
-    keys: jax.Array,
-    env: UrbanPedestrians,
-    params: EnvParams,
-    batch_size: int | None,
-    on_episodes: Callable[[int], None],
-) -> EpisodeMetrics:
-    """:func:`run_episodes` of ``keys`` (N,) in calls of :data:`PROGRESS_EPISODES` keys
-    (the last padded with copies of its first key), NumPy leaves (N, ...)."""
-    n, size = keys.shape[0], min(PROGRESS_EPISODES, keys.shape[0])
-    parts = []
-    for start in range(0, n, size):
-        chunk = keys[start : start + size]
-        real = chunk.shape[0]
-        if real < size:
-            chunk = jnp.concatenate([chunk, jnp.broadcast_to(chunk[:1], (size - real,))])
-        out = run_episodes(agent, chunk, env, params, batch_size)
-        parts.append(jax.tree.map(lambda x, real=real: np.asarray(x)[:real], out))
-        on_episodes(start + real)
-    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
-
-
 def metrics_table(results: list[dict[str, Any]]) -> str:
-    """A Markdown table of :func:`evaluate` results, one row per agent (SPEC §8); the
-    ``teacher`` column is what :func:`drqn_jax.experiments.runner.evaluate_agents` adds
-    (– without it)."""
+    """A Markdown table of :func:`evaluate` results, one row per agent (SPEC §8), with
+    the ``teacher`` that :func:`drqn_jax.experiments.runner.evaluate_agents` adds."""
     header = (
         "| agent | teacher | episodes | collision-free % (95 % CI) | struck while stopped % "
         "| goal % "

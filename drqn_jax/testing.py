@@ -179,20 +179,6 @@ def _rollout(
 _jit_rollout = jit_in_store("env", "reset_key")(_rollout)
 
 
-def _eager_rollout(env, params, reset_keys, action_keys, step_keys, num_steps):
-    """The first ``num_steps`` steps of :func:`_rollout`, op by op (no ``jit``)."""
-    obs, state = jax.vmap(env.reset, (0, None))(reset_keys, params)
-    first = {"obs": obs, "state": state}
-    sample = jax.vmap(env.action_space(params).sample)
-    step = jax.vmap(env.step, (0, 0, 0, None))
-    steps = []
-    for t in range(num_steps):
-        out = step(step_keys[t], state, sample(action_keys[t]), params)
-        steps.append(dict(zip(_STEP_FIELDS, out[:5], strict=True)))
-        state = out[1]
-    return first, steps
-
-
 def _host(tree: Any) -> list[tuple[str, np.ndarray]]:
     return [
         (jax.tree_util.keystr(path), np.asarray(x))
@@ -261,7 +247,7 @@ def check_env_contract(
         _fail(f"the same keys gave a different rollout: {diff}")
 
     if eager_steps:
-        _check_eager(env, args, eager_steps, rollout, rtol, atol)
+        _check_eager(env, reset_key, args, eager_steps, rollout, rtol, atol)
 
     done = terminated | truncated
     return ContractReport(
@@ -310,17 +296,24 @@ def _check_rollout(rollout: dict, batch: tuple[int, int]) -> None:
 
 
 def _check_eager(
-    env: Any, args: tuple, eager_steps: int, rollout: dict, rtol: float, atol: float
+    env: Any,
+    reset_key: Callable[[jax.Array], jax.Array],
+    args: tuple,
+    n: int,
+    rollout: dict,
+    rtol: float,
+    atol: float,
 ) -> None:
-    """jit ≡ no jit: the first ``eager_steps`` steps, op by op, equal ``rollout``'s."""
-    first, steps = rollout["reset"], rollout["steps"]
-    eager_first, eager = _eager_rollout(env, *args, eager_steps)
-    compiled_first = {"obs": first["obs"], "state": first["state"]}
-    diff = _first_difference(eager_first, compiled_first, rtol, atol)
+    """jit ≡ no jit: :func:`_rollout`'s first ``n`` steps, op by op, equal ``rollout``'s."""
+    params, reset_keys, action_keys, step_keys = args
+    with jax.disable_jit():
+        eager = _rollout(env, reset_key, params, reset_keys, action_keys[:n], step_keys[:n])
+    first = [{k: r["reset"][k] for k in ("obs", "state")} for r in (eager, rollout)]
+    diff = _first_difference(*first, rtol, atol)
     if diff is not None:
         _fail(f"jit differs from no jit after reset: {diff}")
-    for t, out in enumerate(eager):
-        compiled = {name: jax.tree.map(lambda x, t=t: x[t], steps[name]) for name in out}
-        diff = _first_difference(out, compiled, rtol, atol)
+    steps = [{k: r["steps"][k] for k in _STEP_FIELDS} for r in (eager, rollout)]
+    for t in range(n):
+        diff = _first_difference(*jax.tree.map(lambda x, t=t: x[t], steps), rtol, atol)
         if diff is not None:
             _fail(f"jit differs from no jit at step {t}: {diff}")

@@ -82,10 +82,5 @@ def _act(params, key, obs, carry, state, env, env_params):
 
 def planner_agent(params: PlannerParams | None = None) -> Agent:
     """The privileged planner as an :class:`Agent`."""
-    return Agent(
-        params=PlannerParams() if params is None else params,
-        name="planner",
-        init_fn=no_carry,
-        act_fn=_act,
-        every_tick=True,
-    )
+    params = PlannerParams() if params is None else params
+    return Agent(params=params, name="planner", init_fn=no_carry, act_fn=_act, every_tick=True)

@@ -135,10 +135,5 @@ def _act(params, key, obs, carry, state, env, env_params):
 
 def rule_based_agent(params: RuleBasedParams | None = None) -> Agent:
     """The paper's rule-based baseline behind the :class:`Agent` interface."""
-    return Agent(
-        params=RuleBasedParams() if params is None else params,
-        name="rule-based",
-        init_fn=no_carry,
-        act_fn=_act,
-        every_tick=True,
-    )
+    params = RuleBasedParams() if params is None else params
+    return Agent(params=params, name="rule-based", init_fn=no_carry, act_fn=_act, every_tick=True)

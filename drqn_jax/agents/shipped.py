@@ -1,12 +1,10 @@
-"""Trained agents shipped with the package, so that a result can be tried
-without training: ``drqn-jax evaluate --agent NAME`` and ``replay --agent NAME``.
+"""Trained agents shipped with the package, so that a result can be tried without
+training: ``drqn-jax evaluate --agent NAME`` and ``replay --agent NAME``.
 
-Each is a directory ``trained/<NAME>/`` beside this module, as ``drqn-jax export``
-writes it from a run directory: ``config.toml`` (the resolved config it trained
-with), ``agent.npz`` and ``agent.json`` (its agent's parameters alone, no training
-state, with the config's training hash) and ``provenance.json`` (the commit,
-command, machine, env steps and wall time of the training). It reads like a
-sweep's trained agent (``OUT/agents/run-NNNN``).
+Each is a directory ``trained/<NAME>/`` as ``drqn-jax export`` writes it: ``config.toml``,
+``agent.npz``/``agent.json`` (the agent's parameters alone, with the config's training hash)
+and ``provenance.json`` (commit, command, machine, env steps and wall time of the training);
+it reads like a sweep's trained agent (``OUT/agents/run-NNNN``).
 """
 
 from __future__ import annotations
@@ -28,11 +26,7 @@ def shipped_agents() -> tuple[str, ...]:
 
 
 def shipped_agent_dir(name: str) -> Path:
-    """The directory of the shipped agent ``name``.
-
-    Raises:
-        ValueError: no such agent (the message names those there are).
-    """
+    """The directory of the shipped agent ``name``; ValueError naming those there are."""
     if name not in shipped_agents():
         there = ", ".join(shipped_agents()) or "none"
         raise ValueError(f"no shipped agent {name!r} (shipped: {there})")

@@ -23,6 +23,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import drqn_jax
+from drqn_jax.experiments.machine import git_commit
+
 __all__ = [
     "AGENT",
     "CHECKPOINT",
@@ -32,7 +35,6 @@ __all__ = [
     "CheckpointError",
     "atomic_write_bytes",
     "atomic_write_text",
-    "config_hash",
     "load_checkpoint",
     "read_manifest",
     "save_checkpoint",
@@ -56,21 +58,11 @@ class CheckpointError(ValueError):
     """A checkpoint that is missing, truncated/corrupt or incompatible; the message names what."""
 
 
-# ----------------------------------------------------------------------------- atomic writes
-
-
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically (temp file, fsync, ``os.replace``, dir fsync)."""
     path = Path(path)
-    while True:
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-        try:
-            fd = os.open(
-                tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666
-            )
-        except FileExistsError:  # pragma: no cover - 48 random bits collided
-            continue
-        break
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -92,15 +84,6 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     """:func:`atomic_write_bytes` of ``text`` encoded as UTF-8."""
     atomic_write_bytes(path, text.encode("utf-8"))
-
-
-# ----------------------------------------------------------------------------- configuration
-
-
-def config_hash(config: dict[str, Any]) -> str:
-    """SHA-256 hex digest of ``json.dumps(config, sort_keys=True, separators=(",", ":"))``."""
-    text = json.dumps(config, sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def _config_diff(saved: Any, expected: Any, prefix: str = "") -> list[str]:
@@ -130,9 +113,6 @@ def _json_default(value: Any) -> Any:
     if isinstance(value, np.generic | np.ndarray | jax.Array):
         return np.asarray(value).tolist()
     raise TypeError(f"checkpoint meta: {type(value).__name__} {value!r} is not JSON-serialisable")
-
-
-# ----------------------------------------------------------------------------- leaves
 
 
 def _is_key_dtype(dtype: Any) -> bool:
@@ -197,16 +177,6 @@ def _npz_bytes(entries: list[dict[str, Any]], arrays: list[np.ndarray], manifest
     return buffer.getvalue()
 
 
-# ----------------------------------------------------------------------------- save / load
-
-
-def _commit() -> str:
-    """The commit of the checkout that writes the checkpoint (``git_commit``)."""
-    from drqn_jax.experiments.machine import git_commit  # late: it imports drqn_jax
-
-    return git_commit()
-
-
 def save_checkpoint(
     run_dir: str | os.PathLike, state: Any, meta: dict[str, Any], *, name: str = CHECKPOINT
 ) -> None:
@@ -214,8 +184,6 @@ def save_checkpoint(
 
     Raises ValueError if ``meta`` uses a ``_RESERVED`` key, TypeError if it is not JSON.
     """
-    import drqn_jax  # late: drqn_jax may import this module while initialising
-
     clash = [k for k in _RESERVED if k in meta]
     if clash:
         raise ValueError(f"checkpoint meta may not use the reserved key(s) {', '.join(clash)}")
@@ -223,8 +191,8 @@ def save_checkpoint(
     entries, arrays = _encode(state)
     version = {
         "format": FORMAT,
-        "drqn_jax_version": getattr(drqn_jax, "__version__", "unknown"),
-        "drqn_jax_commit": _commit(),
+        "drqn_jax_version": drqn_jax.__version__,
+        "drqn_jax_commit": git_commit(),
     }
     manifest = {**version, **meta, "leaves": entries}
     text = json.dumps(manifest, indent=1, default=_json_default) + "\n"  # may raise: no write
@@ -333,26 +301,20 @@ def _read_manifest(npz_path: Path, archive: zipfile.ZipFile) -> dict[str, Any]:
 
 def _check_config(run_dir: Path, manifest: dict[str, Any], expected: dict[str, Any]) -> None:
     """Raise unless the saved ``config_hash`` equals ``expected``'s (when it has one)."""
-    if "config_hash" not in expected:
-        return
-    saved_hash = manifest.get("config_hash")
-    if saved_hash == expected["config_hash"]:
+    saved_hash, wanted_hash = manifest.get("config_hash"), expected.get("config_hash")
+    if wanted_hash is None or saved_hash == wanted_hash:
         return
     saved, wanted = manifest.get("config"), expected.get("config")
     diffs: list[str] = []
     if isinstance(saved, dict) and isinstance(wanted, dict):
         wanted = json.loads(json.dumps(wanted, default=_json_default))  # tuples → lists
         diffs = _config_diff(saved, wanted)
-    if not diffs:
-        raise CheckpointError(
-            f"checkpoint in {run_dir} was made with another configuration: config_hash "
-            f"{str(saved_hash)[:12]}… in the checkpoint, {str(expected['config_hash'])[:12]}… "
-            "in this run"
-        )
-    raise CheckpointError(
-        f"checkpoint in {run_dir} was made with another configuration "
-        + _listed(diffs, "field differs", "fields differ")
-    )
+    if diffs:
+        why = " " + _listed(diffs, "field differs", "fields differ")
+    else:
+        ours = str(wanted_hash)[:12]
+        why = f": config_hash {str(saved_hash)[:12]}… in the checkpoint, {ours}… in this run"
+    raise CheckpointError(f"checkpoint in {run_dir} was made with another configuration{why}")
 
 
 def _listed(problems: list[str], one: str, many: str) -> str:

@@ -26,8 +26,7 @@ from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.evaluation import (
     EpisodeMetrics,
     episode_keys,
-    map_episodes,
-    rollout_episode,
+    rollouts,
     summarize_outcomes,
 )
 from drqn_jax.experiments.stats import t_interval
@@ -129,7 +128,7 @@ def sweep_family(
         # the rollout inline, not run_episodes' jitted call: XLA drops the unused TTC
         # only within one computation
         agent = make_agent(setting)
-        m = map_episodes(lambda k: rollout_episode(agent, k, env, params), keys, batch_size)
+        m = rollouts(agent, keys, env, params, batch_size)
         return m.replace(  # the reward's near-collision term reads the TTC too
             min_ttc=jnp.full_like(m.min_ttc, jnp.nan),
             near_collision_steps=jnp.zeros_like(m.near_collision_steps),

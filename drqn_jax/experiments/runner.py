@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from drqn_jax.agents import rule_based_agent
+from drqn_jax.agents import constant_agent, planner_agent, random_agent, rule_based_agent
 from drqn_jax.agents.base import Agent
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import evaluate
@@ -40,6 +40,7 @@ from drqn_jax.experiments.checkpoint import (
     writer,
 )
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
+from drqn_jax.experiments.machine import device_identity, git_commit, machine_info
 from drqn_jax.learners import Trainer, make_train
 from drqn_jax.learners.dqn.state import TrainState
 from drqn_jax.learners.hyperparams import LEARNED_AGENTS, NOT_LEARNED, teacher_label
@@ -124,12 +125,8 @@ def recorded_metrics(state: TrainState | Mapping[str, Any]) -> dict[str, np.ndar
     metrics = {name: np.asarray(v) for name, v in source.items()}
     done = metrics["length"] > 0
     out = {"episode": np.flatnonzero(done)}
-    columns = sorted(
-        metrics,
-        key=lambda n: (
-            (METRIC_COLUMNS.index(n), n) if n in METRIC_COLUMNS else (len(METRIC_COLUMNS), n)
-        ),
-    )
+    order = {name: i for i, name in enumerate(METRIC_COLUMNS)}
+    columns = sorted(metrics, key=lambda n: (order.get(n, len(order)), n))
     out.update({name: metrics[name][done] for name in columns})
     return out
 
@@ -171,20 +168,11 @@ def _progress_postfix(state: TrainState, steps_per_s: float) -> dict[str, str]:
     return postfix
 
 
-def _checkpoint_meta(config: Config, state: TrainState, wall: float, chunks: int) -> dict:
-    return {
-        **config.training_identity(),
-        "recorded": int(state.recorded),
-        "grad_steps": int(state.grad_steps),
-        "env_steps": int(state.env_steps),
-        "finished": bool(state.finished),
-        "chunks": chunks,
-        "wall_time_s": wall,
-    }
-
-
 def _save(run_dir: Path, config: Config, state: TrainState, wall: float, chunks: int) -> None:
-    save_checkpoint(run_dir, state, _checkpoint_meta(config, state, wall, chunks))
+    """The checkpoint (the training identity and counters as its meta) and ``metrics.csv``."""
+    counts = {k: int(getattr(state, k)) for k in ("recorded", "grad_steps", "env_steps")}
+    meta = {"finished": bool(state.finished), "chunks": chunks, "wall_time_s": wall}
+    save_checkpoint(run_dir, state, {**config.training_identity(), **counts, **meta})
     atomic_write_text(run_dir / "metrics.csv", metrics_csv(state))
 
 
@@ -201,9 +189,8 @@ def train_run(
     init = init_program(trainer)
     wall_before, chunks = 0.0, 0
     if resume:
-        expected = config.training_identity()
         template = jax.eval_shape(init, train_key)
-        state, meta = load_checkpoint(run_dir, template, expected)
+        state, meta = load_checkpoint(run_dir, template, config.training_identity())
         wall_before, chunks = float(meta["wall_time_s"]), int(meta["chunks"])
     else:
         if (run_dir / CHECKPOINT_NPZ).exists():
@@ -338,9 +325,8 @@ def load_trained_network(
     expected = config.training_identity()
     run_dir = Path(run_dir)
     if not (run_dir / CHECKPOINT_NPZ).exists() and (run_dir / f"{AGENT}.npz").exists():
-        agent_template = jax.eval_shape(trainer.agent_params, template)
-        params, meta = load_checkpoint(run_dir, agent_template, expected, name=AGENT)
-        return trainer.network, params, meta
+        template = jax.eval_shape(trainer.agent_params, template)
+        return trainer.network, *load_checkpoint(run_dir, template, expected, name=AGENT)
     state, meta = load_checkpoint(run_dir, template, expected)
     return trainer.network, trainer.agent_params(state), meta
 
@@ -366,8 +352,6 @@ def export_agent(
 
     Returns the provenance; raises CheckpointError if the run is missing or unfinished.
     """
-    from drqn_jax.experiments.machine import device_identity, git_commit, machine_info
-
     config = load_run(run_dir)
     _, params, meta = load_trained_network(config, run_dir)
     if not meta["finished"]:
@@ -382,17 +366,15 @@ def export_agent(
 
 def builtin_agent(name: str, config: Config) -> Agent:
     """``rule-based``, ``planner`` (privileged, SPEC §9), ``random`` or ``accelerate``."""
-    from drqn_jax.agents import constant_agent, planner_agent, random_agent
-
-    if name == "rule-based":
-        return rule_based_agent(config.rule_based_params())
-    if name == "planner":
-        return planner_agent(config.planner_params())
-    if name == "random":
-        return random_agent()
-    if name == "accelerate":
-        return constant_agent("accelerate")
-    raise ValueError(f"unknown agent {name!r}: rule-based, planner, random or accelerate")
+    agents = {
+        "rule-based": lambda: rule_based_agent(config.rule_based_params()),
+        "planner": lambda: planner_agent(config.planner_params()),
+        "random": random_agent,
+        "accelerate": lambda: constant_agent("accelerate"),
+    }
+    if name not in agents:
+        raise ValueError(f"unknown agent {name!r}: rule-based, planner, random or accelerate")
+    return agents[name]()
 
 
 def evaluate_agents(

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import drqn_jax.experiments.checkpoint as checkpoint_module
-from drqn_jax.config import ConfigError, load_config
+from drqn_jax.config import ConfigError, config_hash, load_config
 from drqn_jax.experiments.checkpoint import (
     AGENT,
     CHECKPOINT_JSON,
@@ -24,7 +24,6 @@ from drqn_jax.experiments.checkpoint import (
     CheckpointError,
     atomic_write_bytes,
     atomic_write_text,
-    config_hash,
     load_checkpoint,
     save_checkpoint,
 )
