@@ -4,18 +4,20 @@ and k at one budget of ticks, greedy curves against ticks and CPU seconds.
 Usage::
 
     python -m benchmarks.decision_interval [--configs pqn,pqn-dqn] [--k 1,2,5,10]
-        [--ticks 6000000] [--points 4] [--episodes 1000] [--seed 0]
+        [--ticks 6000000] [--points 4] [--episodes 1000] [--seeds 0]
         [--results docs/results.json] [--section decision-interval]
 
 Each arm is one run of a config at ``env.decision_steps = k`` trained on
 ``train.num_env_steps = ticks // k`` decisions (a decision cut short by a collision or
 the goal plays fewer ticks), its greedy agent evaluated on the same ``--episodes``
 evaluation episodes at ``--points`` evenly spaced marks
-(:func:`drqn_jax.experiments.curves.greedy_curve`). The last mark is the trained agent:
-its row, with its margin over the rule-based frontier stored for the world (the
-yardstick decides every tick: SPEC §9), goes to ``--results`` as section ``--section``
-with every arm's curve. Arms already there are not trained again, so the same command
-continues an interrupted study, on this machine or another clone.
+(:func:`drqn_jax.experiments.curves.greedy_curve`), once per seed of ``--seeds``. The
+last mark of each seed is its trained agent: the arm's row over its stored seeds, with
+its margin over the rule-based frontier stored for the world (the yardstick decides
+every tick: SPEC §9), goes to ``--results`` as section ``--section`` with every seed's
+curve. Seeds already there are not trained again, so the same command continues an
+interrupted study, and a later one with more seeds confirms an arm, on this machine or
+another clone.
 """
 
 from __future__ import annotations
@@ -56,26 +58,42 @@ def arm_label(name: str, k: int, sets: Sequence[str] = ()) -> str:
     return ", ".join([f"drqn_jax: {name}", f"k = {k}", *sets])
 
 
-def arm(name: str, k: int, args: argparse.Namespace) -> tuple[str, Config]:
-    """The label and config of ``name`` (with ``--set``) at ``k`` ticks per decision,
-    trained on ``--ticks // k`` decisions."""
+def arm(name: str, k: int, seed: int, args: argparse.Namespace) -> tuple[str, Config]:
+    """The label and config of ``name`` (with ``--set``) at ``k`` ticks per decision and
+    ``run.seed = seed``, trained on ``--ticks // k`` decisions."""
     sets = [
         *args.set,
         f"env.decision_steps={k}",
         f"train.num_env_steps={args.ticks // k}",
         f"evaluate.episodes={args.episodes}",
-        f"run.seed={args.seed}",
+        f"run.seed={seed}",
     ]
     return arm_label(name, k, args.set), load_config(name, sets)
 
 
-def arm_row(label: str, config: Config, point: dict[str, Any], frontier: Any) -> dict[str, Any]:
-    """The results row ``label`` of an arm's last curve point (its trained agent)."""
+def curve_key(label: str, seed: int) -> str:
+    """The key of one seed's curve of arm ``label`` in the section's ``curves``."""
+    return f"{label}, seed {seed}"
+
+
+def arm_row(
+    label: str, config: Config, curves: dict[str, list[dict[str, Any]]], frontier: Any
+) -> dict[str, Any]:
+    """The results row ``label`` over the last curve point (the trained agent) of every
+    seed stored for the arm."""
     k = config["env"]["decision_steps"]
     teacher = teacher_label(config.hyperparams())
-    run = {**point, "train_wall_s": point["train_s"], "teacher": teacher}
-    row = study_row(label, agent_name(config.train_config()), [run], world=config["env"]["id"])
-    row.update(decision_steps=k, ticks_per_seed=k * point["env_steps"])
+    seeds = {
+        int(key.rsplit(" ", 1)[1]): points[-1]
+        for key, points in curves.items()
+        if key.rsplit(", seed ", 1)[0] == label
+    }
+    runs = [
+        {**last, "train_wall_s": last["train_s"], "teacher": teacher, "values": {"run.seed": s}}
+        for s, last in sorted(seeds.items())
+    ]
+    row = study_row(label, agent_name(config.train_config()), runs, world=config["env"]["id"])
+    row.update(decision_steps=k, ticks_per_seed=k * runs[0]["env_steps"])
     return with_margin(row, frontier, config.speed_limit_kmh())
 
 
@@ -92,7 +110,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--ticks", type=int, default=6_000_000, help="ticks of training per arm")
     parser.add_argument("--points", type=int, default=4, help="evaluations per arm")
     parser.add_argument("--episodes", type=int, default=1000, help="episodes per evaluation")
-    parser.add_argument("--seed", type=int, default=0, help="run.seed of every arm")
+    parser.add_argument("--seeds", default="0", help="run.seed values, comma-separated")
     parser.add_argument("--results", default="docs/results.json", help="the results file")
     parser.add_argument("--section", default="decision-interval", help="its section")
     parser.add_argument(
@@ -101,29 +119,41 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args = parser.parse_args(argv)
     names = [n for n in args.configs.split(",") if n]
     ks = [int(k) for k in args.k.split(",") if k]
+    seeds = [int(s) for s in args.seeds.split(",") if s]
     if min(ks) < 1 or args.ticks < max(ks) or args.points < 1 or args.episodes < 1:
         parser.error("--k >= 1, --ticks >= the largest k, --points and --episodes >= 1")
-    arms = [arm(n, k, args) for n in names for k in ks]
-    frontier = stored_frontier(arms[0][1], Path(args.results))
-    if frontier is None or any(frontier_key(c) != frontier_key(arms[0][1]) for _, c in arms):
+    if not seeds or min(seeds) < 0:
+        parser.error("--seeds: one or more integers >= 0")
+    arms = [(arm(n, k, s, args), s) for n in names for k in ks for s in seeds]
+    # every seed is judged on the frontier of the configs' own run.seed's episodes, as in a study
+    base_seed = load_config(names[0], args.set)["run"]["seed"]
+    bases = [arm(n, k, base_seed, args)[1] for n in names for k in ks]
+    frontier = stored_frontier(bases[0], Path(args.results))
+    if frontier is None or any(frontier_key(c) != frontier_key(bases[0]) for c in bases):
         parser.error("the arms need one world and episodes with a frontier in --results")
     rows, about = _stored(args.results, args.section)
     curves = dict(about.get("curves", {}))
     earlier_s, start = about.get("wall_time_s", 0.0), time.perf_counter()
     command = shlex.join(["python", "-m", "benchmarks.decision_interval", *(argv or sys.argv[1:])])
     commands = [c for c in about.get("command", "").splitlines() if c != command] + [command]
-    for label, config in arms:
-        if any(r["label"] == label for r in rows):
+    for (label, config), seed in arms:
+        if curve_key(label, seed) in curves:
             continue
         k = config["env"]["decision_steps"]
-        print(f"{label}: {config['train']['num_env_steps']:,} decisions", flush=True)
+        decisions = config["train"]["num_env_steps"]
+        print(f"{label}, seed {seed}: {decisions:,} decisions", flush=True)
         status, points = greedy_curve(config, args.points, args.episodes)
         if status != "finished":
-            parser.exit(130, f"{label}: {status}; the finished arms are stored\n")
+            parser.exit(130, f"{label}: {status}; the finished seeds are stored\n")
         for p in points:
             p["ticks"] = k * p["env_steps"]
-        rows.append(arm_row(label, config, points[-1], frontier))
-        curves[label] = points
+        curves[curve_key(label, seed)] = points
+        row = arm_row(label, config, curves, frontier)
+        stored = [r["label"] for r in rows]
+        if label in stored:
+            rows[stored.index(label)] = row
+        else:
+            rows.append(row)
         write_results(
             args.results,
             args.section,

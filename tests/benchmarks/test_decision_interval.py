@@ -1,5 +1,6 @@
 """``benchmarks.decision_interval`` at tiny sizes: arms at k ticks per decision on one
-budget of ticks, their rows and curves stored, a second call trains nothing."""
+budget of ticks, their rows and curves stored, a second call trains nothing, more seeds
+confirm an arm."""
 
 from __future__ import annotations
 
@@ -43,7 +44,7 @@ def test_each_arm_trains_ticks_over_k_decisions_and_is_stored_once(tmp_path, cap
     ]
     curves = record["sections"]["decision-interval"]["curves"]
     for row in rows:
-        (point,) = curves[row["label"]]
+        (point,) = curves[row["label"] + ", seed 0"]
         k = row["decision_steps"]
         assert point["ticks"] == k * point["env_steps"] == row["ticks_per_seed"]
         assert point["env_steps"] >= 64 // k  # the budget in ticks, reached at a chunk's end
@@ -62,3 +63,19 @@ def test_an_arm_without_a_stored_frontier_is_refused(tmp_path):
     with pytest.raises(SystemExit) as refused:
         decision_interval.main(_args(results, "--k", "1"))
     assert refused.value.code == 2
+
+
+def test_more_seeds_train_only_the_new_seeds_and_make_one_row(tmp_path, capsys):
+    config = load_config("smoke", [*TINY, "evaluate.episodes=4"])
+    results = tmp_path / "results.json"
+    frontiers = {frontier_key(config): HAND_FRONTIER}
+    results.write_text(json.dumps({"rows": [], "sections": {"f": {"frontiers": frontiers}}}))
+    decision_interval.main(_args(results, "--k", "2"))
+    capsys.readouterr()
+
+    decision_interval.main(_args(results, "--k", "2", "--seeds", "0,1"))
+    out = capsys.readouterr().out
+    assert "seed 1:" in out and "seed 0:" not in out  # seed 0 is stored
+    (row,) = [r for r in json.loads(results.read_text())["rows"] if r.get("decision_steps")]
+    assert row["seeds"] == 2 and row["interval"] == "t over seeds"
+    assert [s["seed"] for s in row["per_seed"]] == [0, 1]
