@@ -15,14 +15,9 @@ from drqn_jax.agents import (  # noqa: E402
     random_agent,
     rule_based_agent,
 )
-from drqn_jax.env import (  # noqa: E402
-    ACTIONS,
-    EnvParams,
-    EnvState,
-    Observation,
-    StaticEnvParams,
-    UrbanPedestrians,
-)
+from drqn_jax.env.params import EnvParams, StaticEnvParams  # noqa: E402
+from drqn_jax.env.state import ACTIONS, EnvState, Observation  # noqa: E402
+from drqn_jax.env.urban import UrbanPedestrians  # noqa: E402
 from drqn_jax.evaluation import EpisodeMetrics, evaluate, run_episodes, summarize  # noqa: E402
 from drqn_jax.interop.gymnasium_env import (  # noqa: E402
     UrbanPedestriansGymEnv,

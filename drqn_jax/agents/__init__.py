@@ -3,18 +3,16 @@ and the privileged planner (SPEC §9: a ceiling, not a learner)."""
 
 from drqn_jax.agents.base import Agent
 from drqn_jax.agents.drqn import drqn_agent
-from drqn_jax.agents.planner import PlannerParams, planner_agent
-from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action, rule_based_agent
+from drqn_jax.agents.planner import planner_agent
+from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_agent
 from drqn_jax.agents.simple import constant_agent, random_agent
 
 __all__ = [
     "Agent",
-    "PlannerParams",
     "RuleBasedParams",
     "constant_agent",
     "drqn_agent",
     "planner_agent",
     "random_agent",
-    "rule_based_action",
     "rule_based_agent",
 ]
