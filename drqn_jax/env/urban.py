@@ -39,20 +39,6 @@ def _opaque(params: EnvParams) -> EnvParams:
     return jax.lax.optimization_barrier(params)
 
 
-def checked_action(action: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """``(action, invalid)``: an integer action clipped into ``0 … 3`` and whether it was
-    outside (``info["invalid_action"]``); a non-integer dtype is a TypeError."""
-    action = jnp.asarray(action)
-    if not jnp.issubdtype(action.dtype, jnp.integer):
-        raise TypeError(
-            f"action: dtype {action.dtype} is not an integer; actions are 0 … "
-            f"{NUM_ACTIONS - 1} (accelerate, slow_down, brake, steer)"
-        )
-    action = action.astype(jnp.int32)
-    clipped = jnp.clip(action, 0, NUM_ACTIONS - 1)
-    return clipped, clipped != action
-
-
 StepResult = tuple[Observation, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]
 
 
@@ -81,7 +67,6 @@ class UrbanPedestrians:
         check_compatible(self.static, params)
         return params
 
-    # --- observation ---------------------------------------------------
     def observation(self, state: EnvState, params: EnvParams) -> Observation:
         """The agent's observation of ``state`` (SPEC §4)."""
         params = _opaque(params)
@@ -92,7 +77,6 @@ class UrbanPedestrians:
             last_action=state.last_action,
         )
 
-    # --- reset -----------------------------------------------------------
     def _spawn_range(self, s: jax.Array, params: EnvParams, initial: jax.Array):
         """x range of new pedestrians: around the start at reset, ahead of the ego otherwise."""
         lo = jnp.where(initial, params.spawn_initial_min, params.spawn_min)
@@ -123,19 +107,23 @@ class UrbanPedestrians:
         params = self.default_params if params is None else params
         return self.reset_env(key, params)
 
-    # --- step ------------------------------------------------------------
     def advance(
-        self,
-        state: EnvState,
-        action: jax.Array,
-        params: EnvParams,
-        hold: jax.Array | None = None,
+        self, state: EnvState, action: jax.Array, params: EnvParams, hold: jax.Array | None = None
     ) -> tuple[EnvState, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]:
         """The deterministic part of one tick (all but replacing pedestrians, SPEC §2–5):
         ``(stepped state, reward, terminated, truncated, info)``; ``hold``: see
-        :func:`~drqn_jax.env.ego.ego_step`."""
+        :func:`~drqn_jax.env.ego.ego_step`. An action outside 0 … 3 is clipped and flagged
+        ``info["invalid_action"]``; a non-integer dtype is a TypeError."""
         params = _opaque(params)
-        action, invalid = checked_action(action)
+        action = jnp.asarray(action)
+        if not jnp.issubdtype(action.dtype, jnp.integer):
+            raise TypeError(
+                f"action: dtype {action.dtype} is not an integer; actions are 0 … "
+                f"{NUM_ACTIONS - 1} (accelerate, slow_down, brake, steer)"
+            )
+        unclipped = action.astype(jnp.int32)
+        action = jnp.clip(unclipped, 0, NUM_ACTIONS - 1)
+        invalid = action != unclipped
         ego = ego_step(state.ego, action, params, hold)
         peds = step_pedestrians(state.pedestrians, ego, params)
         collided, struck = classify_hits(ego, peds, params)
@@ -190,14 +178,11 @@ class UrbanPedestrians:
         self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
     ) -> tuple[EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
         """One decision without auto-reset: ``action`` held for k = ``decision_steps``
-        ticks (SPEC §2). Returns ``(state, reward, terminated, truncated, info)``:
-        the rewards summed over the ticks played; the episode ends at the tick a
-        collision or the goal happens (no further ticks) and truncates at ``max_steps``
-        ticks. With k = 1 this is one tick. With k > 1 the tick keys are
-        ``split(key, k)``; ``info`` holds the last played tick's measurements, with
-        ``collision``, ``goal`` and ``struck_while_stopped`` over all played ticks and
-        ``ttc`` their least, and ``info["ticks"]`` every tick's: leaves (k,), ``played``
-        (k,) bool marking the ticks the episode lasted."""
+        ticks (SPEC §2), ``(state, reward summed over the ticks played, terminated,
+        truncated, info)``; no tick after a collision or the goal. With k > 1 the tick
+        keys are ``split(key, k)``; ``info`` is the last played tick's, with
+        ``collision``, ``goal``, ``struck_while_stopped`` over all played ticks, ``ttc``
+        their least, and ``info["ticks"]`` every tick's: leaves (k,), ``played`` (k,)."""
         k = self.static.decision_steps
         if k == 1:
             return self._tick(key, state, action, params)
@@ -211,14 +196,10 @@ class UrbanPedestrians:
             def keep(a, b):
                 return jnp.where(live, a, b)
 
-            merged = dict(
-                jax.tree.map(keep, now, info),
-                collision=info["collision"] | (live & now["collision"]),
-                goal=info["goal"] | (live & now["goal"]),
-                struck_while_stopped=info["struck_while_stopped"]
-                | (live & now["struck_while_stopped"]),
-                ttc=keep(jnp.minimum(info["ttc"], now["ttc"]), info["ttc"]),
-            )
+            merged = jax.tree.map(keep, now, info)
+            for flag in ("collision", "goal", "struck_while_stopped"):
+                merged[flag] = info[flag] | (live & now[flag])
+            merged["ttc"] = keep(jnp.minimum(info["ttc"], now["ttc"]), info["ttc"])
             carry = (
                 jax.tree.map(keep, ticked, state),
                 ended | term | trunc,
@@ -265,7 +246,6 @@ class UrbanPedestrians:
         info = dict(info, final_state=final, final_observation=self.observation(final, params))
         return self.observation(next_state, params), next_state, r, terminated, truncated, info
 
-    # --- spaces ----------------------------------------------------------
     def action_space(self, params: EnvParams | None = None) -> spaces.Discrete:
         """``Discrete(4)``: accelerate, slow_down, brake, steer."""
         return spaces.Discrete(NUM_ACTIONS)
