@@ -86,15 +86,8 @@ class GridInputs:
 
     @classmethod
     def of(cls, ego: EgoState, peds: PedestrianState) -> GridInputs:
-        return cls(
-            s=ego.s,
-            v=ego.v,
-            position=peds.position,
-            velocity=peds.velocity,
-            heading=peds.heading,
-            speed=peds.speed,
-            visible=peds.visible,
-        )
+        fields = ("position", "velocity", "heading", "speed", "visible")
+        return cls(s=ego.s, v=ego.v, **{name: getattr(peds, name) for name in fields})
 
     @classmethod
     def empty(cls, num_pedestrians: int) -> GridInputs:

@@ -61,14 +61,13 @@ class StaticEnvParams:
     def __post_init__(self) -> None:
         counts = ("num_pedestrians", "num_intersections", "grid_rows", "grid_cols")
         check_counts(self, (*counts, "max_steps", "decision_steps", "pid_window"))
-        for name in ("cell_size", "ttc_horizon", "ttc_step"):
-            value = getattr(self, name)
-            if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"StaticEnvParams.{name} = {value!r}: must be a number > 0")
-        for name in ("grid_x_min", "grid_y_min"):
-            value = getattr(self, name)
-            if not isinstance(value, int | float) or not math.isfinite(value):
-                raise ValueError(f"StaticEnvParams.{name} = {value!r}: must be a finite number")
+        for name in ("cell_size", "ttc_horizon", "ttc_step", "grid_x_min", "grid_y_min"):
+            value, rule = getattr(self, name), "" if name.startswith("grid_") else " > 0"
+            number = isinstance(value, int | float) and math.isfinite(value)
+            if not number or (rule and value <= 0):
+                raise ValueError(
+                    f"StaticEnvParams.{name} = {value!r}: must be a finite number{rule}"
+                )
         if self.ttc_step > self.ttc_horizon:
             raise ValueError(
                 f"StaticEnvParams.ttc_step = {self.ttc_step!r}: must be <= ttc_horizon "
@@ -106,13 +105,9 @@ class EnvParams:
     ego_start_s: float = param(5.0, doc="m; arc length of the box centre at reset")
     setpoint_step: float = param(1.0 * KMH, low=0.0, doc="m/s; +-1 km/h per action")
     setpoint_mode: int = param("measured", choices=SETPOINT_MODES)
-    setpoint_change: int = param(
-        "decision",
-        choices=SETPOINT_CHANGES,
-        doc="with decision_steps > 1, accelerate / slow_down / steer set the setpoint "
-        "'decision': once, at a decision's first tick (the authors' 1-fps code), or 'tick': "
-        "at every tick (SPEC §2)",
-    )
+    # k > 1: accelerate / slow_down / steer set the setpoint once, at a decision's first tick
+    # ("decision", the authors' 1-fps code), or at every tick ("tick"; SPEC §2)
+    setpoint_change: int = param("decision", choices=SETPOINT_CHANGES)
     pid_kp: float = param(1.0, low=0.0, doc="per km/h of error")
     pid_ki: float = param(0.05, low=0.0, doc="per km/h·s")
     pid_kd: float = param(0.0, low=0.0, doc="per km/h/s")
@@ -147,16 +142,10 @@ class EnvParams:
     despawn_behind: float = param(5.0, low=0.0, doc="m behind the ego's rear")
     despawn_ahead: float = param(45.0, low=0.0, doc="m ahead of the ego centre")
     ped_clearance: float = param(0.2, low=0.0, doc="m; footprint inflation pedestrians respect")
-    ped_behaviour_to_car: int = param(
-        "ignore",
-        choices=PED_BEHAVIOURS_TO_CAR,
-        doc="'ignore': walks its path regardless of the car, as the authors' CARLA walkers "
-        "(the paper's world); 'yield': waits while its next position would overlap the ego, "
-        "at most ped_wait_max_s (SPEC §3)",
-    )
-    ped_wait_max_s: float = param(
-        5.0, low=0.0, doc="s; longest a yielding pedestrian waits for the car (CARLA: 5 s)"
-    )
+    # "ignore": walk the path regardless of the car (the authors' CARLA walkers, the paper's
+    # world); "yield": wait, at most ped_wait_max_s, rather than overlap the ego (SPEC §3)
+    ped_behaviour_to_car: int = param("ignore", choices=PED_BEHAVIOURS_TO_CAR)
+    ped_wait_max_s: float = param(5.0, low=0.0, doc="s; longest yielding wait (CARLA: 5 s)")
     gap_acceptance: int = param(0, low=0, high=1, doc="1: wait at the kerb for the ego")
     wait_distance: float = param(10.0, low=0.0, doc="m; gap acceptance distance")
     wait_time: float = param(3.0, low=0.0, doc="s; gap acceptance time to arrive")
@@ -165,22 +154,15 @@ class EnvParams:
     semantic_channel: int = param("pedestrian", choices=SEMANTIC_CHANNELS)
     speed_norm_pedestrian: float = param(2.0, low=0.0, low_open=True, doc="m/s")
     speed_norm_relative: float = param(6.0, low=0.0, low_open=True, doc="m/s")
-    occlusion_prob: float = param(
-        0.0,
-        low=0.0,
-        high=1.0,
-        doc="per pedestrian and step: left out of the grid (partial observability; paper: 0)",
-    )
+    # per pedestrian and step: left out of the grid (partial observability; paper: 0)
+    occlusion_prob: float = param(0.0, low=0.0, high=1.0)
     # --- Reward and TTC (SPEC §5) --------------------------------------
     v_ref: float = param(15.0 * KMH, low=0.0, low_open=True, doc="m/s; speed limit")
     stopped_speed: float = param(0.1, low=0.0, doc="m/s; below it the ego counts as stopped")
     ttc_threshold: float = param(3.0, low=0.0, doc="s; near-collision when TTC <= it")
-    collision_model: int = param(
-        "authors",
-        choices=COLLISION_MODELS,
-        doc="'contact': box and disc overlap; 'authors': a pedestrian on the ego's lane "
-        "within -2.2..3.5 m along and 2.2 m across the ego's centre (carla-gym; SPEC §5)",
-    )
+    # "contact": box and disc overlap; "authors": a pedestrian on the ego's lane within
+    # -2.2..3.5 m along and 2.2 m across the ego's centre (carla-gym; SPEC §5)
+    collision_model: int = param("authors", choices=COLLISION_MODELS)
     authors_zone_back: float = param(2.2, low=0.0, doc="m behind the ego centre ('authors')")
     authors_zone_front: float = param(3.5, low=0.0, doc="m ahead of the ego centre ('authors')")
     authors_zone_half_width: float = param(2.2, low=0.0, doc="m either side ('authors')")
