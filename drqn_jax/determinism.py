@@ -72,10 +72,9 @@ def configure_xla_flags() -> None:
     os.environ["XLA_FLAGS"] = f"{flags} {DETERMINISM_FLAG}".strip()
     if started:
         warnings.warn(
-            "drqn_jax was imported after JAX had started its backend, so "
-            f"{DETERMINISM_FLAG} (no FMA contraction) is not in effect: results may differ "
-            "by an ulp with the batch size. Import drqn_jax before running any JAX "
-            f"computation, or set XLA_FLAGS={DETERMINISM_FLAG} yourself.",
+            f"drqn_jax was imported after JAX started its backend: {DETERMINISM_FLAG} (no "
+            "FMA) is not in effect, results may differ by an ulp with the batch size. Import "
+            f"drqn_jax first, or set XLA_FLAGS={DETERMINISM_FLAG}.",
             RuntimeWarning,
             stacklevel=3,
         )

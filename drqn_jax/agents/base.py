@@ -1,9 +1,5 @@
-"""The agent interface of every policy.
-
-An :class:`Agent` is a pytree: ``params`` are traced leaves, its functions static,
-so ``jit`` compiles one program per kind of agent and reuses it for new weights.
-``act`` gets the true simulator ``state`` too, which only privileged baselines read.
-"""
+"""The agent interface of every policy: a pytree whose ``params`` are traced leaves and
+functions static, so ``jit`` compiles one program per kind of agent, reused for new weights."""
 
 from __future__ import annotations
 
@@ -33,10 +29,9 @@ def no_carry(params: Any, key: jax.Array) -> tuple[()]:
 @pytree_dataclass(meta_fields=("name", "init_fn", "act_fn", "every_tick"))
 class Agent:
     """A policy: ``init_fn(params, key) -> carry`` and ``act_fn(params, key, obs, carry,
-    state, env, env_params) -> (() int32 action, carry)``; ``name`` is for reports.
-    ``every_tick``: the policy decides at every tick of ``dt`` in any world (the
-    rule-based agent and the planner: the yardstick, SPEC §9), whatever the world's
-    ``decision_steps``."""
+    state, env, env_params) -> (() int32 action, carry)``, the true ``state`` read only by
+    privileged baselines; ``name`` is for reports. ``every_tick``: it decides at every tick
+    of ``dt`` whatever the world's ``decision_steps`` (the yardsticks, SPEC §9)."""
 
     params: Any
     name: str

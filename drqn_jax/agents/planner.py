@@ -26,13 +26,9 @@ CANDIDATES = (ACCELERATE, STEER, SLOW_DOWN)
 class PlannerParams:
     """The planner's settings (SPEC §9); ``horizon_steps`` is static (a scan length)."""
 
-    v_cap: float = param(
-        15.0 * KMH, low=0.0, low_open=True, doc="m/s; the speed cap (at most the limit)"
-    )
+    v_cap: float = param(15.0 * KMH, low=0.0, low_open=True, doc="m/s; the speed cap")
     speed_band: float = param(1.0 * KMH, low=0.0, doc="m/s; keep speed within ±band of v_cap")
-    horizon_steps: int = param(
-        20, low=1, high=100, doc="decision steps played forward per candidate (20: 2 s)"
-    )
+    horizon_steps: int = param(20, low=1, high=100, doc="steps played per candidate (2 s)")
 
     def __post_init__(self) -> None:
         validate(self)

@@ -35,12 +35,9 @@ class RuleBasedParams:
     speed_band: float = param(1.0 * KMH, low=0.0, doc="m/s; steer within ±band of v_max")
     lookahead: float = param(7.0, low=0.0, doc="m ahead of the front bumper")
     corridor_margin: float = param(0.5, low=0.0, doc="m added to half width + ped radius")
-    horizon: float = param(
-        0.0,
-        low=0.0,
-        doc="s; also brake for a pedestrian entering the corridor ahead within this time "
-        "at its current velocity (0: the paper's rule, only pedestrians already in it)",
-    )
+    # s; also brake for a pedestrian entering the corridor ahead within this time at its
+    # current velocity (0: the paper's rule, only pedestrians already in it)
+    horizon: float = param(0.0, low=0.0)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -89,21 +86,14 @@ def must_brake(
     return now | ((rb.horizon > 0.0) & soon)
 
 
-def _action(
-    s: jax.Array,
-    v: jax.Array,
-    position: jax.Array,
-    velocity: jax.Array,
-    env_params: EnvParams,
-    rb,
-    static,
-) -> jax.Array:
+def _action(g: GridInputs, env_params: EnvParams, rb: RuleBasedParams, static) -> jax.Array:
+    """() int32: ``brake`` if :func:`must_brake`, else track ``v_max`` (``g``: one record)."""
     track = jnp.where(
-        v < rb.v_max - rb.speed_band,
+        g.v < rb.v_max - rb.speed_band,
         ACCELERATE,
-        jnp.where(v > rb.v_max + rb.speed_band, SLOW_DOWN, STEER),
+        jnp.where(g.v > rb.v_max + rb.speed_band, SLOW_DOWN, STEER),
     )
-    brake = must_brake(s, position, env_params, rb, static, velocity, v)
+    brake = must_brake(g.s, g.position, env_params, rb, static, g.velocity, g.v)
     return jnp.where(brake, BRAKE, track).astype(jnp.int32)
 
 
@@ -111,9 +101,7 @@ def rule_based_action(
     state: EnvState, env_params: EnvParams, rb: RuleBasedParams, static
 ) -> jax.Array:
     """() int32 action of the rule-based agent for one environment."""
-    ego = state.ego
-    peds = state.pedestrians
-    return _action(ego.s, ego.v, peds.position, peds.velocity, env_params, rb, static)
+    return _action(GridInputs.of(state.ego, state.pedestrians), env_params, rb, static)
 
 
 def rule_based_labels(
@@ -123,10 +111,7 @@ def rule_based_labels(
     every pedestrian, visible or not, as the true state does)."""
     lead = records.s.shape
     flat = jax.tree.map(lambda x: x.reshape((-1, *x.shape[len(lead) :])), records)
-    actions = jax.vmap(_action, (0, 0, 0, 0, None, None, None))(
-        flat.s, flat.v, flat.position, flat.velocity, env_params, rb, static
-    )
-    return actions.reshape(lead)
+    return jax.vmap(_action, (0, None, None, None))(flat, env_params, rb, static).reshape(lead)
 
 
 def _act(params, key, obs, carry, state, env, env_params):

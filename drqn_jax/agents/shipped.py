@@ -1,11 +1,6 @@
-"""Trained agents shipped with the package, so that a result can be tried without
-training: ``drqn-jax evaluate --agent NAME`` and ``replay --agent NAME``.
-
-Each is a directory ``trained/<NAME>/`` as ``drqn-jax export`` writes it: ``config.toml``,
-``agent.npz``/``agent.json`` (the agent's parameters alone, with the config's training hash)
-and ``provenance.json`` (commit, command, machine, env steps and wall time of the training);
-it reads like a sweep's trained agent (``OUT/agents/run-NNNN``).
-"""
+"""Trained agents shipped with the package (``drqn-jax evaluate --agent NAME``, ``replay
+--agent NAME``): each a directory ``trained/<NAME>/`` as ``drqn-jax export`` writes it
+(``config.toml``, ``agent.npz``/``agent.json``, ``provenance.json``)."""
 
 from __future__ import annotations
 
@@ -18,8 +13,7 @@ TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 
 
 def shipped_agents() -> tuple[str, ...]:
-    """The names of the shipped agents, sorted (directories of :data:`TRAINED_DIR`
-    holding ``agent.npz``)."""
+    """The shipped agents' names, sorted (directories of :data:`TRAINED_DIR` with ``agent.npz``)."""
     if not TRAINED_DIR.is_dir():
         return ()
     return tuple(sorted(p.parent.name for p in TRAINED_DIR.glob("*/agent.npz")))

@@ -26,13 +26,11 @@ def random_agent() -> Agent:
 
 def constant_agent(action: int = ACCELERATE) -> Agent:
     """Always the same action (``ACCELERATE`` by default: "always-accelerate")."""
-    if isinstance(action, str):
-        if action not in ACTIONS:
-            raise ValueError(f"constant_agent: action {action!r} must be one of {ACTIONS}")
-        action = ACTIONS.index(action)
+    action = ACTIONS.index(action) if action in ACTIONS else action
     if not isinstance(action, int) or not 0 <= action < NUM_ACTIONS:
         raise ValueError(
-            f"constant_agent: action = {action!r}, allowed 0 <= action < {NUM_ACTIONS}"
+            f"constant_agent: action = {action!r}, allowed 0 <= action < {NUM_ACTIONS} "
+            f"or one of {ACTIONS}"
         )
     return Agent(
         params=jnp.asarray(action, jnp.int32),
