@@ -26,7 +26,6 @@ from drqn_jax.networks import Network
 from drqn_jax.pytree import pytree_dataclass, tree_where
 
 __all__ = [
-    "OnPolicyState",
     "epsilon_of",
     "init_fields",
     "make_on_policy",
@@ -36,7 +35,6 @@ __all__ = [
     "record_episodes",
     "restarted",
     "rollout",
-    "run_updates",
 ]
 
 #: Per-episode metrics of every learner and task; a learner adds its own (the
@@ -251,18 +249,6 @@ def minibatch_epochs(
     )
 
 
-def run_updates(update: Callable[[Any], Any]) -> Callable[[Any, int], Any]:
-    """``run(state, num_iterations)`` scanning ``update``; no-ops once finished."""
-
-    def run(state: Any, num_iterations: int) -> Any:
-        def body(state, _):
-            return jax.lax.cond(state.finished, lambda s: s, update, state), None
-
-        return jax.lax.scan(body, state, None, length=num_iterations)[0]
-
-    return run
-
-
 @pytree_dataclass
 class OnPolicyState:
     """Everything a PPO or PQN run carries between updates (and checkpoints); per-env
@@ -324,4 +310,12 @@ def make_on_policy(
         state, traj = rollout(config, task, policy, transition, state)
         return learn(state, traj, carry0)
 
-    return make_trainer(config, task, agent, init, act, run_updates(update))
+    def run(state: OnPolicyState, num_iterations: int) -> OnPolicyState:
+        """``num_iterations`` updates; no-ops once finished."""
+
+        def body(state, _):
+            return jax.lax.cond(state.finished, lambda s: s, update, state), None
+
+        return jax.lax.scan(body, state, None, length=num_iterations)[0]
+
+    return make_trainer(config, task, agent, init, act, run)
