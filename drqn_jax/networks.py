@@ -50,15 +50,7 @@ CELLS = ("lstm", "gru")
 #: What reads the observation: Table I's conv stack (grids) or an MLP (flat vectors).
 TORSOS = ("conv", "mlp")
 
-__all__ = [
-    "CELLS",
-    "NETWORK_KINDS",
-    "Network",
-    "NetworkConfig",
-    "conv_torso",
-    "make_network",
-    "param_count",
-]
+__all__ = ["CELLS", "NETWORK_KINDS", "Network", "NetworkConfig", "conv_torso", "make_network"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -313,8 +305,3 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         step=step,
         unroll=unroll,
     )
-
-
-def param_count(params: Params) -> int:
-    """Number of scalars in a parameter pytree."""
-    return sum(int(x.size) for x in jax.tree.leaves(params))
