@@ -285,11 +285,15 @@ def load_config(
     return config
 
 
+def _env_base(env_id: str) -> dict[str, Any]:
+    """Every env field of ``env_id``'s preset (the schema's defaults under it)."""
+    return {**{n: f.default for n, f in SCHEMA["env"].items()}, **preset(env_id)}
+
+
 def _follow_new_preset(env: dict[str, Any], old_id: str, overridden: set[str]) -> None:
     """An override of ``env.id`` brings the new id's preset: drop the env fields that only
     repeat ``old_id``'s (a resolved ``config.toml`` holds every field)."""
-    old = {n: f.default for n, f in SCHEMA["env"].items()}
-    old.update(preset(old_id))
+    old = _env_base(old_id)
     for name in [n for n in env if n != "id" and n not in overridden]:
         if env[name] == old[name]:
             del env[name]
@@ -308,8 +312,7 @@ class Config:
     # -- building the objects -------------------------------------------------
     def env_overrides(self) -> dict[str, Any]:
         """``make`` keyword arguments: every env field that differs from the preset."""
-        base = {n: f.default for n, f in SCHEMA["env"].items()}
-        base.update(preset(self["env"]["id"]))
+        base = _env_base(self["env"]["id"])
         return {n: v for n, v in self["env"].items() if n != "id" and v != base[n]}
 
     def make_env(self) -> tuple[UrbanPedestrians, EnvParams]:
@@ -360,9 +363,9 @@ class Config:
         if evaluate["episodes"] < 1:
             raise ConfigError(f"evaluate.episodes = {evaluate['episodes']}: must be >= 1")
         if evaluate["batch_size"] < 0 or 0 < evaluate["batch_size"] < MIN_BATCH:
+            size = evaluate["batch_size"]  # smaller batches round the products differently
             raise ConfigError(
-                f"evaluate.batch_size = {evaluate['batch_size']}: must be 0 (all at once) or "
-                f">= {MIN_BATCH} (smaller batches round the network's products differently)"
+                f"evaluate.batch_size = {size}: must be 0 (all at once) or >= {MIN_BATCH}"
             )
         try:
             env, _ = self.make_env()
@@ -373,21 +376,16 @@ class Config:
             raise ConfigError(_in_config_words(str(err))) from None
         cap, limit = self["planner"]["v_cap"], self["env"]["v_ref"]
         if cap > limit:
-            raise ConfigError(
-                f"planner.v_cap = {cap}: must be <= env.v_ref = {limit} (m/s; the speed limit)"
-            )
+            raise ConfigError(f"planner.v_cap = {cap}: must be <= env.v_ref = {limit} (m/s)")
         if train["algorithm"] in ON_POLICY:  # no replay: its sizes are unused
             return
-        max_steps = env.static.max_steps
-        if train["window"] > max_steps:
+        window, max_steps = train["window"], env.static.max_steps
+        if window > max_steps:
+            raise ConfigError(f"train.window = {window}: must be <= env.max_steps ({max_steps})")
+        batch, replay = train["batch_size"], train["replay_episodes"]
+        if batch > replay:
             raise ConfigError(
-                f"train.window = {train['window']}: must be <= env.max_steps ({max_steps}); "
-                "a window longer than an episode"
-            )
-        if train["batch_size"] > train["replay_episodes"]:
-            raise ConfigError(
-                f"train.batch_size = {train['batch_size']}: must be <= train.replay_episodes "
-                f"({train['replay_episodes']}); a minibatch draws its windows from the replay"
+                f"train.batch_size = {batch}: must be <= train.replay_episodes ({replay})"
             )
 
     # -- output ---------------------------------------------------------------

@@ -26,7 +26,6 @@ __all__ = [
     "kernel_matrix",
     "lstm_cell",
     "lstm_init",
-    "matmul",
     "patches",
     "recurrent_layer",
     "stack_sequence",

@@ -40,6 +40,7 @@ from drqn_jax.layers import (
     stacked,
 )
 from drqn_jax.programs import cached_program
+from drqn_jax.pytree import check_counts
 
 Carry = Any
 
@@ -49,17 +50,7 @@ CELLS = ("lstm", "gru")
 #: What reads the observation: Table I's conv stack (grids) or an MLP (flat vectors).
 TORSOS = ("conv", "mlp")
 
-__all__ = [
-    "CELLS",
-    "NETWORK_KINDS",
-    "TORSOS",
-    "Network",
-    "NetworkConfig",
-    "conv_torso",
-    "make_network",
-    "mlp_torso",
-    "param_count",
-]
+__all__ = ["CELLS", "NETWORK_KINDS", "Network", "NetworkConfig", "conv_torso", "make_network"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,28 +89,20 @@ class NetworkConfig:
                 raise ValueError(f"NetworkConfig.{name} = {value!r}: must be one of {choices}")
         if self.cell != "lstm" and self.kind != "drqn":
             raise ValueError(
-                f"NetworkConfig.cell = {self.cell!r}: a cell is for kind 'drqn' (kind "
-                f"{self.kind!r} has none); use 'lstm'"
+                f"NetworkConfig.cell = {self.cell!r}: a cell is for kind 'drqn'; use 'lstm'"
             )
-        if self.torso == "mlp":
-            if self.obs_size < 1 or any(not isinstance(w, int) or w < 1 for w in self.mlp):
-                raise ValueError(
-                    f"NetworkConfig.mlp = {self.mlp!r}, obs_size = {self.obs_size!r}: the MLP "
-                    "torso needs integer widths >= 1 and a flat observation of >= 1 floats"
-                )
-            if self.frames > 1:
-                raise ValueError(
-                    f"NetworkConfig.frames = {self.frames}: stacking is for grids (torso "
-                    "'conv'); use 1"
-                )
-        for name in ("recurrent", "hidden", "frames", "num_actions", "scan_unroll"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"NetworkConfig.{name} = {value!r}: must be an integer >= 1")
-        if self.frames > 1 and self.kind != "dqn":
+        if self.torso == "mlp" and (
+            self.obs_size < 1 or any(not isinstance(w, int) or w < 1 for w in self.mlp)
+        ):
+            raise ValueError(
+                f"NetworkConfig.mlp = {self.mlp!r}, obs_size = {self.obs_size!r}: the MLP "
+                "torso needs integer widths >= 1 and a flat observation of >= 1 floats"
+            )
+        check_counts(self, ("recurrent", "hidden", "frames", "num_actions", "scan_unroll"))
+        if self.frames > 1 and (self.kind != "dqn" or self.torso != "conv"):
             raise ValueError(
                 f"NetworkConfig.frames = {self.frames}: stacking grids is for kind 'dqn' "
-                f"(kind {self.kind!r} remembers through its LSTMs); use 1"
+                "with torso 'conv'; use 1"
             )
         if self.torso == "conv" and any(min(layer) < 1 for layer in self.conv):
             raise ValueError(f"NetworkConfig.conv = {self.conv!r}: all sizes must be >= 1")
@@ -322,8 +305,3 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         step=step,
         unroll=unroll,
     )
-
-
-def param_count(params: Params) -> int:
-    """Number of scalars in a parameter pytree."""
-    return sum(int(x.size) for x in jax.tree.leaves(params))

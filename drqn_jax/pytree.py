@@ -45,9 +45,6 @@ def pytree_dataclass(cls: type[T] | None = None, *, meta_fields: Sequence[str] =
             children = tuple((k, getattr(obj, n)) for k, n in zip(keys, data, strict=True))
             return children, tuple(getattr(obj, n) for n in meta)
 
-        def flatten(obj):
-            return tuple(getattr(obj, n) for n in data), tuple(getattr(obj, n) for n in meta)
-
         def unflatten(aux, children):
             obj = object.__new__(cls)
             for n, v in zip(data, children, strict=True):
@@ -56,7 +53,7 @@ def pytree_dataclass(cls: type[T] | None = None, *, meta_fields: Sequence[str] =
                 object.__setattr__(obj, n, v)
             return obj
 
-        jax.tree_util.register_pytree_with_keys(cls, flatten_with_keys, unflatten, flatten)
+        jax.tree_util.register_pytree_with_keys(cls, flatten_with_keys, unflatten)
         cls.replace = lambda self, **kw: dataclasses.replace(self, **kw)  # type: ignore[attr-defined]
         return cls
 

@@ -9,7 +9,7 @@ import pytest
 
 from drqn_jax.env.state import Observation
 from drqn_jax.layers import gru_cell
-from drqn_jax.networks import NetworkConfig, conv_torso, make_network, param_count
+from drqn_jax.networks import NetworkConfig, conv_torso, make_network
 from tests.helpers import fast_jit, flat_random
 
 
@@ -54,7 +54,7 @@ def test_parameter_count(drqn):
     lstm1 = (64 + 256) * 4 * 256 + 4 * 256
     lstm2 = (256 + 1 + 4 + 256) * 4 * 256 + 4 * 256
     head = (256 * 256 + 256) + (256 * 4 + 4)
-    assert param_count(params) == conv + lstm1 + lstm2 + head == 973_220
+    assert sum(x.size for x in jax.tree.leaves(params)) == conv + lstm1 + lstm2 + head == 973_220
 
 
 def test_forget_bias_is_one(drqn):

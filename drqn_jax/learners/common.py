@@ -6,6 +6,7 @@ learners' state, rollout, minibatch epochs and trainer.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from typing import Any, ClassVar
@@ -26,7 +27,7 @@ from drqn_jax.networks import Network
 from drqn_jax.pytree import pytree_dataclass, tree_where
 
 __all__ = [
-    "OnPolicyState",
+    "LearnerState",
     "epsilon_of",
     "init_fields",
     "make_on_policy",
@@ -36,7 +37,6 @@ __all__ = [
     "record_episodes",
     "restarted",
     "rollout",
-    "run_updates",
 ]
 
 #: Per-episode metrics of every learner and task; a learner adds its own (the
@@ -52,12 +52,6 @@ def per_decision(hp: Hyperparams, task: Task) -> Hyperparams:
     if k == 1:
         return hp
     return hp.replace(gamma=hp.gamma**k, gae_lambda=hp.gae_lambda**k, q_lambda=hp.q_lambda**k)
-
-
-def budget_met(state: Any) -> jax.Array:
-    """() bool: all ``num_episodes`` recorded, or ``step_budget`` (0: none) steps taken."""
-    by_steps = (state.step_budget > 0) & (state.env_steps >= state.step_budget)
-    return (state.recorded >= state.metrics["length"].shape[-1]) | by_steps
 
 
 def optimizer_of(
@@ -251,22 +245,11 @@ def minibatch_epochs(
     )
 
 
-def run_updates(update: Callable[[Any], Any]) -> Callable[[Any, int], Any]:
-    """``run(state, num_iterations)`` scanning ``update``; no-ops once finished."""
-
-    def run(state: Any, num_iterations: int) -> Any:
-        def body(state, _):
-            return jax.lax.cond(state.finished, lambda s: s, update, state), None
-
-        return jax.lax.scan(body, state, None, length=num_iterations)[0]
-
-    return run
-
-
-@pytree_dataclass
-class OnPolicyState:
-    """Everything a PPO or PQN run carries between updates (and checkpoints); per-env
-    leaves (N, …), ``online`` the network's parameters, ``done`` (N,) restarts the carry."""
+@dataclasses.dataclass(frozen=True)
+class LearnerState:
+    """The fields every learner's state carries between iterations (and checkpoints):
+    per-env leaves (N, …), ``online`` the network's parameters, ``metrics``
+    (num_episodes,) per name; ``finished`` once either budget is met."""
 
     key: jax.Array
     hparams: Hyperparams
@@ -274,26 +257,34 @@ class OnPolicyState:
     env_state: Any
     obs: Any
     carry: Any
-    done: jax.Array
     online: Any
     opt_state: Any
-    episode: jax.Array
+    episode: jax.Array  # (N,) int32 index of each env's current episode
     ep_return: jax.Array
     ep_length: jax.Array
     ep_loss_sum: jax.Array
     ep_loss_count: jax.Array
     episodes_started: jax.Array
-    recorded: jax.Array
+    recorded: jax.Array  # () int32 training episodes whose metrics are written
     grad_steps: jax.Array
     env_steps: jax.Array
     step_budget: jax.Array  # () int32 TrainConfig.num_env_steps (0: none)
     metrics: dict[str, jax.Array]
-    #: The protocol's candidates' validation metrics: none, no snapshot is selected.
-    validation: ClassVar[None] = None
 
     @property
     def finished(self) -> jax.Array:
-        return budget_met(self)
+        """() bool: all ``num_episodes`` recorded, or ``step_budget`` (0: none) steps taken."""
+        by_steps = (self.step_budget > 0) & (self.env_steps >= self.step_budget)
+        return (self.recorded >= self.metrics["length"].shape[-1]) | by_steps
+
+
+@pytree_dataclass
+class OnPolicyState(LearnerState):
+    """A PPO or PQN run's state; ``done`` (N,) restarts the carry."""
+
+    done: jax.Array
+    #: The protocol's candidates' validation metrics: none, no snapshot is selected.
+    validation: ClassVar[None] = None
 
 
 def make_on_policy(
@@ -324,4 +315,12 @@ def make_on_policy(
         state, traj = rollout(config, task, policy, transition, state)
         return learn(state, traj, carry0)
 
-    return make_trainer(config, task, agent, init, act, run_updates(update))
+    def run(state: OnPolicyState, num_iterations: int) -> OnPolicyState:
+        """``num_iterations`` updates; no-ops once finished."""
+
+        def body(state, _):
+            return jax.lax.cond(state.finished, lambda s: s, update, state), None
+
+        return jax.lax.scan(body, state, None, length=num_iterations)[0]
+
+    return make_trainer(config, task, agent, init, act, run)

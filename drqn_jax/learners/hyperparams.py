@@ -19,7 +19,6 @@ from drqn_jax.networks import NetworkConfig
 from drqn_jax.pytree import check_counts, check_sums_to_one, param, pytree_dataclass, validate
 
 __all__ = [
-    "ALGORITHMS",
     "CLIP_MODES",
     "IMITATION_STATES",
     "LEARNED_AGENTS",
@@ -55,119 +54,55 @@ ON_POLICY = ("ppo", "pqn")
 
 @pytree_dataclass
 class Hyperparams:
-    """Traced training hyperparameters (paper Table II; SPEC §7)."""
+    """Traced training hyperparameters (paper Table II; SPEC §7); "0 = the paper"
+    marks an extension off by default."""
 
     learning_rate: float = param(1e-3, low=0.0, low_open=True)
-    learning_rate_end: float = param(
-        1.0, low=0.0, high=1.0, doc="learning_rate's fraction at the end (linear); 1 = the paper"
-    )
+    learning_rate_end: float = param(1.0, low=0.0, high=1.0, doc="end fraction (linear)")
     adam_b1: float = param(0.9, low=0.0, high=1.0, high_open=True)
     adam_b2: float = param(0.999, low=0.0, high=1.0, high_open=True)
     adam_eps: float = param(1e-8, low=0.0, low_open=True)
     gamma: float = param(0.9, low=0.0, high=1.0)
     epsilon_start: float = param(1.0, low=0.0, high=1.0)
     epsilon_end: float = param(0.1, low=0.0, high=1.0)
-    epsilon_fraction: float = param(
-        1.0,
-        low=0.0,
-        high=1.0,
-        low_open=True,
-        doc="share of the training episodes over which ε falls to epsilon_end, then "
-        "stays (SB3's exploration_fraction); 1 = the paper: over all of them",
-    )
+    # share of the episodes over which ε falls, then stays (SB3's exploration_fraction)
+    epsilon_fraction: float = param(1.0, low=0.0, high=1.0, low_open=True)
     explore_bias_fraction: float = param(0.1, low=0.0, high=1.0)
     explore_accelerate: float = param(0.4, low=0.0, high=1.0)
     explore_slow_down: float = param(0.1, low=0.0, high=1.0)
     explore_brake: float = param(0.1, low=0.0, high=1.0)
     explore_steer: float = param(0.4, low=0.0, high=1.0)
-    explore_guide: float = param(
-        0.0, low=0.0, high=1.0, doc="rule-based agent's share of exploratory actions; 0 = the paper"
-    )
+    # the rule-based agent's share of exploratory actions
+    explore_guide: float = param(0.0, low=0.0, high=1.0)
     target_period: int = param(10_000, low=1, doc="gradient steps between target copies")
     learning_starts: int = param(4, low=1, doc="complete episodes in replay before learning")
     clip: int = param("huber", choices=CLIP_MODES)
-    window_start: int = param(
-        "inside",
-        choices=WINDOW_STARTS,
-        doc="where a replay window may start: 'inside' the episode (SPEC §7; its last "
-        "steps are in fewer windows) or 'anywhere', padded past its end",
-    )
-    imitation_weight: float = param(
-        0.0,
-        low=0.0,
-        doc="weight of a large-margin term (DQfD) pulling the greedy action toward the "
-        "rule-based agent's (SPEC §6) in the replayed states of imitation_states; 0 = the paper",
-    )
-    imitation_margin: float = param(
-        1.0, low=0.0, low_open=True, doc="the margin l by which the expert's Q must lead"
-    )
-    imitation_states: int = param(
-        "brake",
-        choices=IMITATION_STATES,
-        doc="where the imitation term applies: states where the rule-based agent 'brake's "
-        "(a pedestrian in its corridor) or 'all' states",
-    )
-    imitation_lookahead: float = param(
-        7.0, low=0.0, doc="m: the imitated rule-based agent's look-ahead (SPEC §6: 7)"
-    )
-    imitation_corridor_margin: float = param(
-        0.5, low=0.0, doc="m: the imitated rule-based agent's corridor margin (SPEC §6: 0.5)"
-    )
-    imitation_v_max: float = param(
-        15.0 * KMH,
-        low=0.0,
-        low_open=True,
-        doc="m/s: the speed the imitated rule-based agent tracks (SPEC §6: 15 km/h)",
-    )
-    imitation_horizon: float = param(
-        0.0,
-        low=0.0,
-        doc="s: the imitated rule-based agent also brakes for a pedestrian walking into its "
-        "corridor within this time (RuleBasedParams.horizon; 0 = SPEC §6's rule)",
-    )
-    value_rescale: int = param(
-        0,
-        low=0,
-        high=1,
-        doc="1: the networks learn h(Q), R2D2's value rescaling, with targets "
-        "h(r + γ h⁻¹(Q')) (Kapturowski et al. 2019); 0 = the paper",
-    )
-    select_by: int = param(
-        "return",
-        choices=SELECT_BY,
-        doc="with snapshots > 0, the candidate chosen on the validation episodes: the best "
-        "mean 'return', or the 'safe' one (most collision-free at select_speed_floor or faster)",
-    )
-    select_speed_floor: float = param(
-        0.0,
-        low=0.0,
-        doc="m/s: with select_by = 'safe', candidates slower than this on the validation "
-        "episodes are not chosen (none as fast: the final parameters)",
-    )
-    gae_lambda: float = param(
-        0.95, low=0.0, high=1.0, doc="ppo: λ of the generalised advantage estimates"
-    )
-    q_lambda: float = param(
-        0.95, low=0.0, high=1.0, doc="pqn: λ of the Q(λ) targets (purejaxql: 0.95)"
-    )
-    reward_scale: float = param(
-        1.0,
-        low=0.0,
-        low_open=True,
-        doc="pqn: rewards are multiplied by this in the Q(λ) targets (purejaxql's "
-        "REW_SCALE; the metrics keep the env's reward); 1 for the other learners",
-    )
-    clip_eps: float = param(
-        0.2, low=0.0, low_open=True, doc="ppo: clip range of the probability ratio and the value"
-    )
-    ent_coef: float = param(0.01, low=0.0, doc="ppo: weight of the policy's entropy bonus")
+    # 'inside' the episode (SPEC §7) or 'anywhere', padded past its end
+    window_start: int = param("inside", choices=WINDOW_STARTS)
+    # DQfD's large-margin term toward the rule-based agent's (SPEC §6) action, in the
+    # replayed states of imitation_states, its margin, and the imitated agent's settings
+    imitation_weight: float = param(0.0, low=0.0)
+    imitation_margin: float = param(1.0, low=0.0, low_open=True)
+    imitation_states: int = param("brake", choices=IMITATION_STATES)
+    imitation_lookahead: float = param(7.0, low=0.0, doc="m (SPEC §6: 7)")
+    imitation_corridor_margin: float = param(0.5, low=0.0, doc="m (SPEC §6: 0.5)")
+    imitation_v_max: float = param(15.0 * KMH, low=0.0, low_open=True, doc="m/s (15 km/h)")
+    imitation_horizon: float = param(0.0, low=0.0, doc="s (RuleBasedParams.horizon)")
+    # 1: learn h(Q) with targets h(r + γ h⁻¹(Q')), R2D2's rescaling (Kapturowski et al. 2019)
+    value_rescale: int = param(0, low=0, high=1)
+    # with snapshots > 0: the best mean 'return', or the 'safe' candidate (most
+    # collision-free at select_speed_floor m/s or faster) on the validation episodes
+    select_by: int = param("return", choices=SELECT_BY)
+    select_speed_floor: float = param(0.0, low=0.0)
+    gae_lambda: float = param(0.95, low=0.0, high=1.0, doc="ppo: λ of GAE")
+    q_lambda: float = param(0.95, low=0.0, high=1.0, doc="pqn: λ of Q(λ) (purejaxql: 0.95)")
+    # pqn: the Q(λ) targets' reward factor (purejaxql's REW_SCALE); 1 for the others
+    reward_scale: float = param(1.0, low=0.0, low_open=True)
+    clip_eps: float = param(0.2, low=0.0, low_open=True, doc="ppo: ratio and value clip")
+    ent_coef: float = param(0.01, low=0.0, doc="ppo: weight of the entropy bonus")
     vf_coef: float = param(0.5, low=0.0, doc="ppo: weight of the value loss")
-    max_grad_norm: float = param(
-        0.5,
-        low=0.0,
-        low_open=True,
-        doc="ppo, pqn: gradients are scaled down to this global norm (PureJaxRL: 0.5)",
-    )
+    # ppo, pqn: gradients scaled down to this global norm (PureJaxRL: 0.5)
+    max_grad_norm: float = param(0.5, low=0.0, low_open=True)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -234,16 +169,10 @@ def annealed(
     return hp.replace(learning_rate=hp.learning_rate * scale)
 
 
-def _field(default: Any, doc: str, choices: tuple[str, ...] | None = None) -> Any:
-    """A :class:`TrainConfig` field with its ``doc`` (and ``choices``) for the config schema."""
-    meta = {"doc": doc} if choices is None else {"doc": doc, "choices": choices}
-    return dataclasses.field(default=default, metadata=meta)
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class TrainConfig:
     """Shape-setting training settings (hashable; a change recompiles); the defaults
-    are the paper's protocol (SPEC §7).
+    are the paper's protocol (SPEC §7), "0 = the paper" an extension off.
 
     ``hyperparams`` is only the default a run starts from: ``init`` copies it (or the
     ``hparams`` it is given) into the state, which everything traced reads. Equality
@@ -253,58 +182,30 @@ class TrainConfig:
     env_id: str = "UrbanPedestrians-v0"
     env_overrides: tuple[tuple[str, Any], ...] = ()
     network: NetworkConfig = dataclasses.field(default_factory=NetworkConfig)
-    algorithm: str = _field(
-        "dqn",
-        "the learner: 'dqn' (the paper: Double-DQN on an episode replay), 'ppo' "
-        "(recurrent PPO, PureJaxRL's ppo_rnn; the replay and ε fields are unused) or "
-        "'pqn' (recurrent PQN, purejaxql's pqn_rnn: ε-greedy rollouts, Q(λ) targets, "
-        "no replay and no target network)",
-        ALGORITHMS,
-    )
+    # 'dqn' (the paper: Double DQN on an episode replay), 'ppo' (PureJaxRL's ppo_rnn)
+    # or 'pqn' (purejaxql's pqn_rnn); the last two have no replay
+    algorithm: str = dataclasses.field(default="dqn", metadata={"choices": ALGORITHMS})
     num_envs: int = 1
     num_episodes: int = 200
-    num_env_steps: int = _field(
-        0,
-        "if > 0, the run also ends after this many env steps (all envs together), "
-        "and ε and the learning rate follow the larger share of either budget; "
-        "0 = the paper: num_episodes alone",
-    )
+    # > 0: the run also ends after this many env steps (all envs), and ε and the
+    # learning rate follow the larger share of either budget
+    num_env_steps: int = 0
     replay_episodes: int = 50
     batch_size: int = 32
     window: int = 8
-    n_step: int = _field(1, "rewards summed per TD target, <= window (1 = the paper)")
-    burn_in: int = _field(
-        0,
-        "steps before each replayed window that only warm the LSTM, without "
-        "loss or gradient (R2D2's burn-in; 0 = the paper: the LSTM starts from zeros)",
-    )
-    stored_state: int = _field(
-        0,
-        "1: the replay keeps the acting LSTM's state with every observation and "
-        "each replayed window starts from it (R2D2's stored state; drqn only; 0 = the "
-        "paper: from zeros)",
-    )
+    n_step: int = 1  # rewards summed per TD target, <= window
+    burn_in: int = 0  # steps before each window that only warm the LSTM (R2D2)
+    stored_state: int = 0  # 1: windows start from the stored acting state (R2D2; drqn)
     updates_per_step: int = 1
-    chunk_iterations: int = _field(
-        1000, "iterations per host chunk: env steps (dqn) or updates (ppo)"
-    )
-    snapshots: int = _field(
-        0,
-        "parameter snapshots kept during training, the agent then chosen among them "
-        "and the final parameters on validation episodes (0 = the paper: the final ones)",
-    )
-    validation_episodes: int = _field(100, "greedy episodes per candidate when snapshots > 0")
-    rollout_steps: int = _field(128, "ppo, pqn: steps per env in each update's rollout")
-    update_epochs: int = _field(4, "ppo, pqn: passes over each rollout")
-    num_minibatches: int = _field(
-        4, "ppo, pqn: minibatches per pass, of whole env sequences; divides num_envs"
-    )
-    optimizer: str = _field(
-        "adam",
-        "'adam' (the paper's) or 'radam' (rectified Adam, purejaxql's PQN); "
-        "its settings are adam_b1, adam_b2, adam_eps",
-        OPTIMIZERS,
-    )
+    chunk_iterations: int = 1000  # per host chunk: env steps (dqn) or updates
+    # snapshots kept; the agent is chosen among them and the final parameters
+    snapshots: int = 0
+    validation_episodes: int = 100  # greedy episodes per candidate
+    rollout_steps: int = 128  # ppo, pqn: steps per env in each rollout
+    update_epochs: int = 4  # ppo, pqn: passes over each rollout
+    num_minibatches: int = 4  # ppo, pqn: of whole env sequences; divides num_envs
+    # 'adam' (the paper's) or 'radam' (purejaxql's PQN), at adam_b1, adam_b2, adam_eps
+    optimizer: str = dataclasses.field(default="adam", metadata={"choices": OPTIMIZERS})
     hyperparams: Hyperparams = dataclasses.field(default_factory=Hyperparams)
 
     def __post_init__(self) -> None:
@@ -323,14 +224,11 @@ class TrainConfig:
                 raise ValueError(f"TrainConfig.{name} = {value!r}: must be one of {choices}")
         if self.stored_state not in (0, 1) or isinstance(self.stored_state, bool):
             raise ValueError(f"TrainConfig.stored_state = {self.stored_state!r}: must be 0 or 1")
-        if not isinstance(self.snapshots, int) or isinstance(self.snapshots, bool):
-            raise ValueError(f"TrainConfig.snapshots = {self.snapshots!r}: must be an integer")
-        most = self.num_episodes // self.num_envs - 1
-        if not 0 <= self.snapshots <= most:
+        most = self.num_episodes // self.num_envs - 1  # snapshots at least num_envs apart
+        if type(self.snapshots) is not int or not 0 <= self.snapshots <= most:
             raise ValueError(
-                f"TrainConfig.snapshots = {self.snapshots}: must be in [0, {most}] "
-                f"(num_episodes // num_envs - 1): snapshots are taken at least num_envs "
-                "episodes apart, the most that end in one iteration"
+                f"TrainConfig.snapshots = {self.snapshots!r}: must be in [0, {most}], an "
+                "integer (num_episodes // num_envs - 1)"
             )
         scale = float(self.hyperparams.reward_scale)
         if self.algorithm != "pqn" and scale != 1.0:
@@ -352,26 +250,23 @@ class TrainConfig:
             )
         if self.n_step > self.window:
             raise ValueError(
-                f"TrainConfig.n_step = {self.n_step}: must be <= window ({self.window}); "
-                "an n-step target sums rewards inside one window"
+                f"TrainConfig.n_step = {self.n_step}: must be <= window ({self.window})"
             )
         if self.replay_episodes < 2 * self.num_envs:
             raise ValueError(
-                f"TrainConfig.replay_episodes = {self.replay_episodes}: must be >= 2 × num_envs "
-                f"({2 * self.num_envs}); each environment writes its own replay slots"
+                f"TrainConfig.replay_episodes = {self.replay_episodes}: must be >= 2 × "
+                f"num_envs ({2 * self.num_envs}); each env writes its own replay slots"
             )
         most_complete = self.num_envs * (self.replay_episodes // self.num_envs - 1)
         starts = int(self.hyperparams.learning_starts)
         if starts > most_complete:
             raise ValueError(
                 f"Hyperparams.learning_starts = {starts}: must be <= {most_complete}, the most "
-                f"complete episodes a replay of {self.replay_episodes} holds while "
-                f"{self.num_envs} environments write (learning would never start)"
+                "complete episodes the replay holds while its envs write"
             )
 
     def _check_on_policy(self) -> None:
-        """The rules of the learners without a replay (``ON_POLICY``): whole env
-        sequences per minibatch, none of the replay learner's options."""
+        """The rules of the learners without a replay (``ON_POLICY``)."""
         name = self.algorithm
         if self.num_envs % self.num_minibatches:
             raise ValueError(

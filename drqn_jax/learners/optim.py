@@ -13,11 +13,9 @@ import jax.numpy as jnp
 
 __all__ = [
     "OPTIMIZERS",
-    "AdamState",
     "GradientTransformation",
     "adam",
     "apply_updates",
-    "chain",
     "clip",
     "clip_by_global_norm",
     "optimizer",
@@ -153,22 +151,6 @@ def clip_by_global_norm(max_norm: float | jax.Array) -> GradientTransformation:
         return jax.tree.map(lambda g: (g * scale).astype(g.dtype), grads), state
 
     return GradientTransformation(lambda params: (), update)
-
-
-def chain(*transforms: GradientTransformation) -> GradientTransformation:
-    """Apply ``transforms`` in order (optax.chain)."""
-
-    def init(params: Params) -> tuple:
-        return tuple(t.init(params) for t in transforms)
-
-    def update(grads: Params, state: tuple, params: Params | None = None):
-        new_state = []
-        for t, s in zip(transforms, state, strict=True):
-            grads, s = t.update(grads, s, params)
-            new_state.append(s)
-        return grads, tuple(new_state)
-
-    return GradientTransformation(init, update)
 
 
 def apply_updates(params: Params, updates: Params) -> Params:

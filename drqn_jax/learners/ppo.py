@@ -23,7 +23,7 @@ from drqn_jax.learners.trainer import Trainer
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
 
-__all__ = ["Transition", "actor_critic", "gae", "make_ppo", "policy_network", "ppo_loss"]
+__all__ = ["Transition", "actor_critic", "gae", "make_ppo", "ppo_loss"]
 
 
 class Transition(NamedTuple):
@@ -109,8 +109,6 @@ def ppo_loss(
 @cached_program
 def make_ppo(config: TrainConfig) -> Trainer:
     """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "ppo"`` config."""
-    if config.algorithm != "ppo":
-        raise ValueError(f"make_ppo: TrainConfig.algorithm = {config.algorithm!r}; use 'ppo'")
     task = make_task(config.env_id, config.env_overrides)
     network = actor_critic(config, task)
     return make_on_policy(

@@ -84,8 +84,6 @@ def pqn_loss(
 def make_pqn(config: TrainConfig) -> Trainer:
     """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "pqn"`` config;
     its episodes also record the ε they ran with."""
-    if config.algorithm != "pqn":
-        raise ValueError(f"make_pqn: TrainConfig.algorithm = {config.algorithm!r}; use 'pqn'")
     task = make_task(config.env_id, config.env_overrides)
     network = make_network(task.network(config.network))
     policy = functools.partial(_explore, config, task, network)

@@ -25,17 +25,7 @@ from drqn_jax.evaluation import run_episodes
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.registry import make
 
-__all__ = [
-    "GYMNAX_PREFIX",
-    "Step",
-    "Task",
-    "Teacher",
-    "greedy_returns",
-    "gymnax_task",
-    "make_task",
-    "observations",
-    "urban_task",
-]
+__all__ = ["Step", "Task", "Teacher", "greedy_returns", "make_task", "observations"]
 
 #: Env ids with this prefix name a gymnax environment (``gymnax.make``).
 GYMNAX_PREFIX = "gymnax:"
@@ -74,7 +64,6 @@ class Task(NamedTuple):
     -> {metric: ()} for snapshot selection.
     """
 
-    env_id: str
     env: Any
     env_params: Any
     num_actions: int
@@ -150,7 +139,6 @@ def urban_task(env_id: str = "UrbanPedestrians-v0", **overrides: Any) -> Task:
         return rule_based_labels(records, params, expert, static)
 
     return Task(
-        env_id=env_id,
         env=env,
         env_params=params,
         num_actions=env.num_actions,
@@ -243,7 +231,6 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
         )
 
     task = Task(
-        env_id=GYMNAX_PREFIX + name,
         env=env,
         env_params=params,
         num_actions=n_actions,

@@ -30,7 +30,6 @@ __all__ = [
     "begin_episodes",
     "end_episodes",
     "init_replay",
-    "replay_bytes",
     "sample_windows",
 ]
 
@@ -98,10 +97,8 @@ def init_replay(
     """An empty replay of ``capacity`` episodes of up to ``max_length`` transitions,
     records shaped like ``record`` (and stored states like ``carry`` when given)."""
     if num_writers < 1 or capacity < 2 * num_writers:
-        raise ValueError(
-            f"replay capacity = {capacity} episodes: must be >= 2 × the number of parallel "
-            f"environments ({num_writers}); each writes its own slots and needs one to fill "
-            "while another holds a complete episode"
+        raise ValueError(  # each writer fills one slot while another holds an episode
+            f"replay capacity = {capacity} episodes: must be >= 2 × the writers ({num_writers})"
         )
     m, n_obs = capacity, max_length + 1
 
@@ -119,11 +116,6 @@ def init_replay(
         slot=jnp.zeros((num_writers,), jnp.int32),
         episodes=jnp.zeros((num_writers,), jnp.int32),
     )
-
-
-def replay_bytes(replay: EpisodeReplay) -> int:
-    """Bytes held by the replay's arrays."""
-    return sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(replay))
 
 
 def _set(buffer: jax.Array, where: jax.Array, index: tuple, value: jax.Array) -> jax.Array:

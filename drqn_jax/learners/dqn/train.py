@@ -33,7 +33,7 @@ from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
 from drqn_jax.pytree import tree_where
 
-__all__ = ["explore", "make_dqn"]
+__all__ = ["make_dqn"]
 
 #: ``fold_in`` index of the guided-action draw: its own stream, so that
 #: ``explore_guide = 0`` leaves every other draw as it was.
@@ -67,8 +67,6 @@ def _check_task(config: TrainConfig, task: Task) -> None:
 @cached_program
 def make_dqn(config: TrainConfig) -> Trainer:
     """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "dqn"`` config."""
-    if config.algorithm != "dqn":
-        raise ValueError(f"make_dqn: TrainConfig.algorithm = {config.algorithm!r}; use 'dqn'")
     task = make_task(config.env_id, config.env_overrides)
     _check_task(config, task)
     network = make_network(task.network(config.network))
