@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -24,7 +25,7 @@ from drqn_jax.experiments.memory import (
     run_memory,
     runs_per_call,
 )
-from drqn_jax.experiments.sweep import STRATEGIES, Sweep, SweepPoint
+from drqn_jax.experiments.sweep import Sweep, SweepPoint
 
 __all__ = [
     "Call",
@@ -114,9 +115,7 @@ def _process_slice(points: Sequence[SweepPoint], dist: Distributed) -> list[Swee
 
 
 def resolve_strategy(strategy: str, devices: Sequence[Any]) -> str:
-    """``vmap`` or ``map`` for ``strategy`` on ``devices``."""
-    if strategy not in STRATEGIES:
-        raise ConfigError(f"strategy = {strategy!r}: must be one of {', '.join(STRATEGIES)}")
+    """``vmap`` or ``map`` for ``strategy`` (one of STRATEGIES) on ``devices``."""
     if strategy == "auto":
         return "map" if all(d.platform == "cpu" for d in devices) else "vmap"
     return strategy
@@ -171,15 +170,8 @@ def describe_plan(calls: Sequence[Call], devices: int, dist: Distributed) -> str
     """One line per (run of alike) calls: runs, padding, strategy, memory."""
     where = f"process {dist.process} of {dist.processes}, " if dist.processes > 1 else ""
     lines = [f"memory plan ({where}{devices} device(s)):"]
-    groups: list[list[Call]] = []
-    for call in calls:
-        alike = (call.program, len(call.points), call.size, call.strategy)
-        last = groups[-1][-1] if groups else None
-        if last is not None and (last.program, len(last.points), last.size, last.strategy) == alike:
-            groups[-1].append(call)
-        else:
-            groups.append([call])
-    for group in groups:
+    groups = itertools.groupby(calls, lambda c: (c.program, len(c.points), c.size, c.strategy))
+    for group in (list(alike) for _, alike in groups):
         call = group[0]
         pad = call.size - len(call.points)
         names = (
