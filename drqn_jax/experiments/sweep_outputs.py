@@ -18,7 +18,12 @@ from typing import Any
 import jax
 import numpy as np
 
-from drqn_jax.experiments.checkpoint import CheckpointError, atomic_write_text
+from drqn_jax.experiments.checkpoint import (
+    CHECKPOINT_JSON,
+    CHECKPOINT_NPZ,
+    CheckpointError,
+    atomic_write_text,
+)
 from drqn_jax.experiments.runner import save_agent
 from drqn_jax.experiments.sweep import Sweep
 from drqn_jax.experiments.sweep_plan import Call, Distributed
@@ -125,7 +130,7 @@ def write_call(
 ) -> None:
     """A finished call: each run's ``metrics.csv`` (as ``drqn-jax train`` writes it) at
     :func:`metrics_path`, ``calls/<call>/timing.json`` (training wall time, s, and its runs)
-    and, last, its ``runs.json``."""
+    and, last, its ``runs.json`` (replacing its checkpoint)."""
     for point, text in zip(call.points, metrics_csvs, strict=True):
         path = metrics_path(out, point.index)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -135,6 +140,8 @@ def write_call(
     timing = {"train_wall_s": wall_time_s, "runs": [p.index for p in call.points]}
     atomic_write_text(call_dir / TIMING_JSON, json.dumps(timing, indent=1) + "\n")
     atomic_write_text(call_dir / "runs.json", json.dumps(list(results), indent=1) + "\n")
+    for name in (CHECKPOINT_NPZ, CHECKPOINT_JSON):  # the results replace them
+        (call_dir / name).unlink(missing_ok=True)
 
 
 def run_timings(directory: Path) -> dict[int, float]:

@@ -55,14 +55,11 @@ def init_distributed(
 ) -> Distributed:
     """``jax.distributed.initialize`` from the flags or ``JAX_*`` env vars (none: one process).
     Must run before any JAX computation."""
-    env = os.environ
-    coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS")
+    coordinator = coordinator or os.environ.get("JAX_COORDINATOR_ADDRESS")
     given = [coordinator, num_processes, process_id]
-    if num_processes is None and "JAX_NUM_PROCESSES" in env:
-        num_processes = _int_variable("JAX_NUM_PROCESSES")
-    if process_id is None and "JAX_PROCESS_ID" in env:
-        process_id = _int_variable("JAX_PROCESS_ID")
-    if coordinator is None and num_processes is None and process_id is None:
+    num_processes = _int_variable(num_processes, "JAX_NUM_PROCESSES")
+    process_id = _int_variable(process_id, "JAX_PROCESS_ID")
+    if (coordinator, num_processes, process_id) == (None, None, None):
         return Distributed()
     if None in (coordinator, num_processes, process_id):
         raise ConfigError(
@@ -79,7 +76,10 @@ def init_distributed(
     return Distributed(process_id, num_processes)
 
 
-def _int_variable(name: str) -> int:
+def _int_variable(given: int | None, name: str) -> int | None:
+    """``given``, else the environment variable ``name`` (an integer) where set."""
+    if given is not None or name not in os.environ:
+        return given
     try:
         return int(os.environ[name])
     except ValueError:

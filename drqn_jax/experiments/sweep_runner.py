@@ -25,12 +25,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from drqn_jax.agents import drqn_agent
 from drqn_jax.evaluation import evaluate
-from drqn_jax.experiments.checkpoint import (
-    CHECKPOINT_JSON,
-    CHECKPOINT_NPZ,
-    load_checkpoint,
-    save_checkpoint,
-)
+from drqn_jax.experiments.checkpoint import CHECKPOINT_NPZ, load_checkpoint, save_checkpoint
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
 from drqn_jax.experiments.machine import device_identity, git_commit
 from drqn_jax.experiments.runner import (
@@ -41,11 +36,7 @@ from drqn_jax.experiments.runner import (
     training_budget,
 )
 from drqn_jax.experiments.sweep import Sweep, SweepPoint, budget_warnings
-from drqn_jax.experiments.sweep_outputs import (
-    open_plan,
-    write_agents,
-    write_call,
-)
+from drqn_jax.experiments.sweep_outputs import open_plan, write_agents, write_call
 from drqn_jax.experiments.sweep_plan import (
     Call,
     Distributed,
@@ -59,13 +50,7 @@ from drqn_jax.learners.hyperparams import agent_name, teacher_label
 from drqn_jax.learners.selection import selection, unvalidated
 from drqn_jax.programs import cached
 
-__all__ = [
-    "SweepOutcome",
-    "call_inputs",
-    "call_programs",
-    "run_sweep",
-    "train_call",
-]
+__all__ = ["SweepOutcome", "call_inputs", "call_programs", "run_sweep", "train_call"]
 
 _GATHER_TIMEOUT_MS = 2**31 - 1  # process 0 waits for the others as long as they train
 
@@ -360,8 +345,8 @@ def _finish_call(
     commit: str,
     keep_agents: bool,
 ) -> list[dict[str, Any]]:
-    """Evaluate a trained call and write its metrics, timing, agents and ``runs.json``
-    (replacing its checkpoint); returns the runs' results."""
+    """Evaluate a trained call and write its agents and :func:`write_call`; returns the
+    runs' results."""
     params = real_agent_params(call, outcome)
     results = call_results(call, outcome, eval_key, params, commit)
     for line in budget_warnings(call.points, results):
@@ -371,9 +356,6 @@ def _finish_call(
     metrics = jax.tree.map(np.asarray, outcome.state.metrics)
     csvs = [metrics_csv({k: v[i] for k, v in metrics.items()}) for i in range(len(call.points))]
     write_call(out, call, results, csvs, outcome.wall_time_s)
-    directory = out / "calls" / call.name
-    for name in (CHECKPOINT_NPZ, CHECKPOINT_JSON):  # the results replace them
-        (directory / name).unlink(missing_ok=True)
     return results
 
 
