@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Sequence
 from typing import Any
 
@@ -17,12 +18,10 @@ import numpy as np
 
 from drqn_jax.config import Config, ConfigError
 from drqn_jax.learners.hyperparams import ON_POLICY
-from drqn_jax.networks import NetworkConfig
 
 __all__ = [
     "MemoryPlanError",
     "RunMemory",
-    "activation_bytes",
     "available_memory",
     "call_bytes",
     "format_bytes",
@@ -55,13 +54,11 @@ class RunMemory:
 
     @property
     def total(self) -> int:
-        return self.replay + self.params + self.optimiser + self.other_state + self.activations
+        return sum(dataclasses.astuple(self))
 
     def describe(self) -> str:
-        parts = ", ".join(
-            f"{name} {format_bytes(getattr(self, name))}"
-            for name in ("replay", "params", "optimiser", "other_state", "activations")
-        )
+        fields = dataclasses.fields(self)
+        parts = ", ".join(f"{f.name} {format_bytes(getattr(self, f.name))}" for f in fields)
         return f"{format_bytes(self.total)} ({parts})"
 
 
@@ -83,9 +80,11 @@ def _nbytes(tree: Any) -> int:
     return total
 
 
-def forward_bytes_per_step(network: NetworkConfig) -> int:
-    """Bytes of one observation's forward activations (paper Table I layers): grid, conv
+def activation_bytes(config: Config) -> int:
+    """Estimated temporaries of one gradient update (DQN minibatch or PPO rollout): per
+    sample, one observation's forward activations (paper Table I layers): grid, conv
     patches and outputs, recurrent core (or ``dqn`` dense layers), FC layer, Q-values."""
+    network = config.network_config()
     h, w, c = network.grid_shape
     c *= network.frames
     floats = h * w * c
@@ -96,18 +95,12 @@ def forward_bytes_per_step(network: NetworkConfig) -> int:
     r = network.recurrent
     core = 2 * (6 * r) + r if network.kind == "drqn" else 2 * r
     floats += network.features + core + network.hidden + network.num_actions
-    return floats * FLOAT_BYTES
-
-
-def activation_bytes(config: Config) -> int:
-    """Estimated temporaries of one gradient update (DQN minibatch or PPO rollout)."""
     train = config["train"]
     if train["algorithm"] in ON_POLICY:
         samples = train["rollout_steps"] * train["num_envs"]
     else:
         samples = train["batch_size"] * (train["burn_in"] + train["window"] + 1)
-    forward = samples * forward_bytes_per_step(config.network_config())
-    return int(ACTIVATION_FACTOR * forward)
+    return int(ACTIVATION_FACTOR * (samples * floats * FLOAT_BYTES))
 
 
 def run_memory(config: Config) -> RunMemory:
@@ -134,8 +127,6 @@ def _host_available() -> int:
     except OSError:
         pass
     try:
-        import os
-
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (ValueError, OSError, AttributeError):
         return 0
@@ -167,11 +158,9 @@ def runs_per_call(
     """Runs per compiled call: a multiple of ``devices``, at most ``runs`` rounded up;
     MemoryPlanError if not one run per device fits ``budget``."""
     usable = USABLE_FRACTION * budget
-    per_device_budget = usable / devices
     per_device = 0
-    most = math.ceil(runs / devices)
-    while per_device < most and call_bytes(per_run, per_device + 1, batched=batched) <= (
-        per_device_budget
+    while per_device < math.ceil(runs / devices) and (
+        call_bytes(per_run, per_device + 1, batched=batched) <= usable / devices
     ):
         per_device += 1
     if per_device < 1:

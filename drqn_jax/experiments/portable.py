@@ -19,11 +19,11 @@ from drqn_jax.experiments.sweep import Sweep
 from drqn_jax.experiments.sweep_outputs import (
     finished_results,
     metrics_path,
-    plan_record,
+    open_plan,
     run_timings,
-    write_timing,
+    write_call,
 )
-from drqn_jax.experiments.sweep_plan import plan_calls
+from drqn_jax.experiments.sweep_plan import Distributed, plan_calls
 
 __all__ = [
     "differing_runs",
@@ -103,21 +103,14 @@ def restore_runs(directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, An
     restored = [c for c in calls if all(p.index in usable for p in c.points)]
     if not restored:
         return 0
-    directory.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(directory / "plan.json", json.dumps(plan_record(sweep), indent=1) + "\n")
+    open_plan(directory, sweep, Distributed(), resume=False)
     for call in restored:
         runs = [usable[p.index] for p in call.points]
-        for run in runs:
-            path = metrics_path(directory, run["index"])
-            path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(path, run["metrics_csv"])
         apart = ("metrics_csv", "train_wall_s")
         saved = [{k: v for k, v in run.items() if k not in apart} for run in runs]
-        call_dir = directory / "calls" / call.name
-        call_dir.mkdir(parents=True, exist_ok=True)
         walls = [run.get("train_wall_s") for run in runs]
-        write_timing(call_dir, call, None if None in walls else sum(walls))
-        atomic_write_text(call_dir / "runs.json", json.dumps(saved, indent=1) + "\n")
+        wall = None if None in walls else sum(walls)
+        write_call(directory, call, saved, [run["metrics_csv"] for run in runs], wall)
     return sum(len(c.points) for c in restored)
 
 

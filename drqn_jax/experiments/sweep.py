@@ -45,7 +45,6 @@ __all__ = [
     "budget_warnings",
     "build_sweep",
     "load_sweep",
-    "shape_key",
     "summarize_sweep",
     "sweep_csv",
     "sweep_table",
@@ -67,13 +66,11 @@ class SweepPoint:
 
     @functools.cached_property
     def shape(self) -> tuple:
-        """:func:`shape_key` of the point's config (computed once)."""
-        return shape_key(self.config)
-
-    @property
-    def setting(self) -> tuple[tuple[str, Any], ...]:
-        """The axis values other than the seed: the runs a results row pools."""
-        return tuple((k, v) for k, v in self.values.items() if k != "run.seed")
+        """What fixes the point's training program's shapes: static env params, network,
+        sizes (computed once)."""
+        env, _ = self.config.make_env()
+        sizes = tuple(self.config["train"][name] for name in TRAIN_SIZES)
+        return (env.static, self.config.network_config(), sizes)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,13 +104,6 @@ class Sweep:
         else:
             lines.append("one program")
         return "\n".join(lines)
-
-
-def shape_key(config: Config) -> tuple:
-    """What fixes a training program's shapes: static env params, network, sizes."""
-    env, _ = config.make_env()
-    sizes = tuple(config["train"][name] for name in TRAIN_SIZES)
-    return (env.static, config.network_config(), sizes)
 
 
 def _changes_shape(sweep: Sweep, axis: str) -> bool:
@@ -202,14 +192,9 @@ def build_sweep(
 ) -> Sweep:
     """A sweep from a sweep file's parts (``axes``: ``{"section.field": list | range}``);
     raises ConfigError naming the key at fault."""
-    if strategy not in STRATEGIES:
-        raise ConfigError(
-            f"strategy = {strategy!r}: must be one of {', '.join(map(repr, STRATEGIES))}"
-        )
-    if mode not in MODES:
-        raise ConfigError(f"mode = {mode!r}: must be one of {', '.join(map(repr, MODES))}")
-    base_source = base if base_source is None else base_source
-    shared = list(overrides)
+    for key, value, allowed in (("strategy", strategy, STRATEGIES), ("mode", mode, MODES)):
+        if value not in allowed:
+            raise ConfigError(f"{key} = {value!r}: must be one of {', '.join(map(repr, allowed))}")
     axes = {name: _axis_values(name, spec) for name, spec in axes.items()}
     for name in axes:
         parse_override(f"{name}=0")  # a well-formed section.field
@@ -223,9 +208,9 @@ def build_sweep(
     points = []
     for i, combo in enumerate(combos):
         values = dict(zip(axes, combo, strict=True))
-        point_overrides = shared + [_override(k, v) for k, v in values.items()]
+        point_overrides = [*overrides, *(_override(k, v) for k, v in values.items())]
         try:
-            config = load_config(base_source, point_overrides)
+            config = load_config(base if base_source is None else base_source, point_overrides)
         except ConfigError as err:
             raise ConfigError(f"sweep point {i} ({values}): {err}") from None
         points.append(SweepPoint(i, values, config))

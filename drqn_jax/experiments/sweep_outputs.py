@@ -11,20 +11,25 @@ OUT/runs.json                      every run's evaluation and training summary
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
 
-from drqn_jax.experiments.checkpoint import CheckpointError, atomic_write_text
-from drqn_jax.experiments.runner import metrics_csv, save_agent
+from drqn_jax.experiments.checkpoint import (
+    CHECKPOINT_JSON,
+    CHECKPOINT_NPZ,
+    CheckpointError,
+    atomic_write_text,
+)
+from drqn_jax.experiments.runner import save_agent
 from drqn_jax.experiments.sweep import Sweep
 from drqn_jax.experiments.sweep_plan import Call, Distributed
 from drqn_jax.learners.dqn.state import TrainState
 
 __all__ = [
-    "TIMING_JSON",
     "agent_dir",
     "finished_results",
     "metrics_path",
@@ -33,8 +38,7 @@ __all__ = [
     "run_record",
     "run_timings",
     "write_agents",
-    "write_timing",
-    "write_training_metrics",
+    "write_call",
 ]
 
 
@@ -49,11 +53,6 @@ def plan_record(sweep: Sweep, dist: Distributed = Distributed()) -> dict[str, An
             for p in sweep.points
         ],
     }
-
-
-def _plan_path(out: Path, dist: Distributed) -> Path:
-    """``OUT/plan.json``; one per process when there are several (no shared file system needed)."""
-    return out / ("plan.json" if dist.processes == 1 else f"plan.process-{dist.process}.json")
 
 
 def _check_plan(path: Path, record: dict[str, Any]) -> bool:
@@ -81,7 +80,9 @@ def _check_plan(path: Path, record: dict[str, Any]) -> bool:
 
 def open_plan(out: Path, sweep: Sweep, dist: Distributed, resume: bool) -> None:
     """Write ``OUT/plan.json`` for a new sweep, or check and grow it for a resumed one."""
-    record, plan = plan_record(sweep, dist), _plan_path(out, dist)
+    record = plan_record(sweep, dist)
+    # one plan per process when there are several (no shared file system needed)
+    plan = out / ("plan.json" if dist.processes == 1 else f"plan.process-{dist.process}.json")
     if resume:
         write = _check_plan(plan, record)  # grown (more seeds): the new points are added
     else:
@@ -100,15 +101,6 @@ def metrics_path(out: str | Path, index: int) -> Path:
     return Path(out) / "metrics" / f"run-{index:04d}.csv"
 
 
-def write_training_metrics(out: Path, call: Call, state: TrainState) -> None:
-    """Each run's ``metrics.csv`` (as ``drqn-jax train`` writes it) at :func:`metrics_path`."""
-    metrics = jax.tree.map(np.asarray, state.metrics)
-    for i, point in enumerate(call.points):
-        path = metrics_path(out, point.index)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, metrics_csv({k: v[i] for k, v in metrics.items()}))
-
-
 def agent_dir(out: str | Path, index: int) -> Path:
     """``OUT/agents/run-NNNN``: run ``index``'s agent, read like a run directory."""
     return Path(out) / "agents" / f"run-{index:04d}"
@@ -116,16 +108,11 @@ def agent_dir(out: str | Path, index: int) -> Path:
 
 def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
     """Each run's trained agent (the evaluated ``params``) at :func:`agent_dir`."""
-    counts = jax.tree.map(np.asarray, (state.recorded, state.grad_steps, state.env_steps))
+    names = ("recorded", "grad_steps", "env_steps")
+    counts = {name: np.asarray(getattr(state, name)) for name in names}
     for i, point in enumerate(call.points):
-        recorded, grad_steps, env_steps = (int(c[i]) for c in counts)
-        meta = {
-            "values": point.values,
-            "finished": True,
-            "recorded": recorded,
-            "grad_steps": grad_steps,
-            "env_steps": env_steps,
-        }
+        meta = {"values": point.values, "finished": True}
+        meta |= {name: int(count[i]) for name, count in counts.items()}
         run_params = jax.tree.map(lambda x, i=i: x[i], params)
         save_agent(agent_dir(out, point.index), point.config, run_params, meta)
 
@@ -134,10 +121,27 @@ def write_agents(out: Path, call: Call, state: TrainState, params: Any) -> None:
 TIMING_JSON = "timing.json"
 
 
-def write_timing(call_dir: Path, call: Call, wall_time_s: float) -> None:
-    """``calls/<call>/timing.json``: the call's training wall time (s) and its runs."""
-    record = {"train_wall_s": wall_time_s, "runs": [p.index for p in call.points]}
-    atomic_write_text(call_dir / TIMING_JSON, json.dumps(record, indent=1) + "\n")
+def write_call(
+    out: Path,
+    call: Call,
+    results: Sequence[dict[str, Any]],
+    metrics_csvs: Sequence[str],
+    wall_time_s: float | None,
+) -> None:
+    """A finished call: each run's ``metrics.csv`` (as ``drqn-jax train`` writes it) at
+    :func:`metrics_path`, ``calls/<call>/timing.json`` (training wall time, s, and its runs)
+    and, last, its ``runs.json`` (replacing its checkpoint)."""
+    for point, text in zip(call.points, metrics_csvs, strict=True):
+        path = metrics_path(out, point.index)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, text)
+    call_dir = out / "calls" / call.name
+    call_dir.mkdir(parents=True, exist_ok=True)
+    timing = {"train_wall_s": wall_time_s, "runs": [p.index for p in call.points]}
+    atomic_write_text(call_dir / TIMING_JSON, json.dumps(timing, indent=1) + "\n")
+    atomic_write_text(call_dir / "runs.json", json.dumps(list(results), indent=1) + "\n")
+    for name in (CHECKPOINT_NPZ, CHECKPOINT_JSON):  # the results replace them
+        (call_dir / name).unlink(missing_ok=True)
 
 
 def run_timings(directory: Path) -> dict[int, float]:

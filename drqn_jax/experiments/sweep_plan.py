@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -24,7 +25,7 @@ from drqn_jax.experiments.memory import (
     run_memory,
     runs_per_call,
 )
-from drqn_jax.experiments.sweep import STRATEGIES, Sweep, SweepPoint
+from drqn_jax.experiments.sweep import Sweep, SweepPoint
 
 __all__ = [
     "Call",
@@ -54,14 +55,11 @@ def init_distributed(
 ) -> Distributed:
     """``jax.distributed.initialize`` from the flags or ``JAX_*`` env vars (none: one process).
     Must run before any JAX computation."""
-    env = os.environ
-    coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS")
+    coordinator = coordinator or os.environ.get("JAX_COORDINATOR_ADDRESS")
     given = [coordinator, num_processes, process_id]
-    if num_processes is None and "JAX_NUM_PROCESSES" in env:
-        num_processes = _int_variable("JAX_NUM_PROCESSES")
-    if process_id is None and "JAX_PROCESS_ID" in env:
-        process_id = _int_variable("JAX_PROCESS_ID")
-    if coordinator is None and num_processes is None and process_id is None:
+    num_processes = _int_variable(num_processes, "JAX_NUM_PROCESSES")
+    process_id = _int_variable(process_id, "JAX_PROCESS_ID")
+    if (coordinator, num_processes, process_id) == (None, None, None):
         return Distributed()
     if None in (coordinator, num_processes, process_id):
         raise ConfigError(
@@ -78,7 +76,10 @@ def init_distributed(
     return Distributed(process_id, num_processes)
 
 
-def _int_variable(name: str) -> int:
+def _int_variable(given: int | None, name: str) -> int | None:
+    """``given``, else the environment variable ``name`` (an integer) where set."""
+    if given is not None or name not in os.environ:
+        return given
     try:
         return int(os.environ[name])
     except ValueError:
@@ -114,9 +115,7 @@ def _process_slice(points: Sequence[SweepPoint], dist: Distributed) -> list[Swee
 
 
 def resolve_strategy(strategy: str, devices: Sequence[Any]) -> str:
-    """``vmap`` or ``map`` for ``strategy`` on ``devices``."""
-    if strategy not in STRATEGIES:
-        raise ConfigError(f"strategy = {strategy!r}: must be one of {', '.join(STRATEGIES)}")
+    """``vmap`` or ``map`` for ``strategy`` (one of STRATEGIES) on ``devices``."""
     if strategy == "auto":
         return "map" if all(d.platform == "cpu" for d in devices) else "vmap"
     return strategy
@@ -171,15 +170,8 @@ def describe_plan(calls: Sequence[Call], devices: int, dist: Distributed) -> str
     """One line per (run of alike) calls: runs, padding, strategy, memory."""
     where = f"process {dist.process} of {dist.processes}, " if dist.processes > 1 else ""
     lines = [f"memory plan ({where}{devices} device(s)):"]
-    groups: list[list[Call]] = []
-    for call in calls:
-        alike = (call.program, len(call.points), call.size, call.strategy)
-        last = groups[-1][-1] if groups else None
-        if last is not None and (last.program, len(last.points), last.size, last.strategy) == alike:
-            groups[-1].append(call)
-        else:
-            groups.append([call])
-    for group in groups:
+    groups = itertools.groupby(calls, lambda c: (c.program, len(c.points), c.size, c.strategy))
+    for group in (list(alike) for _, alike in groups):
         call = group[0]
         pad = call.size - len(call.points)
         names = (

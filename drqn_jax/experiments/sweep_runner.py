@@ -25,23 +25,18 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from drqn_jax.agents import drqn_agent
 from drqn_jax.evaluation import evaluate
-from drqn_jax.experiments.checkpoint import (
-    CHECKPOINT_JSON,
-    CHECKPOINT_NPZ,
-    atomic_write_text,
-    load_checkpoint,
-    save_checkpoint,
-)
+from drqn_jax.experiments.checkpoint import CHECKPOINT_NPZ, load_checkpoint, save_checkpoint
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
 from drqn_jax.experiments.machine import device_identity, git_commit
-from drqn_jax.experiments.runner import budget_used, final_train_return, json_ready, training_budget
-from drqn_jax.experiments.sweep import Sweep, SweepPoint, budget_warnings
-from drqn_jax.experiments.sweep_outputs import (
-    open_plan,
-    write_agents,
-    write_timing,
-    write_training_metrics,
+from drqn_jax.experiments.runner import (
+    budget_used,
+    final_train_return,
+    json_ready,
+    metrics_csv,
+    training_budget,
 )
+from drqn_jax.experiments.sweep import Sweep, SweepPoint, budget_warnings
+from drqn_jax.experiments.sweep_outputs import open_plan, write_agents, write_call
 from drqn_jax.experiments.sweep_plan import (
     Call,
     Distributed,
@@ -55,14 +50,7 @@ from drqn_jax.learners.hyperparams import agent_name, teacher_label
 from drqn_jax.learners.selection import selection, unvalidated
 from drqn_jax.programs import cached
 
-__all__ = [
-    "SweepOutcome",
-    "call_inputs",
-    "call_programs",
-    "evaluate_runs",
-    "run_sweep",
-    "train_call",
-]
+__all__ = ["SweepOutcome", "call_inputs", "call_programs", "run_sweep", "train_call"]
 
 _GATHER_TIMEOUT_MS = 2**31 - 1  # process 0 waits for the others as long as they train
 
@@ -114,11 +102,7 @@ def _over_runs(
         return jax.vmap(fn)(states)
 
     def one_by_one(states: TrainState, real: jax.Array) -> Any:
-        def one(args):
-            state, is_real = args
-            return skipped(state, is_real)
-
-        return jax.lax.map(one, (states, real))
+        return jax.lax.map(lambda args: skipped(*args), (states, real))
 
     body = batched if strategy == "vmap" else one_by_one
     mesh = Mesh(np.asarray(devices), ("runs",))
@@ -130,16 +114,17 @@ def _over_runs(
 
 def call_programs(
     trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
-) -> tuple[Callable, Callable]:
-    """``(init, run)`` of a call, jitted once per process and shape (hyperparameters are
-    arguments/state, so calls differing only in values share them).
+) -> tuple[Callable, Callable, Callable]:
+    """``(init, run, validate)`` of a call, jitted once per process and shape
+    (hyperparameters are arguments/state, so calls differing only in values share them).
 
     ``init(keys, hparams, env_params)`` -> the batched state; ``run(state, real)`` advances
-    each real, unfinished run by one chunk.
+    each real, unfinished run by one chunk; ``validate(state, real) -> {metric: (size, K + 1)}``
+    for ``train.snapshots`` = K > 0.
     """
     chunk = trainer.config.chunk_iterations
 
-    def build() -> tuple[Callable, Callable]:
+    def build() -> tuple[Callable, Callable, Callable]:
 
         def advance(state: TrainState) -> TrainState:
             return trainer.run(state, chunk)
@@ -147,31 +132,17 @@ def call_programs(
         def advance_unless_done(state: TrainState, is_real: jax.Array) -> TrainState:
             return jax.lax.cond(is_real & ~state.finished, advance, lambda s: s, state)
 
+        def validate_if_real(state: TrainState, is_real: jax.Array) -> dict[str, jax.Array]:
+            nan = unvalidated(trainer.config.snapshots, trainer.task.validation_metrics)
+            return jax.lax.cond(is_real, trainer.validation_metrics, lambda s: nan, state)
+
         init = jax.jit(jax.vmap(trainer.init), out_shardings=_sharding(devices))
         run = _over_runs(advance, advance_unless_done, devices, strategy, donate_argnums=0)
-        return init, run
+        validate = _over_runs(trainer.validation_metrics, validate_if_real, devices, strategy)
+        return init, run, validate
 
     key = (trainer.config.program_key(), size, tuple(devices), strategy)
     return cached("sweep_runner.call", key, build)
-
-
-def validation_program(
-    trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
-) -> Callable:
-    """``validate(states, real) -> {metric: (size, K + 1)}`` for ``train.snapshots`` = K > 0,
-    sharded and batched as ``run``."""
-
-    def build() -> Callable:
-        nan = unvalidated(trainer.config.snapshots, trainer.task.validation_metrics)
-
-        def validate_if_real(state: TrainState, is_real: jax.Array) -> dict[str, jax.Array]:
-            return jax.lax.cond(is_real, trainer.validation_metrics, lambda s: nan, state)
-
-        validate = trainer.validation_metrics
-        return _over_runs(validate, validate_if_real, devices, strategy)
-
-    key = (trainer.config.program_key(), size, tuple(devices), strategy)
-    return cached("sweep_runner.validate", key, build)
 
 
 @dataclasses.dataclass
@@ -182,10 +153,6 @@ class CallOutcome:
     trainer: Trainer
     state: TrainState  # batched, padding included
     wall_time_s: float = 0.0  # s, over every invocation, compile and validation included
-
-    def agent_params(self) -> Any:
-        """Every run's agent (``Trainer.agent_params``), padding included."""
-        return jax.vmap(self.trainer.agent_params)(self.state)
 
 
 def train_call(
@@ -204,7 +171,7 @@ def train_call(
     """
     start = time.perf_counter()
     trainer = make_train(call.points[0].config.train_config())
-    init, run = call_programs(trainer, call.size, devices, call.strategy)
+    init, run, validate = call_programs(trainer, call.size, devices, call.strategy)
     args, real = call_inputs(call, devices)
     checkpoint = directory is not None and (directory / CHECKPOINT_NPZ).exists()
     if checkpoint:
@@ -232,7 +199,6 @@ def train_call(
         _save_call(directory, call, state, wall())
         return CallOutcome("interrupted", trainer, state, wall())
     if trainer.config.snapshots:
-        validate = validation_program(trainer, call.size, devices, call.strategy)
         state = state.replace(validation=validate(state, real))
     return CallOutcome("finished", trainer, state, wall())
 
@@ -243,43 +209,35 @@ def _save_call(directory: Path | None, call: Call, state: TrainState, wall: floa
         save_checkpoint(directory, state, {**meta, "wall_time_s": wall})
 
 
-def evaluate_runs(
-    network: Any, params: Any, points: Sequence[SweepPoint], eval_key: jax.Array
-) -> list[dict[str, Any]]:
-    """SPEC §8 metrics of each run's greedy DRQN on ``eval_key``'s episodes, as ``evaluate``."""
-    out = []
-    for i, point in enumerate(points):
-        env, env_params = point.config.make_env()
-        name = agent_name(point.config.train_config())
-        agent = drqn_agent(network, jax.tree.map(lambda x, i=i: x[i], params), name)
-        settings = point.config["evaluate"]
-        batch = settings["batch_size"] or None
-        result = evaluate(agent, eval_key, settings["episodes"], env, env_params, batch_size=batch)
-        out.append({**result, "teacher": teacher_label(point.config.hyperparams())})
-    return out
-
-
 def real_agent_params(call: Call, outcome: CallOutcome) -> Any:
     """The call's agent parameters without padding: NumPy leaves ``(len(call.points), ...)``."""
     n = len(call.points)
-    return jax.tree.map(lambda x: np.asarray(x)[:n], outcome.agent_params())
+    params = jax.vmap(outcome.trainer.agent_params)(outcome.state)
+    return jax.tree.map(lambda x: np.asarray(x)[:n], params)
 
 
 def call_results(
     call: Call, outcome: CallOutcome, eval_key: jax.Array, params: Any, commit: str
 ) -> list[dict[str, Any]]:
-    """Per run: index, axis values, evaluation, final return, env steps, device, commit and
-    divergence; nothing that differs between two trainings (wall time is kept apart)."""
+    """Per run: index, axis values, SPEC §8 evaluation of its greedy DRQN on ``eval_key``'s
+    episodes (as ``evaluate``), final return, env steps, device, commit and divergence;
+    nothing that differs between two trainings (wall time is kept apart)."""
     n = len(call.points)
     metrics = jax.tree.map(np.asarray, outcome.state.metrics)
-    returns = [final_train_return({k: v[i] for k, v in metrics.items()}) for i in range(n)]
-    env_steps = np.asarray(outcome.state.env_steps)[:n]
     finite = np.asarray(jax.vmap(finite_training)(outcome.state))[:n]
-    evaluations = evaluate_runs(outcome.trainer.network, params, call.points, eval_key)
+    env_steps, device = np.asarray(outcome.state.env_steps), device_identity()
     results = []
-    rows = zip(call.points, evaluations, returns, finite, env_steps, strict=True)
-    device = device_identity()
-    for i, (point, evaluation, ret, ok, steps) in enumerate(rows):
+    for i, point in enumerate(call.points):
+        env, env_params = point.config.make_env()
+        name = agent_name(point.config.train_config())
+        run_params = jax.tree.map(lambda x, i=i: x[i], params)
+        agent = drqn_agent(outcome.trainer.network, run_params, name)
+        settings = point.config["evaluate"]
+        batch = settings["batch_size"] or None
+        evaluation = evaluate(
+            agent, eval_key, settings["episodes"], env, env_params, batch_size=batch
+        )
+        evaluation["teacher"] = teacher_label(point.config.hyperparams())
         val, hp = jax.tree.map(
             lambda x, i=i: np.asarray(x)[i], (outcome.state.validation, outcome.state.hparams)
         )
@@ -287,11 +245,11 @@ def call_results(
             {
                 "index": point.index,
                 "values": point.values,
-                "final_train_return": ret,
-                "env_steps": int(steps),
+                "final_train_return": final_train_return({k: v[i] for k, v in metrics.items()}),
+                "env_steps": int(env_steps[i]),
                 "trained_on": device,
                 "commit": commit,
-                "diverged": not bool(ok),
+                "diverged": not bool(finite[i]),
                 **selection(val, hp),
                 **json_ready(evaluation),
             }
@@ -309,7 +267,6 @@ class SweepOutcome:
 
     status: str
     results: list[dict[str, Any]]
-    calls: list[Call]
     continued: int = 0
 
 
@@ -369,7 +326,7 @@ def run_sweep(
                     on_chunk=None if bar.disable else progress,  # no host copy unless shown
                 )
                 if outcome.status == "interrupted":
-                    return SweepOutcome("interrupted", results, list(calls), continued)
+                    return SweepOutcome("interrupted", results, continued)
                 results += _finish_call(out, call, outcome, eval_key, commit, keep_agents)
             done_before += budget
             if on_call_finished is not None:
@@ -377,7 +334,7 @@ def run_sweep(
     if dist.processes > 1:
         results = _gather(results, dist)
     results = sorted(results, key=lambda r: r["index"])
-    return SweepOutcome("finished", results, list(calls), continued)
+    return SweepOutcome("finished", results, continued)
 
 
 def _finish_call(
@@ -388,21 +345,17 @@ def _finish_call(
     commit: str,
     keep_agents: bool,
 ) -> list[dict[str, Any]]:
-    """Evaluate a trained call and write its metrics, timing, agents and ``runs.json``
-    (replacing its checkpoint); returns the runs' results."""
-    directory = out / "calls" / call.name
+    """Evaluate a trained call and write its agents and :func:`write_call`; returns the
+    runs' results."""
     params = real_agent_params(call, outcome)
     results = call_results(call, outcome, eval_key, params, commit)
     for line in budget_warnings(call.points, results):
         print(line, file=sys.stderr)
-    directory.mkdir(parents=True, exist_ok=True)
-    write_training_metrics(out, call, outcome.state)
-    write_timing(directory, call, outcome.wall_time_s)
     if keep_agents:
         write_agents(out, call, outcome.state, params)
-    atomic_write_text(directory / "runs.json", json.dumps(results, indent=1) + "\n")
-    for name in (CHECKPOINT_NPZ, CHECKPOINT_JSON):  # the results replace them
-        (directory / name).unlink(missing_ok=True)
+    metrics = jax.tree.map(np.asarray, outcome.state.metrics)
+    csvs = [metrics_csv({k: v[i] for k, v in metrics.items()}) for i in range(len(call.points))]
+    write_call(out, call, results, csvs, outcome.wall_time_s)
     return results
 
 

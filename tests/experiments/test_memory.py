@@ -51,7 +51,7 @@ def test_the_call_estimate_covers_what_xla_allocates(strategy, tmp_path):
     call = plan_calls(load_sweep(path), len(devices), budget=10**12, strategy=strategy)[0]
     assert call.size == (1 if strategy == "map" else 4)
     config = call.points[0].config
-    init, run = call_programs(make_train(config.train_config()), call.size, devices, strategy)
+    init, run, _ = call_programs(make_train(config.train_config()), call.size, devices, strategy)
     args, real = call_inputs(call, devices)
     xla = run.lower(init(*args), real).compile().memory_analysis()
     peak = xla.argument_size_in_bytes + xla.temp_size_in_bytes

@@ -30,7 +30,6 @@ from drqn_jax.experiments.sweep_runner import (
     sweep_budgets,
     train_call,
     train_runs,
-    validation_program,
 )
 from drqn_jax.learners import make_train
 from tests.helpers import SMOKE_SWEEP as SWEEP
@@ -279,10 +278,9 @@ def test_calls_that_differ_in_hyperparameter_values_share_their_programs(sweep_f
     first, second = (make_train(p.config.train_config()) for p in load_sweep(sweep_file).points[:2])
     assert first.config != second.config  # learning rates 1e-3 and 3e-4
     devices = jax.devices()[:1]
-    for programs in (call_programs, validation_program):
-        assert programs(first, 1, devices, "map") is programs(second, 1, devices, "map")
-        shorter = make_train(dataclasses.replace(first.config, chunk_iterations=8))
-        assert programs(shorter, 1, devices, "map") is not programs(first, 1, devices, "map")
+    assert call_programs(first, 1, devices, "map") is call_programs(second, 1, devices, "map")
+    shorter = make_train(dataclasses.replace(first.config, chunk_iterations=8))
+    assert call_programs(shorter, 1, devices, "map") is not call_programs(first, 1, devices, "map")
 
 
 def test_statistics_are_computed_from_the_runs():
