@@ -25,14 +25,11 @@ __all__ = [
     "BRIEF",
     "CLAIM",
     "COLUMNS",
-    "FORMS",
     "GOAL",
     "PAPER_DRQN_SPEED_KMH",
     "PAPER_EPISODES",
     "PAPER_TABLE_III",
     "PAPER_WORLD",
-    "SECTION_NAME",
-    "TABLES",
     "check_section",
     "column_legend",
     "load_results",
@@ -145,24 +142,22 @@ def render_section(record: Mapping[str, Any], section: str, form: str = "") -> s
     tables = TABLES[:1] if form == "safety" else TABLES
     lines = [study_table(rows, about["comparisons"], legend=False, tables=tables)]
     machine = about["machine"]
-    went_on = (
-        "; earlier invocations trained its runs, the wall time is the last one's"
-        if about.get("continued")
-        else ""
-    )
+    went_on = "; earlier invocations trained its runs, the wall time is the last one's"
     lines += [
         "",
         f"Command (wall time {about['wall_time_s'] / 60:.0f} min on {machine.get('usable_cores')} "
         f"cores of {machine.get('cpu_model')}, JAX {machine.get('jax_version')}, "
-        f"commit {machine.get('git_commit')}{went_on}):",
-        "",
-        "```bash",
-        about["command"],
-        "```",
+        f"commit {machine.get('git_commit')}{went_on if about.get('continued') else ''}):",
+        *_command(about),
     ]
     if form == "legend":
         lines += ["", column_legend()]
     return "\n".join(lines) + "\n"
+
+
+def _command(about: Mapping[str, Any]) -> list[str]:
+    """A section's command as a fenced bash block, a blank line before it."""
+    return ["", "```bash", about["command"], "```"]
 
 
 def _brief(rows: Sequence[Mapping[str, Any]], comparisons: Sequence[str]) -> str:
@@ -182,10 +177,7 @@ def _in_progress(about: Mapping[str, Any]) -> str:
         f"**In progress**: no table until every run has finished. Runs finished so far: "
         f"{counts}. The same command continues it, in a fresh clone too (the finished "
         f"runs are kept in `{about['runs_store']}`):",
-        "",
-        "```bash",
-        about["command"],
-        "```",
+        *_command(about),
     ]
     return "\n".join(lines) + "\n"
 
