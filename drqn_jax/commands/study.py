@@ -45,8 +45,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         say(f"{arm.name}: {arm.sweep.describe()}")
     if args.estimate:
         print(_estimate(arms))
-        return EXIT_OK
-    if args.dry_run:
+    if args.estimate or args.dry_run:
         return EXIT_OK
     start = time.perf_counter()
     # each finished run outlives --out, even if the machine goes away

@@ -21,7 +21,6 @@ from drqn_jax.learners.hyperparams import agent_name
 __all__ = [
     "config_frontier",
     "cross_results",
-    "env_key",
     "frontier_key",
     "frontier_results",
     "rule_based_results",

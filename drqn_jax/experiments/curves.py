@@ -31,8 +31,6 @@ CURVES = (
     ("episode_return", "average reward (return per episode)"),
     ("length", "steps per episode"),
 )
-
-
 #: Points of a :class:`Curve`'s env-step grid.
 CURVE_POINTS = 200
 
@@ -55,14 +53,6 @@ class Curve:
     seed_steps: np.ndarray
 
 
-def _read_csv(path: Path) -> dict[str, np.ndarray]:
-    with path.open(newline="") as f:
-        rows = list(csv.DictReader(f))
-    if not rows:
-        return {}
-    return {name: np.array([float(r[name]) for r in rows]) for name in rows[0]}
-
-
 def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Curve]:
     """The :data:`CURVES` of one config from its seeds' ``metrics.csv`` files, cut to the
     episodes all recorded; ValueError if a file is missing or empty."""
@@ -72,10 +62,11 @@ def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Cu
     for path in metrics_files:
         if not path.is_file():
             raise ValueError(f"{path}: no training metrics (has the run finished?)")
-        table = _read_csv(path)
-        if not table:
+        with path.open(newline="") as f:
+            rows = list(csv.DictReader(f))
+        if not rows:
             raise ValueError(f"{path}: no recorded episodes")
-        tables.append(table)
+        tables.append({name: np.array([float(r[name]) for r in rows]) for name in rows[0]})
     n = min(len(t["episode"]) for t in tables)
     steps = np.stack([np.cumsum(t["length"][:n]) for t in tables])
     grid = np.linspace(0.0, steps[:, -1].min(), CURVE_POINTS)

@@ -34,7 +34,6 @@ from drqn_jax.programs import jit_in_store
 
 __all__ = [
     "PLANNER_CAPS_KMH",
-    "REVIEWER_RANGES",
     "RULE_BASED_SETTINGS",
     "WIDE_GRID",
     "above_speed_limit",
@@ -46,7 +45,6 @@ __all__ = [
     "random_settings",
     "reviewer_check",
     "seed_margins",
-    "sweep_family",
     "with_margin",
     "world_frontier",
 ]
@@ -251,21 +249,21 @@ def with_margin(
     return {**row, "frontier_margin": margin, "frontier_margin_ci": interval}
 
 
-#: Uniform ranges (m, s, m, km/h) of :func:`random_settings`, off :data:`WIDE_GRID`'s points.
+#: Uniform ranges (low, high, unit) of :func:`random_settings`, off :data:`WIDE_GRID`'s points.
 REVIEWER_RANGES = {
-    "lookahead": (2.0, 25.0),
-    "horizon": (0.0, 5.0),
-    "corridor_margin": (0.0, 2.5),
-    "speed_band_kmh": (0.25, 2.0),
+    "lookahead": (2.0, 25.0, "m"),
+    "horizon": (0.0, 5.0, "s"),
+    "corridor_margin": (0.0, 2.5, "m"),
+    "speed_band_kmh": (0.25, 2.0, "km/h"),
 }
 
 
 def random_settings(n: int, seed: int, limit_kmh: float) -> list[dict[str, float]]:
     """``n`` rule-based settings drawn uniformly from :data:`REVIEWER_RANGES`, rounded to 0.01."""
     rng = np.random.default_rng(seed)
-    ranges = {"v_max_kmh": (1.0, limit_kmh), **REVIEWER_RANGES}
+    ranges = {"v_max_kmh": (1.0, limit_kmh, "km/h"), **REVIEWER_RANGES}
     return [
-        {name: round(float(rng.uniform(low, high)), 2) for name, (low, high) in ranges.items()}
+        {name: round(float(rng.uniform(low, high)), 2) for name, (low, high, _) in ranges.items()}
         for _ in range(n)
     ]
 
@@ -278,10 +276,9 @@ def reviewer_check(
     at = frontier_rate(vertices, np.array([p["avg_speed_kmh"] for p in points]))
     excess = np.array([p["collision_free_rate"] for p in points]) - at
     lows = np.array([p["collision_free_ci"][0] for p in points]) - at
-    units = {"lookahead": "m", "horizon": "s", "corridor_margin": "m", "speed_band_kmh": "km/h"}
     ranges = ", ".join(
-        f"{name.removesuffix('_kmh').replace('_', ' ')} {low:g}–{high:g} {units[name]}"
-        for name, (low, high) in REVIEWER_RANGES.items()
+        f"{name.removesuffix('_kmh').replace('_', ' ')} {low:g}–{high:g} {unit}"
+        for name, (low, high, unit) in REVIEWER_RANGES.items()
     )
     best = round(100 * float(excess.max()), 1)
     side = "on it" if best == 0 else f"{abs(best):.1f} points {'above' if best > 0 else 'below'} it"

@@ -25,14 +25,11 @@ __all__ = [
     "BRIEF",
     "CLAIM",
     "COLUMNS",
-    "FORMS",
     "GOAL",
     "PAPER_DRQN_SPEED_KMH",
     "PAPER_EPISODES",
     "PAPER_TABLE_III",
     "PAPER_WORLD",
-    "SECTION_NAME",
-    "TABLES",
     "check_section",
     "column_legend",
     "load_results",
@@ -137,28 +134,29 @@ def render_section(record: Mapping[str, Any], section: str, form: str = "") -> s
         known = ", ".join(record["sections"]) or "none"
         raise ValueError(f"results section {section!r}: not in the results file (has: {known})")
     about = record["sections"][section]
+    command = ["", "```bash", about["command"], "```"]
     if "wall_time_s" not in about:  # interrupted before its table: what has finished
-        return _in_progress(about)
+        counts = ", ".join(f"`{arm}` {n}" for arm, n in about["runs_finished"].items()) or "none"
+        lines = [
+            f"**In progress**: no table until every run has finished. Runs finished so far: "
+            f"{counts}. The same command continues it, in a fresh clone too (the finished "
+            f"runs are kept in `{about['runs_store']}`):",
+            *command,
+        ]
+        return "\n".join(lines) + "\n"
     rows = [r for r in record["rows"] if r.get("section") == section]
     if form == "brief":
         return _brief(rows, about["comparisons"])
     tables = TABLES[:1] if form == "safety" else TABLES
     lines = [study_table(rows, about["comparisons"], legend=False, tables=tables)]
     machine = about["machine"]
-    went_on = (
-        "; earlier invocations trained its runs, the wall time is the last one's"
-        if about.get("continued")
-        else ""
-    )
+    went_on = "; earlier invocations trained its runs, the wall time is the last one's"
     lines += [
         "",
         f"Command (wall time {about['wall_time_s'] / 60:.0f} min on {machine.get('usable_cores')} "
         f"cores of {machine.get('cpu_model')}, JAX {machine.get('jax_version')}, "
-        f"commit {machine.get('git_commit')}{went_on}):",
-        "",
-        "```bash",
-        about["command"],
-        "```",
+        f"commit {machine.get('git_commit')}{went_on if about.get('continued') else ''}):",
+        *command,
     ]
     if form == "legend":
         lines += ["", column_legend()]
@@ -172,21 +170,6 @@ def _brief(rows: Sequence[Mapping[str, Any]], comparisons: Sequence[str]) -> str
     lines.append(
         f"Every column is defined, and every row shown in full with its command, in {DEFINITIONS}."
     )
-    return "\n".join(lines) + "\n"
-
-
-def _in_progress(about: Mapping[str, Any]) -> str:
-    """Markdown of an interrupted section: finished runs per arm, the continuing command."""
-    counts = ", ".join(f"`{arm}` {n}" for arm, n in about["runs_finished"].items()) or "none"
-    lines = [
-        f"**In progress**: no table until every run has finished. Runs finished so far: "
-        f"{counts}. The same command continues it, in a fresh clone too (the finished "
-        f"runs are kept in `{about['runs_store']}`):",
-        "",
-        "```bash",
-        about["command"],
-        "```",
-    ]
     return "\n".join(lines) + "\n"
 
 

@@ -28,10 +28,13 @@ from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.curves import load_curves, plot_curves
 from drqn_jax.experiments.figures import plot_safety_speed
 from drqn_jax.experiments.frontier import with_margin
+from drqn_jax.experiments.portable import differing_runs, portable_runs, restore_runs
 from drqn_jax.experiments.report import strict_json, study_table
 from drqn_jax.experiments.rows import baseline_row, paper_rows, study_row
 from drqn_jax.experiments.sweep import Sweep, build_sweep
+from drqn_jax.experiments.sweep_outputs import finished_results, metrics_path, run_timings
 from drqn_jax.experiments.verdicts import study_comparisons
+from drqn_jax.interop.training_recording import record_study_curves
 from drqn_jax.learners.hyperparams import agent_name
 from drqn_jax.registry import registered_envs
 
@@ -86,9 +89,6 @@ def plan_study(
         cross = tuple(dict.fromkeys(e for e in eval_envs if e != own))
         arms.append(Arm(name, sweep, cross))
     return arms
-
-
-# ----------------------------------------------------------------------------- running it
 
 
 @dataclasses.dataclass
@@ -150,9 +150,7 @@ def _train_arms(
     keep: Callable[[dict[str, list[dict[str, Any]]]], None] | None,
 ) -> tuple[dict[str, list[dict[str, Any]]], bool] | StudyOutcome:
     """Each arm's finished runs and whether any continued; or an interrupted outcome."""
-    from drqn_jax.experiments.portable import differing_runs, portable_runs, restore_runs
-    from drqn_jax.experiments.sweep_outputs import finished_results
-    from drqn_jax.experiments.sweep_runner import run_sweep
+    from drqn_jax.experiments.sweep_runner import run_sweep  # looked up here: tests replace it
 
     runs: dict[str, list[dict[str, Any]]] = {}
     continued = not train
@@ -201,8 +199,6 @@ def _study_rows(
 ) -> tuple[list[dict[str, Any]], list[tuple[dict[str, Any], Config]], dict, dict]:
     """The rows (paper, arms, cross-env, rule-based, with margins), the trained rows' configs,
     the cross-env evaluations and the frontiers."""
-    from drqn_jax.experiments.sweep_outputs import run_timings
-
     cross_configs = {  # each arm's config among another env's pedestrians
         a.name: {e: load_config(a.config.values, [f"env.id={e}"]) for e in a.cross_envs}
         for a in done
@@ -262,9 +258,6 @@ def _write_figures(
     png: bool,
 ) -> None:
     """``OUT/curves.rrd`` and, with ``png``, ``curves.png`` and ``safety_speed.png``."""
-    from drqn_jax.experiments.sweep_outputs import metrics_path
-    from drqn_jax.interop.training_recording import record_study_curves
-
     curves = {
         arm.name: load_curves(
             [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth

@@ -30,7 +30,6 @@ __all__ = [
     "compare_paired",
     "frontier_comparison",
     "goal_verdict",
-    "paired_margin",
     "study_comparisons",
 ]
 
@@ -142,7 +141,18 @@ def paired_margin(
     return Paired(len(common), float(diff.mean()), t_interval(diff))
 
 
-def _paired_sentence(name: str, other: str, paired: Paired, limit_kmh: float) -> str:
+def compare_paired(
+    name: str,
+    runs: Sequence[Mapping[str, Any]],
+    other: str,
+    others: Sequence[Mapping[str, Any]],
+    vertices: Sequence[Sequence[float]],
+    limit_kmh: float,
+) -> str | None:
+    """:func:`paired_margin` of ``name`` against ``other`` as a sentence (points, 95 % interval)."""
+    paired = paired_margin((name, other), runs, others, vertices, limit_kmh)
+    if paired is None:
+        return None
     if paired.too_fast is not None:
         return (
             f"{name} − {other}, margin to the rule-based frontier: none, {paired.too_fast} "
@@ -154,19 +164,6 @@ def _paired_sentence(name: str, other: str, paired: Paired, limit_kmh: float) ->
         f"seeds: {100 * paired.difference:+.1f} points {_points(*paired.interval)}: "
         f"{name} {side}"
     )
-
-
-def compare_paired(
-    name: str,
-    runs: Sequence[Mapping[str, Any]],
-    other: str,
-    others: Sequence[Mapping[str, Any]],
-    vertices: Sequence[Sequence[float]],
-    limit_kmh: float,
-) -> str | None:
-    """:func:`paired_margin` of ``name`` against ``other`` as a sentence (points, 95 % interval)."""
-    paired = paired_margin((name, other), runs, others, vertices, limit_kmh)
-    return None if paired is None else _paired_sentence(name, other, paired, limit_kmh)
 
 
 def _ceiling_part(
@@ -226,12 +223,6 @@ def goal_verdict(
     )
 
 
-def _memoryless_twin(config: Config, of: Config) -> bool:
-    """Whether ``config`` trains ``of``'s learner with a network without memory."""
-    mine, theirs = config.train_config(), of.train_config()
-    return mine.algorithm == theirs.algorithm and mine.network.kind != "drqn"
-
-
 def study_comparisons(
     trained: Sequence[tuple[dict[str, Any], Config]],
     names: Sequence[str],
@@ -251,10 +242,12 @@ def study_comparisons(
     paired = {n: paired_margin((first, n), runs[first], runs[n], vertices, limit) for n in rivals}
     if headline["agent"] in RECURRENT_Q_NETWORKS and not headline["teacher"]:
         verdicts = [claim_verdict(headline)]
-        twins = {n: paired[n] for n in rivals if _memoryless_twin(arms[n], config)}
+        learner = config.train_config().algorithm
+        memoryless = [n for n in rivals if arms[n].train_config().network.kind != "drqn"]
+        twins = {n: paired[n] for n in memoryless if arms[n].train_config().algorithm == learner}
         if twins and "planner" in frontiers[key]:
             ceiling = frontier_vertices(frontiers[key]["planner"]["points"])
             verdicts.append(goal_verdict(headline, ceiling, limit, twins))
         comparisons = verdicts + comparisons
-    sentences = [_paired_sentence(first, n, p, limit) for n, p in paired.items() if p is not None]
-    return comparisons + sentences
+    sentences = [compare_paired(first, runs[first], n, runs[n], vertices, limit) for n in rivals]
+    return comparisons + [s for s in sentences if s is not None]
