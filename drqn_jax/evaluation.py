@@ -185,10 +185,8 @@ def play_episode(
         next_obs, next_state, reward, terminated, truncated, info = env.step_env(
             key_env, state, action, params
         )
-        traced = None
-        if trace is not None:
-            decision = Decision(obs, state, carry, action, reward, terminated, truncated, info)
-            traced = trace(decision)
+        decision = Decision(obs, state, carry, action, reward, terminated, truncated, info)
+        traced = None if trace is None else trace(decision)
         m = _accumulate(m, ~done, reward, info, params)
         return (next_obs, next_state, carry, m, done | terminated | truncated), traced
 
@@ -245,10 +243,10 @@ def padded_keys(keys: jax.Array, batch_size: int | None = None) -> jax.Array:
     fewer than 61–81 rows, so without the padding episode i's bits would depend on the
     episodes beside it. Rows are independent: padding changes nothing else.
     """
-    if batch_size is not None and batch_size < MIN_BATCH:
+    if batch_size is not None and (not isinstance(batch_size, int) or batch_size < MIN_BATCH):
         raise ValueError(
-            f"batch_size = {batch_size}: must be >= {MIN_BATCH} (smaller batches round the "
-            "network's products differently) or None (all at once)"
+            f"batch_size = {batch_size!r}: must be >= {MIN_BATCH}, an integer (smaller batches "
+            "round the network's products differently), or None (all at once)"
         )
     n = keys.shape[0]
     size = max(MIN_BATCH, n if batch_size is None else batch_size)
@@ -366,10 +364,6 @@ def evaluate(
     """
     if not isinstance(num_episodes, int) or num_episodes < 1:
         raise ValueError(f"evaluate: num_episodes = {num_episodes!r}, must be an integer >= 1")
-    if batch_size is not None and (not isinstance(batch_size, int) or batch_size < MIN_BATCH):
-        raise ValueError(
-            f"evaluate: batch_size = {batch_size!r}, must be an integer >= {MIN_BATCH} or None"
-        )
     params = env.default_params if params is None else env.check_params(params)
     keys = episode_keys(key, num_episodes)
     size = num_episodes if on_episodes is None else min(PROGRESS_EPISODES, num_episodes)
@@ -390,10 +384,9 @@ def metrics_table(results: list[dict[str, Any]]) -> str:
     the ``teacher`` that :func:`drqn_jax.experiments.runner.evaluate_agents` adds."""
     header = (
         "| agent | teacher | episodes | collision-free % (95 % CI) | struck while stopped % "
-        "| goal % "
-        "| avg speed (km/h) | authors' speed (km/h) "
-        "| distance (m) | distance, collision-free (m) | collisions / km "
-        "| min TTC median (s) | steps with TTC ≤ 3 s % |"
+        "| goal % | avg speed (km/h) | authors' speed (km/h) | distance (m) "
+        "| distance, collision-free (m) | collisions / km | min TTC median (s) "
+        "| steps with TTC ≤ 3 s % |"
     )
     rows = [header, "| " + " | ".join(["---"] * (header.count("|") - 1)) + " |"]
     for r in results:
@@ -401,9 +394,8 @@ def metrics_table(results: list[dict[str, Any]]) -> str:
         rows.append(
             f"| {r['agent']} | {r.get('teacher', '–')} | {r['num_episodes']} "
             f"| {100 * r['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f}) "
-            f"| {100 * r['struck_while_stopped_rate']:.1f} "
-            f"| {100 * r['goal_rate']:.1f} | {r['avg_speed_kmh']:.2f} "
-            f"| {r['avg_speed_authors_kmh']:.2f} "
+            f"| {100 * r['struck_while_stopped_rate']:.1f} | {100 * r['goal_rate']:.1f} "
+            f"| {r['avg_speed_kmh']:.2f} | {r['avg_speed_authors_kmh']:.2f} "
             f"| {r['avg_distance_m']:.1f} | {r['avg_distance_collision_free_m']:.1f} "
             f"| {r['collisions_per_km']:.3f} | {r['min_ttc_median_s']:.1f} "
             f"| {100 * r['near_collision_step_share']:.2f} |"

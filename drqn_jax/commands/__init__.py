@@ -52,10 +52,7 @@ def evaluation_overrides(
 ) -> list[str]:
     """``overrides`` (--set), then --episodes and --seed as evaluate.episodes and run.seed."""
     given = {"evaluate.episodes": episodes, "run.seed": seed}
-    return [
-        *overrides,
-        *(f"{field}={value}" for field, value in given.items() if value is not None),
-    ]
+    return [*overrides, *(f"{name}={value}" for name, value in given.items() if value is not None)]
 
 
 def episodes_text(config: Config) -> str:

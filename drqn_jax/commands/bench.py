@@ -13,13 +13,7 @@ from drqn_jax.config import ConfigError, load_config
 from drqn_jax.experiments.runner import EXIT_OK
 
 #: The suite's benchmarks, in the order ``drqn-jax bench all`` runs them.
-SUITE = (
-    "env_throughput",
-    "peers",
-    "train_throughput",
-    "evaluation",
-    "gymnasium_throughput",
-)
+SUITE = ("env_throughput", "peers", "train_throughput", "evaluation", "gymnasium_throughput")
 
 #: Benchmarks run by name only, not by ``all`` (long, not throughput figures).
 TOOLS = ("gymnax_validation", "learning_curve", "decision_interval")

@@ -104,11 +104,8 @@ def _train_and_evaluate(
     agent = drqn_agent(result.trainer.network, params, agent_name(result.trainer.config))
     training = None
     if reproduce:
-        training = {
-            "env_steps": int(state.env_steps),
-            "trained_on": device_identity(),
-            "train_wall_s": result.wall_time_s,
-        }
+        training = {"env_steps": int(state.env_steps), "trained_on": device_identity()}
+        training["train_wall_s"] = result.wall_time_s
     return _evaluated(config, agent, run_dir, quiet, start, summary, about, training)
 
 

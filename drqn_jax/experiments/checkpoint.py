@@ -50,6 +50,7 @@ _MANIFEST = "manifest.json"  # the npz entry that holds the manifest
 _RESERVED = ("format", "drqn_jax_version", "drqn_jax_commit", "npz_sha256", "leaves")
 _MAX_LISTED = 5  # mismatches named in one error message
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # fixed entry timestamps: deterministic bytes
+_ABSENT = object()  # a field one side of a config diff lacks
 #: What reading a broken archive raises (RuntimeError: an entry flagged as encrypted).
 _ZIP_ERRORS = (zipfile.error, zipfile.LargeZipFile, OSError, EOFError, ValueError, RuntimeError)
 
@@ -92,12 +93,7 @@ def _config_diff(saved: Any, expected: Any, prefix: str = "") -> list[str]:
         out: list[str] = []
         for key in sorted(set(saved) | set(expected), key=str):
             name = f"{prefix}.{key}" if prefix else str(key)
-            if key not in saved:
-                out.append(f"{name}: checkpoint <absent>, this run {_show(expected[key])}")
-            elif key not in expected:
-                out.append(f"{name}: checkpoint {_show(saved[key])}, this run <absent>")
-            else:
-                out.extend(_config_diff(saved[key], expected[key], name))
+            out += _config_diff(saved.get(key, _ABSENT), expected.get(key, _ABSENT), name)
         return out
     if saved == expected and type(saved) is type(expected):
         return []
@@ -105,7 +101,7 @@ def _config_diff(saved: Any, expected: Any, prefix: str = "") -> list[str]:
 
 
 def _show(value: Any) -> str:
-    return json.dumps(value, sort_keys=True)
+    return "<absent>" if value is _ABSENT else json.dumps(value, sort_keys=True)
 
 
 def _json_default(value: Any) -> Any:
@@ -289,13 +285,6 @@ def _read_manifest(npz_path: Path, archive: zipfile.ZipFile) -> dict[str, Any]:
         )
     if not isinstance(manifest.get("leaves"), list):
         raise CheckpointError(f"{where} is corrupt: 'leaves' missing or malformed")
-    for entry in manifest["leaves"]:
-        if not (
-            isinstance(entry, dict)
-            and all(isinstance(entry.get(k), str) for k in ("name", "path", "dtype"))
-            and isinstance(entry.get("shape"), list)
-        ):
-            raise CheckpointError(f"{where} is corrupt: malformed leaf entry {entry!r}")
     return manifest
 
 
@@ -364,26 +353,8 @@ def _check_template(
 
 def _decode(npz_path: Path, archive: zipfile.ZipFile, entry: dict[str, Any]) -> jax.Array:
     """One leaf, bit-identical to the saved one."""
-    member = entry["name"] + ".npy"
-    raw = _read_entry(npz_path, archive, member, entry["path"])
-    try:
-        stored = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
-    except (ValueError, OSError) as err:
-        raise CheckpointError(
-            f"{npz_path} is corrupt: cannot read {member} ({entry['path']}): {err}"
-        ) from None
-    shape, key_impl = tuple(entry["shape"]), entry.get("key_impl")
-    if key_impl is not None:
-        if stored.shape[: len(shape)] != shape:
-            raise CheckpointError(
-                f"{npz_path} is corrupt: {entry['path']} has key data of shape {stored.shape}, "
-                f"not {shape} + impl axes"
-            )
-        return jax.random.wrap_key_data(jnp.asarray(stored), impl=key_impl)
-    dtype = jnp.dtype(entry["dtype"])
-    if stored.shape != shape or stored.dtype != _storage_dtype(dtype):
-        raise CheckpointError(
-            f"{npz_path} is corrupt: {entry['path']} is stored as "
-            f"{_describe(stored.shape, stored.dtype)}, its manifest says {_describe(shape, dtype)}"
-        )
-    return jax.device_put(stored.view(dtype))
+    raw = _read_entry(npz_path, archive, entry["name"] + ".npy", entry["path"])
+    stored = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
+    if entry.get("key_impl") is not None:
+        return jax.random.wrap_key_data(jnp.asarray(stored), impl=entry["key_impl"])
+    return jax.device_put(stored.view(jnp.dtype(entry["dtype"])))

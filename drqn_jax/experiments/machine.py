@@ -66,16 +66,13 @@ NOT_RECORDED = "(not recorded)"
 def git_commit() -> str:
     """``HEAD``'s short hash of this checkout, ``+dirty`` if ``drqn_jax/`` has edits."""
     root = Path(__file__).resolve().parents[2]  # the checkout: drqn_jax/experiments/..
+
+    def git(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True)
+
     try:
-        head = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True
-        )
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no", "--", "drqn_jax"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-        )
+        head = git("rev-parse", "--short", "HEAD")
+        dirty = git("status", "--porcelain", "--untracked-files=no", "--", "drqn_jax")
     except OSError:
         return "(unknown)"
     if head.returncode != 0:

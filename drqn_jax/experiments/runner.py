@@ -158,16 +158,6 @@ def metrics_csv(state: TrainState | Mapping[str, Any]) -> str:
     return out.getvalue()
 
 
-def _progress_postfix(state: TrainState, steps_per_s: float) -> dict[str, str]:
-    rows = recorded_metrics(state)
-    recent = slice(-_RECENT, None)
-    postfix = {"steps/s": f"{steps_per_s:,.0f}"}
-    if len(rows["episode"]):
-        postfix["return"] = f"{rows['episode_return'][recent].mean():.1f}"
-        postfix["collisions"] = f"{100 * rows['collision'][recent].mean():.0f}%"
-    return postfix
-
-
 def _save(run_dir: Path, config: Config, state: TrainState, wall: float, chunks: int) -> None:
     """The checkpoint (the training identity and counters as its meta) and ``metrics.csv``."""
     counts = {k: int(getattr(state, k)) for k in ("recorded", "grad_steps", "env_steps")}
@@ -266,7 +256,12 @@ def _chunks(
             steps_per_s = (steps - clock["steps"]) / max(now - clock["t"], 1e-9)
             clock.update(t=now, steps=steps)
             bar.update(done(state) - bar.n)
-            bar.set_postfix(_progress_postfix(state, steps_per_s), refresh=False)
+            rows = recorded_metrics(state)
+            postfix = {"steps/s": f"{steps_per_s:,.0f}"}
+            if len(rows["episode"]):
+                postfix["return"] = f"{rows['episode_return'][-_RECENT:].mean():.1f}"
+                postfix["collisions"] = f"{100 * rows['collision'][-_RECENT:].mean():.0f}%"
+            bar.set_postfix(postfix, refresh=False)
 
         return run_chunks(
             run,
