@@ -30,17 +30,14 @@ from drqn_jax.registry import make as make_jax_env
 from drqn_jax.registry import registered_envs
 
 __all__ = [
-    "NAMESPACE",
     "NO_ACTION_YET",
     "RENDER_AHEAD_M",
     "RENDER_BEHIND_M",
     "RENDER_HALF_WIDTH_M",
     "RENDER_PIXELS_PER_M",
     "UrbanPedestriansGymEnv",
-    "grid_speed_high",
     "gymnasium_ids",
     "gymnasium_last_action",
-    "gymnasium_observation_space",
     "register_gymnasium_envs",
 ]
 
@@ -76,8 +73,6 @@ def gymnasium_observation_space(env: UrbanPedestrians, params: EnvParams) -> spa
     low = np.array(np.broadcast_to(np.asarray(grid.low, np.float32), grid.shape))
     high = np.array(np.broadcast_to(np.asarray(grid.high, np.float32), grid.shape))
     high[..., SPEED_CHANNEL] = np.minimum(high[..., SPEED_CHANNEL], grid_speed_high(params))
-    if not np.all(np.isfinite(low)) or not np.all(np.isfinite(high)):
-        raise ValueError("grid bounds must be finite: a channel has no known bound")
     speed = jax_space.spaces["speed"]
     return spaces.Dict(
         {
@@ -285,16 +280,14 @@ def gymnasium_ids() -> tuple[str, ...]:
 
 def register_gymnasium_envs() -> tuple[str, ...]:
     """Register (unwrapped) and return :func:`gymnasium_ids`; present ids are kept."""
-    for env_id in registered_envs():
-        gym_id = f"{NAMESPACE}/{env_id}"
-        if gym_id in gymnasium.registry:
-            continue
-        gymnasium.register(
-            id=gym_id,
-            entry_point=f"{__name__}:UrbanPedestriansGymEnv",
-            vector_entry_point="drqn_jax.interop.gymnasium_vector:UrbanPedestriansVectorEnv",
-            kwargs={"env_id": env_id},
-            order_enforce=False,
-            disable_env_checker=True,
-        )
+    for env_id, gym_id in zip(registered_envs(), gymnasium_ids(), strict=True):
+        if gym_id not in gymnasium.registry:
+            gymnasium.register(
+                id=gym_id,
+                entry_point=f"{__name__}:UrbanPedestriansGymEnv",
+                vector_entry_point="drqn_jax.interop.gymnasium_vector:UrbanPedestriansVectorEnv",
+                kwargs={"env_id": env_id},
+                order_enforce=False,
+                disable_env_checker=True,
+            )
     return gymnasium_ids()

@@ -279,7 +279,6 @@ class UrbanPedestriansVectorEnv(JaxBacked, VectorEnv[dict[str, Any], Any, np.nda
                 infos["final_info"], infos["_final_info"] = _batched_info(info, done), done.copy()
         else:
             infos = _batched_info(info, ~autoreset)
-        restarted = np.asarray(restarted, bool)
         if restarted.any():
             self._take_reset_keys([None] * self.num_envs, restarted)
         self._ended = done

@@ -17,31 +17,37 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from drqn_jax.env.params import EnvParams
-from drqn_jax.env.road_map import OFF_ROAD
-from drqn_jax.env.state import ACTIONS
+from drqn_jax.env.road_map import (
+    CROSSING_AREA,
+    OFF_ROAD,
+    ROAD,
+    WALKWAY,
+    crosswalk_centres,
+    intersection_centres,
+)
+from drqn_jax.env.state import ACTIONS, BEHAVIOURS
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.env.viewer import (
     ACTION_COLOURS,
     BEHAVIOUR_COLOURS,
     EGO_COLLISION_COLOUR,
     EGO_COLOUR,
+    GOAL_COLOUR,
+    LANE_MARK_COLOUR,
     MAP_COLOURS,
     OCCLUDED_ALPHA,
     hud_glyphs,
     hud_text,
 )
 from drqn_jax.interop.episode_record import EpisodeRecord
-from drqn_jax.interop.rerun_map import log_map, map_extent, to_view
 from drqn_jax.programs import cached_program
 
 __all__ = [
     "BEHAVIOUR_COLOURS",
     "GRID_CHANNELS",
     "OCCLUDED_ALPHA",
-    "STEP_TIMELINE",
     "collapsed_blueprint",
     "episode_blueprint",
-    "hud_labels",
     "recording_file",
     "send_scalars",
     "write_episodes",
@@ -49,6 +55,95 @@ __all__ = [
 
 STEP_TIMELINE = "step"
 GRID_CHANNELS = ("occupancy", "heading", "speed", "semantics")  # SPEC §4 channel order
+_VIEW_FLIP = np.array([1.0, -1.0], np.float32)
+
+
+def to_view(xy: np.ndarray) -> np.ndarray:
+    """Simulator (x, y) → logged (x, −y), (..., 2) float32 (rerun's 2D y axis points down)."""
+    return np.asarray(xy, np.float32) * _VIEW_FLIP
+
+
+def map_extent(env: UrbanPedestrians, params: EnvParams) -> tuple[float, float, float]:
+    """``(x_min, x_max, y_half)`` of the drawn map: everywhere an ego or pedestrian can be."""
+    x_min = min(0.0, float(params.ego_start_s) + env.static.grid_x_min)
+    x_max = float(params.goal_x) + max(float(params.spawn_max), float(params.despawn_ahead))
+    y_half = max(-env.static.grid_y_min, float(params.lane_width) + float(params.sidewalk_width))
+    return x_min, x_max, y_half
+
+
+def _map_regions(env: UrbanPedestrians, params: EnvParams) -> dict[int, list[tuple]]:
+    """The SPEC §1 map as ``(name, x_min, x_max, y_min, y_max)`` rectangles (m), keyed by
+    the class ``semantic_class`` gives their interior."""
+    x_min, x_max, y_half = map_extent(env, params)
+    lane, side = float(params.lane_width), float(params.sidewalk_width)
+    half_street, cw = 0.5 * float(params.cross_street_width), float(params.crosswalk_width)
+    xcs = [float(x) for x in np.asarray(intersection_centres(params, env.static))]
+    road, walkways, crosswalks = [("main road", x_min, x_max, -lane, lane)], [], []
+    # main sidewalks, cut where they cross a cross street (there they are crosswalks)
+    cuts = [x_min, *[c for xc in xcs for c in (xc - half_street, xc + half_street)], x_max]
+    for lo, hi in zip(cuts[::2], cuts[1::2], strict=True):
+        for sign in (1.0, -1.0):
+            walkways.append(("sidewalk", lo, hi, *sorted((sign * lane, sign * (lane + side)))))
+    for xc in xcs:
+        for sign in (1.0, -1.0):  # sign: the ego's left (+) or right (-) side of the road
+            y_far = sorted((sign * (lane + side), sign * y_half))
+            y_near = sorted((sign * lane, sign * (lane + side)))
+            x_street = (xc - half_street, xc + half_street)
+            road.append(("cross street", *x_street, *y_far))
+            crosswalks.append(("crosswalk", *x_street, *y_near))
+            for x_sign in (-1.0, 1.0):  # the cross street's sidewalks, before and after it
+                x0, x1 = sorted((xc + x_sign * half_street, xc + x_sign * (half_street + side)))
+                walkways.append(("cross-street sidewalk", x0, x1, *y_far))
+    for xw in np.asarray(crosswalk_centres(params, env.static)).tolist():
+        crosswalks.append(("crosswalk", xw - cw / 2, xw + cw / 2, -lane, lane))
+    return {ROAD: road, WALKWAY: walkways, CROSSING_AREA: crosswalks}
+
+
+def log_map(rec: rr.RecordingStream, env: UrbanPedestrians, params: EnvParams) -> None:
+    """The static map (SPEC §1) under ``map/`` and the behaviour annotation context."""
+    regions = _map_regions(env, params)
+    for entity, semantic in (("road", ROAD), ("walkways", WALKWAY), ("crosswalks", CROSSING_AREA)):
+        box = np.array([r[1:] for r in regions[semantic]])  # (R, 4) x_min, x_max, y_min, y_max
+        rec.log(
+            f"map/{entity}",
+            rr.Boxes2D(
+                mins=to_view(box[:, [0, 3]]),  # y_max → view minimum
+                sizes=(box[:, [1, 3]] - box[:, [0, 2]]).astype(np.float32),
+                colors=MAP_COLOURS[semantic],
+                labels=[r[0] for r in regions[semantic]],
+                show_labels=False,
+                radii=0.08,
+                draw_order=1.0,
+            ),
+            static=True,
+        )
+    x_min, x_max, _ = map_extent(env, params)
+    lane = float(params.lane_width)
+    rec.log(
+        "map/centre_line",
+        rr.LineStrips2D(
+            [to_view([[x_min, 0.0], [x_max, 0.0]])], colors=LANE_MARK_COLOUR, radii=0.1
+        ),
+        static=True,
+    )
+    goal = float(params.goal_x)
+    rec.log(
+        "map/goal",
+        rr.LineStrips2D(
+            [to_view([[goal, -lane], [goal, lane]])], colors=GOAL_COLOUR, radii=0.25, labels="goal"
+        ),
+        static=True,
+    )
+    rec.log(
+        "/",
+        rr.AnnotationContext(
+            [
+                rr.AnnotationInfo(id=code, label=BEHAVIOURS[code], color=colour)
+                for code, colour in BEHAVIOUR_COLOURS.items()
+            ]
+        ),
+        static=True,
+    )
 
 
 def _steps(values: np.ndarray | range, timeline: str = STEP_TIMELINE) -> list[rr.TimeColumn]:
@@ -77,14 +172,10 @@ def send_scalars(
 
 @cached_program
 def _hud_program(env: UrbanPedestrians) -> Any:
-    """``(states, params) -> glyphs``: jitted :func:`hud_glyphs` over leaves (N, T + 1, ...)."""
+    """``(states, params) -> (N, T + 1, 2, L) int32``: :func:`hud_glyphs` of every recorded
+    state (leaves (N, T + 1, ...)), one jitted call."""
     one = partial(hud_glyphs, static=env.static)
     return jax.jit(jax.vmap(jax.vmap(one, in_axes=(0, None)), in_axes=(0, None)))
-
-
-def hud_labels(record: EpisodeRecord, env: UrbanPedestrians, params: EnvParams) -> np.ndarray:
-    """(N, T + 1, 2, L) int32 :func:`hud_glyphs` of every recorded state, one jitted call."""
-    return np.asarray(_hud_program(env)(record.state, params))
 
 
 def _span(record: EpisodeRecord, i: int) -> tuple[str, int, np.ndarray]:
@@ -305,7 +396,7 @@ def write_episodes(
         blueprint = episode_blueprint(record.num_episodes, record.q_values is not None, env, params)
     with recording_file(path, blueprint) as rec:
         log_map(rec, env, params)
-        hud = hud_labels(record, env, params)
+        hud = np.asarray(_hud_program(env)(record.state, params))
         for i in range(record.num_episodes):
             _log_world(rec, record, i, hud[i], float(params.ped_radius), env.static.ttc_horizon)
             _log_grid(rec, record, i, env.static.grid_shape)
