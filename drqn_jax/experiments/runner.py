@@ -41,8 +41,7 @@ from drqn_jax.experiments.checkpoint import (
 )
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
 from drqn_jax.experiments.machine import device_identity, git_commit, machine_info
-from drqn_jax.learners import Trainer, make_train
-from drqn_jax.learners.dqn.state import TrainState
+from drqn_jax.learners import Trainer, TrainState, make_train
 from drqn_jax.learners.hyperparams import LEARNED_AGENTS, NOT_LEARNED, teacher_label
 from drqn_jax.networks import Network
 from drqn_jax.programs import cached

@@ -27,7 +27,7 @@ from drqn_jax.experiments.checkpoint import (
 from drqn_jax.experiments.runner import save_agent
 from drqn_jax.experiments.sweep import Sweep
 from drqn_jax.experiments.sweep_plan import Call, Distributed
-from drqn_jax.learners.dqn.state import TrainState
+from drqn_jax.learners import TrainState
 
 __all__ = [
     "agent_dir",

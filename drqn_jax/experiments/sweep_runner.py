@@ -44,8 +44,7 @@ from drqn_jax.experiments.sweep_plan import (
     plan_calls,
     resolve_strategy,
 )
-from drqn_jax.learners import Trainer, make_train
-from drqn_jax.learners.dqn.state import TrainState
+from drqn_jax.learners import Trainer, TrainState, make_train
 from drqn_jax.learners.hyperparams import agent_name, teacher_label
 from drqn_jax.learners.selection import selection, unvalidated
 from drqn_jax.programs import cached

@@ -1,16 +1,15 @@
 """The learners (paper §V-B, Tables I–II; SPEC §7): shared modules (optim, task,
-hyperparams, common, selection, trainer) and one per algorithm (``dqn``, ``ppo``,
+hyperparams, common, selection) and one per algorithm (``dqn``, ``ppo``,
 ``pqn``; none imports another). :func:`make_train` picks by ``TrainConfig.algorithm``.
 """
 
 from __future__ import annotations
 
-from drqn_jax.learners.dqn.state import TrainState
-from drqn_jax.learners.dqn.train import make_dqn
+from drqn_jax.learners.common import Trainer
+from drqn_jax.learners.dqn.train import TrainState, make_dqn
 from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig
 from drqn_jax.learners.ppo import make_ppo
 from drqn_jax.learners.pqn import make_pqn
-from drqn_jax.learners.trainer import Trainer
 
 __all__ = ["Hyperparams", "TrainConfig", "TrainState", "Trainer", "make_train"]
 

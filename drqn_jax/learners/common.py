@@ -1,7 +1,8 @@
-"""What the learners share (paper §V-B; SPEC §7): the state's start, per-episode
-bookkeeping of N envs whose episodes end out of order (metrics written at each
-episode's index of (num_episodes,) buffers), the ε schedule, and the on-policy
-learners' state, rollout, minibatch epochs and trainer.
+"""What the learners share (paper §V-B; SPEC §7): the :class:`Trainer` protocol every
+learner serves, the state's start, per-episode bookkeeping of N envs whose episodes
+end out of order (metrics written at each episode's index of (num_episodes,)
+buffers), the ε schedule, and the on-policy learners' state, rollout and minibatch
+epochs.
 """
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -21,16 +22,18 @@ from drqn_jax.learners.optim import (
     clip_by_global_norm,
     optimizer,
 )
+from drqn_jax.learners.selection import candidate_metrics, run_agent
 from drqn_jax.learners.task import Step, Task
-from drqn_jax.learners.trainer import Trainer, make_trainer
 from drqn_jax.networks import Network
 from drqn_jax.pytree import pytree_dataclass, tree_where
 
 __all__ = [
     "LearnerState",
+    "Trainer",
     "epsilon_of",
     "init_fields",
     "make_on_policy",
+    "make_trainer",
     "minibatch_epochs",
     "optimizer_of",
     "per_decision",
@@ -38,6 +41,75 @@ __all__ = [
     "restarted",
     "rollout",
 ]
+
+
+class Trainer(NamedTuple):
+    """The pure functions of one training configuration, all the host loop, sweeps,
+    checkpoints and evaluation use: ``init``, ``act`` (actions (N,), carry),
+    ``run(state, n)`` (no-ops once finished, so any chunking ends bit-identical),
+    ``train`` -> (agent params, metrics), ``gradient_update`` (DQN only),
+    ``validation_metrics`` and ``agent_params``; every state is a :class:`LearnerState`.
+    """
+
+    config: Any
+    task: Any
+    env: Any
+    env_params: Any
+    network: Any
+    init: Callable[..., Any]
+    act: Callable[[Any, jax.Array], tuple[jax.Array, Any]]
+    run: Callable[[Any, int], Any]
+    train: Callable[..., tuple[Any, dict[str, jax.Array]]]
+    gradient_update: Callable[..., tuple[tuple, jax.Array]] | None
+    validation_metrics: Callable[[Any], dict[str, jax.Array]]
+    agent_params: Callable[[Any], Any]
+
+
+def make_trainer(
+    config: Any,
+    task: Any,
+    network: Any,
+    init: Callable[..., Any],
+    act: Callable[[Any, jax.Array], tuple[jax.Array, Any]],
+    run: Callable[[Any, int], Any],
+    gradient_update: Callable[..., tuple[tuple, jax.Array]] | None = None,
+) -> Trainer:
+    """A learner's :class:`Trainer` from its ``act``, ``run`` and ``init(key, hp,
+    env_params)``, whose last two default to the config's and the task's."""
+
+    def init_state(key: jax.Array, hparams: Any = None, env_params: Any = None) -> Any:
+        hp = config.hyperparams if hparams is None else hparams
+        return init(key, hp, task.env_params if env_params is None else env_params)
+
+    validation_metrics = functools.partial(candidate_metrics, config, task, network)
+    agent_params = functools.partial(run_agent, config)
+
+    def train(key: jax.Array, hparams: Any = None, env_params: Any = None):
+        """Init, chunks in a ``lax.while_loop`` until finished, then the agent's choice:
+        ``(agent params, metrics)``; ``vmap`` it over seeds."""
+        state = init_state(key, hparams, env_params)
+        state = jax.lax.while_loop(
+            lambda s: ~s.finished, lambda s: run(s, config.chunk_iterations), state
+        )
+        if config.snapshots:
+            state = state.replace(validation=validation_metrics(state))
+        return agent_params(state), state.metrics
+
+    return Trainer(
+        config=config,
+        task=task,
+        env=task.env,
+        env_params=task.env_params,
+        network=network,
+        init=init_state,
+        act=act,
+        run=run,
+        train=train,
+        gradient_update=gradient_update,
+        validation_metrics=validation_metrics,
+        agent_params=agent_params,
+    )
+
 
 #: Per-episode metrics of every learner and task; a learner adds its own (the
 #: DQN: ε), a task its own (the paper's env: collision, goal, distance, speed).

@@ -1,5 +1,5 @@
 """Recurrent PPO (Schulman et al. 2017; not the paper's), laid out like PureJaxRL's
-``ppo_rnn.py`` behind the same :class:`~drqn_jax.learners.trainer.Trainer` as the DQN.
+``ppo_rnn.py`` behind the same :class:`~drqn_jax.learners.common.Trainer` as the DQN.
 
 One update: a rollout of ``rollout_steps`` on ``num_envs`` envs, GAE, then
 ``update_epochs`` of clipped-surrogate steps over minibatches of whole env sequences.
@@ -16,10 +16,15 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.learners.common import make_on_policy, minibatch_epochs, per_decision, restarted
+from drqn_jax.learners.common import (
+    Trainer,
+    make_on_policy,
+    minibatch_epochs,
+    per_decision,
+    restarted,
+)
 from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig
 from drqn_jax.learners.task import Task, make_task
-from drqn_jax.learners.trainer import Trainer
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
 
@@ -108,7 +113,7 @@ def ppo_loss(
 
 @cached_program
 def make_ppo(config: TrainConfig) -> Trainer:
-    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "ppo"`` config."""
+    """The :class:`~drqn_jax.learners.common.Trainer` of an ``algorithm = "ppo"`` config."""
     task = make_task(config.env_id, config.env_overrides)
     network = actor_critic(config, task)
     return make_on_policy(

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.learners.common import (
+    Trainer,
     epsilon_of,
     make_on_policy,
     minibatch_epochs,
@@ -23,7 +24,6 @@ from drqn_jax.learners.common import (
 )
 from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, step_share
 from drqn_jax.learners.task import Task, make_task
-from drqn_jax.learners.trainer import Trainer
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
 
@@ -82,7 +82,7 @@ def pqn_loss(
 
 @cached_program
 def make_pqn(config: TrainConfig) -> Trainer:
-    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "pqn"`` config;
+    """The :class:`~drqn_jax.learners.common.Trainer` of an ``algorithm = "pqn"`` config;
     its episodes also record the ε they ran with."""
     task = make_task(config.env_id, config.env_overrides)
     network = make_network(task.network(config.network))

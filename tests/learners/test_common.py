@@ -28,13 +28,13 @@ def crossings(graph: dict[str, set[str]]) -> list[str]:
 
 def test_the_crossing_finder_finds_a_crossing():
     graph = {
-        "drqn_jax.learners.common": {"drqn_jax.learners.dqn.state"},
+        "drqn_jax.learners.common": {"drqn_jax.learners.dqn.replay"},
         "drqn_jax.learners.pqn": {"drqn_jax.learners.common", "drqn_jax.learners.ppo"},
-        "drqn_jax.learners.dqn.train": {"drqn_jax.learners.dqn.state"},
+        "drqn_jax.learners.dqn.train": {"drqn_jax.learners.dqn.replay"},
         "drqn_jax.learners": {"drqn_jax.learners.ppo"},
     }
     assert crossings(graph) == [
-        "drqn_jax.learners.common -> drqn_jax.learners.dqn.state",
+        "drqn_jax.learners.common -> drqn_jax.learners.dqn.replay",
         "drqn_jax.learners.pqn -> drqn_jax.learners.ppo",
     ]
 

@@ -3,41 +3,80 @@
 An iteration acts ε-greedily on N envs, stores the step in the episode replay, takes
 ``updates_per_step`` Double-DQN steps once ``learning_starts`` episodes are complete,
 copies the target every ``target_period`` steps and records ended episodes. Iterations
-after the run finished change nothing, so any chunking ends bit-identical.
+after the run finished change nothing, so any chunking ends bit-identical. A gradient
+step samples windows, takes the sequence loss's gradient (clamped with ``clip =
+"grad"``) and Adam's step; imitation labels (not the paper's) are recomputed from the
+replayed records.
 """
 
 from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.learners.common import epsilon_of, init_fields, record_episodes
+from drqn_jax.env.state import BRAKE
+from drqn_jax.learners.common import (
+    LearnerState,
+    Trainer,
+    epsilon_of,
+    init_fields,
+    make_trainer,
+    optimizer_of,
+    per_decision,
+    record_episodes,
+)
+from drqn_jax.learners.dqn.loss import CLIP_GRAD, sequence_loss
 from drqn_jax.learners.dqn.replay import (
     EpisodeReplay,
     add_transition,
     begin_episodes,
     end_episodes,
     init_replay,
+    sample_windows,
 )
-from drqn_jax.learners.dqn.state import TrainState
-from drqn_jax.learners.dqn.update import Learner, gradient_update, learn
-from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
+from drqn_jax.learners.hyperparams import (
+    IMITATION_ALL,
+    Hyperparams,
+    TrainConfig,
+    annealed,
+    step_share,
+)
+from drqn_jax.learners.optim import apply_updates, clip
 from drqn_jax.learners.selection import SELECT_SAFE, take_snapshot, unvalidated
 from drqn_jax.learners.task import Step, Task, make_task
-from drqn_jax.learners.trainer import Trainer, make_trainer
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
-from drqn_jax.pytree import tree_where
+from drqn_jax.pytree import pytree_dataclass, tree_where
 
-__all__ = ["make_dqn"]
+__all__ = ["Learner", "TrainState", "gradient_update", "learn", "make_dqn"]
 
 #: ``fold_in`` index of the guided-action draw: its own stream, so that
 #: ``explore_guide = 0`` leaves every other draw as it was.
 GUIDE_STREAM = 1
+
+
+@pytree_dataclass
+class TrainState(LearnerState):
+    """Everything a replay DQN run carries between iterations (and checkpoints)."""
+
+    target: Any
+    replay: EpisodeReplay
+    epsilon: jax.Array  # (N,) float32 ε of each env's current episode
+    snapshots: Any = None  # [K, ...] online parameters during training; None when K = 0
+    validation: Any = None  # {VALIDATION_METRICS: (K + 1,) float32}, NaN until validated
+
+
+class Learner(NamedTuple):
+    """What a gradient step changes: both networks, Adam's state and the step count."""
+
+    online: Any
+    target: Any
+    opt_state: Any
+    grad_steps: jax.Array
 
 
 def _small_leaves(state: TrainState) -> TrainState:
@@ -66,17 +105,11 @@ def _check_task(config: TrainConfig, task: Task) -> None:
 
 @cached_program
 def make_dqn(config: TrainConfig) -> Trainer:
-    """The :class:`~drqn_jax.learners.trainer.Trainer` of an ``algorithm = "dqn"`` config."""
+    """The :class:`~drqn_jax.learners.common.Trainer` of an ``algorithm = "dqn"`` config."""
     task = make_task(config.env_id, config.env_overrides)
     _check_task(config, task)
     network = make_network(task.network(config.network))
     act = functools.partial(explore, task, network, config.num_episodes)
-
-    def update(learner: tuple, key, replay, hp, env_params) -> tuple[tuple, jax.Array]:
-        """One gradient step on ``learner`` = (online, target, opt_state, grad_steps)."""
-        learner = Learner(*learner)
-        learner, loss = gradient_update(config, task, network, learner, key, replay, hp, env_params)
-        return tuple(learner), loss
 
     def run(state: TrainState, num_iterations: int) -> TrainState:
         """``num_iterations`` iterations; those after the run finished change nothing."""
@@ -87,6 +120,7 @@ def make_dqn(config: TrainConfig) -> Trainer:
         return jax.lax.scan(body, state, None, length=num_iterations)[0]
 
     init = functools.partial(_init_state, config, task, network)
+    update = functools.partial(gradient_update, config, task, network)
     return make_trainer(config, task, network, init, act, run, update)
 
 
@@ -213,3 +247,84 @@ def _iteration(
             config, state.snapshots, learner.online, state.recorded, moved.recorded
         ),
     )
+
+
+def _imitation(task: Task, windows: Any, hp: Hyperparams, env_params: Any) -> tuple:
+    """Expert actions and imitation weights (W, B), or (None, None) without a teacher."""
+    if task.teacher is None:
+        return None, None
+    states = jax.tree.map(lambda x: x[:-1], windows.records)  # s_t of each transition
+    expert = task.teacher.labels(states, env_params, hp)
+    imitate = (hp.imitation_states == IMITATION_ALL) | (expert == BRAKE)
+    return expert, hp.imitation_weight * imitate.astype(jnp.float32)
+
+
+def gradient_update(
+    config: TrainConfig,
+    task: Task,
+    network: Network,
+    learner: Learner | tuple,
+    key: jax.Array,
+    replay: EpisodeReplay,
+    hp: Hyperparams,
+    env_params: Any,
+) -> tuple[Learner, jax.Array]:
+    """One Double-DQN gradient step on ``learner``; the new learner and the () loss."""
+    learner = Learner(*learner)  # the Trainer's callers pass a plain 4-tuple
+    opt = optimizer_of(config, hp)
+    windows = sample_windows(
+        replay,
+        key,
+        config.batch_size,
+        config.window,
+        lambda records, last: task.observe(records, last, env_params),
+        hp.window_start,
+        config.burn_in,
+    )
+    expert, weight = _imitation(task, windows, hp, env_params)
+    (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
+        learner.online,
+        learner.target,
+        windows,
+        network,
+        per_decision(hp, task).gamma,
+        hp.clip,
+        config.n_step,
+        expert,
+        weight,
+        hp.imitation_margin,
+        hp.value_rescale,
+        config.burn_in,
+    )
+    clamped, _ = clip(1.0).update(grads, ())
+    grads = jax.tree.map(lambda c, g: jnp.where(hp.clip == CLIP_GRAD, c, g), clamped, grads)
+    updates, opt_state = opt.update(grads, learner.opt_state, learner.online)
+    online = apply_updates(learner.online, updates)
+    grad_steps = learner.grad_steps + 1
+    copy = grad_steps % hp.target_period == 0
+    target = jax.tree.map(lambda o, t: jnp.where(copy, o, t), online, learner.target)
+    return Learner(online, target, opt_state, grad_steps), loss
+
+
+def learn(
+    config: TrainConfig,
+    task: Task,
+    network: Network,
+    learner: Learner,
+    replay: EpisodeReplay,
+    hp: Hyperparams,
+    env_params: Any,
+    key: jax.Array,
+) -> tuple[Learner, jax.Array]:
+    """``updates_per_step`` gradient steps: the new learner and the summed loss.
+
+    The replay is a read-only operand of the gating ``lax.cond`` (carrying it would
+    make XLA copy it every step).
+    """
+
+    def update(learner, k):
+        return gradient_update(config, task, network, learner, k, replay, hp, env_params)
+
+    keys = jax.random.split(key, config.updates_per_step)
+    learner, losses = jax.lax.scan(update, learner, keys)
+    return learner, jnp.sum(losses)
