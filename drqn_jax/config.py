@@ -97,7 +97,6 @@ def _schema() -> dict[str, dict[str, _Field]]:
     )
     network["kind"] = dataclasses.replace(network["kind"], choices=NETWORK_KINDS)
     network["cell"] = dataclasses.replace(network["cell"], choices=CELLS)
-    train_sizes = _fields_of(TrainConfig)
     return {
         "run": {"seed": _Field(0, "int"), "checkpoint_every_s": _Field(60.0, "float")},
         "env": {
@@ -106,7 +105,7 @@ def _schema() -> dict[str, dict[str, _Field]]:
             **_fields_of(EnvParams),
         },
         "network": network,
-        "train": {**{n: train_sizes[n] for n in TRAIN_SIZES}, **_fields_of(Hyperparams)},
+        "train": {**_fields_of(TrainConfig, skip=("env_id",)), **_fields_of(Hyperparams)},
         "rule_based": _fields_of(RuleBasedParams),
         "planner": _fields_of(PlannerParams),
         # episodes per agent, and per jitted batch (0: all at once)
@@ -275,8 +274,11 @@ def load_config(
 
     values = {s: {n: f.default for n, f in fields.items()} for s, fields in SCHEMA.items()}
     env_id = given["env"].get("id", values["env"]["id"])
-    if env_id != file_env_id:
-        _follow_new_preset(given["env"], file_env_id, overridden_env)
+    if env_id != file_env_id:  # the new id brings its preset: drop what repeats the old one's
+        old = _env_base(file_env_id)
+        for name in [n for n in given["env"] if n != "id" and n not in overridden_env]:
+            if given["env"][name] == old[name]:
+                del given["env"][name]
     values["env"].update(preset(env_id))
     for section, table in given.items():
         values[section].update(table)
@@ -288,15 +290,6 @@ def load_config(
 def _env_base(env_id: str) -> dict[str, Any]:
     """Every env field of ``env_id``'s preset (the schema's defaults under it)."""
     return {**{n: f.default for n, f in SCHEMA["env"].items()}, **preset(env_id)}
-
-
-def _follow_new_preset(env: dict[str, Any], old_id: str, overridden: set[str]) -> None:
-    """An override of ``env.id`` brings the new id's preset: drop the env fields that only
-    repeat ``old_id``'s (a resolved ``config.toml`` holds every field)."""
-    old = _env_base(old_id)
-    for name in [n for n in env if n != "id" and n not in overridden]:
-        if env[name] == old[name]:
-            del env[name]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

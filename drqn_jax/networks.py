@@ -170,11 +170,6 @@ def _extra_inputs(obs: Observation, num_actions: int) -> jax.Array:
     return jnp.concatenate([obs.speed[..., None].astype(jnp.float32), one_hot], axis=-1)
 
 
-def _recurrent_names(config: NetworkConfig) -> tuple[str, str]:
-    """The recurrent layers' parameter names: ``lstm1/2`` or ``gru1/2``."""
-    return ("lstm1", "lstm2") if config.cell == "lstm" else ("gru1", "gru2")
-
-
 def _init_torso(config: NetworkConfig, keys: jax.Array) -> Params:
     """``{"conv": [{"w": (kh, kw, C_in, F), "b": (F,)}, ...]}`` or ``{"torso": [...]}``."""
     if config.torso != "conv":
@@ -206,7 +201,7 @@ def _init_params(config: NetworkConfig, key: jax.Array) -> Params:
     k1, k2, k3, k4 = keys[n_torso:]
     if config.kind == "drqn":
         cell_init = lstm_init if config.cell == "lstm" else gru_init
-        first, second = _recurrent_names(config)
+        first, second = f"{config.cell}1", f"{config.cell}2"  # lstm1/2 or gru1/2
         core = {
             first: cell_init(k1, config.features, width),
             second: cell_init(k2, width + n_extra, width),
@@ -232,7 +227,7 @@ def make_network(config: NetworkConfig | None = None) -> Network:
     conv = config.torso == "conv"
 
     frames = config.frames
-    layers = _recurrent_names(config)  # and the cell's step function
+    layers = (f"{config.cell}1", f"{config.cell}2")  # their parameters: lstm1/2 or gru1/2
     cell = lstm_cell if config.cell == "lstm" else gru_cell
 
     def initial_carry(batch_shape: tuple[int, ...] = ()) -> Carry:

@@ -18,8 +18,4 @@ def make_train(config: TrainConfig | None = None) -> Trainer:
     """The :class:`Trainer` of ``config`` (default ``TrainConfig()``) by its algorithm;
     equal configs get the same functions, so ``jax.jit`` reuses their compilations."""
     config = TrainConfig() if config is None else config
-    if config.algorithm == "ppo":
-        return make_ppo(config)
-    if config.algorithm == "pqn":
-        return make_pqn(config)
-    return make_dqn(config)
+    return {"dqn": make_dqn, "ppo": make_ppo, "pqn": make_pqn}[config.algorithm](config)

@@ -138,6 +138,16 @@ def urban_task(env_id: str = "UrbanPedestrians-v0", **overrides: Any) -> Task:
         )
         return rule_based_labels(records, params, expert, static)
 
+    def validate(network, agent_params, keys, env_params) -> dict[str, jax.Array]:
+        """Mean greedy return, collision-free share and mean speed (m/s) over ``keys``'
+        episodes."""
+        episodes = run_episodes(drqn_agent(network, agent_params), keys, env, env_params)
+        return {
+            "return": jnp.mean(episodes.episode_return),
+            "collision_free": jnp.mean(1.0 - episodes.collision.astype(jnp.float32)),
+            "speed": jnp.mean(episodes.mean_speed),
+        }
+
     return Task(
         env=env,
         env_params=params,
@@ -162,25 +172,13 @@ def urban_task(env_id: str = "UrbanPedestrians-v0", **overrides: Any) -> Task:
             act=lambda state, params: rule_based_action(state, params, RULE_BASED_GUIDE, static),
             labels=labels,
         ),
-        validate=lambda network, params, keys, env_params: _urban_validation(
-            env, network, params, keys, env_params
-        ),
+        validate=validate,
         validation_metrics=("return", "collision_free", "speed"),
     )
 
 
 def _grid_record(state: Any) -> GridInputs:
     return GridInputs.of(state.ego, state.pedestrians)
-
-
-def _urban_validation(env, network, params, keys, env_params) -> dict[str, jax.Array]:
-    """Mean greedy return, collision-free share and mean speed (m/s) over ``keys``' episodes."""
-    episodes = run_episodes(drqn_agent(network, params), keys, env, env_params)
-    return {
-        "return": jnp.mean(episodes.episode_return),
-        "collision_free": jnp.mean(1.0 - episodes.collision.astype(jnp.float32)),
-        "speed": jnp.mean(episodes.mean_speed),
-    }
 
 
 def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Task:
