@@ -77,7 +77,7 @@ def _train_and_evaluate(
     result = train_run(config, run_dir, resume=resume, quiet=quiet)
     state = result.state
     if rrd is not None:
-        from drqn_jax.interop.training_recording import record_training
+        from drqn_jax.interop.recording import record_training
 
         try:
             record_training(rrd, recorded_metrics(state))

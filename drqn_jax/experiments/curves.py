@@ -20,7 +20,7 @@ from drqn_jax.evaluation import evaluate
 from drqn_jax.experiments.figures import figure, save_png
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, run_chunks
 from drqn_jax.experiments.runner import compiled_run, init_program
-from drqn_jax.interop.training_recording import running_mean
+from drqn_jax.interop.recording import running_mean
 from drqn_jax.learners import make_train
 from drqn_jax.learners.hyperparams import agent_name
 

@@ -34,7 +34,7 @@ from drqn_jax.experiments.rows import baseline_row, paper_rows, study_row
 from drqn_jax.experiments.sweep import Sweep, build_sweep
 from drqn_jax.experiments.sweep_outputs import finished_results, metrics_path, run_timings
 from drqn_jax.experiments.verdicts import study_comparisons
-from drqn_jax.interop.training_recording import record_study_curves
+from drqn_jax.interop.recording import record_study_curves
 from drqn_jax.learners.hyperparams import agent_name
 from drqn_jax.registry import registered_envs
 

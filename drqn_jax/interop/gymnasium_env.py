@@ -116,12 +116,6 @@ def valid_action(action: Any, space: spaces.Space) -> Any:
     return action
 
 
-class _SingleFns(NamedTuple):
-    reset: Any  # (key_data (w,) uint32, params) -> (key_data, obs, state)
-    step: Any  # (key_data, state, action, params) -> (key_data, obs, state, r, term, trunc, info)
-    render: Any  # (state, params) -> (H, W, 3) uint8
-
-
 @cached_program
 def key_data_shape() -> tuple[int, ...]:
     """Shape of one key's raw data under JAX's default PRNG ((2,) for threefry)."""
@@ -159,44 +153,126 @@ def single_step(
     return held, obs, state, reward, terminated, truncated, info
 
 
-def _packed_step(env: UrbanPedestrians, key_data, state, action, params):
-    """:func:`single_step`, the host's outputs packed: grid, float32 scalars (info sorted)."""
-    held, obs, state, reward, terminated, truncated, info = single_step(
-        env, key_data, state, action, params
+#: Restarts computed per pass of :func:`_restart_where` (a step with more takes several).
+RESETS_PER_PASS = 8
+
+
+def _restart_where(
+    env: UrbanPedestrians,
+    restart: jax.Array,
+    reset_key_data: jax.Array,
+    held: jax.Array,
+    obs: Observation,
+    states: EnvState,
+    params: EnvParams,
+) -> tuple[jax.Array, Observation, EnvState]:
+    """Fresh episodes where ``restart`` (N,) is set, :data:`RESETS_PER_PASS` at a time (no
+    pass without one); each uses only its own key, so the bits do not depend on the count."""
+    n = restart.shape[0]
+    k = min(n, RESETS_PER_PASS)
+    reset = jax.vmap(functools.partial(single_reset, env), in_axes=(0, None))
+
+    def reset_some(carry: tuple) -> tuple:
+        pending, *trees = carry
+        index = jnp.nonzero(pending, size=k, fill_value=n)[0]  # (k,); n: no env, dropped
+        fresh = reset(reset_key_data[jnp.minimum(index, n - 1)], params)
+
+        def put(into: jax.Array, rows: jax.Array) -> jax.Array:
+            return into.at[index].set(rows, mode="drop")
+
+        return put(pending, jnp.zeros(k, bool)), *jax.tree.map(put, tuple(trees), fresh)
+
+    _, *out = jax.lax.while_loop(lambda c: c[0].any(), reset_some, (restart, held, obs, states))
+    return tuple(out)
+
+
+def _batch_step(
+    env: UrbanPedestrians,
+    same_step: bool,
+    key_data: jax.Array,
+    reset_key_data: jax.Array,
+    states: EnvState,
+    actions: jax.Array,
+    autoreset: jax.Array,
+    params: EnvParams,
+) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict[str, Any]]:
+    """N steps with auto-reset: NEXT_STEP restarts where ``autoreset`` (reward 0, no
+    flags), SAME_STEP where this step ends. ``(held keys, states, grids, final grids,
+    (N,) scalars)``; the final observation is the step's, before any restart."""
+    step = jax.vmap(functools.partial(single_step, env), in_axes=(0, 0, 0, None))
+    held, final, stepped, reward, terminated, truncated, info = step(
+        key_data, states, actions, params
     )
-    scalars = [obs.speed, obs.last_action, reward, terminated, truncated]
-    scalars += [info[k] for k in sorted(info)]
-    packed = jnp.stack([jnp.asarray(x, jnp.float32).reshape(()) for x in scalars])
-    return held, state, obs.grid, packed
-
-
-def _unpack_step(
-    dtypes: tuple[tuple[str, Any], ...], grid: np.ndarray, packed: np.ndarray
-) -> tuple:
-    """Host side of :func:`_packed_step`, back at own dtypes (exact for these values)."""
-    speed, last_action, reward, terminated, truncated = packed[:5]
-    info = {
-        k: bool(v) if dtype == np.bool_ else np.asarray(v).astype(dtype)[()]
-        for (k, dtype), v in zip(dtypes, packed[5:], strict=True)
+    restart = (terminated | truncated) if same_step else autoreset
+    held, obs, states = _restart_where(env, restart, reset_key_data, held, final, stepped, params)
+    if not same_step:
+        reward = jnp.where(restart, jnp.zeros_like(reward), reward)
+        terminated = terminated & ~restart
+        truncated = truncated & ~restart
+    scalars = {
+        "speed": obs.speed,
+        "last_action": obs.last_action,
+        "final_speed": final.speed,
+        "final_last_action": final.last_action,
+        "reward": reward,
+        "terminated": terminated,
+        "truncated": truncated,
+        "restart": restart,
+        "info": info,
     }
-    obs = numpy_observation(Observation(grid=grid, speed=speed, last_action=last_action))
-    return obs, float(reward), bool(terminated), bool(truncated), info
+    return held, states, obs.grid, final.grid, scalars
 
 
-def _info_dtypes(env: UrbanPedestrians, params: EnvParams) -> tuple[tuple[str, Any], ...]:
-    """The info dict's keys (sorted) and NumPy dtypes of one step (no computation)."""
-    key_data = np.zeros(key_data_shape(), np.uint32)
-    state = jax.eval_shape(lambda: single_reset(env, key_data, params)[2])
-    out = jax.eval_shape(lambda s: single_step(env, key_data, s, jnp.int32(0), params), state)
-    return tuple((k, np.dtype(v.dtype)) for k, v in sorted(out[-1].items()))
+def unpack(layout: Any, packed: np.ndarray) -> dict[str, Any]:
+    """The step's scalars from their packed (N, S) float32 columns (one array for the host
+    to read; exact for these flags, actions, counts and float32s) at their own dtypes."""
+    leaves, treedef = jax.tree.flatten(layout)
+    return jax.tree.unflatten(treedef, [packed[:, j].astype(x.dtype) for j, x in enumerate(leaves)])
+
+
+class BatchFns(NamedTuple):
+    reset: Any  # (key_data (N, w) uint32, params) -> (key_data, obs, states)
+    reset_masked: Any  # (key_data, held, states, mask, params) -> (key_data, obs, states)
+    step_next: Any  # NEXT_STEP / DISABLED :func:`_batch_step`, the scalars packed
+    step_same: Any  # SAME_STEP
+    render: Any  # (states, params) -> (N, H, W, 3) uint8
+    layout: Any  # the step's scalars as ShapeDtypeStructs, for :func:`unpack`
 
 
 @cached_program
-def _single_fns(env: UrbanPedestrians) -> _SingleFns:
-    return _SingleFns(
-        reset=jax.jit(functools.partial(single_reset, env)),
-        step=jax.jit(functools.partial(_packed_step, env)),
-        render=jax.jit(functools.partial(viewer.render_frame, static=env.static)),
+def batch_fns(env: UrbanPedestrians) -> BatchFns:
+    """The compiled calls of the vector env, and of the single env at batch 1."""
+    reset = jax.vmap(functools.partial(single_reset, env), in_axes=(0, None))
+
+    def reset_masked(key_data, held, states, mask, params):
+        obs = jax.vmap(env.observation, (0, None))(states, params)
+        held, obs, states = _restart_where(env, mask, key_data, held, obs, states, params)
+        return held, obs, states
+
+    def step(same_step: bool) -> Any:
+        def packed(*args: Any) -> tuple:
+            *arrays, scalars = _batch_step(env, same_step, *args)
+            columns = [jnp.asarray(x, jnp.float32) for x in jax.tree.leaves(scalars)]
+            return *arrays, jnp.stack(columns, axis=-1)
+
+        return jax.jit(packed)
+
+    keys = jax.ShapeDtypeStruct((1, *key_data_shape()), jnp.uint32)
+    params = env.default_params
+    states = jax.eval_shape(reset, keys, params)[2]
+    one = (jax.ShapeDtypeStruct((1,), jnp.int32), jax.ShapeDtypeStruct((1,), jnp.bool_))
+    layout = jax.eval_shape(
+        functools.partial(_batch_step, env, False), keys, keys, states, *one, params
+    )[-1]
+    return BatchFns(
+        reset=jax.jit(reset),
+        reset_masked=jax.jit(reset_masked),
+        step_next=step(False),
+        step_same=step(True),
+        render=jax.jit(
+            jax.vmap(functools.partial(viewer.render_frame, static=env.static), in_axes=(0, None))
+        ),
+        layout=layout,
     )
 
 
@@ -231,6 +307,10 @@ class JaxBacked:
         return np.array(render(state, self._device_params))
 
 
+def _first(tree: Any) -> Any:
+    return jax.tree.map(lambda x: x[0], tree)
+
+
 class UrbanPedestriansGymEnv(JaxBacked, gymnasium.Env[dict[str, Any], Any]):
     """The urban-pedestrian env (paper §V-D); ``overrides`` go to :func:`drqn_jax.make`.
     Raises ``ResetNeeded`` itself (so no order/checker wrappers); no auto-reset."""
@@ -240,37 +320,48 @@ class UrbanPedestriansGymEnv(JaxBacked, gymnasium.Env[dict[str, Any], Any]):
     ) -> None:
         self.observation_space = self._load(env_id, render_mode, overrides)
         self.action_space = spaces.Discrete(NUM_ACTIONS)
-        self._fns = _single_fns(self.jax_env)
-        self._info_dtypes = _info_dtypes(self.jax_env, self.params)
-        self._key_data: jax.Array | None = None
-        self._state: EnvState | None = None
+        self._fns = batch_fns(self.jax_env)
+        self._no_restart = jnp.zeros(1, bool)
+        self._key_data: jax.Array | None = None  # (1, w)
+        self._states: EnvState | None = None  # leaves (1, ...)
 
     @property
     def state(self) -> EnvState | None:
         """The current JAX ``EnvState`` (``None`` before the first reset)."""
-        return self._state
+        return None if self._states is None else _first(self._states)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, Any], dict[str, Any]]:
         """``(observation, {})`` of a new episode keyed from ``np_random`` (``options`` unused)."""
         super().reset(seed=seed)
-        key_data = draw_key_data(self.np_random)
-        self._key_data, obs, self._state = self._fns.reset(key_data, self._device_params)
-        return numpy_observation(jax.device_get(obs)), {}
+        key_data = draw_key_data(self.np_random)[None]
+        self._key_data, obs, self._states = self._fns.reset(key_data, self._device_params)
+        return numpy_observation(_first(jax.device_get(obs))), {}
 
     def step(self, action: Any) -> tuple[dict[str, Any], SupportsFloat, bool, bool, dict[str, Any]]:
         """One decision step; reward a Python float, flags Python bools."""
         action = valid_action(action, self.action_space)
-        if self._state is None:
+        if self._states is None:
             raise ResetNeeded("Cannot call UrbanPedestriansGymEnv.step before reset")
-        out = self._fns.step(self._key_data, self._state, np.int32(action), self._device_params)
-        self._key_data, self._state, grid, packed = out
-        return _unpack_step(self._info_dtypes, *jax.device_get((grid, packed)))
+        self._key_data, self._states, grid, _, packed = self._fns.step_next(
+            self._key_data,
+            self._key_data,  # no restart: the reset keys go unused
+            self._states,
+            np.array([action], np.int32),
+            self._no_restart,
+            self._device_params,
+        )
+        grid, packed = jax.device_get((grid, packed))
+        s = _first(unpack(self._fns.layout, packed))
+        obs = numpy_observation(Observation(grid[0], s["speed"], s["last_action"]))
+        info = {k: bool(v) if v.dtype == np.bool_ else v for k, v in s["info"].items()}
+        return obs, float(s["reward"]), bool(s["terminated"]), bool(s["truncated"]), info
 
     def render(self) -> np.ndarray | None:
         """(240, 480, 3) uint8 frame of :func:`drqn_jax.env.viewer.render_frame`."""
-        return self._render(self._fns.render, self._state)
+        frames = self._render(self._fns.render, self._states)
+        return None if frames is None else frames[0]
 
 
 def gymnasium_ids() -> tuple[str, ...]:

@@ -3,11 +3,9 @@ step; sub-env ``i`` behaves exactly like ``gymnasium.make(id)`` reset with ``see
 
 from __future__ import annotations
 
-import functools
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from gymnasium import spaces
 from gymnasium.error import ResetNeeded
@@ -15,120 +13,18 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from drqn_jax.env import viewer
-from drqn_jax.env.params import EnvParams
-from drqn_jax.env.state import NUM_ACTIONS, EnvState
-from drqn_jax.env.urban import UrbanPedestrians
+from drqn_jax.env.state import NUM_ACTIONS, EnvState, Observation
 from drqn_jax.interop.gymnasium_env import (
     JaxBacked,
+    batch_fns,
     draw_key_data,
     key_data_shape,
     numpy_observation,
-    single_reset,
-    single_step,
+    unpack,
     valid_action,
 )
-from drqn_jax.programs import cached_program
 
-__all__ = ["SPARSE_RESETS", "UrbanPedestriansVectorEnv"]
-
-#: Up to this many restarts in a step only theirs are computed; more, every env's.
-SPARSE_RESETS = 8
-
-
-class _VectorFns(NamedTuple):
-    reset: Any  # (key_data (N, w), params) -> (key_data, obs, states)
-    reset_masked: Any  # (key_data, held, states, mask, params) -> (key_data, obs, states)
-    step_next: Any  # NEXT_STEP / DISABLED step, see _vector_step
-    step_same: Any  # SAME_STEP step
-    render: Any  # (states, params) -> (N, H, W, 3) uint8
-
-
-def _restart_where(
-    env: UrbanPedestrians,
-    restart: jax.Array,
-    reset_key_data: jax.Array,
-    held: jax.Array,
-    states: EnvState,
-    params: EnvParams,
-) -> tuple[jax.Array, EnvState]:
-    """Fresh episodes where ``restart`` (N,) is set; each uses only its own key, so
-    computing none, a few (:data:`SPARSE_RESETS`) or all gives the same bits."""
-    n = restart.shape[0]
-    k = min(n, SPARSE_RESETS)
-
-    def reset_one(key_data):  # jit drops the unused observation
-        fresh_held, _, fresh = single_reset(env, key_data, params)
-        return fresh_held, fresh
-
-    def none(_):
-        return held, states
-
-    def sparse(_):
-        index = jnp.nonzero(restart, size=k, fill_value=n)[0]  # (k,); n: no env, dropped
-        fresh_held, fresh = jax.vmap(reset_one)(reset_key_data[jnp.minimum(index, n - 1)])
-
-        def put(into: jax.Array, rows: jax.Array) -> jax.Array:
-            return into.at[index].set(rows, mode="drop")
-
-        return put(held, fresh_held), jax.tree.map(put, states, fresh)
-
-    def dense(_):
-        fresh_held, fresh = jax.vmap(reset_one)(reset_key_data)
-        select = functools.partial(jax.vmap(jnp.where), restart)
-        return select(fresh_held, held), jax.tree.map(select, fresh, states)
-
-    count = jnp.sum(restart)
-    branch = jnp.where(count == 0, 0, jnp.where(count <= k, 1, 2))
-    return jax.lax.switch(branch, (none, sparse, dense), None)
-
-
-def _vector_step(
-    env: UrbanPedestrians,
-    same_step: bool,
-    key_data: jax.Array,
-    reset_key_data: jax.Array,
-    states: EnvState,
-    actions: jax.Array,
-    autoreset: jax.Array,
-    params: EnvParams,
-):
-    """N steps with auto-reset: NEXT_STEP restarts where ``autoreset`` (reward 0, no
-    flags), SAME_STEP where this step ends (final observation returned too)."""
-    step = jax.vmap(functools.partial(single_step, env), in_axes=(0, 0, 0, None))
-    held, obs_final, stepped, reward, terminated, truncated, info = step(
-        key_data, states, actions, params
-    )
-    restart = (terminated | truncated) if same_step else autoreset
-    new_held, new_states = _restart_where(env, restart, reset_key_data, held, stepped, params)
-    obs = jax.vmap(env.observation, (0, None))(new_states, params)
-    if not same_step:
-        reward = jnp.where(restart, jnp.zeros_like(reward), reward)
-        terminated = terminated & ~restart
-        truncated = truncated & ~restart
-    return new_held, obs, new_states, reward, terminated, truncated, info, obs_final, restart
-
-
-@cached_program
-def _vector_fns(env: UrbanPedestrians) -> _VectorFns:
-    reset = jax.vmap(functools.partial(single_reset, env), in_axes=(0, None))
-
-    def reset_masked(key_data, held, states, mask, params):
-        held, states = _restart_where(env, mask, key_data, held, states, params)
-        return held, jax.vmap(env.observation, (0, None))(states, params), states
-
-    def step(same_step: bool):
-        return jax.jit(functools.partial(_vector_step, env, same_step))
-
-    return _VectorFns(
-        reset=jax.jit(reset),
-        reset_masked=jax.jit(reset_masked),
-        step_next=step(False),
-        step_same=step(True),
-        render=jax.jit(
-            jax.vmap(functools.partial(viewer.render_frame, static=env.static), in_axes=(0, None))
-        ),
-    )
+__all__ = ["UrbanPedestriansVectorEnv"]
 
 
 def _batched_info(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
@@ -164,7 +60,7 @@ class UrbanPedestriansVectorEnv(JaxBacked, VectorEnv[dict[str, Any], Any, np.nda
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.single_action_space = spaces.Discrete(NUM_ACTIONS)
         self.action_space = batch_space(self.single_action_space, num_envs)
-        self._fns = _vector_fns(self.jax_env)
+        self._fns = batch_fns(self.jax_env)
         self._rngs: list[np.random.Generator | None] = [None] * num_envs
         self._seeds: list[int | None] = [None] * num_envs
         self._next_key_data: np.ndarray | None = None  # next reset keys, drawn ahead
@@ -254,7 +150,7 @@ class UrbanPedestriansVectorEnv(JaxBacked, VectorEnv[dict[str, Any], Any, np.nda
                 "AutoresetMode.DISABLED reset them with reset(options={'reset_mask': mask})"
             )
         step = self._fns.step_same if same_step else self._fns.step_next
-        out = step(
+        self._key_data, self._states, grid, final_grid, packed = step(
             self._key_data,
             self._next_key_data,
             self._states,
@@ -262,16 +158,19 @@ class UrbanPedestriansVectorEnv(JaxBacked, VectorEnv[dict[str, Any], Any, np.nda
             autoreset,
             self._device_params,
         )
-        self._key_data, obs, self._states = out[:3]
-        reward, terminated, truncated, info, restarted = jax.device_get(
-            (out[3], out[4], out[5], out[6], out[8])
+        s = unpack(self._fns.layout, jax.device_get(packed))
+        observations = numpy_observation(
+            Observation(jax.device_get(grid), s["speed"], s["last_action"])
         )
-        observations = numpy_observation(jax.device_get(obs))
+        terminated, truncated, info = s["terminated"], s["truncated"], s["info"]
         done = terminated | truncated
         if same_step:
             infos = _batched_info(info, ~done)
             if done.any():
-                final = numpy_observation(jax.device_get(out[7]))
+                final_obs_data = Observation(
+                    jax.device_get(final_grid), s["final_speed"], s["final_last_action"]
+                )
+                final = numpy_observation(final_obs_data)
                 final_obs = np.full(self.num_envs, None, dtype=object)
                 for i in np.flatnonzero(done):
                     final_obs[i] = {name: value[i] for name, value in final.items()}
@@ -279,14 +178,15 @@ class UrbanPedestriansVectorEnv(JaxBacked, VectorEnv[dict[str, Any], Any, np.nda
                 infos["final_info"], infos["_final_info"] = _batched_info(info, done), done.copy()
         else:
             infos = _batched_info(info, ~autoreset)
+        restarted = s["restart"]
         if restarted.any():
             self._take_reset_keys([None] * self.num_envs, restarted)
         self._ended = done
         return (
             observations,
-            np.asarray(reward, np.float64),
-            np.array(terminated, bool),
-            np.array(truncated, bool),
+            np.asarray(s["reward"], np.float64),
+            terminated,
+            truncated,
             infos,
         )
 

@@ -255,13 +255,13 @@ def test_compiled_once_per_static_env():
     a = gymnasium.make(ID)
     a.reset(seed=0)
     a.step(0)
-    fns = ge._single_fns(a.unwrapped.jax_env)
-    before = (fns.reset._cache_size(), fns.step._cache_size())
+    fns = ge.batch_fns(a.unwrapped.jax_env)
+    before = (fns.reset._cache_size(), fns.step_next._cache_size())
     b = gymnasium.make(ID_REALISTIC)  # same static settings, other EnvParams
-    assert ge._single_fns(b.unwrapped.jax_env) is fns
+    assert ge.batch_fns(b.unwrapped.jax_env) is fns
     b.reset(seed=1)
     b.step(3)
-    assert (fns.reset._cache_size(), fns.step._cache_size()) == before
+    assert (fns.reset._cache_size(), fns.step_next._cache_size()) == before
 
 
 # --- the vector env ---------------------------------------------------------------
@@ -529,30 +529,30 @@ def test_stable_baselines3_trains_on_the_registered_id_without_wrappers():
 @pytest.mark.parametrize("restarting", [(), (1, 4, 10), tuple(range(12))])
 def test_the_vector_env_resets_exactly_the_envs_that_restart(restarting):
     """Issue 42: a vector step computes fresh episodes only for the envs that restart
-    (none; a few, sparsely; more than SPARSE_RESETS, all computed and selected), and
-    each gets exactly the episode its own reset key gives, whichever path ran."""
+    (none; a few in one pass; more than RESETS_PER_PASS in several), and each gets
+    exactly the episode (state and observation) its own reset key gives."""
     env, params = drqn_jax.make()
     n = 12
-    assert len(restarting) == 0 or len(restarting) <= gv.SPARSE_RESETS < n or len(restarting) == n
+    assert len(restarting) == 0 or len(restarting) <= ge.RESETS_PER_PASS < n or len(restarting) == n
     mask = np.isin(np.arange(n), restarting)
     keys = jax.random.split(jax.random.key(7), 3 * n)
     states = jax.jit(jax.vmap(env.reset_state, (0, None)))(keys[:n], params)
+    obs = jax.jit(jax.vmap(env.observation, (0, None)))(states, params)
     held = jax.random.key_data(keys[n : 2 * n])
     reset_data = jax.random.key_data(keys[2 * n :])
-    restart = jax.jit(lambda *a: gv._restart_where(env, *a))
-    new_held, new_states = restart(mask, reset_data, held, states, params)
+    restart = jax.jit(lambda *a: ge._restart_where(env, *a))
+    new = restart(mask, reset_data, held, obs, states, params)
 
     def row(tree, i):
         return jax.tree.map(lambda x: x[i], tree)
 
     for i in range(n):
         if mask[i]:
-            want_held, _, want_state = ge.single_reset(env, reset_data[i], params)
+            want = ge.single_reset(env, reset_data[i], params)
         else:
-            want_held, want_state = held[i], row(states, i)
-        np.testing.assert_array_equal(new_held[i], want_held)
-        got = row(new_states, i)
+            want = held[i], row(obs, i), row(states, i)
+        got = row(new, i)
         assert all(
             np.array_equal(a, b)
-            for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want_state), strict=True)
+            for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True)
         ), i

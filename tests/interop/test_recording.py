@@ -25,7 +25,7 @@ from drqn_jax.env import viewer
 from drqn_jax.env.road_map import semantic_class
 from drqn_jax.env.state import ACTIONS, BEHAVIOURS
 from drqn_jax.evaluation import episode_keys, run_episodes
-from drqn_jax.interop import episode_record, recording, training_recording
+from drqn_jax.interop import episode_record, recording
 from drqn_jax.networks import make_network
 from tests.helpers import SMALL_NET
 
@@ -399,7 +399,7 @@ def test_training_curves_hold_one_value_per_episode(tmp_path):
         "mean_loss": np.linspace(0.0, 1.0, n, dtype=np.float32),
     }
     path = tmp_path / "training.rrd"
-    training_recording.record_training(path, metrics)
+    recording.record_training(path, metrics)
     rrd = read_rrd(path)
     curves = {
         "return": metrics["episode_return"],
@@ -415,12 +415,10 @@ def test_training_curves_hold_one_value_per_episode(tmp_path):
         entity = rrd[f"/training/{name}"]
         np.testing.assert_array_equal(entity["episode"], episodes)
         np.testing.assert_allclose(scalars(entity), values, rtol=1e-6)
-    window = training_recording.running_mean(np.arange(30) % 2, window=20)
+    window = recording.running_mean(np.arange(30) % 2, window=20)
     assert window[19] == 0.5 and window[25] == np.mean(np.arange(6, 26) % 2)
     with pytest.raises(ValueError, match="epsilon"):
-        training_recording.record_training(
-            path, {k: v for k, v in metrics.items() if k != "epsilon"}
-        )
+        recording.record_training(path, {k: v for k, v in metrics.items() if k != "epsilon"})
 
 
 def test_cli_replay_writes_a_readable_recording(tmp_path, capsys):
