@@ -81,7 +81,7 @@ def _run_dir_options(parser: Parser, prefix: str) -> None:
 
 
 def _agent_options(parser: Parser, verb: str) -> None:
-    """``[RUN_DIR]``, ``--agent`` (a trained run's DRQN or a built-in agent) and ``--seed``."""
+    """``[RUN_DIR]`` and ``--agent``: a trained run's DRQN or a built-in agent."""
     parser.add_argument(
         "run_dir",
         nargs="?",

@@ -199,8 +199,14 @@ def load_checkpoint(
         manifest = _read_manifest(npz_path, archive)
         if expected_meta is not None:
             _check_config(run_dir, manifest, expected_meta)
-        entries = _check_template(run_dir, manifest["leaves"], template)
-        leaves = [_decode(npz_path, archive, entry) for entry in entries]
+        leaves = []
+        for entry in _check_template(run_dir, manifest["leaves"], template):
+            raw = _read_entry(npz_path, archive, entry["name"] + ".npy", entry["path"])
+            stored = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
+            if entry.get("key_impl") is not None:  # bit-identical to the saved leaf
+                leaves.append(jax.random.wrap_key_data(jnp.asarray(stored), impl=entry["key_impl"]))
+            else:
+                leaves.append(jax.device_put(stored.view(jnp.dtype(entry["dtype"]))))
     treedef = jax.tree.structure(template)
     meta = {k: v for k, v in manifest.items() if k != "leaves"}
     return jax.tree.unflatten(treedef, leaves), meta
@@ -323,12 +329,3 @@ def _check_template(
             + _listed(problems, "leaf differs", "leaves differ")
         )
     return entries
-
-
-def _decode(npz_path: Path, archive: zipfile.ZipFile, entry: dict[str, Any]) -> jax.Array:
-    """One leaf, bit-identical to the saved one."""
-    raw = _read_entry(npz_path, archive, entry["name"] + ".npy", entry["path"])
-    stored = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
-    if entry.get("key_impl") is not None:
-        return jax.random.wrap_key_data(jnp.asarray(stored), impl=entry["key_impl"])
-    return jax.device_put(stored.view(jnp.dtype(entry["dtype"])))
