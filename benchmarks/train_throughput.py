@@ -6,7 +6,7 @@ Usage::
         [--seeds S ...] [--iterations 20] [--rollouts 1] [--set SECTION.FIELD=VALUE]
         [--repeats 3] [--out DIR] [--quick]
 
-Each config's own trainer is timed by :func:`drqn_jax.experiments.bench.train_figures`
+Each config's own trainer is timed by :func:`drqn_jax.commands.bench.train_figures`
 once learning runs (the program ``drqn-jax train`` compiles for its chunks; with
 ``--seeds`` S > 1, S seeds ``jax.vmap``-ed in one program, as a sweep's ``vmap``
 strategy trains them). The env steps and gradient updates of a call are counted from
@@ -30,8 +30,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from benchmarks.harness import base_parser, markdown_table, report
+from drqn_jax.commands.bench import train_figures
 from drqn_jax.config import Config, load_config
-from drqn_jax.experiments.bench import train_figures
 from drqn_jax.learners.hyperparams import ON_POLICY
 
 #: ``--quick``: each learner's algorithm on ``smoke``'s tiny world and network.

@@ -42,8 +42,10 @@ class _Formatter(argparse.RawDescriptionHelpFormatter):
         return text + " (default: %(default)s)"
 
 
-def _flag(parser: Parser, name: str, help_text: str) -> None:
-    parser.add_argument(name, action="store_true", help=help_text)
+def _flags(parser: Parser, flags: dict[str, str]) -> None:
+    """``store_true`` options: name -> help."""
+    for name, help_text in flags.items():
+        parser.add_argument(name, action="store_true", help=help_text)
 
 
 def _set_option(parser: Parser, help_text: str) -> None:
@@ -97,9 +99,10 @@ def _agent_options(parser: Parser, verb: str) -> None:
     )
 
 
-def _evaluation_options(parser: Parser) -> None:
+def _episodes_options(parser: Parser, default: int | None = None) -> None:
     """``--episodes`` and ``--seed``: which evaluation episodes."""
-    parser.add_argument("--episodes", type=int, help="episodes (default: evaluate.episodes)")
+    text = "episodes (default: evaluate.episodes)" if default is None else "episodes to record"
+    parser.add_argument("--episodes", type=int, default=default, help=text)
     parser.add_argument("--seed", type=int, help="run.seed for the evaluation key")
 
 
@@ -111,22 +114,20 @@ def _train_options(train: Parser) -> None:
         metavar="RUN_DIR",
         help="continue the run in RUN_DIR from its last checkpoint (uses its config.toml)",
     )
-    _flag(train, "--quiet", "no progress bar")
 
 
 def _evaluate_options(ev: Parser) -> None:
     _agent_options(ev, "evaluate")
-    _evaluation_options(ev)
+    _episodes_options(ev)
     ev.add_argument("--json", metavar="PATH", help="write the metrics as JSON ('-': stdout)")
     _config_options(ev)
-    _flag(ev, "--quiet", "no status messages on stderr")
 
 
 def _reproduce_options(rep: Parser) -> None:
-    _flag(
-        rep,
+    rep.add_argument(
         "--train",
-        "train the agent again first (the shipped agent's config, or --config), "
+        action="store_true",
+        help="train the agent again first (the shipped agent's config, or --config), "
         "with an estimate of how long on this device",
     )
     rep.add_argument(
@@ -136,7 +137,6 @@ def _reproduce_options(rep: Parser) -> None:
     )
     _set_option(rep, "override one field (repeatable), e.g. --set evaluate.episodes=100")
     _run_dir_options(rep, "reproduce")
-    _flag(rep, "--quiet", "no progress bar")
 
 
 def _export_options(export: Parser) -> None:
@@ -151,34 +151,32 @@ def _export_options(export: Parser) -> None:
         metavar="TEXT",
         help="the command that trained the run, kept in OUT/provenance.json",
     )
-    _flag(export, "--quiet", "no status message")
 
 
 def _replay_options(replay: Parser) -> None:
     _agent_options(replay, "record")
-    replay.add_argument("--episodes", type=int, default=5, help="episodes to record")
+    _episodes_options(replay, default=5)
     replay.add_argument(
         "--out",
         metavar="PATH",
         help="the .rrd file to write (default: RUN_DIR/episodes.rrd, or episodes.rrd "
         "without RUN_DIR)",
     )
-    replay.add_argument("--seed", type=int, help="run.seed for the evaluation key")
     _config_options(replay)
-    _flag(replay, "--quiet", "no line per episode")
 
 
 def _sweep_options(sweep: Parser) -> None:
     sweep.add_argument("sweep_file", help="the sweep TOML (base config, [set], [axes])")
     _set_option(sweep, "override one field of every point (repeatable)")
     sweep.add_argument("--out", help="results directory (default: runs/sweep-<file>-<time>)")
-    _flag(sweep, "--dry-run", "validate, plan and describe; run nothing")
-    _flag(sweep, "--resume", "continue the sweep in --out from its checkpoints")
-    _flag(sweep, "--quiet", "no progress bar")
-    _flag(
+    _flags(
         sweep,
-        "--no-agents",
-        "do not keep the trained agents in OUT/agents (about 4 MB each, paper network)",
+        {
+            "--dry-run": "validate, plan and describe; run nothing",
+            "--resume": "continue the sweep in --out from its checkpoints",
+            "--no-agents": "do not keep the trained agents in OUT/agents (about 4 MB each, "
+            "paper network)",
+        },
     )
     sweep.add_argument(
         "--strategy",
@@ -218,18 +216,16 @@ def _study_options(study: Parser) -> None:
     )
     study.add_argument("--out", help="study directory (runs/study-<configs>)")
     study.add_argument("--smooth", type=int, default=10, help="running mean of the curves")
-    _flag(study, "--no-png", "skip curves.png and safety_speed.png")
-    _flag(study, "--dry-run", "validate and describe the study; run nothing")
-    _flag(
+    _flags(
         study,
-        "--estimate",
-        "time one training chunk of every config on this device and print the "
-        "study's training wall time; train nothing",
-    )
-    _flag(
-        study,
-        "--report-only",
-        "train nothing: the table and curves of the runs that have finished so far",
+        {
+            "--no-png": "skip curves.png and safety_speed.png",
+            "--dry-run": "validate and describe the study; run nothing",
+            "--estimate": "time one training chunk of every config on this device and print "
+            "the study's training wall time; train nothing",
+            "--report-only": "train nothing: the table and curves of the runs that have "
+            "finished so far",
+        },
     )
     study.add_argument(
         "--results",
@@ -245,17 +241,17 @@ def _study_options(study: Parser) -> None:
         "fresh --out; removed once it finishes (default with --results: "
         "finished-runs/SECTION.json beside the results file)",
     )
-    _flag(study, "--quiet", "no progress bars")
 
 
 def _frontier_options(frontier: Parser) -> None:
     _config_options(frontier)
-    _evaluation_options(frontier)
-    _flag(
+    _episodes_options(frontier)
+    _flags(
         frontier,
-        "--wide",
-        "sweep the wide grid (drqn_jax.experiments.frontier.WIDE_GRID, the evidence "
-        "behind the default settings; about 25 min on 2 cores at 1000 episodes)",
+        {
+            "--wide": "sweep the wide grid (drqn_jax.experiments.frontier.WIDE_GRID, the "
+            "evidence behind the default settings; about 25 min on 2 cores at 1000 episodes)",
+        },
     )
     frontier.add_argument(
         "--caps",
@@ -263,7 +259,7 @@ def _frontier_options(frontier: Parser) -> None:
         metavar="KMH,...",
         help="the planner's speed caps (km/h, at most the speed limit)",
     )
-    _flag(frontier, "--no-planner", "the rule-based sweep only")
+    _flags(frontier, {"--no-planner": "the rule-based sweep only"})
     frontier.add_argument(
         "--check",
         type=int,
@@ -279,18 +275,15 @@ def _frontier_options(frontier: Parser) -> None:
         help="also store both frontiers as section --section of this results file",
     )
     frontier.add_argument("--section", default="frontier", help="the section of --results")
-    _flag(frontier, "--no-png", "skip frontier.png")
-    _flag(frontier, "--quiet", "no status messages")
+    _flags(frontier, {"--no-png": "skip frontier.png"})
 
 
 def _report_options(report: Parser) -> None:
     report.add_argument("documents", nargs="+", help="Markdown files with results blocks")
     report.add_argument("--results", default="docs/results.json", help="the results file")
-    _flag(report, "--quiet", "no status messages")
-    _flag(
+    _flags(
         report,
-        "--check",
-        "change nothing: exit 1 if a document's blocks differ from the results file",
+        {"--check": "change nothing: exit 1 if a document's blocks differ from the results file"},
     )
 
 
@@ -309,32 +302,6 @@ def _bench_options(bench: Parser) -> None:
     )
 
 
-def _quick_parser() -> Parser:
-    parser = Parser(prog="drqn-jax bench quick", formatter_class=_Formatter)
-    parser.add_argument("--num-envs", type=int, default=4096, help="parallel envs")
-    parser.add_argument("--steps", type=int, default=200, help="env steps per timed call")
-    parser.add_argument(
-        "--iterations", type=int, default=20, help="training iterations per timed call"
-    )
-    parser.add_argument(
-        "--decision-steps",
-        type=int,
-        nargs="+",
-        metavar="K",
-        help="time training at each env.decision_steps K side by side (default: the config's)",
-    )
-    _config_options(parser)
-    return parser
-
-
-def _bench_all_parser() -> Parser:
-    parser = Parser(prog="drqn-jax bench all")
-    parser.add_argument("--repeats", type=int)
-    parser.add_argument("--out", metavar="DIR")
-    parser.add_argument("--quick", action="store_true")
-    return parser
-
-
 def _bench(args: argparse.Namespace) -> int:
     """Run the benchmark suite (or one of its benchmarks) on this machine
 
@@ -345,25 +312,43 @@ def _bench(args: argparse.Namespace) -> int:
     throughput of one config and needs no clone.
     """
     # the options of quick and all are parsed here, a benchmark's own by the benchmark
+    parser = Parser(prog=f"drqn-jax bench {args.name}", formatter_class=_Formatter)
+    if args.name == "quick":
+        parser.add_argument("--num-envs", type=int, default=4096, help="parallel envs")
+        parser.add_argument("--steps", type=int, default=200, help="env steps per timed call")
+        parser.add_argument(
+            "--iterations", type=int, default=20, help="training iterations per timed call"
+        )
+        parser.add_argument(
+            "--decision-steps",
+            type=int,
+            nargs="+",
+            metavar="K",
+            help="time training at each env.decision_steps K side by side (default: the config's)",
+        )
+        _config_options(parser)
+    elif args.name == "all":
+        parser.add_argument("--repeats", type=int)
+        parser.add_argument("--out", metavar="DIR")
+        parser.add_argument("--quick", action="store_true")
     if args.name in ("quick", "all"):
-        parser = _quick_parser() if args.name == "quick" else _bench_all_parser()
         args.options = parser.parse_args(args.args)
     return cmd_bench(args)
 
 
 #: name -> (what runs it, its docstring the help text: a summary, then the description;
-#: what adds its options).
-COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], int], Callable[[Parser], None]]] = {
-    "train": (cmd_train, _train_options),
-    "evaluate": (cmd_evaluate, _evaluate_options),
-    "reproduce": (cmd_reproduce, _reproduce_options),
-    "replay": (cmd_replay, _replay_options),
-    "export": (cmd_export, _export_options),
-    "sweep": (cmd_sweep, _sweep_options),
-    "study": (cmd_study, _study_options),
-    "frontier": (cmd_frontier, _frontier_options),
-    "report": (cmd_report, _report_options),
-    "bench": (_bench, _bench_options),
+#: what adds its options; the help of its --quiet).
+COMMANDS: dict[str, tuple[Callable[[argparse.Namespace], int], Callable[[Parser], None], str]] = {
+    "train": (cmd_train, _train_options, "no progress bar"),
+    "evaluate": (cmd_evaluate, _evaluate_options, "no status messages on stderr"),
+    "reproduce": (cmd_reproduce, _reproduce_options, "no progress bar"),
+    "replay": (cmd_replay, _replay_options, "no line per episode"),
+    "export": (cmd_export, _export_options, "no status message"),
+    "sweep": (cmd_sweep, _sweep_options, "no progress bar"),
+    "study": (cmd_study, _study_options, "no progress bars"),
+    "frontier": (cmd_frontier, _frontier_options, "no status messages"),
+    "report": (cmd_report, _report_options, "no status messages"),
+    "bench": (_bench, _bench_options, ""),  # its options are the benchmark's
 }
 
 
@@ -376,10 +361,13 @@ def build_parser() -> Parser:
     )
     parser.add_argument("--version", action="version", version=f"drqn-jax {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, (handler, add_options) in COMMANDS.items():
+    for name, (handler, add_options, quiet) in COMMANDS.items():
         summary, _, doc = (inspect.getdoc(handler) or "").partition("\n\n")
         summary = " ".join(summary.split())
-        add_options(sub.add_parser(name, help=summary, description=doc, formatter_class=_Formatter))
+        command = sub.add_parser(name, help=summary, description=doc, formatter_class=_Formatter)
+        add_options(command)
+        if quiet:
+            command.add_argument("--quiet", action="store_true", help=quiet)
     return parser
 
 

@@ -445,7 +445,7 @@ def test_bench_quick_prints_throughput(capsys):
 def test_bench_quick_counts_ppos_iterations_in_env_steps_and_updates():
     """Issue 51: a PPO iteration is a rollout and its epochs; bench counts them from the
     state (the PPO config of the test above: its chunk program, one iteration a call)."""
-    from drqn_jax.experiments.bench import bench_train, train_figures
+    from drqn_jax.commands.bench import bench_train, train_figures
 
     overrides = [value for flag, value in itertools.pairwise(PPO) if flag == "--set"]
     config = load_config("smoke", overrides)

@@ -293,7 +293,7 @@ def _training_estimate(config: Config) -> str:
     """One line: how long training ``config`` takes on this device (one chunk timed)."""
     import jax
 
-    from drqn_jax.experiments.bench import training_estimate
+    from drqn_jax.commands.bench import training_estimate
 
     figures = training_estimate(config, 1)
     if isinstance(figures, str):

@@ -123,7 +123,7 @@ def _estimate(arms) -> str:
     """Lines of the study's training wall time on this device, per arm and in all."""
     import jax
 
-    from drqn_jax.experiments.bench import training_estimate
+    from drqn_jax.commands.bench import training_estimate
     from drqn_jax.experiments.sweep_plan import resolve_strategy
 
     lines, total, bounded = [], 0.0, False

@@ -97,11 +97,10 @@ def _config_diff(saved: Any, expected: Any, prefix: str = "") -> list[str]:
         return out
     if saved == expected and type(saved) is type(expected):
         return []
-    return [f"{prefix or '<config>'}: checkpoint {_show(saved)}, this run {_show(expected)}"]
-
-
-def _show(value: Any) -> str:
-    return "<absent>" if value is _ABSENT else json.dumps(value, sort_keys=True)
+    ours, theirs = (
+        "<absent>" if v is _ABSENT else json.dumps(v, sort_keys=True) for v in (saved, expected)
+    )
+    return [f"{prefix or '<config>'}: checkpoint {ours}, this run {theirs}"]
 
 
 def _json_default(value: Any) -> Any:
@@ -111,10 +110,6 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"checkpoint meta: {type(value).__name__} {value!r} is not JSON-serialisable")
 
 
-def _is_key_dtype(dtype: Any) -> bool:
-    return jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key)
-
-
 def _shape_dtype(leaf: Any) -> tuple[tuple[int, ...], Any]:
     """Logical (shape, dtype) of an array, key array, ShapeDtypeStruct or Python scalar."""
     if not hasattr(leaf, "dtype") or not hasattr(leaf, "shape"):
@@ -122,34 +117,25 @@ def _shape_dtype(leaf: Any) -> tuple[tuple[int, ...], Any]:
     return tuple(int(d) for d in leaf.shape), leaf.dtype
 
 
-def _npz_name(path: str, used: set[str]) -> str:
-    """``path`` (a keystr) reduced to ``[A-Za-z0-9_]``, unique among ``used``."""
-    base = re.sub(r"[^A-Za-z0-9]+", "_", path).strip("_") or "leaf"
-    name, n = base, 1
-    while name in used:
-        n += 1
-        name = f"{base}__{n}"
-    used.add(name)
-    return name
-
-
-def _storage_dtype(dtype: np.dtype) -> np.dtype:
-    """The dtype an array is stored as: itself if NumPy knows it, else uint of its width."""
-    return dtype if dtype.isbuiltin == 1 else np.dtype(f"uint{8 * dtype.itemsize}")
-
-
 def _encode(state: Any) -> tuple[list[dict[str, Any]], list[np.ndarray]]:
-    """The manifest entries and host arrays of ``state``'s leaves, in flatten order."""
+    """The manifest entries and host arrays of ``state``'s leaves, in flatten order: each
+    entry named by its key path reduced to ``[A-Za-z0-9_]`` (made unique), a key array
+    stored as its key data, a dtype NumPy does not know as the uint of its width."""
     leaves, _ = jax.tree_util.tree_flatten_with_path(state)
     entries: list[dict[str, Any]] = []
     arrays: list[Any] = []
     used: set[str] = set()
     for path, leaf in leaves:
         keystr = jax.tree_util.keystr(path)
+        base = re.sub(r"[^A-Za-z0-9]+", "_", keystr).strip("_") or "leaf"
+        name, n = base, 1
+        while name in used:
+            n += 1
+            name = f"{base}__{n}"
+        used.add(name)
         shape, dtype = _shape_dtype(leaf)
-        entry: dict[str, Any] = {"name": _npz_name(keystr, used), "path": keystr}
-        entry |= {"shape": list(shape), "dtype": str(dtype)}
-        if _is_key_dtype(dtype):
+        entry = {"name": name, "path": keystr, "shape": list(shape), "dtype": str(dtype)}
+        if jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key):
             impl = jax.random.key_impl(leaf)
             entry["key_impl"] = impl if isinstance(impl, str) else str(impl)
             arrays.append(jax.random.key_data(leaf))
@@ -157,20 +143,8 @@ def _encode(state: Any) -> tuple[list[dict[str, Any]], list[np.ndarray]]:
             arrays.append(leaf if hasattr(leaf, "dtype") else jnp.asarray(leaf))
         entries.append(entry)
     host = [np.asarray(a, order="C") for a in jax.device_get(arrays)]
-    host = [a.view(_storage_dtype(a.dtype)) for a in host]
-    return entries, host
-
-
-def _npz_bytes(entries: list[dict[str, Any]], arrays: list[np.ndarray], manifest: bytes) -> bytes:
-    """The npz: one ``.npy`` entry per leaf, then ``manifest.json`` (fixed timestamps)."""
-    buffer = io.BytesIO()
-    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as zf:
-        for entry, array in zip(entries, arrays, strict=True):
-            info = zipfile.ZipInfo(entry["name"] + ".npy", date_time=_ZIP_TIME)
-            with zf.open(info, "w", force_zip64=array.nbytes > 2**31) as f:
-                np.lib.format.write_array(f, array, allow_pickle=False)
-        zf.writestr(zipfile.ZipInfo(_MANIFEST, date_time=_ZIP_TIME), manifest)
-    return buffer.getvalue()
+    uint = [a.dtype if a.dtype.isbuiltin == 1 else np.dtype(f"uint{8 * a.itemsize}") for a in host]
+    return entries, [a.view(dtype) for a, dtype in zip(host, uint, strict=True)]
 
 
 def save_checkpoint(
@@ -192,7 +166,14 @@ def save_checkpoint(
     }
     manifest = {**version, **meta, "leaves": entries}
     text = json.dumps(manifest, indent=1, default=_json_default) + "\n"  # may raise: no write
-    data = _npz_bytes(entries, arrays, text.encode("utf-8"))
+    buffer = io.BytesIO()  # one .npy entry per leaf, then the manifest; fixed timestamps
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as zf:
+        for entry, array in zip(entries, arrays, strict=True):
+            info = zipfile.ZipInfo(entry["name"] + ".npy", date_time=_ZIP_TIME)
+            with zf.open(info, "w", force_zip64=array.nbytes > 2**31) as f:
+                np.lib.format.write_array(f, array, allow_pickle=False)
+        zf.writestr(zipfile.ZipInfo(_MANIFEST, date_time=_ZIP_TIME), text.encode("utf-8"))
+    data = buffer.getvalue()
     saved = json.loads(text)  # as stored: NumPy scalars and tuples already converted
     copy = {**version, "npz_sha256": hashlib.sha256(data).hexdigest(), **saved}
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -218,8 +199,14 @@ def load_checkpoint(
         manifest = _read_manifest(npz_path, archive)
         if expected_meta is not None:
             _check_config(run_dir, manifest, expected_meta)
-        entries = _check_template(run_dir, manifest["leaves"], template)
-        leaves = [_decode(npz_path, archive, entry) for entry in entries]
+        leaves = []
+        for entry in _check_template(run_dir, manifest["leaves"], template):
+            raw = _read_entry(npz_path, archive, entry["name"] + ".npy", entry["path"])
+            stored = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
+            if entry.get("key_impl") is not None:  # bit-identical to the saved leaf
+                leaves.append(jax.random.wrap_key_data(jnp.asarray(stored), impl=entry["key_impl"]))
+            else:
+                leaves.append(jax.device_put(stored.view(jnp.dtype(entry["dtype"]))))
     treedef = jax.tree.structure(template)
     meta = {k: v for k, v in manifest.items() if k != "leaves"}
     return jax.tree.unflatten(treedef, leaves), meta
@@ -313,10 +300,6 @@ def _listed(problems: list[str], one: str, many: str) -> str:
     return what + "; ".join(problems[:_MAX_LISTED]) + more
 
 
-def _describe(shape: Any, dtype: Any) -> str:
-    return f"{tuple(shape)} {dtype}"
-
-
 def _check_template(
     run_dir: Path, saved: list[dict[str, Any]], template: Any
 ) -> list[dict[str, Any]]:
@@ -330,17 +313,14 @@ def _check_template(
         shape, dtype = _shape_dtype(leaf)
         entry = by_path.pop(keystr, None)
         if entry is None:
-            problems.append(f"{keystr}: not in the checkpoint, expected {_describe(shape, dtype)}")
+            problems.append(f"{keystr}: not in the checkpoint, expected {shape} {dtype}")
             continue
         if tuple(entry["shape"]) != shape or entry["dtype"] != str(dtype):
-            problems.append(
-                f"{keystr}: checkpoint {_describe(entry['shape'], entry['dtype'])}, "
-                f"expected {_describe(shape, dtype)}"
-            )
+            saved_as = f"{tuple(entry['shape'])} {entry['dtype']}"
+            problems.append(f"{keystr}: checkpoint {saved_as}, expected {shape} {dtype}")
         entries.append(entry)
     problems += [
-        f"{path}: in the checkpoint ({_describe(entry['shape'], entry['dtype'])}), "
-        "not in the template"
+        f"{path}: in the checkpoint ({tuple(entry['shape'])} {entry['dtype']}), not in the template"
         for path, entry in by_path.items()
     ]
     if problems:
@@ -349,12 +329,3 @@ def _check_template(
             + _listed(problems, "leaf differs", "leaves differ")
         )
     return entries
-
-
-def _decode(npz_path: Path, archive: zipfile.ZipFile, entry: dict[str, Any]) -> jax.Array:
-    """One leaf, bit-identical to the saved one."""
-    raw = _read_entry(npz_path, archive, entry["name"] + ".npy", entry["path"])
-    stored = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
-    if entry.get("key_impl") is not None:
-        return jax.random.wrap_key_data(jnp.asarray(stored), impl=entry["key_impl"])
-    return jax.device_put(stored.view(jnp.dtype(entry["dtype"])))

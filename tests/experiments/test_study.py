@@ -461,8 +461,8 @@ def test_the_estimate_is_the_runs_env_steps_over_the_timed_rate(monkeypatch):
     """Issue 53: a study's training wall time, printed before it trains: each run's env
     steps (its step budget, or at most episodes × max_steps) over the env steps per
     second of one timed chunk, times the runs."""
+    from drqn_jax.commands import bench
     from drqn_jax.config import load_config
-    from drqn_jax.experiments import bench
 
     timed = []
 
@@ -482,7 +482,7 @@ def test_the_estimate_is_the_runs_env_steps_over_the_timed_rate(monkeypatch):
 
 
 def test_the_study_prints_its_estimate_and_trains_nothing(tmp_path, monkeypatch, capsys):
-    from drqn_jax.experiments import bench
+    from drqn_jax.commands import bench
 
     def estimate(config, runs, batched=False):
         if config["train"]["algorithm"] == "ppo":
