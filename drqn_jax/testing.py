@@ -28,6 +28,10 @@ class EnvContractError(AssertionError):
     """An environment broke the contract :func:`check_env_contract` checks."""
 
 
+def _fail(message: str) -> None:
+    raise EnvContractError(message)
+
+
 class ContractReport(NamedTuple):
     """What :func:`check_env_contract` ran and saw; ``resets``: steps that ended an
     episode (auto-reset checked there)."""
@@ -46,10 +50,6 @@ def same_key(key: jax.Array) -> jax.Array:
     return key
 
 
-def _fail(message: str) -> None:
-    raise EnvContractError(message)
-
-
 def _is_key(x: Any) -> bool:
     return hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
 
@@ -57,6 +57,11 @@ def _is_key(x: Any) -> bool:
 def _plain(tree: Any) -> Any:
     """Typed PRNG keys as their uint32 data, so every leaf compares as numbers."""
     return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
+
+
+def _all(checks: list[jax.Array]) -> jax.Array:
+    """() bool: every check holds (True for none)."""
+    return jnp.all(jnp.stack(checks)) if checks else jnp.asarray(True)
 
 
 def _tree_equal_traced(a: Any, b: Any) -> jax.Array:
@@ -69,18 +74,13 @@ def _tree_equal_traced(a: Any, b: Any) -> jax.Array:
             same = same | (jnp.isnan(x) & jnp.isnan(y))
         return jnp.all(same)
 
-    leaves = jax.tree.leaves(jax.tree.map(leaf, _plain(a), _plain(b)))
-    return jnp.all(jnp.stack(leaves)) if leaves else jnp.asarray(True)
+    return _all(jax.tree.leaves(jax.tree.map(leaf, _plain(a), _plain(b))))
 
 
 def _all_finite(tree: Any) -> jax.Array:
     """() bool: every floating leaf of ``tree`` is finite."""
-    checks = [
-        jnp.all(jnp.isfinite(x))
-        for x in jax.tree.leaves(_plain(tree))
-        if jnp.issubdtype(jnp.asarray(x).dtype, jnp.inexact)
-    ]
-    return jnp.all(jnp.stack(checks)) if checks else jnp.asarray(True)
+    leaves = jax.tree.leaves(_plain(tree))
+    return _all([jnp.all(jnp.isfinite(x)) for x in leaves if jnp.issubdtype(x.dtype, jnp.inexact)])
 
 
 def _describe(tree: Any) -> list[tuple[str, tuple[int, ...], str]]:
@@ -265,27 +265,24 @@ def _check_rollout(rollout: dict) -> None:
     if not np.all(first["in_space"]):
         outside = np.flatnonzero(~first["in_space"])
         _fail(f"reset: the observation of env(s) {outside} is outside the space")
-
-    def where(mask: np.ndarray) -> str:
-        t, n = np.argwhere(mask)[0]
-        return f"at step {t} of env {n} ({int(mask.sum())} of {mask.size} steps)"
-
-    if not np.all(steps["in_space"]):
-        _fail(f"step: observation outside observation_space(params) {where(~steps['in_space'])}")
-    if not np.all(steps["finite"]):
-        _fail(f"step: observation not finite {where(~steps['finite'])}")
-    if not np.all(np.isfinite(steps["reward"])):
-        _fail(f"step: reward not finite {where(~np.isfinite(steps['reward']))}")
-    if not np.all(steps["reset_ok"]):
-        _fail(
-            "step: the episode ended but the returned (obs, state) are not "
-            f"reset(reset_key(key), params)'s {where(~steps['reset_ok'])}"
-        )
-    if not np.all(steps["final_ok"]):
-        _fail(
-            "step: the episode goes on but info['final_observation'] is not the "
-            f"returned observation {where(~steps['final_ok'])}"
-        )
+    rules = (
+        (steps["in_space"], "observation outside observation_space(params)"),
+        (steps["finite"], "observation not finite"),
+        (np.isfinite(steps["reward"]), "reward not finite"),
+        (
+            steps["reset_ok"],
+            "the episode ended but the returned (obs, state) are not reset(reset_key(key), "
+            "params)'s",
+        ),
+        (
+            steps["final_ok"],
+            "the episode goes on but info['final_observation'] is not the returned observation",
+        ),
+    )
+    for ok, broken in rules:
+        if not np.all(ok):
+            t, n = np.argwhere(~ok)[0]
+            _fail(f"step: {broken} at step {t} of env {n} ({int((~ok).sum())} of {ok.size} steps)")
 
 
 def _check_eager(
