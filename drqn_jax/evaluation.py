@@ -286,8 +286,8 @@ def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float
     return (low, high)
 
 
-def _nearest_quantile(values: np.ndarray, q: float) -> float:
-    return float(np.quantile(values, q, method="nearest")) if values.size else math.nan
+def _mean(values: np.ndarray) -> float:
+    return float(values.mean()) if values.size else math.nan
 
 
 def summarize_outcomes(episodes: EpisodeMetrics) -> dict[str, Any]:
@@ -299,25 +299,23 @@ def summarize_outcomes(episodes: EpisodeMetrics) -> dict[str, Any]:
     free = ~collided
     distance = ep.distance.astype(np.float64)
     total_km = distance.sum() / 1000.0
-    low, high = wilson_interval(int(free.sum()), n)
-    length = ep.length.astype(np.float64)
     moving = ep.moving_steps.astype(np.float64)
     moving_speed_sum = float((ep.authors_speed.astype(np.float64) * moving).sum())
     return {
         "num_episodes": n,
-        "collision_free_rate": float(free.mean()) if n else math.nan,
-        "collision_free_ci": (low, high),
-        "goal_rate": float(ep.goal.mean()) if n else math.nan,
-        "struck_while_stopped_rate": float(ep.struck_while_stopped.mean()) if n else math.nan,
-        "avg_speed_kmh": float(ep.mean_speed.astype(np.float64).mean() * 3.6) if n else math.nan,
+        "collision_free_rate": _mean(free),
+        "collision_free_ci": wilson_interval(int(free.sum()), n),
+        "goal_rate": _mean(ep.goal),
+        "struck_while_stopped_rate": _mean(ep.struck_while_stopped),
+        "avg_speed_kmh": _mean(ep.mean_speed.astype(np.float64)) * 3.6,
         "avg_speed_authors_kmh": (
             moving_speed_sum / moving.sum() * 3.6 if moving.sum() > 0 else math.nan
         ),
-        "avg_distance_m": float(distance.mean()) if n else math.nan,
-        "avg_distance_collision_free_m": float(distance[free].mean()) if free.any() else math.nan,
+        "avg_distance_m": _mean(distance),
+        "avg_distance_collision_free_m": _mean(distance[free]),
         "collisions_per_km": float(collided.sum() / total_km) if total_km > 0 else math.nan,
-        "avg_return": float(ep.episode_return.astype(np.float64).mean()) if n else math.nan,
-        "avg_length": float(length.mean()) if n else math.nan,
+        "avg_return": _mean(ep.episode_return.astype(np.float64)),
+        "avg_length": _mean(ep.length.astype(np.float64)),
     }
 
 
@@ -330,17 +328,20 @@ def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str,
     TTC; ``near_collision_episode_rate`` counts min TTC <= ``ttc_threshold``.
     """
     ep = jax.tree.map(np.asarray, episodes)
-    n = int(ep.collision.shape[0])
     min_ttc = ep.min_ttc.astype(np.float64)
-    finite = min_ttc[np.isfinite(min_ttc)]
-    length = ep.length.astype(np.float64)
+
+    def quantile(q: float) -> float:
+        return float(np.quantile(min_ttc, q, method="nearest")) if min_ttc.size else math.nan
+
     return {
         **summarize_outcomes(ep),
-        "min_ttc_p05_s": _nearest_quantile(min_ttc, 0.05),
-        "min_ttc_median_s": _nearest_quantile(min_ttc, 0.5),
-        "min_ttc_mean_finite_s": float(finite.mean()) if finite.size else math.nan,
-        "near_collision_episode_rate": float((min_ttc <= ttc_threshold).mean()) if n else math.nan,
-        "near_collision_step_share": float(ep.near_collision_steps.sum() / max(length.sum(), 1.0)),
+        "min_ttc_p05_s": quantile(0.05),
+        "min_ttc_median_s": quantile(0.5),
+        "min_ttc_mean_finite_s": _mean(min_ttc[np.isfinite(min_ttc)]),
+        "near_collision_episode_rate": _mean(min_ttc <= ttc_threshold),
+        "near_collision_step_share": float(
+            ep.near_collision_steps.sum() / max(ep.length.astype(np.float64).sum(), 1.0)
+        ),
     }
 
 
