@@ -119,7 +119,7 @@ _GLYPH_ROWS, _GLYPH_COLS = FONT.shape[1:]
 _CELL_COLS = _GLYPH_COLS + 1  # one blank column between characters
 _HUD_MARGIN_PX = 4
 _GAP = -1  # an absent character: dropped from its line
-_SPACE, _DIGIT0, _DOT, _DASH = (GLYPHS.index(c) for c in " 0.-")
+_SPACE, _DIGIT0, _DOT = (GLYPHS.index(c) for c in " 0.")
 
 
 def _codes(text: str) -> np.ndarray:
