@@ -122,36 +122,28 @@ def _accumulate(
     m: EpisodeMetrics, live: jax.Array, reward: jax.Array, info: dict, params: EnvParams
 ) -> EpisodeMetrics:
     """``m`` after one more decision; one after the episode ended (``~live``) counts
-    nothing. Lengths, speeds and TTC count ticks: a k-tick decision (``info["ticks"]``,
-    leaves (k,)) counts each tick it played."""
+    nothing. Lengths, speeds and TTC count ticks of ``dt`` (SPEC §8): a k-tick decision
+    (``info["ticks"]``, leaves (k,)) counts each tick it played."""
     m = m.replace(episode_return=m.episode_return + jnp.where(live, reward, 0.0))
-    if "ticks" not in info:
-        return _count_tick(m, live, info, params)
-    ticks = info["ticks"]
-    for i in range(ticks["played"].shape[0]):
-        tick = jax.tree.map(lambda x, i=i: x[i], ticks)
-        m = _count_tick(m, live & tick["played"], tick, params)
+    ticks = info.get("ticks")
+    for i in range(1 if ticks is None else ticks["played"].shape[0]):
+        tick = info if ticks is None else jax.tree.map(lambda x, i=i: x[i], ticks)
+        played = live if ticks is None else live & tick["played"]
+        ttc = tick["ttc"]
+        moving = played & (tick["speed"] > AUTHORS_MOVING_SPEED)
+        m = m.replace(
+            length=m.length + played.astype(jnp.int32),
+            collision=m.collision | (played & tick["collision"]),
+            goal=m.goal | (played & tick["goal"]),
+            distance=jnp.where(played, tick["distance"], m.distance),
+            min_ttc=jnp.where(played, jnp.minimum(m.min_ttc, ttc), m.min_ttc),
+            near_collision_steps=m.near_collision_steps
+            + (played & (ttc <= params.ttc_threshold)).astype(jnp.int32),
+            struck_while_stopped=m.struck_while_stopped | (played & tick["struck_while_stopped"]),
+            moving_steps=m.moving_steps + moving.astype(jnp.int32),
+            authors_speed=m.authors_speed + jnp.where(moving, tick["speed"], 0.0),
+        )
     return m
-
-
-def _count_tick(
-    m: EpisodeMetrics, live: jax.Array, info: dict, params: EnvParams
-) -> EpisodeMetrics:
-    """``m`` after one more tick of ``dt`` (SPEC §8)."""
-    ttc = info["ttc"]
-    moving = live & (info["speed"] > AUTHORS_MOVING_SPEED)
-    return m.replace(
-        length=m.length + live.astype(jnp.int32),
-        collision=m.collision | (live & info["collision"]),
-        goal=m.goal | (live & info["goal"]),
-        distance=jnp.where(live, info["distance"], m.distance),
-        min_ttc=jnp.where(live, jnp.minimum(m.min_ttc, ttc), m.min_ttc),
-        near_collision_steps=m.near_collision_steps
-        + (live & (ttc <= params.ttc_threshold)).astype(jnp.int32),
-        struck_while_stopped=m.struck_while_stopped | (live & info["struck_while_stopped"]),
-        moving_steps=m.moving_steps + moving.astype(jnp.int32),
-        authors_speed=m.authors_speed + jnp.where(moving, info["speed"], 0.0),
-    )
 
 
 def play_episode(
