@@ -122,36 +122,28 @@ def _accumulate(
     m: EpisodeMetrics, live: jax.Array, reward: jax.Array, info: dict, params: EnvParams
 ) -> EpisodeMetrics:
     """``m`` after one more decision; one after the episode ended (``~live``) counts
-    nothing. Lengths, speeds and TTC count ticks: a k-tick decision (``info["ticks"]``,
-    leaves (k,)) counts each tick it played."""
+    nothing. Lengths, speeds and TTC count ticks of ``dt`` (SPEC §8): a k-tick decision
+    (``info["ticks"]``, leaves (k,)) counts each tick it played."""
     m = m.replace(episode_return=m.episode_return + jnp.where(live, reward, 0.0))
-    if "ticks" not in info:
-        return _count_tick(m, live, info, params)
-    ticks = info["ticks"]
-    for i in range(ticks["played"].shape[0]):
-        tick = jax.tree.map(lambda x, i=i: x[i], ticks)
-        m = _count_tick(m, live & tick["played"], tick, params)
+    ticks = info.get("ticks")
+    for i in range(1 if ticks is None else ticks["played"].shape[0]):
+        tick = info if ticks is None else jax.tree.map(lambda x, i=i: x[i], ticks)
+        played = live if ticks is None else live & tick["played"]
+        ttc = tick["ttc"]
+        moving = played & (tick["speed"] > AUTHORS_MOVING_SPEED)
+        m = m.replace(
+            length=m.length + played.astype(jnp.int32),
+            collision=m.collision | (played & tick["collision"]),
+            goal=m.goal | (played & tick["goal"]),
+            distance=jnp.where(played, tick["distance"], m.distance),
+            min_ttc=jnp.where(played, jnp.minimum(m.min_ttc, ttc), m.min_ttc),
+            near_collision_steps=m.near_collision_steps
+            + (played & (ttc <= params.ttc_threshold)).astype(jnp.int32),
+            struck_while_stopped=m.struck_while_stopped | (played & tick["struck_while_stopped"]),
+            moving_steps=m.moving_steps + moving.astype(jnp.int32),
+            authors_speed=m.authors_speed + jnp.where(moving, tick["speed"], 0.0),
+        )
     return m
-
-
-def _count_tick(
-    m: EpisodeMetrics, live: jax.Array, info: dict, params: EnvParams
-) -> EpisodeMetrics:
-    """``m`` after one more tick of ``dt`` (SPEC §8)."""
-    ttc = info["ttc"]
-    moving = live & (info["speed"] > AUTHORS_MOVING_SPEED)
-    return m.replace(
-        length=m.length + live.astype(jnp.int32),
-        collision=m.collision | (live & info["collision"]),
-        goal=m.goal | (live & info["goal"]),
-        distance=jnp.where(live, info["distance"], m.distance),
-        min_ttc=jnp.where(live, jnp.minimum(m.min_ttc, ttc), m.min_ttc),
-        near_collision_steps=m.near_collision_steps
-        + (live & (ttc <= params.ttc_threshold)).astype(jnp.int32),
-        struck_while_stopped=m.struck_while_stopped | (live & info["struck_while_stopped"]),
-        moving_steps=m.moving_steps + moving.astype(jnp.int32),
-        authors_speed=m.authors_speed + jnp.where(moving, info["speed"], 0.0),
-    )
 
 
 def play_episode(
@@ -286,8 +278,8 @@ def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float
     return (low, high)
 
 
-def _nearest_quantile(values: np.ndarray, q: float) -> float:
-    return float(np.quantile(values, q, method="nearest")) if values.size else math.nan
+def _mean(values: np.ndarray) -> float:
+    return float(values.mean()) if values.size else math.nan
 
 
 def summarize_outcomes(episodes: EpisodeMetrics) -> dict[str, Any]:
@@ -299,25 +291,23 @@ def summarize_outcomes(episodes: EpisodeMetrics) -> dict[str, Any]:
     free = ~collided
     distance = ep.distance.astype(np.float64)
     total_km = distance.sum() / 1000.0
-    low, high = wilson_interval(int(free.sum()), n)
-    length = ep.length.astype(np.float64)
     moving = ep.moving_steps.astype(np.float64)
     moving_speed_sum = float((ep.authors_speed.astype(np.float64) * moving).sum())
     return {
         "num_episodes": n,
-        "collision_free_rate": float(free.mean()) if n else math.nan,
-        "collision_free_ci": (low, high),
-        "goal_rate": float(ep.goal.mean()) if n else math.nan,
-        "struck_while_stopped_rate": float(ep.struck_while_stopped.mean()) if n else math.nan,
-        "avg_speed_kmh": float(ep.mean_speed.astype(np.float64).mean() * 3.6) if n else math.nan,
+        "collision_free_rate": _mean(free),
+        "collision_free_ci": wilson_interval(int(free.sum()), n),
+        "goal_rate": _mean(ep.goal),
+        "struck_while_stopped_rate": _mean(ep.struck_while_stopped),
+        "avg_speed_kmh": _mean(ep.mean_speed.astype(np.float64)) * 3.6,
         "avg_speed_authors_kmh": (
             moving_speed_sum / moving.sum() * 3.6 if moving.sum() > 0 else math.nan
         ),
-        "avg_distance_m": float(distance.mean()) if n else math.nan,
-        "avg_distance_collision_free_m": float(distance[free].mean()) if free.any() else math.nan,
+        "avg_distance_m": _mean(distance),
+        "avg_distance_collision_free_m": _mean(distance[free]),
         "collisions_per_km": float(collided.sum() / total_km) if total_km > 0 else math.nan,
-        "avg_return": float(ep.episode_return.astype(np.float64).mean()) if n else math.nan,
-        "avg_length": float(length.mean()) if n else math.nan,
+        "avg_return": _mean(ep.episode_return.astype(np.float64)),
+        "avg_length": _mean(ep.length.astype(np.float64)),
     }
 
 
@@ -330,17 +320,20 @@ def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str,
     TTC; ``near_collision_episode_rate`` counts min TTC <= ``ttc_threshold``.
     """
     ep = jax.tree.map(np.asarray, episodes)
-    n = int(ep.collision.shape[0])
     min_ttc = ep.min_ttc.astype(np.float64)
-    finite = min_ttc[np.isfinite(min_ttc)]
-    length = ep.length.astype(np.float64)
+
+    def quantile(q: float) -> float:
+        return float(np.quantile(min_ttc, q, method="nearest")) if min_ttc.size else math.nan
+
     return {
         **summarize_outcomes(ep),
-        "min_ttc_p05_s": _nearest_quantile(min_ttc, 0.05),
-        "min_ttc_median_s": _nearest_quantile(min_ttc, 0.5),
-        "min_ttc_mean_finite_s": float(finite.mean()) if finite.size else math.nan,
-        "near_collision_episode_rate": float((min_ttc <= ttc_threshold).mean()) if n else math.nan,
-        "near_collision_step_share": float(ep.near_collision_steps.sum() / max(length.sum(), 1.0)),
+        "min_ttc_p05_s": quantile(0.05),
+        "min_ttc_median_s": quantile(0.5),
+        "min_ttc_mean_finite_s": _mean(min_ttc[np.isfinite(min_ttc)]),
+        "near_collision_episode_rate": _mean(min_ttc <= ttc_threshold),
+        "near_collision_step_share": float(
+            ep.near_collision_steps.sum() / max(ep.length.astype(np.float64).sum(), 1.0)
+        ),
     }
 
 

@@ -28,6 +28,10 @@ class EnvContractError(AssertionError):
     """An environment broke the contract :func:`check_env_contract` checks."""
 
 
+def _fail(message: str) -> None:
+    raise EnvContractError(message)
+
+
 class ContractReport(NamedTuple):
     """What :func:`check_env_contract` ran and saw; ``resets``: steps that ended an
     episode (auto-reset checked there)."""
@@ -46,10 +50,6 @@ def same_key(key: jax.Array) -> jax.Array:
     return key
 
 
-def _fail(message: str) -> None:
-    raise EnvContractError(message)
-
-
 def _is_key(x: Any) -> bool:
     return hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
 
@@ -57,6 +57,11 @@ def _is_key(x: Any) -> bool:
 def _plain(tree: Any) -> Any:
     """Typed PRNG keys as their uint32 data, so every leaf compares as numbers."""
     return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
+
+
+def _all(checks: list[jax.Array]) -> jax.Array:
+    """() bool: every check holds (True for none)."""
+    return jnp.all(jnp.stack(checks)) if checks else jnp.asarray(True)
 
 
 def _tree_equal_traced(a: Any, b: Any) -> jax.Array:
@@ -69,25 +74,13 @@ def _tree_equal_traced(a: Any, b: Any) -> jax.Array:
             same = same | (jnp.isnan(x) & jnp.isnan(y))
         return jnp.all(same)
 
-    leaves = jax.tree.leaves(jax.tree.map(leaf, _plain(a), _plain(b)))
-    return jnp.all(jnp.stack(leaves)) if leaves else jnp.asarray(True)
+    return _all(jax.tree.leaves(jax.tree.map(leaf, _plain(a), _plain(b))))
 
 
 def _all_finite(tree: Any) -> jax.Array:
     """() bool: every floating leaf of ``tree`` is finite."""
-    checks = [
-        jnp.all(jnp.isfinite(x))
-        for x in jax.tree.leaves(_plain(tree))
-        if jnp.issubdtype(jnp.asarray(x).dtype, jnp.inexact)
-    ]
-    return jnp.all(jnp.stack(checks)) if checks else jnp.asarray(True)
-
-
-def _describe(tree: Any) -> list[tuple[str, tuple[int, ...], str]]:
-    return [
-        (jax.tree_util.keystr(path), tuple(x.shape), str(x.dtype))
-        for path, x in jax.tree_util.tree_leaves_with_path(tree)
-    ]
+    leaves = jax.tree.leaves(_plain(tree))
+    return _all([jnp.all(jnp.isfinite(x)) for x in leaves if jnp.issubdtype(x.dtype, jnp.inexact)])
 
 
 def _check_same_types(what: str, got: Any, want: Any) -> None:
@@ -96,13 +89,12 @@ def _check_same_types(what: str, got: Any, want: Any) -> None:
             f"{what}: the step's tree structure {jax.tree.structure(got)} is not the "
             f"reset's {jax.tree.structure(want)}"
         )
-    for (path, g_shape, g_dtype), (_, w_shape, w_dtype) in zip(
-        _describe(got), _describe(want), strict=True
-    ):
-        if (g_shape, g_dtype) != (w_shape, w_dtype):
+    leaves = jax.tree_util.tree_leaves_with_path(got)
+    for (path, g), w in zip(leaves, jax.tree.leaves(want), strict=True):
+        if (g.shape, g.dtype) != (w.shape, w.dtype):
             _fail(
-                f"{what}{path}: the step returns {g_dtype}{list(g_shape)}, the reset "
-                f"{w_dtype}{list(w_shape)}"
+                f"{what}{jax.tree_util.keystr(path)}: the step returns {g.dtype}"
+                f"{list(g.shape)}, the reset {w.dtype}{list(w.shape)}"
             )
 
 
@@ -179,18 +171,13 @@ def _rollout(
 _jit_rollout = jit_in_store("env", "reset_key")(_rollout)
 
 
-def _host(tree: Any) -> list[tuple[str, np.ndarray]]:
-    return [
-        (jax.tree_util.keystr(path), np.asarray(x))
-        for path, x in jax.tree_util.tree_leaves_with_path(_plain(tree))
-    ]
-
-
 def _first_difference(a: Any, b: Any, rtol: float = 0.0, atol: float = 0.0) -> str | None:
     """Where two pytrees first differ (None: equal; bitwise unless a tolerance is given)."""
     if jax.tree.structure(a) != jax.tree.structure(b):
         return f"tree structure {jax.tree.structure(a)} vs {jax.tree.structure(b)}"
-    for (path, x), (_, y) in zip(_host(a), _host(b), strict=True):
+    leaves = jax.tree_util.tree_leaves_with_path(_plain(a))
+    for (key_path, x), y in zip(leaves, jax.tree.leaves(_plain(b)), strict=True):
+        x, y, path = np.asarray(x), np.asarray(y), jax.tree_util.keystr(key_path)
         if x.shape != y.shape or x.dtype != y.dtype:
             return f"{path}: {x.dtype}{list(x.shape)} vs {y.dtype}{list(y.shape)}"
         if np.issubdtype(x.dtype, np.inexact) and (rtol or atol):
@@ -243,8 +230,18 @@ def check_env_contract(
     if diff is not None:
         _fail(f"the same keys gave a different rollout: {diff}")
 
-    if eager_steps:
-        _check_eager(env, reset_key, args, eager_steps, rollout, rtol, atol)
+    if eager_steps:  # jit ≡ no jit: the first steps, op by op, equal the compiled ones
+        n = eager_steps
+        with jax.disable_jit():
+            eager = _rollout(env, reset_key, params, reset_keys, action_keys[:n], step_keys[:n])
+        first = [{k: r["reset"][k] for k in ("obs", "state")} for r in (eager, rollout)]
+        steps = [{k: r["steps"][k] for k in _STEP_FIELDS} for r in (eager, rollout)]
+        pairs = [("after reset", first)]
+        pairs += [(f"at step {t}", jax.tree.map(lambda x, t=t: x[t], steps)) for t in range(n)]
+        for when, pair in pairs:
+            diff = _first_difference(*pair, rtol, atol)
+            if diff is not None:
+                _fail(f"jit differs from no jit {when}: {diff}")
 
     reward, terminated, truncated = (rollout["steps"][k] for k in _STEP_FIELDS[2:])
     done = terminated | truncated
@@ -265,48 +262,21 @@ def _check_rollout(rollout: dict) -> None:
     if not np.all(first["in_space"]):
         outside = np.flatnonzero(~first["in_space"])
         _fail(f"reset: the observation of env(s) {outside} is outside the space")
-
-    def where(mask: np.ndarray) -> str:
-        t, n = np.argwhere(mask)[0]
-        return f"at step {t} of env {n} ({int(mask.sum())} of {mask.size} steps)"
-
-    if not np.all(steps["in_space"]):
-        _fail(f"step: observation outside observation_space(params) {where(~steps['in_space'])}")
-    if not np.all(steps["finite"]):
-        _fail(f"step: observation not finite {where(~steps['finite'])}")
-    if not np.all(np.isfinite(steps["reward"])):
-        _fail(f"step: reward not finite {where(~np.isfinite(steps['reward']))}")
-    if not np.all(steps["reset_ok"]):
-        _fail(
-            "step: the episode ended but the returned (obs, state) are not "
-            f"reset(reset_key(key), params)'s {where(~steps['reset_ok'])}"
-        )
-    if not np.all(steps["final_ok"]):
-        _fail(
-            "step: the episode goes on but info['final_observation'] is not the "
-            f"returned observation {where(~steps['final_ok'])}"
-        )
-
-
-def _check_eager(
-    env: Any,
-    reset_key: Callable[[jax.Array], jax.Array],
-    args: tuple,
-    n: int,
-    rollout: dict,
-    rtol: float,
-    atol: float,
-) -> None:
-    """jit ≡ no jit: :func:`_rollout`'s first ``n`` steps, op by op, equal ``rollout``'s."""
-    params, reset_keys, action_keys, step_keys = args
-    with jax.disable_jit():
-        eager = _rollout(env, reset_key, params, reset_keys, action_keys[:n], step_keys[:n])
-    first = [{k: r["reset"][k] for k in ("obs", "state")} for r in (eager, rollout)]
-    diff = _first_difference(*first, rtol, atol)
-    if diff is not None:
-        _fail(f"jit differs from no jit after reset: {diff}")
-    steps = [{k: r["steps"][k] for k in _STEP_FIELDS} for r in (eager, rollout)]
-    for t in range(n):
-        diff = _first_difference(*jax.tree.map(lambda x, t=t: x[t], steps), rtol, atol)
-        if diff is not None:
-            _fail(f"jit differs from no jit at step {t}: {diff}")
+    rules = (
+        (steps["in_space"], "observation outside observation_space(params)"),
+        (steps["finite"], "observation not finite"),
+        (np.isfinite(steps["reward"]), "reward not finite"),
+        (
+            steps["reset_ok"],
+            "the episode ended but the returned (obs, state) are not reset(reset_key(key), "
+            "params)'s",
+        ),
+        (
+            steps["final_ok"],
+            "the episode goes on but info['final_observation'] is not the returned observation",
+        ),
+    )
+    for ok, broken in rules:
+        if not np.all(ok):
+            t, n = np.argwhere(~ok)[0]
+            _fail(f"step: {broken} at step {t} of env {n} ({int((~ok).sum())} of {ok.size} steps)")

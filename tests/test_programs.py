@@ -110,7 +110,7 @@ def test_cleared_programs_rebuild_with_identical_results():
     params = net.init(jax.random.key(0))
     clear_programs()
     rebuilt = make_network(config)
-    assert rebuilt is not net and not program_counts().get("drqn_jax.agents.drqn._greedy_functions")
+    assert rebuilt is not net and not program_counts().get("drqn_jax.agents.base._greedy_functions")
     same = jax.tree.map(np.array_equal, rebuilt.init(jax.random.key(0)), params)
     assert all(jax.tree.leaves(same))
 

@@ -1,4 +1,6 @@
-"""Collision and TTC (paper §IV-B; SPEC §5): the ego an axis-aligned box, pedestrians discs."""
+"""Collision, TTC and the reward (paper §IV-B; SPEC §5): the ego an axis-aligned box,
+pedestrians discs; the reward is ``r_c`` on a collision, else ``TTC − 3`` for ``TTC ≤ 3 s``,
+else the speed reward ``r_v``, in [−10, 1] by default."""
 
 from __future__ import annotations
 
@@ -15,6 +17,8 @@ __all__ = [
     "classify_hits",
     "collision_test",
     "ego_box",
+    "reward",
+    "speed_reward",
     "squared_length",
     "time_to_collision",
 ]
@@ -93,3 +97,19 @@ def time_to_collision(
     )
     ttc = jnp.min(jnp.where(hit, t, jnp.inf))
     return jnp.where(ego.v < params.stopped_speed, jnp.inf, ttc).astype(jnp.float32)
+
+
+def speed_reward(v: jax.Array, params: EnvParams) -> jax.Array:
+    """r_v (paper eq. for r_v): () float32 for speed ``v`` (m/s)."""
+    normal = 1.0 - (params.v_ref - v) * (1.0 / params.v_ref)
+    r = jnp.where(v > params.v_ref, params.reward_overspeed, normal)
+    return jnp.where(v < params.stopped_speed, params.reward_stopped, r).astype(jnp.float32)
+
+
+def reward(collided: jax.Array, ttc: jax.Array, v: jax.Array, params: EnvParams) -> jax.Array:
+    """() float32 reward of one step, from the post-step collision flag, TTC (s) and speed."""
+    near = ttc <= params.ttc_threshold
+    # ttc is inf when there is no near collision: keep inf out of the arithmetic.
+    r_nc = jnp.where(near, ttc, params.ttc_threshold) - params.ttc_threshold
+    r = jnp.where(near, r_nc, speed_reward(v, params))
+    return jnp.where(collided, params.reward_collision, r).astype(jnp.float32)

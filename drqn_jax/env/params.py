@@ -172,11 +172,8 @@ class EnvParams:
 
     def __post_init__(self) -> None:
         validate(self)
-        check_order(self, "ped_speed_min", "ped_speed_max")
-        check_order(self, "jaywalk_angle_min", "jaywalk_angle_max")
-        check_order(self, "sidewalk_walk_min", "sidewalk_walk_max")
-        check_order(self, "walk_on_min", "walk_on_max")
-        check_order(self, "spawn_initial_min", "spawn_initial_max")
+        for name in ("ped_speed", "jaywalk_angle", "sidewalk_walk", "walk_on", "spawn_initial"):
+            check_order(self, f"{name}_min", f"{name}_max")
         check_order(self, "spawn_min", "spawn_max")
         check_order(self, "ped_speed_max", "max_vehicle_speed")
         check_sums_to_one(self, ("prob_crossing", "prob_jaywalking", "prob_sidewalk"))

@@ -17,6 +17,7 @@ import numpy as np
 
 from drqn_jax.env import spaces
 from drqn_jax.env.collision import classify_hits, time_to_collision
+from drqn_jax.env.collision import reward as compute_reward
 from drqn_jax.env.ego import ego_step, initial_ego
 from drqn_jax.env.grid import GRID_HIGH, GRID_LOW, rasterize_grid
 from drqn_jax.env.params import EnvParams, StaticEnvParams, check_compatible
@@ -27,7 +28,6 @@ from drqn_jax.env.pedestrians import (
     spawn_pedestrians,
     step_pedestrians,
 )
-from drqn_jax.env.reward import reward as compute_reward
 from drqn_jax.env.state import NO_ACTION, NUM_ACTIONS, EnvState, Observation
 
 __all__ = ["UrbanPedestrians"]

@@ -118,8 +118,8 @@ HUD_LINES = 2
 _GLYPH_ROWS, _GLYPH_COLS = FONT.shape[1:]
 _CELL_COLS = _GLYPH_COLS + 1  # one blank column between characters
 _HUD_MARGIN_PX = 4
-_GAP = -1  # an absent character: dropped when a line is compacted
-_SPACE, _DIGIT0, _DOT, _DASH = (GLYPHS.index(c) for c in " 0.-")
+_GAP = -1  # an absent character: dropped from its line
+_SPACE, _DIGIT0, _DOT = (GLYPHS.index(c) for c in " 0.")
 
 
 def _codes(text: str) -> np.ndarray:
@@ -161,22 +161,16 @@ def _one_decimal(x: jax.Array, width: int) -> jax.Array:
     return jnp.concatenate([_digits(tenths // 10, width), point, _DIGIT0 + tenths[None] % 10])
 
 
-def _compact(codes: jax.Array, colours: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """A line's (L,) glyphs and colours without gaps, left-aligned, space-padded."""
-    keep = codes != _GAP
-    at = jnp.where(keep, jnp.cumsum(keep) - 1, codes.shape[0])  # gaps go out of range
-    out = jnp.full_like(codes, _SPACE).at[at].set(codes, mode="drop")
-    return out, jnp.zeros_like(colours).at[at].set(colours, mode="drop")
-
-
-def _line(pieces: list) -> tuple:
-    """One compacted HUD line from literal text and (glyphs, colour index) pieces."""
+def _line(pieces: list) -> tuple[jax.Array, jax.Array]:
+    """One HUD line's (HUD_LINE_LENGTH,) int32 glyphs and colours from literal text and
+    (glyphs, colour index) pieces: gaps dropped, left-aligned, space-padded."""
     pieces = [(_codes(p), 0) if isinstance(p, str) else p for p in pieces]
     codes = jnp.concatenate([jnp.asarray(c, jnp.int32) for c, _ in pieces])
     colours = jnp.concatenate([jnp.full(len(c), k, jnp.int32) for c, k in pieces])
-    pad = HUD_LINE_LENGTH - codes.shape[0]
-    codes = jnp.concatenate([codes, jnp.full(pad, _GAP, jnp.int32)])
-    return _compact(codes, jnp.concatenate([colours, jnp.zeros(pad, jnp.int32)]))
+    keep = codes != _GAP
+    at = jnp.where(keep, jnp.cumsum(keep) - 1, HUD_LINE_LENGTH)  # gaps go out of range
+    glyphs = jnp.full(HUD_LINE_LENGTH, _SPACE, jnp.int32).at[at].set(codes, mode="drop")
+    return glyphs, jnp.zeros(HUD_LINE_LENGTH, jnp.int32).at[at].set(colours, mode="drop")
 
 
 def _hud_layout(
@@ -270,38 +264,26 @@ def _draw_pedestrians(
     return jnp.where(jnp.any(covered, axis=-1)[..., None], drawn, image)
 
 
-def _fit(a: jax.Array, height: int, width: int) -> jax.Array:
-    """``a`` (h, w, ...) at the top-left of a zero (height, width, ...) array, cropped."""
-    a = a[:height, :width]
-    rest = [(0, 0)] * (a.ndim - 2)
-    return jnp.pad(a, [(0, height - a.shape[0]), (0, width - a.shape[1]), *rest])
-
-
 def _draw_hud(image: jax.Array, glyphs: jax.Array, colours: jax.Array) -> jax.Array:
-    """The HUD lines at the top left of ``image`` (H, W, 3) in a translucent band."""
+    """The HUD lines at the top left of ``image`` (H, W, 3) in a translucent band: each
+    line a margin then its glyph rows, each character its glyph and a blank column."""
     height, width, _ = image.shape
     lines, length = glyphs.shape
     s, m = HUD_SCALE, _HUD_MARGIN_PX
-    cols = length * _CELL_COLS
-    ink = jnp.pad(jnp.asarray(FONT)[glyphs], ((0, 0), (0, 0), (0, 0), (0, 1)))  # (n,L,7,6)
-    ink = ink.transpose(0, 2, 1, 3).reshape(lines, _GLYPH_ROWS, cols)
-    palette = _uint8([HUD_TEXT_COLOUR, *ACTION_COLOURS])
-    rgb = jnp.repeat(palette[colours], _CELL_COLS, axis=1)  # (n, cols, 3)
-    rgb = jnp.broadcast_to(rgb[:, None], (lines, _GLYPH_ROWS, cols, 3))
-    ink = jnp.repeat(jnp.repeat(ink, s, axis=1), s, axis=2)
-    rgb = jnp.repeat(jnp.repeat(rgb, s, axis=1), s, axis=2)
-    pad = ((0, 0), (m, 0), (m, 0))
-    ink = jnp.pad(ink, pad).reshape(-1, m + cols * s)
-    rgb = jnp.pad(rgb, (*pad, (0, 0))).reshape(-1, m + cols * s, 3)
-    band_rows = ink.shape[0] + m
+    line_rows = m + _GLYPH_ROWS * s
+    row, col = jnp.arange(height)[:, None], jnp.arange(width)[None, :] - m  # (H, 1), (1, W)
+    line, gy = row // line_rows, (row % line_rows - m) // s
+    char, gx = col // (_CELL_COLS * s), (col // s) % _CELL_COLS
+    inside = (line < lines) & (gy >= 0) & (col >= 0) & (char < length) & (gx < _GLYPH_COLS)
+    at = (jnp.minimum(line, lines - 1), jnp.clip(char, 0, length - 1))  # (H, W) each
+    bitmap = jnp.asarray(FONT)[glyphs[at], jnp.maximum(gy, 0), jnp.minimum(gx, _GLYPH_COLS - 1)]
     used = jnp.max(jnp.where(glyphs != _SPACE, jnp.arange(length) + 1, 0))  # widest line
-    band = (jnp.arange(height)[:, None] < band_rows) & (
-        jnp.arange(width)[None, :] < 2 * m + used * _CELL_COLS * s - s
-    )
+    band = (row < lines * line_rows + m) & (col < m + used * _CELL_COLS * s - s)
     image = jnp.where(
         band[..., None], _blend(image, _uint8(HUD_BAND_COLOUR), HUD_BAND_ALPHA), image
     )
-    return jnp.where(_fit(ink, height, width)[..., None], _fit(rgb, height, width), image)
+    palette = _uint8([HUD_TEXT_COLOUR, *ACTION_COLOURS])
+    return jnp.where((inside & bitmap)[..., None], palette[colours[at]], image)
 
 
 def render_frame(

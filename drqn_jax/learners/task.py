@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.agents.drqn import drqn_agent
+from drqn_jax.agents.base import drqn_agent
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_action, rule_based_labels
 from drqn_jax.env.grid import GridInputs, rasterize
 from drqn_jax.env.params import EnvParams, StaticEnvParams

@@ -38,7 +38,7 @@ here                       JAX
 ``box_disc_overlap``,
 ``collision``,
 ``time_to_collision``
-``speed_reward``,          ``drqn_jax.env.reward`` (§5)
+``speed_reward``,          ``drqn_jax.env.collision`` (§5)
 ``reward``
 ``NumpyUrbanPedestrians``  ``drqn_jax.env.urban.UrbanPedestrians`` (reset, step with
                            same-step auto-reset, ``step_env``, ``advance``)
@@ -397,7 +397,7 @@ def time_to_collision(
     return F32(t[np.argmax(hit), 0]) if hit.any() else F32(np.inf)
 
 
-# --- reward (drqn_jax.env.reward) ------------------------------------------------
+# --- reward (drqn_jax.env.collision) ------------------------------------------
 def speed_reward(v: np.float32, params: EnvParams) -> np.float32:
     """r_v: ``1 − (v_ref − v)/v_ref``, ``reward_stopped`` when stopped, overspeed above v_ref."""
     if v < params.stopped_speed:

@@ -1,4 +1,4 @@
-"""The reward (drqn_jax/env/reward.py; SPEC §5), each term and the total by hand.
+"""The reward (drqn_jax/env/collision.py; SPEC §5), each term and the total by hand.
 
 With the defaults (v_ref = 15 km/h, stopped below 0.1 m/s, TTC threshold 3 s):
 r_v = 1 - (v_ref - v) / v_ref while 0.1 <= v <= v_ref, -1 below 0.1 m/s, -0.5
@@ -17,9 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from drqn_jax.env.collision import time_to_collision
+from drqn_jax.env.collision import reward, speed_reward, time_to_collision
 from drqn_jax.env.params import KMH
-from drqn_jax.env.reward import reward, speed_reward
 from drqn_jax.env.state import STEER
 from tests.scenes import FAR_X, LANE_Y, make_ego, make_peds, make_state
 
