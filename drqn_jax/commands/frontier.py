@@ -77,7 +77,7 @@ def _frontier_outputs(
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "frontier.json", json.dumps(record, indent=1) + "\n")
     if not args.no_png:
-        from drqn_jax.experiments.figures import plot_safety_speed
+        from drqn_jax.experiments.curves import plot_safety_speed
 
         plot_safety_speed(rows, record, out / "frontier.png")
     times = {

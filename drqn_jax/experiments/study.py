@@ -25,8 +25,7 @@ from drqn_jax.experiments.baselines import (
     rule_based_results,
 )
 from drqn_jax.experiments.checkpoint import atomic_write_text
-from drqn_jax.experiments.curves import load_curves, plot_curves
-from drqn_jax.experiments.figures import plot_safety_speed
+from drqn_jax.experiments.curves import load_curves, plot_curves, plot_safety_speed
 from drqn_jax.experiments.frontier import with_margin
 from drqn_jax.experiments.portable import differing_runs, portable_runs, restore_runs
 from drqn_jax.experiments.report import strict_json, study_table
