@@ -16,9 +16,8 @@ from collections.abc import Callable, Sequence
 from drqn_jax import __version__
 from drqn_jax.agents.shipped import shipped_agents
 from drqn_jax.commands.bench import SUITE, TOOLS, cmd_bench
-from drqn_jax.commands.frontier import cmd_frontier
 from drqn_jax.commands.runs import cmd_evaluate, cmd_export, cmd_replay, cmd_reproduce, cmd_train
-from drqn_jax.commands.study import cmd_report, cmd_study
+from drqn_jax.commands.study import cmd_frontier, cmd_report, cmd_study
 from drqn_jax.commands.sweep import cmd_sweep
 from drqn_jax.config import ConfigError, config_names
 from drqn_jax.experiments.checkpoint import CheckpointError

@@ -136,7 +136,7 @@ def _evaluated(
         table = metrics_table(results)
     else:
         from drqn_jax.experiments.baselines import config_frontier
-        from drqn_jax.experiments.figures import plot_safety_speed
+        from drqn_jax.experiments.curves import plot_safety_speed
 
         with ThreadPoolExecutor(max_workers=1) as pool:
             swept = pool.submit(config_frontier, config, planner=False)

@@ -1,6 +1,7 @@
-"""Learning curves: a study's training curves against env steps (paper Fig. 4,
-:func:`load_curves`, :func:`plot_curves`) and one run's greedy agent evaluated at env-step
-marks while it trains (:func:`greedy_curve`).
+"""A study's figures: training curves against env steps (paper Fig. 4, :func:`load_curves`,
+:func:`plot_curves`), the safety/speed figure (SPEC §9, :func:`plot_safety_speed`), each drawn
+on a pyplot-free Figure, and one run's greedy agent evaluated at env-step marks while
+it trains (:func:`greedy_curve`).
 """
 
 from __future__ import annotations
@@ -13,18 +14,28 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from drqn_jax.agents import drqn_agent
 from drqn_jax.config import Config
 from drqn_jax.evaluation import evaluate
-from drqn_jax.experiments.figures import figure, save_png
+from drqn_jax.experiments.frontier import frontier_vertices
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, run_chunks
+from drqn_jax.experiments.report import PAPER_WORLD
 from drqn_jax.experiments.runner import compiled_run, init_program
 from drqn_jax.interop.recording import running_mean
 from drqn_jax.learners import make_train
-from drqn_jax.learners.hyperparams import agent_name
+from drqn_jax.learners.hyperparams import NOT_LEARNED, agent_name
 
-__all__ = ["CURVES", "GREEDY_KEYS", "Curve", "greedy_curve", "load_curves", "plot_curves"]
+__all__ = [
+    "CURVES",
+    "GREEDY_KEYS",
+    "Curve",
+    "greedy_curve",
+    "load_curves",
+    "plot_curves",
+    "plot_safety_speed",
+]
 
 #: The curves of the paper's "Training performance" figure: metrics.csv column, label.
 CURVES = (
@@ -89,7 +100,7 @@ def load_curves(metrics_files: Sequence[Path], smooth: int = 10) -> dict[str, Cu
 
 def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smooth: int) -> None:
     """The paper's "Training performance" figure (config → :func:`load_curves`) as a PNG."""
-    fig = figure(11, 4)
+    fig = Figure(figsize=(11, 4), layout="constrained")
     axes = fig.subplots(1, len(CURVES))
     for ax, (column, label) in zip(axes, CURVES, strict=True):
         for name, by_metric in curves.items():
@@ -107,7 +118,72 @@ def plot_curves(curves: Mapping[str, Mapping[str, Curve]], path: str | Path, smo
         fontsize=10,
     )
     axes[0].legend(fontsize=8)
-    save_png(fig, path)
+    _save_png(fig, path)
+
+
+def _save_png(fig: Figure, path: str | Path) -> None:
+    """Write ``fig`` as a PNG at ``path`` (120 dpi, Agg), creating its directory."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120, format="png")
+
+
+def _points(ax: Any, points: Sequence[Mapping[str, Any]], *fmt: str, **style: Any) -> None:
+    xs = [p["avg_speed_kmh"] for p in points]
+    ys = [100 * p["collision_free_rate"] for p in points]
+    ax.plot(xs, ys, *fmt, **style)
+
+
+def _agent(ax: Any, row: Mapping[str, Any], label: str, color: str | None = None) -> None:
+    """One row: its mean with its collision-free interval, its seeds as dots."""
+    low, high = (100 * x for x in row["collision_free_ci"])
+    mean = 100 * row["collision_free_rate"]
+    bar = ax.errorbar(
+        row["avg_speed_kmh"],
+        mean,
+        yerr=[[mean - low], [high - mean]],
+        fmt="s" if row.get("learned") == NOT_LEARNED else "o",
+        color=color,
+        capsize=3,
+        label=label,
+    )
+    seeds = row.get("per_seed") or []
+    if len(seeds) > 1:
+        _points(ax, seeds, ls="none", marker=".", alpha=0.5, color=bar[0].get_color())
+
+
+def plot_safety_speed(
+    rows: Sequence[Mapping[str, Any]], frontier: Mapping[str, Any], path: str | Path
+) -> None:
+    """Collision-free rate against average speed (SPEC §9) as a PNG: ``rows`` of
+    ``frontier``'s world (and the paper's) over that world's frontiers."""
+    fig = Figure(figsize=(8, 5.5), layout="constrained")
+    ax = fig.subplots()
+    rule = frontier["rule_based"]["points"]
+    vertices = [{"avg_speed_kmh": v, "collision_free_rate": r} for v, r in frontier_vertices(rule)]
+    swept = frontier["rule_based"]["swept"]
+    _points(ax, vertices, "-", color="0.35", label=f"rule-based frontier ({swept} settings swept)")
+    _points(ax, rule, ls="none", marker="x", color="0.35", label="its Pareto points")
+    if "planner" in frontier:
+        caps = sorted(frontier["planner"]["points"], key=lambda p: p["avg_speed_kmh"])
+        ceiling = "privileged planner (true state + simulator): ceiling"
+        _points(ax, caps, ls="--", marker="^", color="tab:green", label=ceiling)
+    for row in rows:
+        if row["world"] == PAPER_WORLD:
+            _agent(ax, row, f"paper (CARLA), 10 episodes: {row['agent']}", color="k")
+        elif row["world"] == frontier["world"] and "params" not in row:  # not a frontier point
+            _agent(ax, row, f"{row['label'].removeprefix('drqn_jax: ')} ({row['agent']})")
+    ax.set_xlabel("average speed (km/h)")
+    ax.set_ylabel("collision-free episodes (%)")
+    ax.set_ylim(-2, 102)
+    ax.set_xlim(left=0)
+    ax.grid(alpha=0.3)
+    ax.set_title(
+        f"{frontier['world']}: {frontier['episodes']} evaluation episodes (seed "
+        f"{frontier['seed']}); the paper's rows are CARLA, 10 episodes each",
+        fontsize=9,
+    )
+    ax.legend(fontsize=7, loc="upper right")
+    _save_png(fig, path)
 
 
 #: What a point of :func:`greedy_curve` keeps of its evaluation (SPEC §8 names).

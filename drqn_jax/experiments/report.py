@@ -35,6 +35,7 @@ __all__ = [
     "load_results",
     "margin_cell",
     "note_progress",
+    "points_interval",
     "render_section",
     "stale_documents",
     "strict_json",
@@ -202,14 +203,11 @@ PAPER_WORLD = "CARLA (paper)"
 PAPER_DRQN_SPEED_KMH = PAPER_TABLE_III[1][2]
 
 
-def _cell(value: float | None, spec: str, scale: float = 1.0) -> str:
-    return "–" if value is None or not math.isfinite(value) else format(scale * value, spec)
-
-
-def _steps_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
-    """``6.00M``: env steps in millions; – where none were counted."""
-    steps = row.get("env_steps_per_seed")
-    return "–" if steps is None or not math.isfinite(steps) else f"{steps / 1e6:.2f}M"
+def _cell(value: float | None, spec: str, scale: float = 1.0, suffix: str = "") -> str:
+    """``value`` × ``scale`` formatted, then ``suffix``; – for None or non-finite."""
+    if value is None or not math.isfinite(value):
+        return "–"
+    return format(scale * value, spec) + suffix
 
 
 def _wall_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
@@ -243,8 +241,13 @@ def margin_cell(row: Mapping[str, Any]) -> str:
     margin, interval = row.get("frontier_margin"), row.get("frontier_margin_ci")
     if margin is None or not math.isfinite(margin) or interval is None:
         return "–"
-    low, high = (100 * x if x is not None and math.isfinite(x) else math.nan for x in interval)
-    return f"{100 * margin:+.1f} ({low:+.1f} to {high:+.1f})"
+    return f"{100 * margin:+.1f} {points_interval(*interval)}"
+
+
+def points_interval(low: float | None, high: float | None) -> str:
+    """``(+1.0 to +9.4)``: an interval of rates in signed points (nan where not finite)."""
+    low, high = (100 * x if x is not None and math.isfinite(x) else math.nan for x in (low, high))
+    return f"({low:+.1f} to {high:+.1f})"
 
 
 def _seeds_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
@@ -262,9 +265,9 @@ def _speed_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
     return _cell(row["avg_speed_kmh"], ".2f") + ("" if std == "–" else f" ± {std}")
 
 
-def _metric(key: str, spec: str, scale: float = 1.0) -> Callable[..., str]:
+def _metric(key: str, spec: str, scale: float = 1.0, suffix: str = "") -> Callable[..., str]:
     """The cell of metric ``key`` of a row (– where it has none)."""
-    return lambda row, devices: _cell(row.get(key), spec, scale)
+    return lambda row, devices: _cell(row.get(key), spec, scale, suffix)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -362,7 +365,7 @@ _COLUMNS = (
     Column(
         "env steps / seed",
         True,
-        _steps_cell,
+        _metric("env_steps_per_seed", ".2f", 1e-6, "M"),
         "the mean of the env steps each seed trained on, in millions; – where not counted",
     ),
     Column(

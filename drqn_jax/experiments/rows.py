@@ -13,10 +13,9 @@ from typing import Any
 import numpy as np
 
 from drqn_jax.evaluation import wilson_interval
-from drqn_jax.experiments.frontier import with_margin
+from drqn_jax.experiments.frontier import t_interval, with_margin
 from drqn_jax.experiments.machine import NOT_RECORDED
 from drqn_jax.experiments.report import PAPER_EPISODES, PAPER_TABLE_III, PAPER_WORLD
-from drqn_jax.experiments.stats import t_interval
 from drqn_jax.learners.hyperparams import NOT_LEARNED, REWARD_ALONE, has_teacher, teachers_of
 
 __all__ = ["baseline_row", "frontier_rows", "paper_rows", "study_row"]

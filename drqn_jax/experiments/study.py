@@ -25,8 +25,7 @@ from drqn_jax.experiments.baselines import (
     rule_based_results,
 )
 from drqn_jax.experiments.checkpoint import atomic_write_text
-from drqn_jax.experiments.curves import load_curves, plot_curves
-from drqn_jax.experiments.figures import plot_safety_speed
+from drqn_jax.experiments.curves import load_curves, plot_curves, plot_safety_speed
 from drqn_jax.experiments.frontier import with_margin
 from drqn_jax.experiments.portable import differing_runs, portable_runs, restore_runs
 from drqn_jax.experiments.report import strict_json, study_table
@@ -136,8 +135,18 @@ def run_study(
     record = {"rows": rows, "comparisons": comparisons, "runs": runs, "cross": cross}
     record = strict_json({**record, "smooth": smooth, "frontiers": frontiers})
     atomic_write_text(out / "study.json", json.dumps(record, indent=1) + "\n")
-    if done:
-        _write_figures(out, done, runs, rows, frontiers, smooth, png)
+    if done:  # OUT/curves.rrd and, with png, curves.png and safety_speed.png
+        curves = {
+            arm.name: load_curves(
+                [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth
+            )
+            for arm in done
+        }
+        record_study_curves(out / "curves.rrd", curves)
+        if png:
+            plot_curves(curves, out / "curves.png", smooth)
+            first = frontiers[frontier_key(done[0].config)]
+            plot_safety_speed(rows, first, out / "safety_speed.png")
     return StudyOutcome("finished", rows, table, comparisons, continued, frontiers)
 
 
@@ -204,11 +213,8 @@ def _study_rows(
         for a in done
     }
     cross = {
-        arm.name: {
-            env: cross_results(arm.name, config, runs[arm.name], out)
-            for env, config in cross_configs[arm.name].items()
-        }
-        for arm in done
+        name: {env: cross_results(name, c, runs[name], out) for env, c in configs.items()}
+        for name, configs in cross_configs.items()
     }
     configs = [a.config for a in arms] + [c for cs in cross_configs.values() for c in cs.values()]
     frontiers = frontier_results(
@@ -246,26 +252,3 @@ def _study_rows(
     shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines}
     rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]
     return rows, trained, cross, frontiers
-
-
-def _write_figures(
-    out: Path,
-    done: Sequence[Arm],
-    runs: Mapping[str, list[dict[str, Any]]],
-    rows: Sequence[Mapping[str, Any]],
-    frontiers: Mapping[str, Any],
-    smooth: int,
-    png: bool,
-) -> None:
-    """``OUT/curves.rrd`` and, with ``png``, ``curves.png`` and ``safety_speed.png``."""
-    curves = {
-        arm.name: load_curves(
-            [metrics_path(out / arm.name, r["index"]) for r in runs[arm.name]], smooth
-        )
-        for arm in done
-    }
-    record_study_curves(out / "curves.rrd", curves)
-    if png:
-        plot_curves(curves, out / "curves.png", smooth)
-        first = frontiers[frontier_key(done[0].config)]
-        plot_safety_speed(rows, first, out / "safety_speed.png")

@@ -35,7 +35,7 @@ from drqn_jax.config import (
     parse_override,
     toml_value,
 )
-from drqn_jax.experiments.stats import interquartile_mean, t_interval
+from drqn_jax.experiments.frontier import interquartile_mean, t_interval
 from drqn_jax.learners.hyperparams import teachers_of
 
 __all__ = [

@@ -18,9 +18,15 @@ from drqn_jax.experiments.frontier import (
     frontier_margin,
     frontier_vertices,
     seed_margins,
+    t_interval,
 )
-from drqn_jax.experiments.report import CLAIM, GOAL, PAPER_DRQN_SPEED_KMH, margin_cell
-from drqn_jax.experiments.stats import t_interval
+from drqn_jax.experiments.report import (
+    CLAIM,
+    GOAL,
+    PAPER_DRQN_SPEED_KMH,
+    margin_cell,
+    points_interval,
+)
 
 __all__ = [
     "GOAL_CEILING_POINTS",
@@ -41,10 +47,6 @@ GOAL_CEILING_POINTS = 10.0
 
 def _side(low: float, high: float) -> str:
     return "above" if low > 0.0 else "below" if high < 0.0 else "not distinguishable from"
-
-
-def _points(low: float, high: float) -> str:
-    return f"({100 * low:+.1f} to {100 * high:+.1f})"
 
 
 def frontier_comparison(row: Mapping[str, Any]) -> str:
@@ -68,29 +70,20 @@ def claim_verdict(drqn: Mapping[str, Any]) -> str:
     if its frontier margin lies above 0 *and* it drives at least ``PAPER_DRQN_SPEED_KMH``."""
     speed = drqn["avg_speed_kmh"]
     low, high = drqn["frontier_margin_ci"] or (math.nan, math.nan)  # none above the limit
-    fast = speed >= PAPER_DRQN_SPEED_KMH
+    where = f"the DRQN is {_side(low, high)} the rule-based frontier at its own speed"
     if drqn.get("above_speed_limit"):
         verdict = (
             "not shown: the DRQN drives faster than the speed limit, where the rule-based "
             "family, which keeps the limit, has no point to compare it with"
         )
-    elif low > 0.0 and fast:
-        verdict = (
-            "supported: the DRQN is above the rule-based frontier at its own speed, "
-            "at least as fast as the paper's DRQN"
-        )
+    elif low > 0.0 and speed >= PAPER_DRQN_SPEED_KMH:
+        verdict = f"supported: {where}, at least as fast as the paper's DRQN"
     elif low > 0.0:
         verdict = (
-            "not shown: the DRQN is above the rule-based frontier at its own speed, but "
-            f"slower than the paper's DRQN ({PAPER_DRQN_SPEED_KMH} km/h)"
+            f"not shown: {where}, but slower than the paper's DRQN ({PAPER_DRQN_SPEED_KMH} km/h)"
         )
-    elif high < 0.0:
-        verdict = "reversed: the DRQN is below the rule-based frontier at its own speed"
     else:
-        verdict = (
-            "not shown: the DRQN is not distinguishable from the rule-based frontier "
-            "at its own speed"
-        )
+        verdict = f"{'reversed' if high < 0.0 else 'not shown'}: {where}"
     return (
         f"{CLAIM} (a DRQN safer than the rule-based agent, at the paper's DRQN's "
         f"{PAPER_DRQN_SPEED_KMH} km/h or faster) is {verdict} (margin {margin_cell(drqn)} "
@@ -161,24 +154,8 @@ def compare_paired(
     side = _side(*paired.interval).removesuffix(" from")
     return (
         f"{name} − {other}, margin to the rule-based frontier, paired over {paired.seeds} "
-        f"seeds: {100 * paired.difference:+.1f} points {_points(*paired.interval)}: "
+        f"seeds: {100 * paired.difference:+.1f} points {points_interval(*paired.interval)}: "
         f"{name} {side}"
-    )
-
-
-def _ceiling_part(
-    drqn: Mapping[str, Any], ceiling: Sequence[Sequence[float]], limit_kmh: float
-) -> tuple[bool, str]:
-    """Whether ``drqn``'s rate lies within :data:`GOAL_CEILING_POINTS` of the planner's ceiling."""
-    gap = frontier_margin(drqn, ceiling, limit_kmh)
-    if gap is None:
-        return False, "faster than the speed limit, where the planner has no point"
-    mean, (low, high) = gap
-    near = low >= -GOAL_CEILING_POINTS / 100
-    return near, (
-        f"collision-free rate minus the planner's ceiling at its own speed "
-        f"{100 * mean:+.1f} points {_points(low, high)}: "
-        f"{'within' if near else 'not within'} {GOAL_CEILING_POINTS:g} points"
     )
 
 
@@ -198,8 +175,19 @@ def goal_verdict(
     parts = [
         (fast, f"{speed:.2f} km/h, {'not ' * (not fast)}at or above {PAPER_DRQN_SPEED_KMH}"),
         (above, f"margin {margin_cell(drqn)} points: {'not ' * (not above)}above 0"),
-        _ceiling_part(drqn, ceiling, limit_kmh),
     ]
+    gap = frontier_margin(drqn, ceiling, limit_kmh)
+    if gap is None:
+        parts.append((False, "faster than the speed limit, where the planner has no point"))
+    else:
+        mean, (low, high) = gap
+        near = low >= -GOAL_CEILING_POINTS / 100
+        text = (
+            f"collision-free rate minus the planner's ceiling at its own speed "
+            f"{100 * mean:+.1f} points {points_interval(low, high)}: "
+            f"{'within' if near else 'not within'} {GOAL_CEILING_POINTS:g} points"
+        )
+        parts.append((near, text))
     for name, paired in twins.items():
         if paired is None:
             parts.append((False, f"fewer than 2 seeds in common with {name}"))
@@ -207,7 +195,7 @@ def goal_verdict(
         detail = (
             f"{paired.too_fast} faster than the speed limit"
             if paired.too_fast is not None
-            else f"{100 * paired.difference:+.1f} points {_points(*paired.interval)}"
+            else f"{100 * paired.difference:+.1f} points {points_interval(*paired.interval)}"
         )
         parts.append(
             (paired.above, f"{'above' if paired.above else 'not above'} {name} ({detail})")

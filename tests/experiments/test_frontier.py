@@ -24,11 +24,11 @@ from drqn_jax.experiments.frontier import (
     pareto_points,
     random_settings,
     reviewer_check,
+    t_interval,
     with_margin,
     world_frontier,
 )
 from drqn_jax.experiments.report import load_results
-from drqn_jax.experiments.stats import t_interval
 
 
 def _point(speed: float, rate: float) -> dict:

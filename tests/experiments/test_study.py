@@ -11,10 +11,10 @@ import pytest
 from drqn_jax import cli
 from drqn_jax.config import ConfigError
 from drqn_jax.experiments.curves import CURVES, load_curves
+from drqn_jax.experiments.frontier import t_interval
 from drqn_jax.experiments.machine import NOT_RECORDED, device_identity, git_commit
 from drqn_jax.experiments.report import study_table
 from drqn_jax.experiments.rows import baseline_row, paper_rows, study_row
-from drqn_jax.experiments.stats import t_interval
 from drqn_jax.experiments.study import plan_study
 from drqn_jax.experiments.sweep_outputs import agent_dir, metrics_path
 from tests.helpers import SMOKE_SWEEP_SET
