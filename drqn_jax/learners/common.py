@@ -352,9 +352,11 @@ class LearnerState:
 
 @pytree_dataclass
 class OnPolicyState(LearnerState):
-    """A PPO or PQN run's state; ``done`` (N,) restarts the carry."""
+    """A PPO or PQN run's state; ``done`` (N,) restarts the carry; ``memory``: the
+    transitions (W, N, …) the next update trains again before its rollout, or None."""
 
     done: jax.Array
+    memory: Any = None
     #: The protocol's candidates' validation metrics: none, no snapshot is selected.
     validation: ClassVar[None] = None
 
@@ -368,15 +370,17 @@ def make_on_policy(
     transition: Callable[..., Any],
     learn: Callable[[OnPolicyState, Any, Any], OnPolicyState],
     extra: tuple[str, ...] = (),
+    memory: Callable[[dict[str, Any]], Any] | None = None,
 ) -> Trainer:
     """The :class:`Trainer` of a learner without a replay (PPO, PQN): each update a
     :func:`rollout` by ``policy`` into ``transition``s, then ``learn(state, traj,
     carry before the rollout)``; ``agent`` is the network the run's agent acts with,
-    ``extra`` the learner's own metrics."""
+    ``extra`` the learner's own metrics, ``memory(fields)`` the initial memory."""
 
     def init(key: jax.Array, hp: Hyperparams, env_params: Any) -> OnPolicyState:
         fields = init_fields(config, task, network, key, hp, env_params, extra)
-        return OnPolicyState(**fields, done=jnp.zeros((config.num_envs,), bool))
+        done = jnp.zeros((config.num_envs,), bool)
+        return OnPolicyState(**fields, done=done, memory=None if memory is None else memory(fields))
 
     def act(state: OnPolicyState, key: jax.Array) -> tuple[jax.Array, Any]:
         action, carry, _, _ = policy(state, key)

@@ -204,6 +204,9 @@ class TrainConfig:
     rollout_steps: int = 128  # ppo, pqn: steps per env in each rollout
     update_epochs: int = 4  # ppo, pqn: passes over each rollout
     num_minibatches: int = 4  # ppo, pqn: of whole env sequences; divides num_envs
+    # pqn: steps of the previous rollout trained again before each rollout, the unroll
+    # starting from the state they were acted from (purejaxql's MEMORY_WINDOW)
+    memory_window: int = 0
     # 'adam' (the paper's) or 'radam' (purejaxql's PQN), at adam_b1, adam_b2, adam_eps
     optimizer: str = dataclasses.field(default="adam", metadata={"choices": OPTIMIZERS})
     hyperparams: Hyperparams = dataclasses.field(default_factory=Hyperparams)
@@ -212,7 +215,17 @@ class TrainConfig:
         counts = ("num_envs", "num_episodes", "replay_episodes", "batch_size", "window")
         counts += ("n_step", "updates_per_step", "chunk_iterations", "validation_episodes")
         check_counts(self, (*counts, "rollout_steps", "update_epochs", "num_minibatches"))
-        check_counts(self, ("burn_in", "num_env_steps"), low=0)
+        check_counts(self, ("burn_in", "num_env_steps", "memory_window"), low=0)
+        if self.memory_window and self.algorithm != "pqn":
+            raise ValueError(
+                f"TrainConfig.memory_window = {self.memory_window}: only algorithm 'pqn' has "
+                f"a memory window (algorithm {self.algorithm!r}); use 0"
+            )
+        if self.memory_window > self.rollout_steps:
+            raise ValueError(
+                f"TrainConfig.memory_window = {self.memory_window}: must be in [0, "
+                f"{self.rollout_steps}] (rollout_steps): the window is the previous rollout's end"
+            )
         if self.num_env_steps and self.snapshots:
             raise ValueError(
                 f"TrainConfig.snapshots = {self.snapshots}: snapshots are taken at shares of "

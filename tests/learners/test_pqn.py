@@ -169,3 +169,50 @@ def test_layer_norm_normalises_each_dense_layer_before_its_relu():
     )
     plain = make_network(dataclasses.replace(config, layer_norm=False)).init(jax.random.key(0))
     assert "norm" not in plain["fc"]
+
+
+def _one_update(memory_window: int):
+    config = dataclasses.replace(
+        pqn_config(), num_envs=4, num_minibatches=2, update_epochs=1, memory_window=memory_window
+    )
+    trainer = make_train(config)
+    state = trainer.init(jax.random.key(0))
+    return trainer, state, jax.jit(trainer.run, static_argnums=1)(state, 1)
+
+
+def test_memory_window_first_update_trains_the_rollout_alone():
+    """Before the first update the memory is padding (weight 0, the rollout's
+    carry restarted as in acting): that update gives the parameters of a run
+    without a memory window, up to float rounding."""
+    _, _, plain = _one_update(0)
+    _, _, windowed = _one_update(4)
+    assert plain.memory is None and windowed.memory.obs.shape[0] == 4
+    for a, b in zip(jax.tree.leaves(plain.online), jax.tree.leaves(windowed.online), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+    assert int(windowed.grad_steps) == int(plain.grad_steps) > 0
+
+
+def test_memory_window_keeps_the_last_steps_with_the_state_acted_from():
+    """After an update the memory holds the rollout's last W steps: unrolled from
+    the stored state of its first step with the stored resets, the parameters
+    that acted give back the Q-values acted on; the next update changes them."""
+    trainer, state, after = _one_update(4)
+    memory = after.memory
+    start = jax.tree.map(lambda x: x[0], memory.carry)
+    q, _ = jax.jit(trainer.network.unroll)(state.online, memory.obs, start, memory.reset)
+    np.testing.assert_allclose(np.asarray(q), np.asarray(memory.q), rtol=1e-4, atol=1e-5)
+    later = jax.jit(trainer.run, static_argnums=1)(after, 1)
+    assert not np.allclose(np.asarray(later.memory.q), np.asarray(memory.q))
+
+
+def test_memory_window_config_rules():
+    with pytest.raises(ValueError, match=r"memory_window = 4: only algorithm 'pqn'"):
+        TrainConfig(algorithm="ppo", memory_window=4)
+    with pytest.raises(ValueError, match=r"memory_window = 200: must be in \[0, 128\]"):
+        dataclasses.replace(pqn_config(), rollout_steps=128, memory_window=200)
+    config = load_config("smoke", ["train.algorithm=pqn", "train.num_minibatches=1"])
+    assert config.train_config().memory_window == 0
+    windowed = load_config(
+        "smoke", ["train.algorithm=pqn", "train.num_minibatches=1", "train.memory_window=4"]
+    )
+    assert windowed.train_config().memory_window == 4
