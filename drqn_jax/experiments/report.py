@@ -3,7 +3,8 @@
 ``study --results FILE --section NAME`` stores a table's rows (:func:`write_results`);
 ``drqn-jax report FILE.md`` fills each ``<!-- results:NAME FORM -->…<!-- /results -->`` block
 from it and ``--check`` fails where they disagree. FORM: none (all tables), ``legend`` (plus
-column definitions), ``safety`` (safety-and-speed table only), ``brief`` (headline table).
+column definitions), ``safety`` (safety-and-speed table only), ``table`` (that table without
+its verdict lines: each row's margin interval says it), ``brief`` (headline table).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ __all__ = [
 #: A section's name: letters, digits, '_', '.' and '-'.
 SECTION_NAME = re.compile(r"[\w.-]+")
 #: The forms of a generated block (module docstring); "" is the default.
-FORMS = ("", "legend", "safety", "brief")
+FORMS = ("", "legend", "safety", "table", "brief")
 #: A generated block of a document: its section name, its form and its current body.
 BLOCK = re.compile(
     rf"(?P<open><!-- results:(?P<section>{SECTION_NAME.pattern})(?: (?P<form>\w+))? -->\n)"
@@ -148,8 +149,9 @@ def render_section(record: Mapping[str, Any], section: str, form: str = "") -> s
     rows = [r for r in record["rows"] if r.get("section") == section]
     if form == "brief":
         return _brief(rows, about["comparisons"])
-    tables = TABLES[:1] if form == "safety" else TABLES
-    lines = [study_table(rows, about["comparisons"], legend=False, tables=tables)]
+    tables = TABLES[:1] if form in ("safety", "table") else TABLES
+    comparisons = [] if form == "table" else about["comparisons"]
+    lines = [study_table(rows, comparisons, legend=False, tables=tables)]
     machine = about["machine"]
     went_on = "; earlier invocations trained its runs, the wall time is the last one's"
     lines += [

@@ -105,7 +105,7 @@ def test_an_interrupted_study_renders_its_progress_not_a_table(tmp_path):
 
 def test_a_block_s_form_chooses_the_tables_the_legend_or_the_headline(tmp_path):
     """No table has more than 8 columns; the legend form defines every column once,
-    under the tables and the command; the safety form shows the first table alone; the
+    under the tables and the command; the safety form shows the first table alone, the table form without its verdicts; the
     brief form is the headline table (8 columns),
     the verdicts on the paper's claim and the goal alone, and where the columns are
     defined; an unknown form is an error."""
@@ -130,10 +130,13 @@ def test_a_block_s_form_chooses_the_tables_the_legend_or_the_headline(tmp_path):
     safety = render_section(record, "t", "safety")
     assert "Safety and speed:" in safety and "Driving:" not in safety and "Training:" not in safety
     assert f"* {claim}" in safety and "drqn-jax study --configs x" in safety
-    for text in (legend, brief, safety):
+    table = render_section(record, "t", "table")
+    assert table == safety.replace(f"* {claim}\n* {goal}\n* {other}\n\n", "")
+    assert "* " not in table and "drqn-jax study --configs x" in table
+    for text in (legend, brief, safety, table):
         widths = [line.count(" | ") + 1 for line in text.splitlines() if line.startswith("| ")]
         assert widths and max(widths) <= 8
-    with pytest.raises(ValueError, match="the form must be one of legend, safety, brief"):
+    with pytest.raises(ValueError, match="the form must be one of legend, safety, table, brief"):
         update_document("<!-- results:t wide -->\n<!-- /results -->\n", record)
 
 
