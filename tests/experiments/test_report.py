@@ -105,9 +105,9 @@ def test_an_interrupted_study_renders_its_progress_not_a_table(tmp_path):
 
 def test_a_block_s_form_chooses_the_tables_the_legend_or_the_headline(tmp_path):
     """No table has more than 8 columns; the legend form defines every column once,
-    under the tables and the command; the safety form shows the first table alone, the table form without its verdicts; the
-    brief form is the headline table (8 columns),
-    the verdicts on the paper's claim and the goal alone, and where the columns are
+    under the tables and the command; the safety form shows the first table alone, the
+    table form the same without its verdicts; the brief form is the headline table (8
+    columns), the verdicts on the paper's claim and the goal alone, and where the columns are
     defined; an unknown form is an error."""
     claim = "The paper's claim (a DRQN safer than the rule-based agent) is not shown."
     goal = "Table III at scale's goal (…) is not met by ours."
