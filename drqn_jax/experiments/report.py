@@ -9,7 +9,6 @@ its verdict lines: each row's margin interval says it), ``brief`` (headline tabl
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import re
@@ -212,29 +211,6 @@ def _cell(value: float | None, spec: str, scale: float = 1.0, suffix: str = "") 
     return format(scale * value, spec) + suffix
 
 
-def _wall_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
-    """``31.2`` mean training minutes per seed; ``31.2 (2 of 5)`` if partial; – for none."""
-    cell = _cell(row.get("train_wall_s_per_seed"), ".1f", 1 / 60)
-    counted = row.get("train_wall_seeds")
-    if cell != "–" and counted is not None and counted < row["seeds"]:
-        cell += f" ({counted} of {row['seeds']})"
-    return cell
-
-
-def _device_legend(rows: Sequence[Mapping[str, Any]]) -> dict[str, str]:
-    """Each device the rows trained on → ``[k]``, numbered in order first seen."""
-    names = dict.fromkeys(d for r in rows for d in r.get("devices") or {} if d != NOT_RECORDED)
-    return {d: f"[{k}]" for k, d in enumerate(names, 1)}
-
-
-def _device_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
-    """``[1] ×3, [2] ×2``: how many seeds trained on each device; – for none."""
-    counts = row.get("devices")
-    if not counts:
-        return "–"
-    return ", ".join(f"{devices.get(d, '?')} ×{n}" for d, n in counts.items())
-
-
 def margin_cell(row: Mapping[str, Any]) -> str:
     """``+5.2 (+1.0 to +9.4)``: the frontier margin in points; – or "– (above the speed
     limit)" without one (SPEC §9)."""
@@ -252,156 +228,117 @@ def points_interval(low: float | None, high: float | None) -> str:
     return f"({low:+.1f} to {high:+.1f})"
 
 
-def _seeds_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
-    seeds = f"{row['seeds']} × {row['episodes']}"
-    return seeds + (f" ({row['diverged']} diverged)" if row["diverged"] else "")
+def _device_legend(rows: Sequence[Mapping[str, Any]]) -> dict[str, str]:
+    """Each device the rows trained on → ``[k]``, numbered in order first seen."""
+    names = dict.fromkeys(d for r in rows for d in r.get("devices") or {} if d != NOT_RECORDED)
+    return {d: f"[{k}]" for k, d in enumerate(names, 1)}
 
 
-def _free_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
-    low, high = row["collision_free_ci"]
-    return f"{100 * row['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f})"
+Cell = Callable[[Mapping[str, Any], Mapping[str, str]], str]
 
 
-def _speed_cell(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
-    std = _cell(row["avg_speed_kmh_std"], ".2f")
-    return _cell(row["avg_speed_kmh"], ".2f") + ("" if std == "–" else f" ± {std}")
-
-
-def _metric(key: str, spec: str, scale: float = 1.0, suffix: str = "") -> Callable[..., str]:
+def _metric(key: str, spec: str, scale: float = 1.0, suffix: str = "") -> Cell:
     """The cell of metric ``key`` of a row (– where it has none)."""
     return lambda row, devices: _cell(row.get(key), spec, scale, suffix)
 
 
-@dataclasses.dataclass(frozen=True)
-class Column:
-    """A results-table column: ``header``, alignment, ``cell(row, devices)``, ``definition``."""
-
-    header: str
-    right: bool
-    cell: Callable[[Mapping[str, Any], Mapping[str, str]], str]
-    definition: str
+def _seeds(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
+    """``5 × 1000``, then ``(2 diverged)`` where seeds diverged."""
+    diverged = f" ({row['diverged']} diverged)" if row["diverged"] else ""
+    return f"{row['seeds']} × {row['episodes']}{diverged}"
 
 
-_COLUMNS = (
-    Column(
-        "source",
-        False,
-        lambda row, devices: row["label"],
-        "the paper's Table III (CARLA, 10 episodes), or `drqn_jax:` a config trained here "
-        "(`on ENV`: its agents evaluated among another env's pedestrians), a world's "
-        "rule-based agent (its env id), or a setting of the rule-based frontier or the "
-        "privileged planner",
-    ),
-    Column(
-        "agent",
-        False,
-        lambda row, devices: row["agent"],
-        "the learner and its network (`drqn`, `dqn`, `pqn` and `ppo` recurrent, "
-        "`pqn-ff` and `ppo-ff` feed-forward) or a policy not learned (`rule-based`, `planner`)",
-    ),
-    Column(
-        "teacher",
-        False,
-        lambda row, devices: row["learned"],
-        "what the agent learned from besides the reward: none, guided exploration or "
-        "imitation of the rule-based agent; – for a policy not learned",
-    ),
-    Column(
-        "seeds × episodes",
-        True,
-        _seeds_cell,
-        "training seeds (1 for a single policy) × greedy evaluation episodes of each, every "
-        "agent of a section on the same episodes; diverged: seeds whose loss went non-finite",
-    ),
-    Column(
-        "collision-free % (95 % interval)",
-        False,
-        _free_cell,
-        "episodes without a collision; the interval is the 95 % Student t of the mean "
-        "across seeds for a trained config (training and episodes vary; cut to 0–100 %), "
-        "Wilson over the episodes for one policy (the rule-based agent, the paper's rows)",
-    ),
-    Column(
-        "margin to the rule-based frontier, points (95 %)",
-        False,
-        lambda row, devices: margin_cell(row),
-        "the collision-free rate minus the rule-based family's frontier at the agent's own "
-        "average speed (SPEC §9; each seed at its own speed, Student t across seeds; the "
-        "Wilson interval shifted for one policy); – where the world has no frontier here "
-        "(the paper's CARLA) or the agent drives faster than the speed limit",
-    ),
-    Column(
-        "struck while stopped %",
-        True,
-        _metric("struck_while_stopped_rate", ".1f", 100.0),
-        "episodes in which a pedestrian met the collision test while the car stood (not "
-        "counted as a collision)",
-    ),
-    Column(
-        "avg speed (km/h)",
-        True,
-        _speed_cell,
-        "the mean over episodes of distance over time; ± is the standard deviation across seeds",
-    ),
-    Column(
-        "authors' speed (km/h)",
-        True,
-        _metric("avg_speed_authors_kmh", ".2f"),
-        "the authors' average speed: the mean over every step faster than 0.5 km/h "
-        "(carla-gym tester.py, SPEC §8)",
-    ),
-    Column("distance (m)", True, _metric("avg_distance_m", ".1f"), "the mean distance driven"),
-    Column(
-        "distance, collision-free (m)",
-        True,
-        _metric("avg_distance_collision_free_m", ".1f"),
-        "the mean distance of the collision-free episodes, pooled over seeds",
-    ),
-    Column("goal %", True, _metric("goal_rate", ".1f", 100.0), "episodes that reach the goal"),
-    Column(
-        "collisions / km",
-        True,
-        _metric("collisions_per_km", ".2f"),
-        "all collisions over all distance driven, pooled over seeds",
-    ),
-    Column(
-        "env steps / seed",
-        True,
-        _metric("env_steps_per_seed", ".2f", 1e-6, "M"),
-        "the mean of the env steps each seed trained on, in millions; – where not counted",
-    ),
-    Column(
-        "train wall / seed (min)",
-        True,
-        _wall_cell,
-        "the mean training wall time of a seed, compile and checkpoints included (seeds "
-        "trained together share their call's); k of n: over the seeds that counted it",
-    ),
-    Column(
-        "device",
-        False,
-        _device_cell,
-        "how many seeds trained on each device, numbered as the line under the tables "
-        "names them; ? where a run's device was not recorded",
-    ),
-)
-#: Every column of the results tables, by header.
-COLUMNS = {c.header: c for c in _COLUMNS}
-_KEYS = ("source", "agent", "teacher", "seeds × episodes")
+def _free(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
+    """``60.0 (57.0–63.0)``: the collision-free rate and its interval, in %."""
+    low, high = row["collision_free_ci"]
+    return f"{100 * row['collision_free_rate']:.1f} ({100 * low:.1f}–{100 * high:.1f})"
+
+
+def _speed(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
+    """``6.09 ± 0.31``: the mean speed, ± its standard deviation across seeds where known."""
+    std = _cell(row["avg_speed_kmh_std"], ".2f")
+    return _cell(row["avg_speed_kmh"], ".2f") + ("" if std == "–" else f" ± {std}")
+
+
+def _wall(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
+    """``31.2`` mean training minutes per seed; ``31.2 (2 of 5)`` if partial; – for none."""
+    cell = _cell(row.get("train_wall_s_per_seed"), ".1f", 1 / 60)
+    counted = row.get("train_wall_seeds")
+    if cell != "–" and counted is not None and counted < row["seeds"]:
+        cell += f" ({counted} of {row['seeds']})"
+    return cell
+
+
+def _device(row: Mapping[str, Any], devices: Mapping[str, str]) -> str:
+    """``[1] ×3, [2] ×2``: how many seeds trained on each device; – for none."""
+    counts = row.get("devices") or {}
+    return ", ".join(f"{devices.get(d, '?')} ×{n}" for d, n in counts.items()) or "–"
+
+
+#: Every column of the results tables: header → (right-aligned, ``cell(row, devices)``).
+COLUMNS: dict[str, tuple[bool, Cell]] = {
+    "source": (False, lambda row, devices: row["label"]),
+    "agent": (False, lambda row, devices: row["agent"]),
+    "teacher": (False, lambda row, devices: row["learned"]),
+    "seeds × episodes": (True, _seeds),
+    "collision-free % (95 % interval)": (False, _free),
+    "margin to the rule-based frontier, points (95 %)": (False, lambda row, _: margin_cell(row)),
+    "struck while stopped %": (True, _metric("struck_while_stopped_rate", ".1f", 100.0)),
+    "avg speed (km/h)": (True, _speed),
+    "authors' speed (km/h)": (True, _metric("avg_speed_authors_kmh", ".2f")),
+    "distance (m)": (True, _metric("avg_distance_m", ".1f")),
+    "distance, collision-free (m)": (True, _metric("avg_distance_collision_free_m", ".1f")),
+    "goal %": (True, _metric("goal_rate", ".1f", 100.0)),
+    "collisions / km": (True, _metric("collisions_per_km", ".2f")),
+    "env steps / seed": (True, _metric("env_steps_per_seed", ".2f", 1e-6, "M")),
+    "train wall / seed (min)": (True, _wall),
+    "device": (False, _device),
+}
+#: What each column means (:func:`column_legend`): ``header: definition``, continued on
+#: indented lines, in the order of :data:`COLUMNS`.
+LEGEND = """\
+source: the paper's Table III (CARLA, 10 episodes), or `drqn_jax:` a config trained here (`on ENV`:
+  its agents evaluated among another env's pedestrians), a world's rule-based agent (its env id),
+  or a setting of the rule-based frontier or the privileged planner
+agent: the learner and its network (`drqn`, `dqn`, `pqn` and `ppo` recurrent, `pqn-ff` and `ppo-ff`
+  feed-forward) or a policy not learned (`rule-based`, `planner`)
+teacher: what the agent learned from besides the reward: none, guided exploration or imitation of
+  the rule-based agent; – for a policy not learned
+seeds × episodes: training seeds (1 for a single policy) × greedy evaluation episodes of each,
+  every agent of a section on the same episodes; diverged: seeds whose loss went non-finite
+collision-free % (95 % interval): episodes without a collision; the interval is the 95 % Student t
+  of the mean across seeds for a trained config (training and episodes vary; cut to 0–100 %),
+  Wilson over the episodes for one policy (the rule-based agent, the paper's rows)
+margin to the rule-based frontier, points (95 %): the collision-free rate minus the rule-based
+  family's frontier at the agent's own average speed (SPEC §9; each seed at its own speed,
+  Student t across seeds; the Wilson interval shifted for one policy); – where the world has no
+  frontier here (the paper's CARLA) or the agent drives faster than the speed limit
+struck while stopped %: episodes in which a pedestrian met the collision test while the car stood
+  (not counted as a collision)
+avg speed (km/h): the mean over episodes of distance over time; ± is the standard deviation across
+  seeds
+authors' speed (km/h): the authors' average speed: the mean over every step faster than 0.5 km/h
+  (carla-gym tester.py, SPEC §8)
+distance (m): the mean distance driven
+distance, collision-free (m): the mean distance of the collision-free episodes, pooled over seeds
+goal %: episodes that reach the goal
+collisions / km: all collisions over all distance driven, pooled over seeds
+env steps / seed: the mean of the env steps each seed trained on, in millions; – where not counted
+train wall / seed (min): the mean training wall time of a seed, compile and checkpoints included
+  (seeds trained together share their call's); k of n: over the seeds that counted it
+device: how many seeds trained on each device, numbered as the line under the tables names them;
+  ? where a run's device was not recorded
+"""
+_HEADERS = tuple(COLUMNS)
+_KEYS = _HEADERS[:4]
 #: A section's tables: caption, identifying columns, shown columns (all-– rows left out).
 TABLES = (
-    ("Safety and speed", _KEYS, tuple(c.header for c in _COLUMNS[4:8])),
-    ("Driving", _KEYS[:2], tuple(c.header for c in _COLUMNS[8:13])),
-    ("Training", _KEYS, tuple(c.header for c in _COLUMNS[13:])),
+    ("Safety and speed", _KEYS, _HEADERS[4:8]),
+    ("Driving", _KEYS[:2], _HEADERS[8:13]),
+    ("Training", _KEYS, _HEADERS[13:]),
 )
 #: The headline table's columns (a brief block's, :func:`render_section`).
-BRIEF = (
-    *_KEYS,
-    "env steps / seed",
-    "collision-free % (95 % interval)",
-    "margin to the rule-based frontier, points (95 %)",
-    "avg speed (km/h)",
-)
+BRIEF = (*_KEYS, "env steps / seed", *_HEADERS[4:6], "avg speed (km/h)")
 
 
 def _markdown_table(
@@ -410,8 +347,8 @@ def _markdown_table(
     """The ``headers`` columns (:data:`COLUMNS`) of ``rows`` as a Markdown table."""
     columns = [COLUMNS[h] for h in headers]
     lines = ["| " + " | ".join(headers) + " |"]
-    lines.append("| " + " | ".join("---:" if c.right else "---" for c in columns) + " |")
-    lines += ["| " + " | ".join(c.cell(r, devices) for c in columns) + " |" for r in rows]
+    lines.append("| " + " | ".join("---:" if right else "---" for right, _ in columns) + " |")
+    lines += ["| " + " | ".join(cell(r, devices) for _, cell in columns) + " |" for r in rows]
     return "\n".join(lines)
 
 
@@ -426,7 +363,7 @@ def study_table(
     devices = _device_legend(rows)
     parts = []
     for caption, keys, shown in tables:
-        kept = [r for r in rows if any(COLUMNS[h].cell(r, devices) != "–" for h in shown)]
+        kept = [r for r in rows if any(COLUMNS[h][1](r, devices) != "–" for h in shown)]
         if kept:
             parts += [f"{caption}:", _markdown_table((*keys, *shown), kept, devices)]
     if devices and any(caption == "Training" for caption, _, _ in tables):
@@ -440,6 +377,7 @@ def study_table(
 
 def column_legend() -> str:
     """Markdown: what every column of the results tables (:data:`COLUMNS`) means."""
-    definitions = [f"* **{c.header}**: {c.definition}." for c in _COLUMNS]
+    entries = (line.split(": ", 1) for line in LEGEND.replace("\n  ", " ").splitlines())
+    definitions = [f"* **{header}**: {text}." for header, text in entries]
     lead = "The columns (a table leaves out a row whose cells in it would all be –):"
     return "\n\n".join([lead, "\n".join(definitions)])
