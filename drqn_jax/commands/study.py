@@ -35,7 +35,6 @@ def cmd_study(args: argparse.Namespace) -> int:
     command continues the study, with a larger --seeds adds seeds, and --eval-envs on a
     finished study only evaluates.
     """
-    from drqn_jax.experiments.portable import drop_store, load_store, runs_store_path
     from drqn_jax.experiments.study import plan_study, run_study
 
     configs = [c.strip() for c in args.configs.split(",") if c.strip()]
@@ -49,7 +48,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         check_section_option(section)
     store = Path(args.runs_store) if args.runs_store else None
     if store is None and args.results:  # the default store beside the results file
-        store = runs_store_path(args.results, section)
+        store = Path(args.results).parent / "finished-runs" / f"{section}.json"
     for arm in arms:
         say(f"{arm.name}: {arm.sweep.describe()}")
     if args.estimate:
@@ -59,6 +58,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     # each finished run outlives --out, even if the machine goes away
     keep = None if store is None else functools.partial(_keep, args, section, store)
+    kept = store is not None and store.is_file()  # finished runs of an earlier invocation
     outcome = run_study(
         arms,
         out,
@@ -66,7 +66,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         png=not args.no_png,
         quiet=args.quiet,
         train=not args.report_only,
-        carried=None if store is None else load_store(store),
+        carried=json.loads(store.read_text())["finished_runs"] if kept else None,
         keep=keep,
     )
     if outcome.status == "interrupted":
@@ -83,7 +83,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     if args.results:
         _store_rows(args, section, out, outcome, wall)
     if store is not None and not args.report_only:  # every run is in the rows now
-        drop_store(store)
+        store.unlink(missing_ok=True)
     print(outcome.table)
     print(f"\nwall time {wall:.1f} s; study in {out}")
     return EXIT_OK
@@ -93,10 +93,11 @@ def _keep(
     args: argparse.Namespace, section: str, store: Path, finished: dict[str, list[dict]]
 ) -> None:
     """Keep the ``finished`` runs in ``store``; with ``--results`` mark the section in progress."""
-    from drqn_jax.experiments.portable import save_store
     from drqn_jax.experiments.report import note_progress
 
-    save_store(store, finished, args.command_line)
+    store.parent.mkdir(parents=True, exist_ok=True)
+    record = {"command": args.command_line, "finished_runs": finished}
+    atomic_write_text(store, json.dumps(record, indent=1) + "\n")
     if args.results:
         counts = {arm: len(runs) for arm, runs in finished.items()}
         note_progress(args.results, section, counts, args.command_line, str(store))

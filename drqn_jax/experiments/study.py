@@ -6,6 +6,10 @@ rule-based agent and its frontier (paper Table III, §V-F; SPEC §9)::
 Each config is a resumable sweep over ``run.seed`` in ``OUT/<config>/``. Writes
 ``OUT/study.md`` (rows with 95 % intervals, frontier margins, verdicts), ``study.json``,
 ``safety_speed.png`` and ``curves.png``/``.rrd``; ``--eval-envs`` adds cross-env rows.
+
+A runs store (``study --runs-store FILE``, ``{"command": ..., "finished_runs": {arm: [run,
+...]}}``: :func:`_portable_runs`) keeps the finished runs apart from ``OUT``, so a study
+outlives its directory: restored runs give the same table bit for bit, but have no agent.
 """
 
 from __future__ import annotations
@@ -17,6 +21,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import jax
+
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.experiments.baselines import (
     cross_results,
@@ -27,11 +33,17 @@ from drqn_jax.experiments.baselines import (
 from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.curves import load_curves, plot_curves, plot_safety_speed
 from drqn_jax.experiments.frontier import with_margin
-from drqn_jax.experiments.portable import differing_runs, portable_runs, restore_runs
 from drqn_jax.experiments.report import strict_json, study_table
 from drqn_jax.experiments.rows import baseline_row, paper_rows, study_row
 from drqn_jax.experiments.sweep import Sweep, build_sweep
-from drqn_jax.experiments.sweep_outputs import finished_results, metrics_path, run_timings
+from drqn_jax.experiments.sweep_outputs import (
+    finished_results,
+    metrics_path,
+    open_plan,
+    run_timings,
+    write_call,
+)
+from drqn_jax.experiments.sweep_plan import Distributed, plan_calls
 from drqn_jax.experiments.verdicts import study_comparisons
 from drqn_jax.interop.recording import record_study_curves
 from drqn_jax.learners.hyperparams import agent_name
@@ -71,10 +83,9 @@ def plan_study(
         raise ConfigError(
             f"--eval-envs {unknown[0]!r}: must be one of {', '.join(registered_envs())}"
         )
-    if not isinstance(seeds, int) or seeds < 1:
-        raise ConfigError(f"--seeds {seeds!r}: must be an integer >= 1")
-    if not isinstance(episodes, int) or episodes < 1:
-        raise ConfigError(f"--episodes {episodes!r}: must be an integer >= 1")
+    for option, count in (("--seeds", seeds), ("--episodes", episodes)):
+        if not isinstance(count, int) or count < 1:
+            raise ConfigError(f"{option} {count!r}: must be an integer >= 1")
     names = [Path(c).stem for c in configs]
     if not names:
         raise ConfigError("--configs: name at least one config")
@@ -165,16 +176,16 @@ def _train_arms(
     continued = not train
 
     def finished_runs() -> dict[str, list[dict[str, Any]]]:
-        found = {a.name: portable_runs(out / a.name, a.sweep) for a in arms}
+        found = {a.name: _portable_runs(out / a.name, a.sweep) for a in arms}
         return {name: kept for name, kept in found.items() if kept}
 
     for arm in arms:
         directory = out / arm.name
         stored = (carried or {}).get(arm.name, ())
-        restored = restore_runs(directory, arm.sweep, stored)
+        restored = _restore_runs(directory, arm.sweep, stored)
         if restored and not quiet:
             print(f"{arm.name}: {restored} finished run(s) from the runs store", file=sys.stderr)
-        changed = [] if restored or not stored else differing_runs(directory, arm.sweep, stored)
+        changed = [] if restored or not stored else _differing_runs(directory, arm.sweep, stored)
         if changed:
             print(
                 f"{arm.name}: run(s) {changed} in {directory} differ from the runs store's "
@@ -252,3 +263,68 @@ def _study_rows(
     shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines}
     rows = [*paper_rows(), *(row for row, _ in trained), *shown.values()]
     return rows, trained, cross, frontiers
+
+
+def _portable_runs(directory: Path, sweep: Sweep) -> list[dict[str, Any]]:
+    """By index, the finished runs of ``sweep`` in ``directory``: record, training hash,
+    ``train_wall_s`` and ``metrics.csv`` text (runs without metrics left out)."""
+    hashes = {p.index: p.config.training_hash() for p in sweep.points}
+    timings = run_timings(directory)
+    runs = []
+    for record in finished_results(directory):
+        metrics = metrics_path(directory, record["index"])
+        if record["index"] not in hashes or not metrics.is_file():
+            continue
+        runs.append(
+            {
+                **record,
+                "training_hash": hashes[record["index"]],
+                "train_wall_s": timings.get(record["index"]),
+                "metrics_csv": metrics.read_text(),
+            }
+        )
+    return runs
+
+
+def _restore_runs(directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, Any]]) -> int:
+    """Write ``stored`` runs back into an empty ``directory`` as finished calls of ``sweep``'s
+    plan (matching index, training hash and episode count; whole calls only); returns the
+    number restored."""
+    if (directory / "plan.json").exists() or not stored:
+        return 0
+    points = {p.index: p for p in sweep.points}
+    usable = {
+        run["index"]: run
+        for run in stored
+        if (point := points.get(run.get("index"))) is not None
+        and run.get("training_hash") == point.config.training_hash()
+        and run.get("num_episodes") == point.config["evaluate"]["episodes"]
+    }
+    calls = plan_calls(sweep, len(jax.local_devices()))
+    restored = [c for c in calls if all(p.index in usable for p in c.points)]
+    if not restored:
+        return 0
+    open_plan(directory, sweep, Distributed(), resume=False)
+    for call in restored:
+        runs = [usable[p.index] for p in call.points]
+        apart = ("metrics_csv", "train_wall_s")
+        saved = [{k: v for k, v in run.items() if k not in apart} for run in runs]
+        walls = [run.get("train_wall_s") for run in runs]
+        wall = None if None in walls else sum(walls)
+        write_call(directory, call, saved, [run["metrics_csv"] for run in runs], wall)
+    return sum(len(c.points) for c in restored)
+
+
+def _differing_runs(
+    directory: Path, sweep: Sweep, stored: Sequence[Mapping[str, Any]]
+) -> list[int]:
+    """Indices of finished runs in ``directory`` whose record differs from ``stored``'s (the
+    directory's win; the study says so)."""
+    kept = {run.get("index"): run for run in stored}
+    return [
+        run["index"]
+        for run in _portable_runs(directory, sweep)
+        if run["index"] in kept
+        and kept[run["index"]].get("training_hash") == run["training_hash"]
+        and kept[run["index"]] != run
+    ]

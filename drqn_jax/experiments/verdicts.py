@@ -36,6 +36,7 @@ __all__ = [
     "compare_paired",
     "frontier_comparison",
     "goal_verdict",
+    "paired_margin",
     "study_comparisons",
 ]
 
@@ -101,11 +102,6 @@ class Paired:
     interval: tuple[float, float] = (math.nan, math.nan)
     too_fast: str | None = None
 
-    @property
-    def above(self) -> bool:
-        """Whether the first arm's margin is above the second's (the interval above 0)."""
-        return self.too_fast is None and self.interval[0] > 0.0
-
 
 def _by_seed(runs: Sequence[Mapping[str, Any]]) -> dict[Any, Mapping[str, Any]]:
     return {r["values"].get("run.seed"): r for r in runs}
@@ -134,18 +130,12 @@ def paired_margin(
     return Paired(len(common), float(diff.mean()), t_interval(diff))
 
 
-def compare_paired(
-    name: str,
-    runs: Sequence[Mapping[str, Any]],
-    other: str,
-    others: Sequence[Mapping[str, Any]],
-    vertices: Sequence[Sequence[float]],
-    limit_kmh: float,
-) -> str | None:
-    """:func:`paired_margin` of ``name`` against ``other`` as a sentence (points, 95 % interval)."""
-    paired = paired_margin((name, other), runs, others, vertices, limit_kmh)
+def compare_paired(names: tuple[str, str], paired: Paired | None, limit_kmh: float) -> str | None:
+    """A :func:`paired_margin` of ``names`` as a sentence (points, 95 % interval); None
+    without one."""
     if paired is None:
         return None
+    name, other = names
     if paired.too_fast is not None:
         return (
             f"{name} − {other}, margin to the rule-based frontier: none, {paired.too_fast} "
@@ -191,15 +181,13 @@ def goal_verdict(
     for name, paired in twins.items():
         if paired is None:
             parts.append((False, f"fewer than 2 seeds in common with {name}"))
-            continue
-        detail = (
-            f"{paired.too_fast} faster than the speed limit"
-            if paired.too_fast is not None
-            else f"{100 * paired.difference:+.1f} points {points_interval(*paired.interval)}"
-        )
-        parts.append(
-            (paired.above, f"{'above' if paired.above else 'not above'} {name} ({detail})")
-        )
+        elif paired.too_fast is not None:
+            too_fast = f"{paired.too_fast} faster than the speed limit"
+            parts.append((False, f"not above {name} ({too_fast})"))
+        else:
+            ahead = paired.interval[0] > 0.0
+            points = f"{100 * paired.difference:+.1f} points {points_interval(*paired.interval)}"
+            parts.append((ahead, f"{'not ' * (not ahead)}above {name} ({points})"))
     met = all(ok for ok, _ in parts)
     return (
         f"{GOAL} (at {PAPER_DRQN_SPEED_KMH} km/h or faster, a margin "
@@ -237,5 +225,5 @@ def study_comparisons(
             ceiling = frontier_vertices(frontiers[key]["planner"]["points"])
             verdicts.append(goal_verdict(headline, ceiling, limit, twins))
         comparisons = verdicts + comparisons
-    sentences = [compare_paired(first, runs[first], n, runs[n], vertices, limit) for n in rivals]
+    sentences = [compare_paired((first, n), paired[n], limit) for n in rivals]
     return comparisons + [s for s in sentences if s is not None]

@@ -15,6 +15,7 @@ from drqn_jax.experiments.verdicts import (
     compare_paired,
     frontier_comparison,
     goal_verdict,
+    paired_margin,
     study_comparisons,
 )
 from tests.helpers import HAND_FRONTIER, judged_row
@@ -29,6 +30,12 @@ def _seeds(rates, speed):
         {"values": {"run.seed": k}, "collision_free_rate": r, "avg_speed_kmh": speed}
         for k, r in enumerate(rates)
     ]
+
+
+def _compare(name, runs, other, others, vertices, limit_kmh):
+    """:func:`compare_paired` of ``runs`` against ``others`` (seed by seed)."""
+    paired = paired_margin((name, other), runs, others, vertices, limit_kmh)
+    return compare_paired((name, other), paired, limit_kmh)
 
 
 def _trained(name, agent, rates, speed, teacher=False):
@@ -77,23 +84,23 @@ def test_paired_comparison_is_of_margins_over_the_seeds_both_arms_trained():
 
     a = _seeds([0.9, 0.8, 0.85, 0.5], 5.0)
     b = _seeds([0.5, 0.45, 0.5], 5.0)  # seed 3 untrained: left out of the pairs
-    line = compare_paired("drqn", a, "dqn", b, flat, 15.0)
+    line = _compare("drqn", a, "dqn", b, flat, 15.0)
     assert line.startswith(
         "drqn − dqn, margin to the rule-based frontier, paired over 3 seeds: +36.7 points"
     )
     assert line.endswith("drqn above")
     close = _seeds([0.5, 0.6, 0.4], 5.0)
-    near = compare_paired("drqn", close, "dqn", _seeds([0.55, 0.5, 0.42], 5.0), flat, 15.0)
+    near = _compare("drqn", close, "dqn", _seeds([0.55, 0.5, 0.42], 5.0), flat, 15.0)
     assert near.endswith("drqn not distinguishable")
-    assert compare_paired("drqn", a[:1], "dqn", b, flat, 15.0) is None
+    assert _compare("drqn", a[:1], "dqn", b, flat, 15.0) is None
     # on a falling frontier (100 % standing, 0 % at 10 km/h) the same rates at a lower
     # speed are a smaller margin: 0.9 - 0.9 at 1 km/h against 0.5 - 0.5 at 5 km/h
     falling = [(0.0, 1.0), (10.0, 0.0)]
     slow = _seeds([0.9, 0.9], 1.0)
-    assert "+0.0 points" in compare_paired("a", slow, "b", _seeds([0.5, 0.5], 5.0), falling, 15.0)
+    assert "+0.0 points" in _compare("a", slow, "b", _seeds([0.5, 0.5], 5.0), falling, 15.0)
     # a seed past the limit has no margin, so the pair has none either (SPEC §9)
     fast = _seeds([0.9, 0.9, 0.9], 16.0)
-    assert compare_paired("drqn", fast, "dqn", b, flat, 15.0).endswith(
+    assert _compare("drqn", fast, "dqn", b, flat, 15.0).endswith(
         "none, drqn drives faster than the 15 km/h limit in some seed (SPEC §9)"
     )
 
