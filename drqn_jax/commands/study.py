@@ -169,7 +169,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     --section NAME writes it): its table, comparisons, command and wall time, so that no
     document retypes a number.
     """
-    from drqn_jax.experiments.report import load_results, stale_documents, update_document
+    from drqn_jax.experiments.report import load_results, update_document
 
     if not Path(args.results).is_file():
         raise ConfigError(f"--results {args.results}: no such file (a study writes it)")
@@ -177,16 +177,18 @@ def cmd_report(args: argparse.Namespace) -> int:
     missing = [d for d in args.documents if not Path(d).is_file()]
     if missing:
         raise ConfigError(f"{missing[0]}: no such document")
+    texts = {doc: Path(doc).read_text() for doc in args.documents}
     try:
-        stale = stale_documents(args.documents, record)
+        filled = {doc: update_document(text, record) for doc, text in texts.items()}
     except ValueError as err:
         raise ConfigError(str(err)) from None
+    stale = [doc for doc, text in texts.items() if filled[doc] != text]
     if args.check:
         for doc in stale:
             say(f"{doc}: its results blocks differ from {args.results}")
         return EXIT_FAILED if stale else EXIT_OK
     for doc in stale:
-        atomic_write_text(Path(doc), update_document(Path(doc).read_text(), record))
+        atomic_write_text(Path(doc), filled[doc])
         if not args.quiet:
             say(f"updated {doc}")
     return EXIT_OK

@@ -37,7 +37,6 @@ __all__ = [
     "note_progress",
     "points_interval",
     "render_section",
-    "stale_documents",
     "strict_json",
     "study_table",
     "update_document",
@@ -183,13 +182,6 @@ def update_document(text: str, record: Mapping[str, Any]) -> str:
         return match["open"] + body + match["close"]
 
     return BLOCK.sub(filled, text)
-
-
-def stale_documents(paths: Sequence[str | Path], record: Mapping[str, Any]) -> list[str]:
-    """The documents among ``paths`` whose blocks differ from ``record``'s numbers."""
-    return [
-        str(p) for p in paths if update_document(Path(p).read_text(), record) != Path(p).read_text()
-    ]
 
 
 #: The paper's Table III: agent, collision-free episodes of 10, avg speed (km/h), distance (m).

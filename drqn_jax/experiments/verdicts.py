@@ -52,18 +52,15 @@ def _side(low: float, high: float) -> str:
 
 def frontier_comparison(row: Mapping[str, Any]) -> str:
     """A row against the rule-based frontier at its own speed, as a sentence."""
+    speed = f"{row['label']} ({row['agent']}) at {row['avg_speed_kmh']:.2f} km/h"
     if row.get("above_speed_limit"):
         return (
-            f"{row['label']} ({row['agent']}) at {row['avg_speed_kmh']:.2f} km/h: faster than "
-            "the speed limit (in some seed), where the rule-based frontier has no point: "
-            "no margin (SPEC §9)"
+            f"{speed}: faster than the speed limit (in some seed), where the rule-based "
+            "frontier has no point: no margin (SPEC §9)"
         )
-    low, high = row["frontier_margin_ci"]
-    return (
-        f"{row['label']} ({row['agent']}) at {row['avg_speed_kmh']:.2f} km/h: "
-        f"{_side(low, high)} the rule-based frontier at its own speed "
-        f"(margin {margin_cell(row)} points)"
-    )
+    side = _side(*row["frontier_margin_ci"])
+    margin = margin_cell(row)
+    return f"{speed}: {side} the rule-based frontier at its own speed (margin {margin} points)"
 
 
 def claim_verdict(drqn: Mapping[str, Any]) -> str:
