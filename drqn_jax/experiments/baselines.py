@@ -65,26 +65,24 @@ def rule_based_results(
     ``configs`` (and their ``cross_envs``), cached in ``OUT/baselines/``."""
     from drqn_jax.experiments.runner import builtin_agent, evaluate_agents, json_ready
 
+    def evaluated(config: Config) -> dict[str, Any]:
+        (result,) = evaluate_agents(config, [builtin_agent("rule-based", config)])
+        return json_ready(result)
+
     found: dict[str, tuple[Config, dict[str, Any]]] = {}
     for config in configs:
         key = env_key(config)
-        if key in found:
-            continue
-
-        def evaluated(config: Config = config) -> dict[str, Any]:
-            (result,) = evaluate_agents(config, [builtin_agent("rule-based", config)])
-            return json_ready(result)
-
-        result = _cached(out / "baselines" / f"rule-based-{key}.json", evaluated)
-        found[key] = (config, result)
+        if key not in found:
+            path = out / "baselines" / f"rule-based-{key}.json"
+            found[key] = (config, _cached(path, evaluated, config))
     return found
 
 
-def _cached(path: Path, compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:
-    """The JSON at ``path``, or ``compute()``'s result, then written there (atomically)."""
+def _cached(path: Path, compute: Callable[..., dict[str, Any]], *args: Any, **kw: Any) -> Any:
+    """The JSON at ``path``, or ``compute(*args, **kw)``, then written there (atomically)."""
     if path.is_file():
         return json.loads(path.read_text())
-    result = compute()
+    result = compute(*args, **kw)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, json.dumps(result, indent=1) + "\n")
     return result
@@ -120,10 +118,7 @@ def cross_results(
         return {"index": run["index"], "values": run["values"], **json_ready(result)}
 
     cache = out / arm / "cross" / env_id
-    return [
-        _cached(cache / f"run-{run['index']:04d}.json", lambda run=run: evaluated(run))
-        for run in runs
-    ]
+    return [_cached(cache / f"run-{run['index']:04d}.json", evaluated, run) for run in runs]
 
 
 def frontier_results(
@@ -139,11 +134,8 @@ def frontier_results(
         if not quiet:
             print(f"the frontiers of {config['env']['id']}...", file=sys.stderr, flush=True)
         planner = key in planner_keys
-        name = f"frontier-{key}{'-planner' if planner else ''}.json"
-        found[key] = _cached(
-            out / "baselines" / name,
-            lambda config=config, planner=planner: config_frontier(config, planner=planner),
-        )
+        path = out / "baselines" / f"frontier-{key}{'-planner' if planner else ''}.json"
+        found[key] = _cached(path, config_frontier, config, planner=planner)
     return found
 
 
