@@ -59,11 +59,6 @@ def _plain(tree: Any) -> Any:
     return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
 
 
-def _all(checks: list[jax.Array]) -> jax.Array:
-    """() bool: every check holds (True for none)."""
-    return jnp.all(jnp.stack(checks)) if checks else jnp.asarray(True)
-
-
 def _tree_equal_traced(a: Any, b: Any) -> jax.Array:
     """() bool: every leaf of ``a`` equals ``b``'s, NaN equal to NaN (inside ``jit``)."""
 
@@ -74,13 +69,13 @@ def _tree_equal_traced(a: Any, b: Any) -> jax.Array:
             same = same | (jnp.isnan(x) & jnp.isnan(y))
         return jnp.all(same)
 
-    return _all(jax.tree.leaves(jax.tree.map(leaf, _plain(a), _plain(b))))
+    return jnp.all(jnp.asarray(jax.tree.leaves(jax.tree.map(leaf, _plain(a), _plain(b))), bool))
 
 
 def _all_finite(tree: Any) -> jax.Array:
     """() bool: every floating leaf of ``tree`` is finite."""
-    leaves = jax.tree.leaves(_plain(tree))
-    return _all([jnp.all(jnp.isfinite(x)) for x in leaves if jnp.issubdtype(x.dtype, jnp.inexact)])
+    leaves = [x for x in jax.tree.leaves(_plain(tree)) if jnp.issubdtype(x.dtype, jnp.inexact)]
+    return jnp.all(jnp.asarray([jnp.all(jnp.isfinite(x)) for x in leaves], bool))
 
 
 def _check_same_types(what: str, got: Any, want: Any) -> None:
