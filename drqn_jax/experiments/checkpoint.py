@@ -144,8 +144,7 @@ def _encode(state: Any) -> tuple[list[dict[str, Any]], list[np.ndarray]]:
             arrays.append(leaf if hasattr(leaf, "dtype") else jnp.asarray(leaf))
         entries.append(entry)
     host = [np.asarray(a, order="C") for a in jax.device_get(arrays)]
-    uint = [a.dtype if a.dtype.isbuiltin == 1 else np.dtype(f"uint{8 * a.itemsize}") for a in host]
-    return entries, [a.view(dtype) for a, dtype in zip(host, uint, strict=True)]
+    return entries, [a if a.dtype.isbuiltin == 1 else a.view(f"uint{8 * a.itemsize}") for a in host]
 
 
 def save_checkpoint(
