@@ -79,8 +79,7 @@ _SECTIONS = {
 def _schema() -> tuple[dict[str, dict[str, Any]], dict[tuple[str, str], tuple[str, ...]]]:
     """Every field's default (a switch's as its name) and each switch's choices."""
     schema: dict[str, dict[str, Any]] = {"run": {"seed": 0, "checkpoint_every_s": 60.0}}
-    choices = {("env", "id"): registered_envs()}
-    schema["env"] = {"id": "UrbanPedestrians-v0"}
+    schema["env"], choices = {"id": "UrbanPedestrians-v0"}, {("env", "id"): registered_envs()}
     for section, (classes, skip) in _SECTIONS.items():
         table = schema.setdefault(section, {})
         for f in (f for cls in classes for f in dataclasses.fields(cls) if f.name not in skip):
