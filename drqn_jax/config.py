@@ -400,14 +400,12 @@ def _in_config_words(message: str) -> str:
 
 
 def toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
+    """A bool, int, float, string or list of them as TOML (what JSON writes, floats by
+    ``repr``, which reads back to the same float)."""
     if isinstance(value, float):
-        return repr(value)  # validated finite; repr reads back to the same float
-    if isinstance(value, str):
-        return json.dumps(value)
+        return repr(value)
     if isinstance(value, list):
         return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    if isinstance(value, bool | int | str):
+        return json.dumps(value)
     raise TypeError(f"cannot write {value!r} as TOML")
