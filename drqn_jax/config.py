@@ -66,65 +66,42 @@ class ConfigError(ValueError):
     """A configuration problem; the message is one line naming field, value and rule."""
 
 
-@dataclasses.dataclass(frozen=True)
-class _Field:
-    default: Any
-    kind: str  # "int" | "float" | "bool" | "str" | "conv"
-    choices: tuple[str, ...] | None = None
-
-
-def _fields_of(cls: type, skip: Sequence[str] = ()) -> dict[str, _Field]:
-    """Schema entries from a dataclass's defaults and :func:`param` metadata."""
-    out = {}
-    for f in dataclasses.fields(cls):
-        choices, default = f.metadata.get("choices"), f.default
-        kind = next((k.__name__ for k in (bool, int, float, str) if isinstance(default, k)), None)
-        if f.name in skip:
-            continue
-        if choices is not None:  # an index (a traced switch) or the name itself
-            name = default if isinstance(default, str) else choices[default]
-            out[f.name] = _Field(name, "str", choices)
-        elif f.name == "conv":
-            out[f.name] = _Field([list(layer) for layer in default], "conv")
-        elif kind is not None:  # bool before int: a bool is an int
-            out[f.name] = _Field(default, kind)
-    return out
-
-
-def _schema() -> dict[str, dict[str, _Field]]:
-    network = _fields_of(
-        NetworkConfig, skip=("grid_shape", "num_actions", "torso", "mlp", "obs_size")
-    )
-    network["kind"] = dataclasses.replace(network["kind"], choices=NETWORK_KINDS)
-    network["cell"] = dataclasses.replace(network["cell"], choices=CELLS)
-    return {
-        "run": {"seed": _Field(0, "int"), "checkpoint_every_s": _Field(60.0, "float")},
-        "env": {
-            "id": _Field("UrbanPedestrians-v0", "str", registered_envs()),
-            **_fields_of(StaticEnvParams),
-            **_fields_of(EnvParams),
-        },
-        "network": network,
-        "train": {**_fields_of(TrainConfig, skip=("env_id",)), **_fields_of(Hyperparams)},
-        "rule_based": _fields_of(RuleBasedParams),
-        "planner": _fields_of(PlannerParams),
-        # episodes per agent, and per jitted batch (0: all at once)
-        "evaluate": {"episodes": _Field(1000, "int"), "batch_size": _Field(0, "int")},
-    }
-
-
-SCHEMA = _schema()
-
-# Which section a constructor's error message (``Class.field = ...``) belongs to.
-_OWNER = {
-    "StaticEnvParams": "env",
-    "EnvParams": "env",
-    "NetworkConfig": "network",
-    "TrainConfig": "train",
-    "Hyperparams": "train",
-    "RuleBasedParams": "rule_based",
-    "PlannerParams": "planner",
+#: Where each section's fields come from, and the fields of those it leaves out.
+_SECTIONS = {
+    "env": ((StaticEnvParams, EnvParams), ()),
+    "network": ((NetworkConfig,), ("grid_shape", "num_actions", "torso", "mlp", "obs_size")),
+    "train": ((TrainConfig, Hyperparams), ("env_id",)),
+    "rule_based": ((RuleBasedParams,), ()),
+    "planner": ((PlannerParams,), ()),
 }
+
+
+def _schema() -> tuple[dict[str, dict[str, Any]], dict[tuple[str, str], tuple[str, ...]]]:
+    """Every field's default (a switch's as its name) and each switch's choices."""
+    schema: dict[str, dict[str, Any]] = {"run": {"seed": 0, "checkpoint_every_s": 60.0}}
+    schema["env"], choices = {"id": "UrbanPedestrians-v0"}, {("env", "id"): registered_envs()}
+    for section, (classes, skip) in _SECTIONS.items():
+        table = schema.setdefault(section, {})
+        for f in (f for cls in classes for f in dataclasses.fields(cls) if f.name not in skip):
+            choice = f.metadata.get("choices")
+            if choice is not None:  # stored as an index (a traced switch) or as the name
+                choices[section, f.name] = choice
+                table[f.name] = f.default if isinstance(f.default, str) else choice[f.default]
+            elif f.name == "conv":
+                table[f.name] = [list(layer) for layer in f.default]
+            elif isinstance(f.default, bool | int | float | str):
+                table[f.name] = f.default
+    choices["network", "kind"], choices["network", "cell"] = NETWORK_KINDS, CELLS
+    # episodes per agent, and per jitted batch (0: all at once)
+    schema["evaluate"] = {"episodes": 1000, "batch_size": 0}
+    return schema, choices
+
+
+SCHEMA, _CHOICES = _schema()
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def _is_conv(value: Any) -> bool:
@@ -135,30 +112,39 @@ def _is_conv(value: Any) -> bool:
     )
 
 
-def _check_type(where: str, value: Any, field: _Field) -> Any:
-    """``value`` as the field's type, or a ConfigError."""
-    is_int = isinstance(value, int) and not isinstance(value, bool)
-    if field.kind == "int" and is_int:
-        return value
-    if field.kind == "float" and (is_int or isinstance(value, float)):
-        return float(value)
-    if field.kind == "bool" and isinstance(value, bool):
-        return value
-    if field.kind == "str" and isinstance(value, str):
-        if field.choices is not None and value not in field.choices:
-            allowed = ", ".join(map(repr, field.choices))
-            raise ConfigError(f"{where} = {value!r}: must be one of {allowed}")
-        return value
-    if field.kind == "conv" and _is_conv(value):
-        return [list(layer) for layer in value]
-    wanted = {
-        "int": "an integer",
-        "float": "a number",
-        "bool": "true or false",
-        "str": "a string" + (f" (one of {', '.join(field.choices)})" if field.choices else ""),
-        "conv": "a list of [kernel_h, kernel_w, stride, filters] integer lists",
-    }[field.kind]
-    raise ConfigError(f"{where} = {value!r}: must be {wanted}")
+#: A field's type (its default's) -> what a value must be, and the test.
+_TYPES = {
+    bool: ("true or false", lambda v: isinstance(v, bool)),
+    int: ("an integer", _is_int),
+    float: ("a number", lambda v: _is_int(v) or isinstance(v, float)),
+    str: ("a string", lambda v: isinstance(v, str)),
+    list: ("a list of [kernel_h, kernel_w, stride, filters] integer lists", _is_conv),
+}
+
+
+def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: Any) -> None:
+    """Check ``section.name = value`` (its type, a switch's choices) and set it in ``values``."""
+    if section not in SCHEMA:
+        raise ConfigError(
+            f"unknown section [{section}] (field {section}.{name}); sections: {', '.join(SCHEMA)}"
+        )
+    if name not in SCHEMA[section]:
+        raise ConfigError(
+            f"unknown field {section}.{name}; [{section}] has: {', '.join(SCHEMA[section])}"
+        )
+    kind = next(k for k in _TYPES if isinstance(SCHEMA[section][name], k))
+    (wanted, fits), choices = _TYPES[kind], _CHOICES.get((section, name))
+    if not fits(value):
+        wanted += f" (one of {', '.join(choices)})" if choices else ""
+        raise ConfigError(f"{section}.{name} = {value!r}: must be {wanted}")
+    if choices is not None and value not in choices:
+        allowed = ", ".join(map(repr, choices))
+        raise ConfigError(f"{section}.{name} = {value!r}: must be one of {allowed}")
+    if kind is float:
+        value = float(value)
+    elif kind is list:
+        value = [list(layer) for layer in value]
+    values[section][name] = value
 
 
 def parse_override(text: str) -> tuple[str, str, Any]:
@@ -174,19 +160,6 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     except tomllib.TOMLDecodeError:
         value = raw
     return section, name, value
-
-
-def _merge(values: dict[str, dict[str, Any]], section: str, name: str, value: Any) -> None:
-    """Check ``section.name = value`` and set it in ``values``."""
-    if section not in SCHEMA:
-        raise ConfigError(
-            f"unknown section [{section}] (field {section}.{name}); sections: {', '.join(SCHEMA)}"
-        )
-    if name not in SCHEMA[section]:
-        raise ConfigError(
-            f"unknown field {section}.{name}; [{section}] has: {', '.join(SCHEMA[section])}"
-        )
-    values[section][name] = _check_type(f"{section}.{name}", value, SCHEMA[section][name])
 
 
 def config_names() -> tuple[str, ...]:
@@ -264,7 +237,7 @@ def load_config(
             raise ConfigError(f"{section} = {table!r}: expected a [{section}] table")
         for name, value in table.items():
             _merge(given, section, name, value)
-    file_env_id = given["env"].get("id", SCHEMA["env"]["id"].default)
+    file_env_id = given["env"].get("id", SCHEMA["env"]["id"])
     overridden_env: set[str] = set()
     for text in overrides:
         section, name, value = parse_override(text)
@@ -272,7 +245,7 @@ def load_config(
         if section == "env":
             overridden_env.add(name)
 
-    values = {s: {n: f.default for n, f in fields.items()} for s, fields in SCHEMA.items()}
+    values = {section: dict(table) for section, table in SCHEMA.items()}
     env_id = given["env"].get("id", values["env"]["id"])
     if env_id != file_env_id:  # the new id brings its preset: drop what repeats the old one's
         old = _env_base(file_env_id)
@@ -289,7 +262,7 @@ def load_config(
 
 def _env_base(env_id: str) -> dict[str, Any]:
     """Every env field of ``env_id``'s preset (the schema's defaults under it)."""
-    return {**{n: f.default for n, f in SCHEMA["env"].items()}, **preset(env_id)}
+    return {**SCHEMA["env"], **preset(env_id)}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -419,21 +392,20 @@ def config_hash(config: dict[str, Any]) -> str:
 
 def _in_config_words(message: str) -> str:
     """``"Hyperparams.gamma = 2: ..."`` -> ``"train.gamma = 2: ..."``."""
-    for cls, section in _OWNER.items():
-        message = re.sub(rf"\b{cls}\.", f"{section}.", message)
-        message = re.sub(rf"^{cls}:", f"[{section}]:", message)
+    for section, (classes, _) in _SECTIONS.items():
+        names = "|".join(cls.__name__ for cls in classes)
+        message = re.sub(rf"\b(?:{names})\.", f"{section}.", message)
+        message = re.sub(rf"^(?:{names}):", f"[{section}]:", message)
     return message
 
 
 def toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
+    """A bool, int, float, string or list of them as TOML (what JSON writes, floats by
+    ``repr``, which reads back to the same float)."""
     if isinstance(value, float):
-        return repr(value)  # validated finite; repr reads back to the same float
-    if isinstance(value, str):
-        return json.dumps(value)
+        return repr(value)
     if isinstance(value, list):
         return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    if isinstance(value, bool | int | str):
+        return json.dumps(value)
     raise TypeError(f"cannot write {value!r} as TOML")

@@ -183,8 +183,7 @@ def play_episode(
         return (next_obs, next_state, carry, m, done | terminated | truncated), traced
 
     init = (obs, state, agent.init_carry(key_carry), _no_metrics(), jnp.zeros((), bool))
-    static = env.static
-    decisions = -(-static.max_steps // static.decision_steps)  # ticks, at most max_steps
+    decisions = -(-env.static.max_steps // env.static.decision_steps)  # ticks <= max_steps
     (obs, state, _, m, _), traced = jax.lax.scan(step, init, jax.random.split(key_run, decisions))
     duration = jnp.maximum(m.length, 1).astype(jnp.float32) * params.dt
     authors = m.authors_speed / jnp.maximum(m.moving_steps, 1).astype(jnp.float32)

@@ -244,9 +244,7 @@ def stack_sequence(
     steps = grid.shape[0]
     before = jnp.moveaxis(carry, -4, 0)  # (k - 1, B..., rows, cols, C)
     frames = jnp.concatenate([before, grid])  # (k - 1 + T, B..., …)
-    t = jnp.arange(steps)
-    lead = resets.shape[1:]
-    index = jnp.broadcast_to(t.reshape((steps,) + (1,) * len(lead)), resets.shape)
+    index = jax.lax.broadcasted_iota(jnp.int32, resets.shape, 0)  # (T, B...): t
     last_reset = jax.lax.cummax(jnp.where(resets, index, -steps - k), axis=0)  # (T, B...)
     frames_of_step = []
     for j in range(k):  # frame t - (k - 1) + j of step t

@@ -182,13 +182,8 @@ def _init_torso(config: NetworkConfig, keys: jax.Array) -> Params:
         }
     layers, c_in = [], config.grid_shape[2] * config.frames
     for k, (kh, kw, _, filters) in zip(keys, config.conv, strict=False):
-        fan_in, fan_out = kh * kw * c_in, kh * kw * filters
-        layers.append(
-            {
-                "w": glorot(k, (kh, kw, c_in, filters), fan_in, fan_out),
-                "b": jnp.zeros((filters,), jnp.float32),
-            }
-        )
+        w = glorot(k, (kh, kw, c_in, filters), kh * kw * c_in, kh * kw * filters)
+        layers.append({"w": w, "b": jnp.zeros((filters,), jnp.float32)})
         c_in = filters
     return {"conv": layers}
 
@@ -199,18 +194,12 @@ def _init_params(config: NetworkConfig, key: jax.Array) -> Params:
     n_torso = len(config.conv) if config.torso == "conv" else len(config.mlp)
     keys = jax.random.split(key, n_torso + 4)
     k1, k2, k3, k4 = keys[n_torso:]
-    if config.kind == "drqn":
-        cell_init = lstm_init if config.cell == "lstm" else gru_init
-        first, second = f"{config.cell}1", f"{config.cell}2"  # lstm1/2 or gru1/2
-        core = {
-            first: cell_init(k1, config.features, width),
-            second: cell_init(k2, width + n_extra, width),
-        }
+    if config.kind == "drqn":  # lstm1/2 or gru1/2
+        init = lstm_init if config.cell == "lstm" else gru_init
+        names = (f"{config.cell}1", f"{config.cell}2")
     else:
-        core = {
-            "dense1": dense_init(k1, config.features, width),
-            "dense2": dense_init(k2, width + n_extra, width),
-        }
+        init, names = dense_init, ("dense1", "dense2")
+    core = {names[0]: init(k1, config.features, width), names[1]: init(k2, width + n_extra, width)}
     return {
         **_init_torso(config, keys[:n_torso]),
         **core,
@@ -223,10 +212,8 @@ def _init_params(config: NetworkConfig, key: jax.Array) -> Params:
 def make_network(config: NetworkConfig | None = None) -> Network:
     """The pure functions of a DRQN (or DQN), cached per config so ``jit`` reuses them."""
     config = NetworkConfig() if config is None else config
-    width, n_act = config.recurrent, config.num_actions
+    width, n_act, frames = config.recurrent, config.num_actions, config.frames
     conv = config.torso == "conv"
-
-    frames = config.frames
     layers = (f"{config.cell}1", f"{config.cell}2")  # their parameters: lstm1/2 or gru1/2
     cell = lstm_cell if config.cell == "lstm" else gru_cell
 
@@ -234,27 +221,21 @@ def make_network(config: NetworkConfig | None = None) -> Network:
         if config.kind == "dqn":
             return () if frames == 1 else jnp.zeros((*batch_shape, frames - 1, *config.grid_shape))
         zeros = jnp.zeros((*batch_shape, width), jnp.float32)
-        if config.cell == "gru":
-            return ((zeros,), (zeros,))
-        return ((zeros, zeros), (zeros, zeros))
-
-    def core(params: Params, features: jax.Array, extra: jax.Array, carry: Carry):
-        """One step of the recurrent (or dense) core: output (..., H) and the carry."""
-        if config.kind == "drqn":
-            h1, s1 = cell(params[layers[0]], features, carry[0])
-            h2, s2 = cell(params[layers[1]], jnp.concatenate([h1, extra], -1), carry[1])
-            return h2, (s1, s2)
-        h1 = dense_relu(params["dense1"], features)
-        return dense_relu(params["dense2"], jnp.concatenate([h1, extra], -1)), carry
+        state = (zeros,) if config.cell == "gru" else (zeros, zeros)  # (h,) or (h, c)
+        return (state, state)
 
     def head(params: Params, h2: jax.Array) -> jax.Array:
         """Q-values (..., A) of the core's outputs (..., H): FC + ReLU, then linear."""
         return affine(dense_relu(params["fc"], h2), params["q"]["w"], params["q"]["b"])
 
     def core_step(params: Params, features: jax.Array, extra: jax.Array, carry: Carry):
-        """The core and the head for one time step."""
-        h2, carry = core(params, features, extra, carry)
-        return head(params, h2), carry
+        """The recurrent (or dense) core and the head for one time step: Q-values, carry."""
+        if config.kind == "drqn":
+            h1, s1 = cell(params[layers[0]], features, carry[0])
+            h2, s2 = cell(params[layers[1]], jnp.concatenate([h1, extra], -1), carry[1])
+            return head(params, h2), (s1, s2)
+        h1 = dense_relu(params["dense1"], features)
+        return head(params, dense_relu(params["dense2"], jnp.concatenate([h1, extra], -1))), carry
 
     def inputs(params: Params, obs: Any, gather: bool) -> tuple[jax.Array, jax.Array]:
         """The torso's features and the extra inputs of unstacked observations."""

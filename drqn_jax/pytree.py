@@ -72,16 +72,11 @@ def param(
 ) -> Any:
     """A dataclass field allowed in ``[low, high]`` (ends optionally open), or a switch
     over ``choices`` stored as the name's index."""
-    meta = {
-        "low": low,
-        "high": high,
-        "low_open": low_open,
-        "high_open": high_open,
-        "choices": tuple(choices) if choices is not None else None,
-        "doc": doc,
-    }
+    choices = None if choices is None else tuple(choices)
+    meta = {"low": low, "high": high, "low_open": low_open, "high_open": high_open, "doc": doc}
+    meta["choices"] = choices
     if choices is not None and isinstance(default, str):
-        default = meta["choices"].index(default)
+        default = choices.index(default)
     return dataclasses.field(default=default, metadata=meta)
 
 

@@ -59,11 +59,6 @@ def _plain(tree: Any) -> Any:
     return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
 
 
-def _all(checks: list[jax.Array]) -> jax.Array:
-    """() bool: every check holds (True for none)."""
-    return jnp.all(jnp.stack(checks)) if checks else jnp.asarray(True)
-
-
 def _tree_equal_traced(a: Any, b: Any) -> jax.Array:
     """() bool: every leaf of ``a`` equals ``b``'s, NaN equal to NaN (inside ``jit``)."""
 
@@ -74,13 +69,13 @@ def _tree_equal_traced(a: Any, b: Any) -> jax.Array:
             same = same | (jnp.isnan(x) & jnp.isnan(y))
         return jnp.all(same)
 
-    return _all(jax.tree.leaves(jax.tree.map(leaf, _plain(a), _plain(b))))
+    return jnp.all(jnp.asarray(jax.tree.leaves(jax.tree.map(leaf, _plain(a), _plain(b))), bool))
 
 
 def _all_finite(tree: Any) -> jax.Array:
     """() bool: every floating leaf of ``tree`` is finite."""
-    leaves = jax.tree.leaves(_plain(tree))
-    return _all([jnp.all(jnp.isfinite(x)) for x in leaves if jnp.issubdtype(x.dtype, jnp.inexact)])
+    leaves = [x for x in jax.tree.leaves(_plain(tree)) if jnp.issubdtype(x.dtype, jnp.inexact)]
+    return jnp.all(jnp.asarray([jnp.all(jnp.isfinite(x)) for x in leaves], bool))
 
 
 def _check_same_types(what: str, got: Any, want: Any) -> None:
@@ -171,8 +166,8 @@ def _rollout(
 _jit_rollout = jit_in_store("env", "reset_key")(_rollout)
 
 
-def _first_difference(a: Any, b: Any, rtol: float = 0.0, atol: float = 0.0) -> str | None:
-    """Where two pytrees first differ (None: equal; bitwise unless a tolerance is given)."""
+def _first_difference(a: Any, b: Any) -> str | None:
+    """Where two pytrees first differ, bitwise (NaN equal to NaN); None: nowhere."""
     if jax.tree.structure(a) != jax.tree.structure(b):
         return f"tree structure {jax.tree.structure(a)} vs {jax.tree.structure(b)}"
     leaves = jax.tree_util.tree_leaves_with_path(_plain(a))
@@ -180,11 +175,7 @@ def _first_difference(a: Any, b: Any, rtol: float = 0.0, atol: float = 0.0) -> s
         x, y, path = np.asarray(x), np.asarray(y), jax.tree_util.keystr(key_path)
         if x.shape != y.shape or x.dtype != y.dtype:
             return f"{path}: {x.dtype}{list(x.shape)} vs {y.dtype}{list(y.shape)}"
-        if np.issubdtype(x.dtype, np.inexact) and (rtol or atol):
-            same = np.allclose(x, y, rtol=rtol, atol=atol, equal_nan=True)
-        else:
-            same = np.array_equal(x, y, equal_nan=np.issubdtype(x.dtype, np.inexact))
-        if not same:
+        if not np.array_equal(x, y, equal_nan=np.issubdtype(x.dtype, np.inexact)):
             return f"{path}: values differ"
     return None
 
@@ -198,15 +189,12 @@ def check_env_contract(
     num_steps: int = 32,
     eager_steps: int = 2,
     reset_key: Callable[[jax.Array], jax.Array] = same_key,
-    rtol: float = 0.0,
-    atol: float = 0.0,
 ) -> ContractReport:
     """Check ``env`` (hashable: a static ``jit`` argument) against the gymnax 1.0 contract
     (module docstring) on a random rollout; raises :class:`EnvContractError`.
 
     ``reset_key``: ``step_key -> key`` the auto-reset draws from (:func:`same_key` for
-    ``drqn_jax``; ``lambda k: jax.random.split(k)[1]`` for gymnax). ``rtol``/``atol``:
-    jit ≡ no-jit tolerance for float leaves (default bitwise).
+    ``drqn_jax``; ``lambda k: jax.random.split(k)[1]`` for gymnax).
     """
     if num_envs < 1 or num_steps < 1 or not 0 <= eager_steps <= num_steps:
         raise ValueError(
@@ -239,7 +227,7 @@ def check_env_contract(
         pairs = [("after reset", first)]
         pairs += [(f"at step {t}", jax.tree.map(lambda x, t=t: x[t], steps)) for t in range(n)]
         for when, pair in pairs:
-            diff = _first_difference(*pair, rtol, atol)
+            diff = _first_difference(*pair)
             if diff is not None:
                 _fail(f"jit differs from no jit {when}: {diff}")
 

@@ -321,8 +321,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise ConfigError(f"--episodes = {args.episodes}: must be an integer >= 1")
     overrides = evaluation_overrides(args.overrides, seed=args.seed)
     config, agent, network, params = _chosen_agent(args, overrides)
-    default_out = Path(args.run_dir) / "episodes.rrd" if args.run_dir else Path("episodes.rrd")
-    out = Path(args.out) if args.out else default_out
+    out = Path(args.out or Path(args.run_dir or ".") / "episodes.rrd")
     if out.is_dir():
         raise ConfigError(f"--out {out}: is a directory; give a file name such as episodes.rrd")
     env, env_params = config.make_env()
@@ -358,9 +357,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     from drqn_jax.experiments.sweep_outputs import run_record
 
     record = run_record(args.run_dir)  # a sweep run's: where it trained, not where it is now
-    trained = None
-    if record is not None:
-        trained = {"commit": record["commit"], "device": record["trained_on"]}
+    trained = (
+        None if record is None else {"commit": record["commit"], "device": record["trained_on"]}
+    )
     provenance = export_agent(args.run_dir, args.out, args.training_command, trained)
     if not args.quiet:
         steps = provenance.get("env_steps", 0)

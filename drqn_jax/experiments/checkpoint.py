@@ -16,6 +16,7 @@ import os
 import re
 import secrets
 import zipfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -143,8 +144,7 @@ def _encode(state: Any) -> tuple[list[dict[str, Any]], list[np.ndarray]]:
             arrays.append(leaf if hasattr(leaf, "dtype") else jnp.asarray(leaf))
         entries.append(entry)
     host = [np.asarray(a, order="C") for a in jax.device_get(arrays)]
-    uint = [a.dtype if a.dtype.isbuiltin == 1 else np.dtype(f"uint{8 * a.itemsize}") for a in host]
-    return entries, [a.view(dtype) for a, dtype in zip(host, uint, strict=True)]
+    return entries, [a if a.dtype.isbuiltin == 1 else a.view(f"uint{8 * a.itemsize}") for a in host]
 
 
 def save_checkpoint(
@@ -194,14 +194,12 @@ def load_checkpoint(
     ``expected_meta``'s when both have one. Raises CheckpointError naming what is wrong.
     """
     run_dir = Path(run_dir)
-    npz_path, archive = _open(run_dir, name)
-    with archive:
-        manifest = _read_manifest(npz_path, archive)
+    with _open(run_dir, name) as (read, manifest):
         if expected_meta is not None:
             _check_config(run_dir, manifest, expected_meta)
         leaves = []
         for entry in _check_template(run_dir, manifest["leaves"], template):
-            raw = _read_entry(npz_path, archive, entry["name"] + ".npy", entry["path"])
+            raw = read(entry["name"] + ".npy", entry["path"])
             stored = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
             if entry.get("key_impl") is not None:  # bit-identical to the saved leaf
                 leaves.append(jax.random.wrap_key_data(jnp.asarray(stored), impl=entry["key_impl"]))
@@ -214,9 +212,8 @@ def load_checkpoint(
 
 def read_manifest(run_dir: str | os.PathLike, name: str = CHECKPOINT) -> dict[str, Any]:
     """The checked manifest of ``run_dir/NAME.npz``, its ``leaves`` included."""
-    npz_path, archive = _open(Path(run_dir), name)
-    with archive:
-        return _read_manifest(npz_path, archive)
+    with _open(Path(run_dir), name) as (_, manifest):
+        return manifest
 
 
 def writer(manifest: dict[str, Any]) -> str:
@@ -226,13 +223,15 @@ def writer(manifest: dict[str, Any]) -> str:
     return f"drqn_jax {manifest.get('drqn_jax_version')}{at} in format {manifest['format']!r}"
 
 
-def _open(run_dir: Path, name: str) -> tuple[Path, zipfile.ZipFile]:
-    """``run_dir/NAME.npz`` and its open zip archive."""
+@contextlib.contextmanager
+def _open(run_dir: Path, name: str) -> Iterator[tuple[Callable[[str, str], bytes], dict]]:
+    """``read(member, what)`` of the open archive ``run_dir/NAME.npz`` (an entry's bytes,
+    its CRC-32 checked) and its checked manifest."""
     npz_path = run_dir / f"{name}.npz"
     if not run_dir.is_dir():
         raise CheckpointError(f"no checkpoint: directory {run_dir} does not exist")
     try:
-        return npz_path, zipfile.ZipFile(npz_path)
+        archive = zipfile.ZipFile(npz_path)
     except FileNotFoundError:
         raise CheckpointError(f"no checkpoint in {run_dir} (no {npz_path.name})") from None
     except (zipfile.error, zipfile.LargeZipFile, EOFError, ValueError) as err:
@@ -242,37 +241,32 @@ def _open(run_dir: Path, name: str) -> tuple[Path, zipfile.ZipFile]:
     except OSError as err:
         raise CheckpointError(f"cannot read {npz_path}: {err.strerror or err}") from None
 
+    def read(member: str, what: str) -> bytes:
+        try:
+            return archive.read(member)
+        except KeyError:
+            raise CheckpointError(f"{npz_path} is corrupt: it has no {member} ({what})") from None
+        except _ZIP_ERRORS as err:
+            raise CheckpointError(
+                f"{npz_path} is corrupt: cannot read {member} ({what}): {err}"
+            ) from None
 
-def _read_entry(npz_path: Path, archive: zipfile.ZipFile, member: str, what: str) -> bytes:
-    """The bytes of one archive entry, its CRC-32 checked."""
-    try:
-        return archive.read(member)
-    except KeyError:
-        raise CheckpointError(f"{npz_path} is corrupt: it has no {member} ({what})") from None
-    except _ZIP_ERRORS as err:
-        raise CheckpointError(
-            f"{npz_path} is corrupt: cannot read {member} ({what}): {err}"
-        ) from None
-
-
-def _read_manifest(npz_path: Path, archive: zipfile.ZipFile) -> dict[str, Any]:
-    """The parsed and validated ``manifest.json`` entry of the npz."""
-    raw = _read_entry(npz_path, archive, _MANIFEST, "the checkpoint manifest")
-    where = f"{npz_path} ({_MANIFEST})"
-    try:
-        manifest = json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise CheckpointError(f"{where} is unreadable (truncated or corrupt: {err})") from None
-    if not isinstance(manifest, dict) or "format" not in manifest:
-        raise CheckpointError(f"{where} is not a checkpoint manifest (no 'format')")
-    if manifest["format"] != FORMAT:
-        raise CheckpointError(
-            f"{npz_path}: written by {writer(manifest)}; this version reads format {FORMAT}: "
-            "train it again, or use the commit that wrote it"
-        )
-    if not isinstance(manifest.get("leaves"), list):
-        raise CheckpointError(f"{where} is corrupt: 'leaves' missing or malformed")
-    return manifest
+    with archive:
+        where = f"{npz_path} ({_MANIFEST})"
+        try:
+            manifest = json.loads(read(_MANIFEST, "the checkpoint manifest").decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as err:
+            raise CheckpointError(f"{where} is unreadable (truncated or corrupt: {err})") from None
+        if not isinstance(manifest, dict) or "format" not in manifest:
+            raise CheckpointError(f"{where} is not a checkpoint manifest (no 'format')")
+        if manifest["format"] != FORMAT:
+            raise CheckpointError(
+                f"{npz_path}: written by {writer(manifest)}; this version reads format {FORMAT}: "
+                "train it again, or use the commit that wrote it"
+            )
+        if not isinstance(manifest.get("leaves"), list):
+            raise CheckpointError(f"{where} is corrupt: 'leaves' missing or malformed")
+        yield read, manifest
 
 
 def _check_config(run_dir: Path, manifest: dict[str, Any], expected: dict[str, Any]) -> None:

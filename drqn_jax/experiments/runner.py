@@ -243,18 +243,14 @@ def _chunks(
 ) -> tuple[str, TrainState, int]:
     """``run_chunks`` for one run: progress bar, periodic checkpoints, stop on non-finite loss."""
     total, unit = training_budget(config)
-
-    def done(state: TrainState) -> int:
-        return budget_used(state, total, unit)
-
-    with progress_bar(total, done(state), quiet, unit) as bar:
+    with progress_bar(total, budget_used(state, total, unit), quiet, unit) as bar:
         clock = {"t": time.perf_counter(), "steps": int(state.env_steps)}
 
         def show(state: TrainState) -> None:  # copies metrics to the host: only when shown
             now, steps = time.perf_counter(), int(state.env_steps)
             steps_per_s = (steps - clock["steps"]) / max(now - clock["t"], 1e-9)
             clock.update(t=now, steps=steps)
-            bar.update(done(state) - bar.n)
+            bar.update(budget_used(state, total, unit) - bar.n)
             rows = recorded_metrics(state)
             postfix = {"steps/s": f"{steps_per_s:,.0f}"}
             if len(rows["episode"]):
