@@ -20,10 +20,15 @@ from drqn_jax import cli
 from drqn_jax.config import ConfigError, load_config
 from drqn_jax.experiments.frontier import interquartile_mean
 from drqn_jax.experiments.host_loop import StopRequest
-from drqn_jax.experiments.memory import USABLE_FRACTION, run_memory
 from drqn_jax.experiments.runner import budget_used
 from drqn_jax.experiments.sweep import SweepPoint, budget_warnings, load_sweep, summarize_sweep
-from drqn_jax.experiments.sweep_plan import Call, call_size, plan_calls
+from drqn_jax.experiments.sweep_plan import (
+    USABLE_FRACTION,
+    Call,
+    call_size,
+    plan_calls,
+    run_memory,
+)
 from drqn_jax.experiments.sweep_runner import (
     call_programs,
     run_sweep,
