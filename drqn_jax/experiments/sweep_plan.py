@@ -198,16 +198,13 @@ def call_bytes(per_run: RunMemory, runs: int, *, batched: bool = True) -> int:
 def runs_per_call(
     per_run: RunMemory, runs: int, devices: int, budget: int, source: str, *, batched: bool = True
 ) -> int:
-    """Runs per compiled call: a multiple of ``devices``, at most ``runs`` rounded up;
-    MemoryPlanError if not one run per device fits ``budget``."""
+    """Runs per compiled call: a multiple of ``devices``, at most ``runs`` rounded up, one
+    per device unless ``batched`` (one after another gains nothing from a bigger call, and
+    a call's runs save their results only when all have ended); MemoryPlanError if not one
+    run per device fits ``budget``."""
     usable = USABLE_FRACTION * budget
-    per_device = 0
-    while per_device < math.ceil(runs / devices) and (
-        call_bytes(per_run, per_device + 1, batched=batched) <= usable / devices
-    ):
-        per_device += 1
-    if per_device < 1:
-        need = devices * call_bytes(per_run, 1, batched=batched)
+    need = devices * call_bytes(per_run, 1, batched=batched)
+    if need > usable:
         raise MemoryPlanError(
             f"memory plan: one run needs {per_run.describe()}; {devices} device(s) need "
             f"{format_bytes(need)} but {format_bytes(usable)} is usable "
@@ -215,7 +212,9 @@ def runs_per_call(
             "train.replay_episodes, train.batch_size, train.window or the network, "
             "or give --memory-gb"
         )
-    return per_device * devices
+    if not batched:
+        return devices
+    return min(math.ceil(runs / devices), math.floor(usable / devices / per_run.total)) * devices
 
 
 # ---------------------------------------------------------------------------- the calls
@@ -281,8 +280,6 @@ def plan_calls(
         memory = run_memory(mine[0].config)
         batched = strategy == "vmap"
         most = runs_per_call(memory, len(mine), devices, budget, memory_source, batched=batched)
-        if not batched:  # one after another gains nothing from a bigger call, and a call's
-            most = min(most, devices)  # runs save their results only when all have ended
         count = math.ceil(len(mine) / most)  # calls of near-equal size: one compile
         per_call = math.ceil(len(mine) / count)
         size = call_size(per_call, devices, strategy, most // devices)
