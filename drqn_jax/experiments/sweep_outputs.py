@@ -34,25 +34,11 @@ __all__ = [
     "finished_results",
     "metrics_path",
     "open_plan",
-    "plan_record",
     "run_record",
     "run_timings",
     "write_agents",
     "write_call",
 ]
-
-
-def plan_record(sweep: Sweep, dist: Distributed = Distributed()) -> dict[str, Any]:
-    """``OUT/plan.json``'s record: the sweep's points (values, training hash) and processes."""
-    return {
-        "base": sweep.base,
-        "axes": sweep.axes,
-        "processes": dist.processes,
-        "points": [
-            {"index": p.index, "values": p.values, "training_hash": p.config.training_hash()}
-            for p in sweep.points
-        ],
-    }
 
 
 def _check_plan(path: Path, record: dict[str, Any]) -> None:
@@ -78,7 +64,11 @@ def _check_plan(path: Path, record: dict[str, Any]) -> None:
 def open_plan(out: Path, sweep: Sweep, dist: Distributed, resume: bool) -> None:
     """Write ``OUT/plan.json`` for a new sweep, or check and rewrite it (with any new
     points) for a resumed one."""
-    record = plan_record(sweep, dist)
+    points = [
+        {"index": p.index, "values": p.values, "training_hash": p.config.training_hash()}
+        for p in sweep.points
+    ]
+    record = {"base": sweep.base, "axes": sweep.axes, "processes": dist.processes, "points": points}
     # one plan per process when there are several (no shared file system needed)
     plan = out / ("plan.json" if dist.processes == 1 else f"plan.process-{dist.process}.json")
     if resume:

@@ -163,8 +163,7 @@ def train_call(
     trainer = make_train(call.points[0].config.train_config())
     init, run, validate = call_programs(trainer, call.size, devices, call.strategy)
     args, real = call_inputs(call, devices)
-    checkpoint = directory is not None and (directory / CHECKPOINT_NPZ).exists()
-    if checkpoint:
+    if directory is not None and (directory / CHECKPOINT_NPZ).exists():
         template = jax.eval_shape(init, *args)
         expected = {"config_hash": call.fingerprint()}
         state, meta = load_checkpoint(directory, template, expected)
