@@ -30,15 +30,9 @@ from drqn_jax.experiments.checkpoint import CHECKPOINT_NPZ, load_checkpoint, sav
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
 from drqn_jax.experiments.machine import device_identity, git_commit
 from drqn_jax.experiments.runner import budget_used, final_train_return, json_ready, metrics_csv
-from drqn_jax.experiments.sweep import Sweep, SweepPoint, budget_warnings
+from drqn_jax.experiments.sweep import Sweep, budget_warnings
 from drqn_jax.experiments.sweep_outputs import open_plan, write_agents, write_call
-from drqn_jax.experiments.sweep_plan import (
-    Call,
-    Distributed,
-    call_size,
-    plan_calls,
-    resolve_strategy,
-)
+from drqn_jax.experiments.sweep_plan import Call, Distributed, plan_calls
 from drqn_jax.learners import Trainer, TrainState, make_train
 from drqn_jax.learners.hyperparams import agent_name, teacher_label
 from drqn_jax.learners.selection import selection, unvalidated
@@ -362,17 +356,3 @@ def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, 
         text = client.blocking_key_value_get(f"drqn_jax/sweep/results/{p}", _GATHER_TIMEOUT_MS)
         gathered += json.loads(text)
     return gathered
-
-
-def train_runs(
-    points: Sequence[SweepPoint], devices: Sequence[Any] | None = None, strategy: str = "auto"
-) -> tuple[Trainer, Any, dict[str, np.ndarray]]:
-    """Train ``points`` (one shape) in one call, no checkpoints: ``(trainer, params,
-    metrics)`` with NumPy leaves of leading size ``len(points)``."""
-    devices = list(jax.local_devices() if devices is None else devices)
-    strategy = resolve_strategy(strategy, devices)
-    size = call_size(len(points), len(devices), strategy)
-    call = Call(0, tuple(points), size, strategy)
-    outcome = train_call(call, devices)
-    metrics = jax.tree.map(lambda x: np.asarray(x)[: len(points)], outcome.state.metrics)
-    return outcome.trainer, real_agent_params(call, outcome), metrics
