@@ -77,10 +77,7 @@ def git_commit() -> str:
 
 def machine_info() -> dict[str, Any]:
     """What the numbers depend on: CPU, cores, JAX versions, devices, XLA flags, date."""
-    try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        usable = None
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
     devices = jax.devices()
     return {
         "cpu_model": cpu_model(),

@@ -146,10 +146,6 @@ def _axis_values(name: str, spec: Any) -> list[Any]:
     return values
 
 
-def _override(name: str, value: Any) -> str:
-    return f"{name}={toml_value(value)}"
-
-
 def load_sweep(path: str | Path, overrides: Sequence[str] = ()) -> Sweep:
     """Read a sweep TOML and validate every point (``overrides`` after ``[set]``); ConfigError."""
     path = Path(path)
@@ -167,7 +163,7 @@ def load_sweep(path: str | Path, overrides: Sequence[str] = ()) -> Sweep:
         )
     base = raw.get("base", "default")
     base_path = path.parent / base
-    shared = [_override(k, v) for k, v in raw.get("set", {}).items()] + list(overrides)
+    shared = [f"{k}={toml_value(v)}" for k, v in raw.get("set", {}).items()] + list(overrides)
     return build_sweep(
         base,
         raw.get("axes", {}),
@@ -205,7 +201,7 @@ def build_sweep(
     points = []
     for i, combo in enumerate(combos):
         values = dict(zip(axes, combo, strict=True))
-        point_overrides = [*overrides, *(_override(k, v) for k, v in values.items())]
+        point_overrides = [*overrides, *(f"{k}={toml_value(v)}" for k, v in values.items())]
         try:
             config = load_config(base if base_source is None else base_source, point_overrides)
         except ConfigError as err:
