@@ -18,32 +18,27 @@ from drqn_jax.determinism import cpu_thread_pool_size, fma_disabled
 __all__ = ["machine_info", "machine_lines"]
 
 
-def _first_processor() -> dict[str, str] | None:
-    """The first processor's /proc/cpuinfo fields (lower-case keys); None if absent."""
-    fields: dict[str, str] = {}
+def _first_processor() -> dict[str, str]:
+    """The first processor's /proc/cpuinfo fields (lower-case keys); empty if absent."""
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if not line.strip():
-                    break  # the first processor is enough
-                key, _, value = line.partition(":")
-                fields[key.strip().lower()] = value.strip()
+            first = f.read().split("\n\n")[0]
     except OSError:
-        return None
-    return fields
+        return {}
+    lines = (line.partition(":") for line in first.splitlines())
+    return {key.strip().lower(): value.strip() for key, _, value in lines}
 
 
 def cpu_model() -> str:
     """The CPU's "model name" from /proc/cpuinfo, else ``platform.processor()``."""
-    fields = _first_processor() or {}
-    return fields.get("model name") or platform.processor() or "(unknown)"
+    return _first_processor().get("model name") or platform.processor() or "(unknown)"
 
 
 def cpu_identity() -> str:
     """``family 25 model 1 stepping 1; avx avx2 fma`` from /proc/cpuinfo, or "(unknown)":
     results are bit-identical only on one such CPU (docs/guide.md)."""
     fields = _first_processor()
-    if fields is None:
+    if not fields:
         return "(unknown)"
     names = {"cpu family": "family", "model": "model", "stepping": "stepping"}
     ident = " ".join(f"{name} {fields[k]}" for k, name in names.items() if k in fields)
@@ -82,10 +77,7 @@ def git_commit() -> str:
 
 def machine_info() -> dict[str, Any]:
     """What the numbers depend on: CPU, cores, JAX versions, devices, XLA flags, date."""
-    try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        usable = None
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
     devices = jax.devices()
     return {
         "cpu_model": cpu_model(),

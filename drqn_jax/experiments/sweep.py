@@ -120,37 +120,30 @@ def _hashable(value: Any) -> Any:
 
 
 def _axis_values(name: str, spec: Any) -> list[Any]:
-    if isinstance(spec, list):
-        if not spec:
-            raise ConfigError(f"axes.{name} = []: an axis needs at least one value")
-        return spec
+    """An axis's values from a list or a range table (module docstring)."""
+    values = spec
     if isinstance(spec, dict):
-        unknown = set(spec) - {"start", "stop", "num", "step"}
-        if unknown or "start" not in spec or "stop" not in spec:
+        start, stop, num, step = (spec.get(k) for k in ("start", "stop", "num", "step"))
+        if set(spec) - {"start", "stop", "num", "step"} or start is None or stop is None:
             raise ConfigError(
                 f"axes.{name} = {spec!r}: a range is {{start, stop}} (integers, stop excluded),"
                 " {start, stop, step} or {start, stop, num} (num values, ends included)"
             )
-        start, stop = spec["start"], spec["stop"]
-        if "num" in spec:
-            num = spec["num"]
+        if num is not None:
             if not isinstance(num, int) or num < 1:
                 raise ConfigError(f"axes.{name}.num = {num!r}: must be an integer >= 1")
             return [float(x) for x in np.linspace(start, stop, num)]
-        step = spec.get("step", 1)
+        step = 1 if step is None else step
         if not all(isinstance(x, int) for x in (start, stop, step)) or step == 0:
             raise ConfigError(
                 f"axes.{name} = {spec!r}: start, stop and step must be integers, step != 0"
             )
         values = list(range(start, stop, step))
-        if not values:
-            raise ConfigError(f"axes.{name} = {spec!r}: the range is empty")
-        return values
-    raise ConfigError(f"axes.{name} = {spec!r}: must be a list of values or a range table")
-
-
-def _override(name: str, value: Any) -> str:
-    return f"{name}={toml_value(value)}"
+    if not isinstance(values, list):
+        raise ConfigError(f"axes.{name} = {spec!r}: must be a list of values or a range table")
+    if not values:
+        raise ConfigError(f"axes.{name} = {spec!r}: an axis needs at least one value")
+    return values
 
 
 def load_sweep(path: str | Path, overrides: Sequence[str] = ()) -> Sweep:
@@ -170,7 +163,7 @@ def load_sweep(path: str | Path, overrides: Sequence[str] = ()) -> Sweep:
         )
     base = raw.get("base", "default")
     base_path = path.parent / base
-    shared = [_override(k, v) for k, v in raw.get("set", {}).items()] + list(overrides)
+    shared = [f"{k}={toml_value(v)}" for k, v in raw.get("set", {}).items()] + list(overrides)
     return build_sweep(
         base,
         raw.get("axes", {}),
@@ -208,7 +201,7 @@ def build_sweep(
     points = []
     for i, combo in enumerate(combos):
         values = dict(zip(axes, combo, strict=True))
-        point_overrides = [*overrides, *(_override(k, v) for k, v in values.items())]
+        point_overrides = [*overrides, *(f"{k}={toml_value(v)}" for k, v in values.items())]
         try:
             config = load_config(base if base_source is None else base_source, point_overrides)
         except ConfigError as err:
@@ -273,18 +266,17 @@ def sweep_table(rows: Sequence[dict[str, Any]]) -> str:
     """Markdown: one row per setting, ``mean ± std [95 % CI] (IQM)`` per metric."""
     names = list(rows[0]["setting"]) if rows else []
     header = [*names, "runs", "teacher", *TABLE_METRICS]
-    lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
+    table = [header, ["---"] * len(header)]
     for row in rows:
         runs = f"{row['runs']}" + (f" ({row['diverged']} diverged)" if row["diverged"] else "")
         cells = [str(row["setting"][n]) for n in names] + [runs, row["teacher"]]
-        for metric in TABLE_METRICS:
-            m = row[metric]
+        for m in (row[metric] for metric in TABLE_METRICS):
             low, high = m["ci95"]
             cells.append(
                 f"{m['mean']:.3g} ± {m['std']:.2g} [{low:.3g}, {high:.3g}] ({m['iqm']:.3g})"
             )
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        table.append(cells)
+    return "\n".join("| " + " | ".join(cells) + " |" for cells in table)
 
 
 def sweep_csv(rows: Sequence[dict[str, Any]]) -> str:
@@ -296,9 +288,7 @@ def sweep_csv(rows: Sequence[dict[str, Any]]) -> str:
     lines = [",".join(header)]
     for row in rows:
         cells = [str(row["setting"][n]) for n in names] + [str(row["runs"]), str(row["diverged"])]
-        for metric in TABLE_METRICS:
-            m = row[metric]
-            cells += [repr(m["mean"]), repr(m["std"]), repr(m["ci95"][0]), repr(m["ci95"][1])]
-            cells.append(repr(m["iqm"]))
+        for m in (row[metric] for metric in TABLE_METRICS):
+            cells += [repr(x) for x in (m["mean"], m["std"], *m["ci95"], m["iqm"])]
         lines.append(",".join(cells))
     return "\n".join(lines) + "\n"

@@ -34,7 +34,6 @@ __all__ = [
     "finished_results",
     "metrics_path",
     "open_plan",
-    "plan_record",
     "run_record",
     "run_timings",
     "write_agents",
@@ -42,22 +41,8 @@ __all__ = [
 ]
 
 
-def plan_record(sweep: Sweep, dist: Distributed = Distributed()) -> dict[str, Any]:
-    """``OUT/plan.json``'s record: the sweep's points (values, training hash) and processes."""
-    return {
-        "base": sweep.base,
-        "axes": sweep.axes,
-        "processes": dist.processes,
-        "points": [
-            {"index": p.index, "values": p.values, "training_hash": p.config.training_hash()}
-            for p in sweep.points
-        ],
-    }
-
-
-def _check_plan(path: Path, record: dict[str, Any]) -> bool:
-    """Check ``path`` holds this sweep or its first points (same training hashes); return
-    whether the plan grows."""
+def _check_plan(path: Path, record: dict[str, Any]) -> None:
+    """Check ``path`` holds this sweep or its first points (same training hashes)."""
     out = path.parent
     if not path.is_file():
         raise CheckpointError(f"{out}: no sweep to resume (no {path.name})")
@@ -66,34 +51,34 @@ def _check_plan(path: Path, record: dict[str, Any]) -> bool:
         raise CheckpointError(
             f"{out}: the sweep ran as {saved.get('processes')} process(es); resume it with as many"
         )
-    old = {p["index"]: p for p in saved.get("points", [])}
     new = {p["index"]: p for p in record["points"]}
-    for index, point in old.items():
-        if new.get(index, {}).get("training_hash") != point["training_hash"]:
+    for point in saved.get("points", []):
+        if new.get(point["index"], {}).get("training_hash") != point["training_hash"]:
             raise CheckpointError(
-                f"{out} holds another sweep: point {index} ({point['values']}) "
+                f"{out} holds another sweep: point {point['index']} ({point['values']}) "
                 "differs or is missing; resume with the same sweep file and --set overrides "
                 "(more points may follow the saved ones, none may change)"
             )
-    return len(new) > len(old)
 
 
 def open_plan(out: Path, sweep: Sweep, dist: Distributed, resume: bool) -> None:
-    """Write ``OUT/plan.json`` for a new sweep, or check and grow it for a resumed one."""
-    record = plan_record(sweep, dist)
+    """Write ``OUT/plan.json`` for a new sweep, or check and rewrite it (with any new
+    points) for a resumed one."""
+    points = [
+        {"index": p.index, "values": p.values, "training_hash": p.config.training_hash()}
+        for p in sweep.points
+    ]
+    record = {"base": sweep.base, "axes": sweep.axes, "processes": dist.processes, "points": points}
     # one plan per process when there are several (no shared file system needed)
     plan = out / ("plan.json" if dist.processes == 1 else f"plan.process-{dist.process}.json")
     if resume:
-        write = _check_plan(plan, record)  # grown (more seeds): the new points are added
-    else:
-        if plan.exists():
-            raise CheckpointError(
-                f"{out} already holds a sweep; continue it with --resume or choose another --out"
-            )
-        out.mkdir(parents=True, exist_ok=True)
-        write = True
-    if write:
-        atomic_write_text(plan, json.dumps(record, indent=1) + "\n")
+        _check_plan(plan, record)
+    elif plan.exists():
+        raise CheckpointError(
+            f"{out} already holds a sweep; continue it with --resume or choose another --out"
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(plan, json.dumps(record, indent=1) + "\n")
 
 
 def metrics_path(out: str | Path, index: int) -> Path:

@@ -1,6 +1,10 @@
 """A sweep's plan (SPEC §7): which points train together in which compiled **call**, on
 which devices and processes. Points are grouped into programs by shape; each process takes
 a contiguous slice of every program, cut by the memory plan into padded calls.
+
+The memory plan, made before anything compiles: a run holds its ``TrainState`` (exact, via
+``jax.eval_shape``) plus one gradient update's temporaries (estimated from layer sizes,
+within 1-2× of XLA's ``memory_analysis()``).
 """
 
 from __future__ import annotations
@@ -16,25 +20,21 @@ from typing import Any
 
 import jax
 
-from drqn_jax.config import ConfigError
-from drqn_jax.experiments.memory import (
-    RunMemory,
-    available_memory,
-    call_bytes,
-    format_bytes,
-    run_memory,
-    runs_per_call,
-)
+from drqn_jax.config import Config, ConfigError
 from drqn_jax.experiments.sweep import Sweep, SweepPoint
+from drqn_jax.learners.hyperparams import ON_POLICY
 
 __all__ = [
     "Call",
     "Distributed",
+    "MemoryPlanError",
+    "RunMemory",
     "call_size",
     "describe_plan",
     "init_distributed",
     "plan_calls",
     "resolve_strategy",
+    "run_memory",
 ]
 
 
@@ -84,6 +84,140 @@ def _int_variable(given: int | None, name: str) -> int | None:
         return int(os.environ[name])
     except ValueError:
         raise ConfigError(f"{name} = {os.environ[name]!r}: must be an integer") from None
+
+
+# ------------------------------------------------------------------------ the memory plan
+
+#: Share of the available memory a plan may fill.
+USABLE_FRACTION = 0.8
+#: Temporaries per forward activation byte (online + target unroll, backward pass).
+ACTIVATION_FACTOR = 2.0
+#: Parameter-sized temporaries of one Adam step, in parameter bytes.
+PARAM_TEMPORARIES = 4
+
+
+class MemoryPlanError(ConfigError):
+    """One run (per device) does not fit in the memory available."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunMemory:
+    """Bytes of one training run, by what holds them."""
+
+    replay: int
+    params: int  # online + target networks (+ the snapshots of train.snapshots)
+    optimiser: int  # Adam's two moments
+    other_state: int  # env states, observations, LSTM carries, metrics, counters
+    activations: int  # temporaries of one gradient update (estimated)
+
+    @property
+    def total(self) -> int:
+        return sum(dataclasses.astuple(self))
+
+    def describe(self) -> str:
+        fields = dataclasses.fields(self)
+        parts = ", ".join(f"{f.name} {format_bytes(getattr(self, f.name))}" for f in fields)
+        return f"{format_bytes(self.total)} ({parts})"
+
+
+def format_bytes(n: float) -> str:
+    """``12.3 MB`` (decimal units)."""
+    for unit, size in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if abs(n) >= size:
+            return f"{n / size:.3g} {unit}"
+    return f"{int(n)} B"
+
+
+def _nbytes(tree: Any) -> int:
+    return sum(math.prod(x.shape) * x.dtype.itemsize for x in jax.tree.leaves(tree))
+
+
+def activation_bytes(config: Config) -> int:
+    """Estimated temporaries of one gradient update (DQN minibatch or PPO rollout): per
+    sample, one observation's forward activations (paper Table I layers): grid, conv
+    patches and outputs, recurrent core (or ``dqn`` dense layers), FC layer, Q-values."""
+    network = config.network_config()
+    h, w, c = network.grid_shape
+    c *= network.frames
+    floats = h * w * c
+    for kh, kw, stride, filters in network.conv:
+        h, w = (h - kh) // stride + 1, (w - kw) // stride + 1
+        floats += h * w * (kh * kw * c + filters)
+        c = filters
+    r = network.recurrent
+    core = 2 * (6 * r) + r if network.kind == "drqn" else 2 * r
+    floats += network.features + core + network.hidden + network.num_actions
+    train = config["train"]
+    if train["algorithm"] in ON_POLICY:
+        samples = train["rollout_steps"] * train["num_envs"]
+    else:
+        samples = train["batch_size"] * (train["burn_in"] + train["window"] + 1)
+    return int(ACTIVATION_FACTOR * samples * floats * 4)  # float32
+
+
+def run_memory(config: Config) -> RunMemory:
+    """Bytes of one run of ``config``: the state exactly (shapes only), temporaries estimated."""
+    from drqn_jax.learners import make_train  # late: train imports the env stack
+
+    trainer = make_train(config.train_config())
+    state = jax.eval_shape(trainer.init, config.keys()[0])
+    replay = _nbytes(getattr(state, "replay", None))  # PPO's and PQN's states have none
+    dqn_only = (getattr(state, "target", None), getattr(state, "snapshots", None))
+    params = _nbytes((state.online, *dqn_only))
+    optimiser = _nbytes(state.opt_state)
+    other = _nbytes(state) - replay - params - optimiser
+    activations = activation_bytes(config) + PARAM_TEMPORARIES * _nbytes(state.online)
+    return RunMemory(replay, params, optimiser, other, activations)
+
+
+def available_memory(devices: Sequence[Any]) -> tuple[int, str]:
+    """Bytes the ``devices`` can hold (accelerator limit minus use, or host ``MemAvailable``,
+    0 where unknown) and where the figure comes from."""
+    if all(d.platform == "cpu" for d in devices):
+        try:
+            with open("/proc/meminfo") as f:
+                lines = [line.split() for line in f if line.startswith("MemAvailable:")]
+            return int(lines[0][1]) * 1024, "host MemAvailable"
+        except (OSError, IndexError):
+            return 0, "host MemAvailable"
+    total = 0
+    for d in devices:
+        stats = d.memory_stats() or {}
+        total += int(stats.get("bytes_limit", 0)) - int(stats.get("bytes_in_use", 0))
+    return total, f"{devices[0].platform} memory of {len(devices)} device(s)"
+
+
+def call_bytes(per_run: RunMemory, runs: int, *, batched: bool = True) -> int:
+    """Peak bytes of ``runs`` runs on one device: ``batched``, every state and temporary at
+    once; else (``lax.map``) the states twice and one run's temporaries."""
+    if batched:
+        return runs * per_run.total
+    return 2 * runs * (per_run.total - per_run.activations) + per_run.activations
+
+
+def runs_per_call(
+    per_run: RunMemory, runs: int, devices: int, budget: int, source: str, *, batched: bool = True
+) -> int:
+    """Runs per compiled call: a multiple of ``devices``, at most ``runs`` rounded up, one
+    per device unless ``batched`` (one after another gains nothing from a bigger call, and
+    a call's runs save their results only when all have ended); MemoryPlanError if not one
+    run per device fits ``budget``."""
+    usable = USABLE_FRACTION * budget
+    need = devices * call_bytes(per_run, 1, batched=batched)
+    if need > usable:
+        raise MemoryPlanError(
+            f"memory plan: one run needs {per_run.describe()}; {devices} device(s) need "
+            f"{format_bytes(need)} but {format_bytes(usable)} is usable "
+            f"({USABLE_FRACTION:.0%} of {format_bytes(budget)}, {source}). Reduce "
+            "train.replay_episodes, train.batch_size, train.window or the network, "
+            "or give --memory-gb"
+        )
+    if not batched:
+        return devices
+    return min(math.ceil(runs / devices), math.floor(usable / devices / per_run.total)) * devices
+
+
+# ---------------------------------------------------------------------------- the calls
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,8 +280,6 @@ def plan_calls(
         memory = run_memory(mine[0].config)
         batched = strategy == "vmap"
         most = runs_per_call(memory, len(mine), devices, budget, memory_source, batched=batched)
-        if not batched:  # one after another gains nothing from a bigger call, and a call's
-            most = min(most, devices)  # runs save their results only when all have ended
         count = math.ceil(len(mine) / most)  # calls of near-equal size: one compile
         per_call = math.ceil(len(mine) / count)
         size = call_size(per_call, devices, strategy, most // devices)

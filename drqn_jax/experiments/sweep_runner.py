@@ -10,6 +10,7 @@ Output layout: :mod:`drqn_jax.experiments.sweep_outputs`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import sys
@@ -28,22 +29,10 @@ from drqn_jax.evaluation import evaluate
 from drqn_jax.experiments.checkpoint import CHECKPOINT_NPZ, load_checkpoint, save_checkpoint
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
 from drqn_jax.experiments.machine import device_identity, git_commit
-from drqn_jax.experiments.runner import (
-    budget_used,
-    final_train_return,
-    json_ready,
-    metrics_csv,
-    training_budget,
-)
-from drqn_jax.experiments.sweep import Sweep, SweepPoint, budget_warnings
+from drqn_jax.experiments.runner import budget_used, final_train_return, json_ready, metrics_csv
+from drqn_jax.experiments.sweep import Sweep, budget_warnings
 from drqn_jax.experiments.sweep_outputs import open_plan, write_agents, write_call
-from drqn_jax.experiments.sweep_plan import (
-    Call,
-    Distributed,
-    call_size,
-    plan_calls,
-    resolve_strategy,
-)
+from drqn_jax.experiments.sweep_plan import Call, Distributed, plan_calls
 from drqn_jax.learners import Trainer, TrainState, make_train
 from drqn_jax.learners.hyperparams import agent_name, teacher_label
 from drqn_jax.learners.selection import selection, unvalidated
@@ -61,14 +50,10 @@ def _stack(trees: Sequence[Any]) -> Any:
     return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)
 
 
-def _pad(tree: Any, size: int) -> Any:
-    """Leading axis padded to ``size`` with copies of the last row."""
-
-    def pad(x):
-        n = x.shape[0]
-        return x if n == size else jnp.concatenate([x, jnp.repeat(x[-1:], size - n, axis=0)])
-
-    return jax.tree.map(pad, tree)
+def _rows(tree: Any, n: int) -> list[Any]:
+    """The first ``n`` runs of a batched ``tree``, one NumPy tree each."""
+    tree = jax.tree.map(np.asarray, tree)
+    return [jax.tree.map(lambda x, i=i: x[i], tree) for i in range(n)]
 
 
 def _sharding(devices: Sequence[Any]) -> NamedSharding:
@@ -76,14 +61,14 @@ def _sharding(devices: Sequence[Any]) -> NamedSharding:
 
 
 def call_inputs(call: Call, devices: Sequence[Any]) -> tuple[tuple[Any, Any, Any], jax.Array]:
-    """``(keys, hparams, env_params)`` stacked and padded to ``call.size``, and ``real``
-    flags ``(size,)`` (False for padding), sharded over ``devices``."""
-    points = call.points
-    keys = jnp.stack([p.config.keys()[0] for p in points])
-    hparams = _stack([p.config.hyperparams() for p in points])
-    env_params = _stack([p.config.make_env()[1] for p in points])
-    real = np.arange(call.size) < len(points)
-    return _pad((keys, hparams, env_params), call.size), jax.device_put(real, _sharding(devices))
+    """``(keys, hparams, env_params)`` stacked and padded to ``call.size`` (copies of the
+    last run), and ``real`` flags ``(size,)`` (False for padding), sharded over ``devices``."""
+    padded = [*call.points, *[call.points[-1]] * (call.size - len(call.points))]
+    keys = jnp.stack([p.config.keys()[0] for p in padded])
+    hparams = _stack([p.config.hyperparams() for p in padded])
+    env_params = _stack([p.config.make_env()[1] for p in padded])
+    real = np.arange(call.size) < len(call.points)
+    return (keys, hparams, env_params), jax.device_put(real, _sharding(devices))
 
 
 def _over_runs(
@@ -104,7 +89,7 @@ def _over_runs(
         return jax.lax.map(lambda args: skipped(*args), (states, real))
 
     body = batched if strategy == "vmap" else one_by_one
-    mesh = Mesh(np.asarray(devices), ("runs",))
+    mesh = _sharding(devices).mesh
     # no collectives: each device's runs are independent (check_vma off, as
     # the env's lax.cond branches mix per-device and replicated values)
     program = jax.shard_map(body, mesh=mesh, in_specs=(runs, runs), out_specs=runs, check_vma=False)
@@ -172,8 +157,7 @@ def train_call(
     trainer = make_train(call.points[0].config.train_config())
     init, run, validate = call_programs(trainer, call.size, devices, call.strategy)
     args, real = call_inputs(call, devices)
-    checkpoint = directory is not None and (directory / CHECKPOINT_NPZ).exists()
-    if checkpoint:
+    if directory is not None and (directory / CHECKPOINT_NPZ).exists():
         template = jax.eval_shape(init, *args)
         expected = {"config_hash": call.fingerprint()}
         state, meta = load_checkpoint(directory, template, expected)
@@ -221,15 +205,14 @@ def call_results(
     """Per run: index, axis values, SPEC §8 evaluation of its greedy DRQN on ``eval_key``'s
     episodes (as ``evaluate``), final return, env steps, device, commit and divergence;
     nothing that differs between two trainings (wall time is kept apart)."""
-    n = len(call.points)
-    metrics = jax.tree.map(np.asarray, outcome.state.metrics)
-    finite = np.asarray(jax.vmap(finite_training)(outcome.state))[:n]
-    env_steps, device = np.asarray(outcome.state.env_steps), device_identity()
+    state, device = outcome.state, device_identity()
+    finite = jax.vmap(finite_training)(state)
+    runs = (state.metrics, state.validation, state.hparams, state.env_steps, finite, params)
     results = []
-    for i, point in enumerate(call.points):
+    for point, run in zip(call.points, _rows(runs, len(call.points)), strict=True):
+        metrics, validation, hparams, env_steps, run_finite, run_params = run
         env, env_params = point.config.make_env()
         name = agent_name(point.config.train_config())
-        run_params = jax.tree.map(lambda x, i=i: x[i], params)
         agent = drqn_agent(outcome.trainer.network, run_params, name)
         settings = point.config["evaluate"]
         batch = settings["batch_size"] or None
@@ -237,19 +220,16 @@ def call_results(
             agent, eval_key, settings["episodes"], env, env_params, batch_size=batch
         )
         evaluation["teacher"] = teacher_label(point.config.hyperparams())
-        val, hp = jax.tree.map(
-            lambda x, i=i: np.asarray(x)[i], (outcome.state.validation, outcome.state.hparams)
-        )
         results.append(
             {
                 "index": point.index,
                 "values": point.values,
-                "final_train_return": final_train_return({k: v[i] for k, v in metrics.items()}),
-                "env_steps": int(env_steps[i]),
+                "final_train_return": final_train_return(metrics),
+                "env_steps": int(env_steps),
                 "trained_on": device,
                 "commit": commit,
-                "diverged": not bool(finite[i]),
-                **selection(val, hp),
+                "diverged": not bool(run_finite),
+                **selection(validation, hparams),
                 **json_ready(evaluation),
             }
         )
@@ -296,26 +276,18 @@ def run_sweep(
     budgets, unit = sweep_budgets(calls)
     stop = StopRequest()
     desc = f"sweep (process {dist.process})" if dist.processes > 1 else "sweep"
-    with stop.installed(), progress_bar(sum(budgets), 0, quiet or not dist.leader, unit) as bar:
-        bar.set_description(desc)
-        done_before = continued = 0
+    bar = progress_bar(sum(budgets), 0, quiet or not dist.leader, unit, desc)
+    with stop.installed(), bar:
+        done = continued = 0
         for call, budget in zip(calls, budgets, strict=True):
             directory = out / "calls" / call.name
             saved = directory / "runs.json"
             continued += resume and (saved.is_file() or (directory / CHECKPOINT_NPZ).is_file())
             if resume and saved.is_file():
                 results += json.loads(saved.read_text())
-                bar.update(done_before + budget - bar.n)
             else:
-
-                def progress(
-                    state: TrainState,
-                    before: int = done_before,
-                    n: int = len(call.points),
-                    per_run: int = budget // len(call.points),
-                ) -> None:
-                    bar.update(before + budget_used(state, per_run, unit, n) - bar.n)
-
+                n = len(call.points)
+                progress = functools.partial(_show_progress, bar, done, budget // n, n, unit)
                 outcome = train_call(
                     call,
                     devices,
@@ -327,13 +299,18 @@ def run_sweep(
                 if outcome.status == "interrupted":
                     return SweepOutcome("interrupted", results, continued)
                 results += _finish_call(out, call, outcome, eval_key, commit, keep_agents)
-            done_before += budget
+            done += budget
+            bar.update(done - bar.n)
             if on_call_finished is not None:
                 on_call_finished()
     if dist.processes > 1:
         results = _gather(results, dist)
     results = sorted(results, key=lambda r: r["index"])
     return SweepOutcome("finished", results, continued)
+
+
+def _show_progress(bar: Any, done: int, per_run: int, n: int, unit: str, state: TrainState) -> None:
+    bar.update(done + budget_used(state, per_run, unit, n) - bar.n)
 
 
 def _finish_call(
@@ -352,8 +329,7 @@ def _finish_call(
         print(line, file=sys.stderr)
     if keep_agents:
         write_agents(out, call, outcome.state, params)
-    metrics = jax.tree.map(np.asarray, outcome.state.metrics)
-    csvs = [metrics_csv({k: v[i] for k, v in metrics.items()}) for i in range(len(call.points))]
+    csvs = [metrics_csv(m) for m in _rows(outcome.state.metrics, len(call.points))]
     write_call(out, call, results, csvs, outcome.wall_time_s)
     return results
 
@@ -361,13 +337,10 @@ def _finish_call(
 def sweep_budgets(calls: Sequence[Call]) -> tuple[list[int], str]:
     """Each call's progress-bar budget and the unit: env steps if every call has a step
     budget, else episodes."""
-    budgets = [training_budget(call.points[0].config) for call in calls]
-    if any(unit != "step" for _, unit in budgets):
-        per_run = [call.points[0].config["train"]["num_episodes"] for call in calls]
-        unit = "ep"
-    else:
-        per_run, unit = [total for total, _ in budgets], "step"
-    return [n * len(call.points) for n, call in zip(per_run, calls, strict=True)], unit
+    trains = [call.points[0].config["train"] for call in calls]
+    unit = "step" if all(train["num_env_steps"] for train in trains) else "ep"
+    name = "num_env_steps" if unit == "step" else "num_episodes"
+    return [train[name] * len(call.points) for train, call in zip(trains, calls, strict=True)], unit
 
 
 def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, Any]]:
@@ -383,17 +356,3 @@ def _gather(results: list[dict[str, Any]], dist: Distributed) -> list[dict[str, 
         text = client.blocking_key_value_get(f"drqn_jax/sweep/results/{p}", _GATHER_TIMEOUT_MS)
         gathered += json.loads(text)
     return gathered
-
-
-def train_runs(
-    points: Sequence[SweepPoint], devices: Sequence[Any] | None = None, strategy: str = "auto"
-) -> tuple[Trainer, Any, dict[str, np.ndarray]]:
-    """Train ``points`` (one shape) in one call, no checkpoints: ``(trainer, params,
-    metrics)`` with NumPy leaves of leading size ``len(points)``."""
-    devices = list(jax.local_devices() if devices is None else devices)
-    strategy = resolve_strategy(strategy, devices)
-    size = call_size(len(points), len(devices), strategy)
-    call = Call(0, tuple(points), size, strategy)
-    outcome = train_call(call, devices)
-    metrics = jax.tree.map(lambda x: np.asarray(x)[: len(points)], outcome.state.metrics)
-    return outcome.trainer, real_agent_params(call, outcome), metrics

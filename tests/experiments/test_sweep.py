@@ -20,20 +20,37 @@ from drqn_jax import cli
 from drqn_jax.config import ConfigError, load_config
 from drqn_jax.experiments.frontier import interquartile_mean
 from drqn_jax.experiments.host_loop import StopRequest
-from drqn_jax.experiments.memory import USABLE_FRACTION, run_memory
 from drqn_jax.experiments.runner import budget_used
 from drqn_jax.experiments.sweep import SweepPoint, budget_warnings, load_sweep, summarize_sweep
-from drqn_jax.experiments.sweep_plan import Call, call_size, plan_calls
+from drqn_jax.experiments.sweep_plan import (
+    USABLE_FRACTION,
+    Call,
+    call_size,
+    plan_calls,
+    resolve_strategy,
+    run_memory,
+)
 from drqn_jax.experiments.sweep_runner import (
     call_programs,
+    real_agent_params,
     run_sweep,
     sweep_budgets,
     train_call,
-    train_runs,
 )
 from drqn_jax.learners import make_train
 from tests.helpers import SMOKE_SWEEP as SWEEP
 from tests.helpers import assert_tree_equal, train_alone
+
+
+def train_runs(points, strategy="auto"):
+    """``points`` (one shape) trained in one call on the local devices, no checkpoints:
+    ``(params, metrics)`` with NumPy leaves of leading size ``len(points)``."""
+    devices = jax.local_devices()
+    strategy = resolve_strategy(strategy, devices)
+    call = Call(0, tuple(points), call_size(len(points), len(devices), strategy), strategy)
+    outcome = train_call(call, devices)
+    metrics = jax.tree.map(lambda x: np.asarray(x)[: len(points)], outcome.state.metrics)
+    return real_agent_params(call, outcome), metrics
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +67,7 @@ def trained(sweep_file):
     this module compiles them once."""
     sweep = load_sweep(sweep_file)
     (points,) = sweep.programs()
-    runs = [train_runs([point])[1:] for point in points]
+    runs = [train_runs([point]) for point in points]
     params, metrics = jax.tree.map(lambda *x: np.concatenate(x), *runs)
     return sweep, params, metrics
 
@@ -58,7 +75,7 @@ def trained(sweep_file):
 def test_vmap_and_map_give_bit_identical_runs(trained):
     """The batched strategy (what accelerators run) ≡ one run after another."""
     sweep, params, metrics = trained
-    _, params_vmap, metrics_vmap = train_runs(sweep.points, strategy="vmap")
+    params_vmap, metrics_vmap = train_runs(sweep.points, strategy="vmap")
     assert_tree_equal((params_vmap, metrics_vmap), (params, metrics))
 
 
@@ -140,17 +157,19 @@ def _train_on_forced_devices(
         import drqn_jax
         from drqn_jax import cli
         from drqn_jax.experiments.sweep import load_sweep
-        from drqn_jax.experiments.sweep_runner import train_runs
+        from tests.experiments.test_sweep import train_runs
         assert len(jax.devices()) == {devices}, jax.devices()
         sweep = load_sweep({str(sweep_file)!r})
         for strategy, runs in {jobs!r}.items():
-            _, params, metrics = train_runs(sweep.points[:runs], strategy=strategy)
+            params, metrics = train_runs(sweep.points[:runs], strategy=strategy)
             np.savez(f"{out}/{{strategy}}.npz", *jax.tree.leaves((params, metrics)))
         args = ["sweep", {str(sweep_file)!r}, *{sweep_args!r}, "--out", {str(out / "sweep")!r}]
         assert cli.main([*args, "--quiet"]) == 0
     """)
     env = _bigger_pool_env(f"--xla_force_host_platform_device_count={devices}")
-    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
+    root = Path(__file__).parents[2]  # the script imports train_runs from this module
+    command = [sys.executable, "-c", script]
+    done = subprocess.run(command, env=env, cwd=root, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
     saved = {strategy: np.load(out / f"{strategy}.npz") for strategy in jobs}
     return {k: [v[f"arr_{i}"] for i in range(len(v.files))] for k, v in saved.items()}

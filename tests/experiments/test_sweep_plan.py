@@ -6,16 +6,16 @@ import jax
 import pytest
 
 from drqn_jax.config import load_config
-from drqn_jax.experiments.memory import (
+from drqn_jax.experiments.sweep import load_sweep
+from drqn_jax.experiments.sweep_plan import (
     MemoryPlanError,
     RunMemory,
     call_bytes,
     format_bytes,
+    plan_calls,
     run_memory,
     runs_per_call,
 )
-from drqn_jax.experiments.sweep import load_sweep
-from drqn_jax.experiments.sweep_plan import plan_calls
 from drqn_jax.experiments.sweep_runner import call_inputs, call_programs
 from drqn_jax.learners import make_train
 from tests.helpers import SMOKE_SWEEP, fast_jit
