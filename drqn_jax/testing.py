@@ -166,8 +166,8 @@ def _rollout(
 _jit_rollout = jit_in_store("env", "reset_key")(_rollout)
 
 
-def _first_difference(a: Any, b: Any) -> str | None:
-    """Where two pytrees first differ, bitwise (NaN equal to NaN); None: nowhere."""
+def _first_difference(a: Any, b: Any, rtol: float = 0.0, atol: float = 0.0) -> str | None:
+    """Where two pytrees first differ (None: equal; bitwise unless a tolerance is given)."""
     if jax.tree.structure(a) != jax.tree.structure(b):
         return f"tree structure {jax.tree.structure(a)} vs {jax.tree.structure(b)}"
     leaves = jax.tree_util.tree_leaves_with_path(_plain(a))
@@ -175,7 +175,11 @@ def _first_difference(a: Any, b: Any) -> str | None:
         x, y, path = np.asarray(x), np.asarray(y), jax.tree_util.keystr(key_path)
         if x.shape != y.shape or x.dtype != y.dtype:
             return f"{path}: {x.dtype}{list(x.shape)} vs {y.dtype}{list(y.shape)}"
-        if not np.array_equal(x, y, equal_nan=np.issubdtype(x.dtype, np.inexact)):
+        if np.issubdtype(x.dtype, np.inexact) and (rtol or atol):
+            same = np.allclose(x, y, rtol=rtol, atol=atol, equal_nan=True)
+        else:
+            same = np.array_equal(x, y, equal_nan=np.issubdtype(x.dtype, np.inexact))
+        if not same:
             return f"{path}: values differ"
     return None
 
@@ -189,12 +193,15 @@ def check_env_contract(
     num_steps: int = 32,
     eager_steps: int = 2,
     reset_key: Callable[[jax.Array], jax.Array] = same_key,
+    rtol: float = 0.0,
+    atol: float = 0.0,
 ) -> ContractReport:
     """Check ``env`` (hashable: a static ``jit`` argument) against the gymnax 1.0 contract
     (module docstring) on a random rollout; raises :class:`EnvContractError`.
 
     ``reset_key``: ``step_key -> key`` the auto-reset draws from (:func:`same_key` for
-    ``drqn_jax``; ``lambda k: jax.random.split(k)[1]`` for gymnax).
+    ``drqn_jax``; ``lambda k: jax.random.split(k)[1]`` for gymnax). ``rtol``/``atol``:
+    jit ≡ no-jit tolerance for float leaves (default bitwise).
     """
     if num_envs < 1 or num_steps < 1 or not 0 <= eager_steps <= num_steps:
         raise ValueError(
@@ -227,7 +234,7 @@ def check_env_contract(
         pairs = [("after reset", first)]
         pairs += [(f"at step {t}", jax.tree.map(lambda x, t=t: x[t], steps)) for t in range(n)]
         for when, pair in pairs:
-            diff = _first_difference(*pair)
+            diff = _first_difference(*pair, rtol, atol)
             if diff is not None:
                 _fail(f"jit differs from no jit {when}: {diff}")
 
