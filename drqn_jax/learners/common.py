@@ -18,9 +18,10 @@ import jax.numpy as jnp
 from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
 from drqn_jax.learners.optim import (
     GradientTransformation,
+    adam,
     apply_updates,
     clip_by_global_norm,
-    optimizer,
+    radam,
 )
 from drqn_jax.learners.selection import candidate_metrics, run_agent
 from drqn_jax.learners.task import Step, Task
@@ -71,11 +72,15 @@ def make_trainer(
     network: Any,
     init: Callable[..., Any],
     act: Callable[[Any, jax.Array], tuple[jax.Array, Any]],
-    run: Callable[[Any, int], Any],
+    iteration: Callable[[Any], Any],
     gradient_update: Callable[..., tuple[tuple, jax.Array]] | None = None,
 ) -> Trainer:
-    """A learner's :class:`Trainer` from its ``act``, ``run`` and ``init(key, hp,
-    env_params)``, whose last two default to the config's and the task's."""
+    """A learner's :class:`Trainer` from its ``act``, ``iteration(state)`` (a no-op
+    once finished) and ``init(key, hp, env_params)``, whose last two default to the
+    config's and the task's."""
+
+    def run(state: Any, num_iterations: int) -> Any:
+        return jax.lax.scan(lambda s, _: (iteration(s), None), state, None, num_iterations)[0]
 
     def init_state(key: jax.Array, hparams: Any = None, env_params: Any = None) -> Any:
         hp = config.hyperparams if hparams is None else hparams
@@ -131,7 +136,8 @@ def optimizer_of(
 ) -> GradientTransformation:
     """``config.optimizer`` at ``hp``'s settings (``learning_rate``: its own by default)."""
     lr = hp.learning_rate if learning_rate is None else learning_rate
-    return optimizer(config.optimizer, lr, hp.adam_b1, hp.adam_b2, hp.adam_eps)
+    make = {"adam": adam, "radam": radam}[config.optimizer]
+    return make(lr, hp.adam_b1, hp.adam_b2, hp.adam_eps)
 
 
 def init_fields(
@@ -391,12 +397,7 @@ def make_on_policy(
         state, traj = rollout(config, task, policy, transition, state)
         return learn(state, traj, carry0)
 
-    def run(state: OnPolicyState, num_iterations: int) -> OnPolicyState:
-        """``num_iterations`` updates; no-ops once finished."""
+    def iteration(state: OnPolicyState) -> OnPolicyState:
+        return jax.lax.cond(state.finished, lambda s: s, update, state)
 
-        def body(state, _):
-            return jax.lax.cond(state.finished, lambda s: s, update, state), None
-
-        return jax.lax.scan(body, state, None, length=num_iterations)[0]
-
-    return make_trainer(config, task, agent, init, act, run)
+    return make_trainer(config, task, agent, init, act, iteration)

@@ -18,7 +18,6 @@ __all__ = [
     "apply_updates",
     "clip",
     "clip_by_global_norm",
-    "optimizer",
     "radam",
 ]
 
@@ -121,15 +120,6 @@ def radam(
         return jax.tree.map(step, mu, nu), AdamState(count=count, mu=mu, nu=nu)
 
     return GradientTransformation(_adam_init, update)
-
-
-def optimizer(
-    name: str, learning_rate: float | jax.Array, b1: Any, b2: Any, eps: Any
-) -> GradientTransformation:
-    """The optimiser ``name`` (one of :data:`OPTIMIZERS`) at these settings."""
-    if name not in OPTIMIZERS:
-        raise ValueError(f"optimizer = {name!r}: must be one of {OPTIMIZERS}")
-    return (adam if name == "adam" else radam)(learning_rate, b1, b2, eps)
 
 
 def clip(max_delta: float | jax.Array) -> GradientTransformation:

@@ -3,7 +3,7 @@
 A :class:`Task` adds the replay's record and ``observe``, the network torso, extra
 episode metrics, greedy validation and an optional teacher (SPEC §6).
 :func:`urban_task` is the paper's env; :func:`gymnax_task` any ``"gymnax:<name>"``
-(gymnax 1.x tells truncation from termination; with < 1.0 every ``done`` terminates).
+(gymnax >= 1.0, which tells truncation from termination).
 """
 
 from __future__ import annotations
@@ -211,21 +211,11 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
         return flat(obs), state
 
     def step(key, state, action, params) -> Step:
-        out = env.step(key, state, action, params)
-        if len(out) == 5:  # gymnax < 1.0: (obs, state, reward, done, info)
-            obs, state, reward, done, _ = out
-            terminated, truncated, final = jnp.asarray(done, bool), jnp.zeros((), bool), obs
-        else:  # gymnax 1.x: (obs, state, reward, terminated, truncated, info)
-            obs, state, reward, terminated, truncated, info = out
-            final = info["final_observation"]
+        obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+        reward = jnp.asarray(reward, jnp.float32)
+        terminated, truncated = jnp.asarray(terminated, bool), jnp.asarray(truncated, bool)
         return Step(
-            flat(obs),
-            state,
-            jnp.asarray(reward, jnp.float32),
-            jnp.asarray(terminated, bool),
-            jnp.asarray(truncated, bool),
-            flat(final),
-            {},
+            flat(obs), state, reward, terminated, truncated, flat(info["final_observation"]), {}
         )
 
     task = Task(

@@ -8,14 +8,9 @@ import numpy as np
 import optax
 import pytest
 
-from drqn_jax.learners.optim import (
-    adam,
-    apply_updates,
-    clip,
-    clip_by_global_norm,
-    optimizer,
-    radam,
-)
+from drqn_jax.learners import Hyperparams, TrainConfig
+from drqn_jax.learners.common import optimizer_of
+from drqn_jax.learners.optim import adam, apply_updates, clip, clip_by_global_norm, radam
 
 
 def _problem(seed=0):
@@ -122,12 +117,14 @@ def test_adam_jits_and_vmaps_over_learning_rate():
         )
 
 
-def test_optimizer_names_adam_and_radam_and_refuses_others():
-    assert optimizer("adam", 1e-3, 0.9, 0.999, 1e-8).update is not None
+def test_the_config_names_adam_or_radam():
     params = {"w": jnp.ones(3)}
     grads = {"w": jnp.asarray([1.0, -2.0, 0.5])}
-    first, _ = optimizer("radam", 0.1, 0.9, 0.999, 1e-8).update(grads, radam(0.1).init(params))
+    hp = Hyperparams(learning_rate=0.1)
+    adam_step, _ = optimizer_of(TrainConfig(), hp).update(grads, adam(0.1).init(params))
+    first, _ = optimizer_of(TrainConfig(optimizer="radam"), hp).update(
+        grads, radam(0.1).init(params)
+    )
     # step 1 of RAdam is −lr · m̂ = −lr · g (no division by sqrt(v̂)); Adam's is −lr · sign(g)
     np.testing.assert_allclose(np.asarray(first["w"]), [-0.1, 0.2, -0.05], rtol=1e-6)
-    with pytest.raises(ValueError, match="optimizer = 'sgd': must be one of"):
-        optimizer("sgd", 1e-3, 0.9, 0.999, 1e-8)
+    np.testing.assert_allclose(np.asarray(adam_step["w"]), [-0.1, 0.1, -0.1], rtol=1e-6)

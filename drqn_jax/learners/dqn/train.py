@@ -110,18 +110,10 @@ def make_dqn(config: TrainConfig) -> Trainer:
     _check_task(config, task)
     network = make_network(task.network(config.network))
     act = functools.partial(explore, task, network, config.num_episodes)
-
-    def run(state: TrainState, num_iterations: int) -> TrainState:
-        """``num_iterations`` iterations; those after the run finished change nothing."""
-
-        def body(state, _):
-            return _iteration(config, task, network, act, state), None
-
-        return jax.lax.scan(body, state, None, length=num_iterations)[0]
-
     init = functools.partial(_init_state, config, task, network)
+    iteration = functools.partial(_iteration, config, task, network, act)
     update = functools.partial(gradient_update, config, task, network)
-    return make_trainer(config, task, network, init, act, run, update)
+    return make_trainer(config, task, network, init, act, iteration, update)
 
 
 def explore(
