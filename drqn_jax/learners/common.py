@@ -2,10 +2,9 @@
 learner serves, the state's start, per-episode bookkeeping of N envs whose episodes
 end out of order (metrics written at each episode's index of (num_episodes,)
 buffers), the ε schedule, the on-policy learners' state, rollout and minibatch
-epochs, and the choice of the run's agent among parameter snapshots (the project's,
-not the paper's): with ``snapshots`` = K > 0 the online parameters are kept at
-k · num_episodes / (K + 1) recorded episodes, the K and the final ones play greedy
-validation episodes, and ``select_by`` picks the agent.
+epochs, and the run's agent: with ``snapshots`` = K > 0 (the project's, not the
+paper's), the K snapshots and the final parameters play greedy validation episodes
+and ``select_by`` picks one.
 """
 
 from __future__ import annotations
@@ -199,7 +198,7 @@ def record_episodes(
     values = {
         "episode_return": ep_return,
         "length": ep_length,
-        **task.episode_metrics(step, ep_length, state.env_params),
+        **task.episode_metrics(step, state.env_params),
         **(extra or {}),
         "mean_loss": ep_loss_sum / jnp.maximum(ep_loss_count, 1).astype(jnp.float32),
     }

@@ -75,7 +75,7 @@ class Task(NamedTuple):
     observe: Callable[[Any, jax.Array, Any], Any]
     network: Callable[[NetworkConfig], NetworkConfig]
     metrics: tuple[tuple[str, Any], ...]
-    episode_metrics: Callable[[Step, jax.Array, Any], dict[str, jax.Array]]
+    episode_metrics: Callable[[Step, Any], dict[str, jax.Array]]
     explore_bias: Callable[[Any], jax.Array]
     validate: Callable[..., dict[str, jax.Array]]
     validation_metrics: tuple[str, ...]
@@ -114,7 +114,7 @@ def urban_task(env_id: str = "UrbanPedestrians-v0", **overrides: Any) -> Task:
         final = info["final_state"]
         return Step(obs, state, reward, terminated, truncated, _grid_record(final), info)
 
-    def episode_metrics(step: Step, length: jax.Array, params: EnvParams) -> dict:
+    def episode_metrics(step: Step, params: EnvParams) -> dict:
         info = step.info
         duration = info["time"].astype(jnp.float32) * params.dt  # ticks: k per decision
         return {
@@ -232,7 +232,7 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
             net, torso="mlp", obs_size=size, num_actions=n_actions
         ),
         metrics=(),
-        episode_metrics=lambda step, length, params: {},
+        episode_metrics=lambda step, params: {},
         explore_bias=lambda hp: jnp.full((n_actions,), 1.0 / n_actions),
         validate=lambda network, params, keys, env_params: {
             "return": jnp.mean(greedy_returns(task, network, params, keys, env_params))

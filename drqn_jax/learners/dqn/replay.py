@@ -19,10 +19,6 @@ from drqn_jax.env.state import NO_ACTION
 from drqn_jax.learners.hyperparams import WINDOW_STARTS
 from drqn_jax.pytree import pytree_dataclass
 
-#: ``observe(records, last_action) -> observations``: the network's inputs of
-#: records with leaves (T, B, …) and the actions before them (T, B) int32.
-Observe = Callable[[Any, jax.Array], Any]
-
 __all__ = [
     "EpisodeReplay",
     "Windows",
@@ -187,11 +183,12 @@ def sample_windows(
     key: jax.Array,
     batch: int,
     window: int,
-    observe: Observe,
+    observe: Callable[[Any, jax.Array], Any],
     window_start: int | jax.Array = WINDOW_INSIDE,
     burn_in: int = 0,
 ) -> Windows:
-    """Draw ``batch`` windows of ``window`` transitions from complete episodes.
+    """Draw ``batch`` windows of ``window`` transitions from complete episodes, their
+    observations ``observe(records (T, B, …), actions before them (T, B) int32)``.
 
     Episodes uniform with replacement; the start uniform in ``[0, max(n − W, 0)]``
     (``WINDOW_INSIDE``, SPEC §7) or ``[0, n − 1]`` (``WINDOW_ANYWHERE``, padded).
