@@ -35,8 +35,8 @@ from drqn_jax.experiments.runner import (
     train_run,
     write_evaluation,
 )
+from drqn_jax.learners.common import selection
 from drqn_jax.learners.hyperparams import agent_name
-from drqn_jax.learners.selection import selection
 
 
 def cmd_train(args: argparse.Namespace) -> int:

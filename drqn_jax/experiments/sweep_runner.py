@@ -34,8 +34,8 @@ from drqn_jax.experiments.sweep import Sweep, budget_warnings
 from drqn_jax.experiments.sweep_outputs import open_plan, write_agents, write_call
 from drqn_jax.experiments.sweep_plan import Call, Distributed, plan_calls
 from drqn_jax.learners import Trainer, TrainState, make_train
+from drqn_jax.learners.common import selection, unvalidated
 from drqn_jax.learners.hyperparams import agent_name, teacher_label
-from drqn_jax.learners.selection import selection, unvalidated
 from drqn_jax.programs import cached
 
 __all__ = ["SweepOutcome", "call_inputs", "call_programs", "run_sweep", "train_call"]

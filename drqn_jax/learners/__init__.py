@@ -1,6 +1,6 @@
 """The learners (paper §V-B, Tables I–II; SPEC §7): shared modules (optim, task,
-hyperparams, common, selection) and one per algorithm (``dqn``, ``ppo``,
-``pqn``; none imports another). :func:`make_train` picks by ``TrainConfig.algorithm``.
+hyperparams, common) and one per algorithm (``dqn``, ``ppo``, ``pqn``; none imports
+another). :func:`make_train` picks by ``TrainConfig.algorithm``.
 """
 
 from __future__ import annotations

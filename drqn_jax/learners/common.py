@@ -1,8 +1,10 @@
 """What the learners share (paper §V-B; SPEC §7): the :class:`Trainer` protocol every
 learner serves, the state's start, per-episode bookkeeping of N envs whose episodes
 end out of order (metrics written at each episode's index of (num_episodes,)
-buffers), the ε schedule, and the on-policy learners' state, rollout and minibatch
-epochs.
+buffers), the ε schedule, the on-policy learners' state, rollout and minibatch
+epochs, and the run's agent: with ``snapshots`` = K > 0 (the project's, not the
+paper's), the K snapshots and the final parameters play greedy validation episodes
+and ``select_by`` picks one.
 """
 
 from __future__ import annotations
@@ -15,31 +17,33 @@ from typing import Any, ClassVar, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig, annealed, step_share
-from drqn_jax.learners.optim import (
-    GradientTransformation,
-    apply_updates,
-    clip_by_global_norm,
-    optimizer,
-)
-from drqn_jax.learners.selection import candidate_metrics, run_agent
+from drqn_jax.evaluation import episode_keys
+from drqn_jax.learners.hyperparams import SELECT_BY, Hyperparams, TrainConfig, annealed, step_share
+from drqn_jax.learners.optim import apply_updates, clip_by_global_norm, optimizer_of
 from drqn_jax.learners.task import Step, Task
 from drqn_jax.networks import Network
 from drqn_jax.pytree import pytree_dataclass, tree_where
 
 __all__ = [
+    "VALIDATION_STREAM",
     "LearnerState",
     "Trainer",
+    "candidate_metrics",
+    "chosen_candidate",
     "epsilon_of",
     "init_fields",
     "make_on_policy",
     "make_trainer",
     "minibatch_epochs",
-    "optimizer_of",
     "per_decision",
     "record_episodes",
     "restarted",
     "rollout",
+    "run_agent",
+    "selection",
+    "snapshot_thresholds",
+    "take_snapshot",
+    "unvalidated",
 ]
 
 
@@ -71,11 +75,15 @@ def make_trainer(
     network: Any,
     init: Callable[..., Any],
     act: Callable[[Any, jax.Array], tuple[jax.Array, Any]],
-    run: Callable[[Any, int], Any],
+    iteration: Callable[[Any], Any],
     gradient_update: Callable[..., tuple[tuple, jax.Array]] | None = None,
 ) -> Trainer:
-    """A learner's :class:`Trainer` from its ``act``, ``run`` and ``init(key, hp,
-    env_params)``, whose last two default to the config's and the task's."""
+    """A learner's :class:`Trainer` from its ``act``, ``iteration(state)`` (a no-op
+    once finished) and ``init(key, hp, env_params)``, whose last two default to the
+    config's and the task's."""
+
+    def run(state: Any, num_iterations: int) -> Any:
+        return jax.lax.scan(lambda s, _: (iteration(s), None), state, None, num_iterations)[0]
 
     def init_state(key: jax.Array, hparams: Any = None, env_params: Any = None) -> Any:
         hp = config.hyperparams if hparams is None else hparams
@@ -124,14 +132,6 @@ def per_decision(hp: Hyperparams, task: Task) -> Hyperparams:
     if k == 1:
         return hp
     return hp.replace(gamma=hp.gamma**k, gae_lambda=hp.gae_lambda**k, q_lambda=hp.q_lambda**k)
-
-
-def optimizer_of(
-    config: TrainConfig, hp: Hyperparams, learning_rate: jax.Array | None = None
-) -> GradientTransformation:
-    """``config.optimizer`` at ``hp``'s settings (``learning_rate``: its own by default)."""
-    lr = hp.learning_rate if learning_rate is None else learning_rate
-    return optimizer(config.optimizer, lr, hp.adam_b1, hp.adam_b2, hp.adam_eps)
 
 
 def init_fields(
@@ -198,7 +198,7 @@ def record_episodes(
     values = {
         "episode_return": ep_return,
         "length": ep_length,
-        **task.episode_metrics(step, ep_length, state.env_params),
+        **task.episode_metrics(step, state.env_params),
         **(extra or {}),
         "mean_loss": ep_loss_sum / jnp.maximum(ep_loss_count, 1).astype(jnp.float32),
     }
@@ -292,7 +292,7 @@ def minibatch_epochs(
         seqs = jax.tree.map(functools.partial(jnp.take, indices=envs, axis=1), sequences)
         starts = jax.tree.map(functools.partial(jnp.take, indices=envs, axis=0), per_env)
         grads, loss = jax.grad(loss_of, has_aux=True)(params, seqs, starts)
-        grads, _ = clip_by_global_norm(hp.max_grad_norm).update(grads, ())
+        grads = clip_by_global_norm(grads, hp.max_grad_norm)
         updates, opt_state = opt.update(grads, opt_state, params)
         return (apply_updates(params, updates), opt_state), loss
 
@@ -391,12 +391,104 @@ def make_on_policy(
         state, traj = rollout(config, task, policy, transition, state)
         return learn(state, traj, carry0)
 
-    def run(state: OnPolicyState, num_iterations: int) -> OnPolicyState:
-        """``num_iterations`` updates; no-ops once finished."""
+    def iteration(state: OnPolicyState) -> OnPolicyState:
+        return jax.lax.cond(state.finished, lambda s: s, update, state)
 
-        def body(state, _):
-            return jax.lax.cond(state.finished, lambda s: s, update, state), None
+    return make_trainer(config, task, agent, init, act, iteration)
 
-        return jax.lax.scan(body, state, None, length=num_iterations)[0]
 
-    return make_trainer(config, task, agent, init, act, run)
+#: ``fold_in`` index of the validation episodes' key (from the finished state's key).
+VALIDATION_STREAM = 2
+SELECT_SAFE = SELECT_BY.index("safe")
+
+
+def chosen_candidate(validation: dict[str, jax.Array], hp: Hyperparams) -> jax.Array:
+    """() int32 index of the run's agent among K + 1 candidates (metrics (K + 1,)):
+    the best return, or with ``"safe"`` the most collision-free at
+    ``select_speed_floor`` or faster, then the best return. Ties: the latest; any
+    NaN, or none fast enough: the final parameters (K).
+    """
+    returns = validation["return"]
+    last = returns.shape[-1] - 1
+    unusable = jnp.any(jnp.isnan(jnp.stack(list(validation.values()))))
+    if "speed" not in validation:  # a task that measures returns only: select_by "return"
+        return jnp.where(unusable, last, last - jnp.argmax(returns[::-1])).astype(jnp.int32)
+    fast = validation["speed"] >= hp.select_speed_floor
+    safest = jnp.max(jnp.where(fast, validation["collision_free"], -jnp.inf))
+    safe = fast & (validation["collision_free"] == safest)
+    score = jnp.where((hp.select_by != SELECT_SAFE) | safe, returns, -jnp.inf)
+    best = last - jnp.argmax(score[::-1])
+    unusable |= (hp.select_by == SELECT_SAFE) & ~jnp.any(fast)
+    return jnp.where(unusable, last, best).astype(jnp.int32)
+
+
+def selection(validation: dict[str, Any] | None, hp: Hyperparams) -> dict[str, Any]:
+    """Host-side record of a run's choice: ``{}`` without snapshots, else the
+    candidates' ``validation_*`` lists (K + 1 floats) and ``selected``."""
+    if validation is None:
+        return {}
+    validation = {name: jnp.asarray(v) for name, v in validation.items()}
+    out = {"validation_returns": [float(r) for r in validation["return"]]}
+    if "collision_free" in validation:
+        out["validation_collision_free"] = [float(r) for r in validation["collision_free"]]
+        out["validation_speed_kmh"] = [float(v) for v in validation["speed"] * 3.6]
+    return {**out, "selected": int(chosen_candidate(validation, hp))}
+
+
+def unvalidated(snapshots: int, names: tuple[str, ...]) -> dict:
+    """``TrainState.validation`` before validation: NaN (snapshots + 1,) per name of
+    ``Task.validation_metrics``."""
+    return {name: jnp.full((snapshots + 1,), jnp.nan, jnp.float32) for name in names}
+
+
+def snapshot_thresholds(config: TrainConfig) -> tuple[int, ...]:
+    """Recorded-episode counts at which snapshots 1 … K are taken:
+    ``k · num_episodes // (K + 1)``, at least ``num_envs`` apart."""
+    k_plus_1 = config.snapshots + 1
+    return tuple(k * config.num_episodes // k_plus_1 for k in range(1, k_plus_1))
+
+
+def take_snapshot(
+    config: TrainConfig, snapshots: Any, online: Any, before: jax.Array, after: jax.Array
+) -> Any:
+    """``snapshots`` (leaves [K, ...]) with ``online`` in slot k when the recorded
+    episodes cross threshold k between ``before`` and ``after``. One slot is always
+    rewritten, so the cost under ``vmap`` does not grow with K."""
+    if not config.snapshots:
+        return snapshots
+    thresholds = jnp.asarray(snapshot_thresholds(config), jnp.int32)
+    crossed_before = jnp.sum(thresholds <= before)
+    crossed = jnp.sum(thresholds <= after)
+    slot = jnp.maximum(crossed - 1, 0)
+    write = crossed > crossed_before
+    return jax.tree.map(
+        lambda s, o: s.at[slot].set(jnp.where(write, o, s[slot])), snapshots, online
+    )
+
+
+def candidates(snapshots: Any, online: Any) -> Any:
+    """The K snapshots and the final online parameters, stacked: leaves [K + 1, ...]."""
+    return jax.tree.map(lambda s, o: jnp.concatenate([s, o[None]]), snapshots, online)
+
+
+def candidate_metrics(config: TrainConfig, task: Any, network: Any, state: Any) -> dict:
+    """The task's validation metrics (K + 1,) float32 of a finished run's candidates,
+    on the same ``validation_episodes`` for each (SPEC §8). Needs K > 0."""
+    if not config.snapshots:
+        raise ValueError("validation_metrics: the run keeps no snapshots (train.snapshots = 0)")
+    keys = episode_keys(
+        jax.random.fold_in(state.key, VALIDATION_STREAM), config.validation_episodes
+    )
+
+    def measure(params: Any) -> dict[str, jax.Array]:
+        return task.validate(network, params, keys, state.env_params)
+
+    return jax.lax.map(measure, candidates(state.snapshots, state.online))
+
+
+def run_agent(config: TrainConfig, state: Any) -> Any:
+    """The run's agent: the final parameters, or with K > 0 the chosen candidate."""
+    if not config.snapshots:
+        return state.online
+    best = chosen_candidate(state.validation, state.hparams)
+    return jax.tree.map(lambda c: c[best], candidates(state.snapshots, state.online))

@@ -1,5 +1,5 @@
-"""Adam, RAdam and the gradient clamps by hand, with optax's ``init``/``update`` shape
-(paper §V-B; SPEC §7); no optax at run time. Hyperparameters may be traced arrays, so
+"""Adam, RAdam (with optax's ``init``/``update`` shape) and the gradient clamps by
+hand (paper §V-B; SPEC §7); no optax at run time. Hyperparameters may be traced arrays, so
 a sweep can ``vmap`` over the learning rate.
 """
 
@@ -18,7 +18,7 @@ __all__ = [
     "apply_updates",
     "clip",
     "clip_by_global_norm",
-    "optimizer",
+    "optimizer_of",
     "radam",
 ]
 
@@ -123,34 +123,27 @@ def radam(
     return GradientTransformation(_adam_init, update)
 
 
-def optimizer(
-    name: str, learning_rate: float | jax.Array, b1: Any, b2: Any, eps: Any
-) -> GradientTransformation:
-    """The optimiser ``name`` (one of :data:`OPTIMIZERS`) at these settings."""
-    if name not in OPTIMIZERS:
-        raise ValueError(f"optimizer = {name!r}: must be one of {OPTIMIZERS}")
-    return (adam if name == "adam" else radam)(learning_rate, b1, b2, eps)
+def clip(grads: Params, max_delta: float | jax.Array) -> Params:
+    """Every gradient element clamped to ``[−max_delta, max_delta]`` (optax.clip)."""
+    return jax.tree.map(lambda g: jnp.clip(g, -max_delta, max_delta), grads)
 
 
-def clip(max_delta: float | jax.Array) -> GradientTransformation:
-    """Clamp every gradient element to ``[−max_delta, max_delta]`` (optax.clip)."""
-
-    def update(grads: Params, state: Any, params: Params | None = None):
-        return jax.tree.map(lambda g: jnp.clip(g, -max_delta, max_delta), grads), state
-
-    return GradientTransformation(lambda params: (), update)
-
-
-def clip_by_global_norm(max_norm: float | jax.Array) -> GradientTransformation:
-    """Scale the gradients so that their global L2 norm is at most ``max_norm``
+def clip_by_global_norm(grads: Params, max_norm: float | jax.Array) -> Params:
+    """The gradients scaled so that their global L2 norm is at most ``max_norm``
     (optax.clip_by_global_norm; PPO's ``max_grad_norm``)."""
+    norm = jnp.sqrt(sum(jnp.sum(g * g) for g in jax.tree.leaves(grads)))
+    scale = jnp.where(norm < max_norm, 1.0, max_norm / norm)
+    return jax.tree.map(lambda g: (g * scale).astype(g.dtype), grads)
 
-    def update(grads: Params, state: Any, params: Params | None = None):
-        norm = jnp.sqrt(sum(jnp.sum(g * g) for g in jax.tree.leaves(grads)))
-        scale = jnp.where(norm < max_norm, 1.0, max_norm / norm)
-        return jax.tree.map(lambda g: (g * scale).astype(g.dtype), grads), state
 
-    return GradientTransformation(lambda params: (), update)
+def optimizer_of(
+    config: Any, hp: Any, learning_rate: jax.Array | None = None
+) -> GradientTransformation:
+    """``TrainConfig.optimizer`` (adam or radam) at the ``Hyperparams`` ``hp``'s
+    settings (``learning_rate``: its own by default)."""
+    lr = hp.learning_rate if learning_rate is None else learning_rate
+    make = {"adam": adam, "radam": radam}[config.optimizer]
+    return make(lr, hp.adam_b1, hp.adam_b2, hp.adam_eps)
 
 
 def apply_updates(params: Params, updates: Params) -> Params:

@@ -3,7 +3,7 @@
 A :class:`Task` adds the replay's record and ``observe``, the network torso, extra
 episode metrics, greedy validation and an optional teacher (SPEC §6).
 :func:`urban_task` is the paper's env; :func:`gymnax_task` any ``"gymnax:<name>"``
-(gymnax 1.x tells truncation from termination; with < 1.0 every ``done`` terminates).
+(gymnax >= 1.0, which tells truncation from termination).
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ class Task(NamedTuple):
     observe: Callable[[Any, jax.Array, Any], Any]
     network: Callable[[NetworkConfig], NetworkConfig]
     metrics: tuple[tuple[str, Any], ...]
-    episode_metrics: Callable[[Step, jax.Array, Any], dict[str, jax.Array]]
+    episode_metrics: Callable[[Step, Any], dict[str, jax.Array]]
     explore_bias: Callable[[Any], jax.Array]
     validate: Callable[..., dict[str, jax.Array]]
     validation_metrics: tuple[str, ...]
@@ -114,7 +114,7 @@ def urban_task(env_id: str = "UrbanPedestrians-v0", **overrides: Any) -> Task:
         final = info["final_state"]
         return Step(obs, state, reward, terminated, truncated, _grid_record(final), info)
 
-    def episode_metrics(step: Step, length: jax.Array, params: EnvParams) -> dict:
+    def episode_metrics(step: Step, params: EnvParams) -> dict:
         info = step.info
         duration = info["time"].astype(jnp.float32) * params.dt  # ticks: k per decision
         return {
@@ -211,21 +211,11 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
         return flat(obs), state
 
     def step(key, state, action, params) -> Step:
-        out = env.step(key, state, action, params)
-        if len(out) == 5:  # gymnax < 1.0: (obs, state, reward, done, info)
-            obs, state, reward, done, _ = out
-            terminated, truncated, final = jnp.asarray(done, bool), jnp.zeros((), bool), obs
-        else:  # gymnax 1.x: (obs, state, reward, terminated, truncated, info)
-            obs, state, reward, terminated, truncated, info = out
-            final = info["final_observation"]
+        obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+        reward = jnp.asarray(reward, jnp.float32)
+        terminated, truncated = jnp.asarray(terminated, bool), jnp.asarray(truncated, bool)
         return Step(
-            flat(obs),
-            state,
-            jnp.asarray(reward, jnp.float32),
-            jnp.asarray(terminated, bool),
-            jnp.asarray(truncated, bool),
-            flat(final),
-            {},
+            flat(obs), state, reward, terminated, truncated, flat(info["final_observation"]), {}
         )
 
     task = Task(
@@ -242,7 +232,7 @@ def gymnax_task(name: str, max_steps: int | None = None, **overrides: Any) -> Ta
             net, torso="mlp", obs_size=size, num_actions=n_actions
         ),
         metrics=(),
-        episode_metrics=lambda step, length, params: {},
+        episode_metrics=lambda step, params: {},
         explore_bias=lambda hp: jnp.full((n_actions,), 1.0 / n_actions),
         validate=lambda network, params, keys, env_params: {
             "return": jnp.mean(greedy_returns(task, network, params, keys, env_params))

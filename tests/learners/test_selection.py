@@ -19,15 +19,17 @@ from drqn_jax.config import ConfigError, load_config
 from drqn_jax.experiments.checkpoint import load_checkpoint
 from drqn_jax.experiments.runner import init_program, load_trained_network, train_run, validated
 from drqn_jax.learners import TrainConfig, make_train
-from drqn_jax.learners.hyperparams import SELECT_BY
-from drqn_jax.learners.selection import (
-    VALIDATION_METRICS,
+from drqn_jax.learners.common import (
     VALIDATION_STREAM,
     chosen_candidate,
     selection,
     snapshot_thresholds,
 )
+from drqn_jax.learners.hyperparams import SELECT_BY
 from tests.helpers import SMOKE_CHUNK, assert_tree_equal, take
+
+#: What validation measures per candidate of the paper's env.
+VALIDATION_METRICS = ("return", "collision_free", "speed")
 
 SMOKE = ["train.snapshots=2", "train.validation_episodes=2", "train.chunk_iterations=1"]
 #: smoke.toml (2 envs, 6 episodes of at most 30 steps) with two snapshots, one

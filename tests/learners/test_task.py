@@ -75,5 +75,5 @@ def test_k_tick_tasks_count_decisions_and_measure_speed_over_ticks():
         "time": jnp.full(1, 30, jnp.int32),
     }
     step = Step(None, None, None, None, None, None, info)  # only the info is read
-    speed = task.episode_metrics(step, jnp.full(1, 8, jnp.int32), task.env_params)["mean_speed"]
+    speed = task.episode_metrics(step, task.env_params)["mean_speed"]
     np.testing.assert_allclose(speed, 6.0 / (30 * 0.1), rtol=1e-6)

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.learners.dqn.replay import Windows
-from drqn_jax.learners.hyperparams import CLIP_MODES
+from drqn_jax.learners.hyperparams import CLIP_MODES, Hyperparams
 from drqn_jax.networks import Network
 
 #: ``Hyperparams.clip`` of the Huber loss and of the squared error (gradient clipping).
@@ -140,17 +140,16 @@ def sequence_loss(
     target: Any,
     windows: Windows,
     network: Network,
-    gamma: float | jax.Array,
-    clip_mode: int | jax.Array = CLIP_HUBER,
+    hp: Hyperparams,
     n_step: int = 1,
     expert_action: jax.Array | None = None,
     expert_weight: jax.Array | None = None,
-    margin: float | jax.Array = 1.0,
-    value_rescale: int | jax.Array = 0,
     burn_in: int = 0,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Mean masked TD loss of a window batch (W + 1 obs, B), plus the imitation term
-    where ``expert_action``/``expert_weight`` (W, B) are given (None: the paper).
+    """Mean masked TD loss of a window batch (W + 1 obs, B) at ``hp``'s ``gamma`` (of
+    one decision), ``clip`` and ``value_rescale``, plus the imitation term (margin
+    ``imitation_margin``) where ``expert_action``/``expert_weight`` (W, B) are given
+    (None: the paper).
 
     Gradients flow to ``online`` only; ``burn_in`` L steps only warm the LSTM. Returns
     () loss and ``{"td_abs", "q_mean"[, "margin"]}``.
@@ -168,12 +167,12 @@ def sequence_loss(
         windows.reward,
         windows.terminated,
         windows.mask,
-        gamma,
+        hp.gamma,
         n_step,
-        value_rescale,
+        hp.value_rescale,
     )
     td = q_taken - jax.lax.stop_gradient(y)
-    per_step = jnp.where(clip_mode == CLIP_GRAD, 0.5 * td * td, huber(td))
+    per_step = jnp.where(hp.clip == CLIP_GRAD, 0.5 * td * td, huber(td))
     weight = windows.mask.astype(jnp.float32)
     count = jnp.maximum(jnp.sum(weight), 1.0)
     loss = jnp.sum(per_step * weight) / count
@@ -182,7 +181,7 @@ def sequence_loss(
         "q_mean": jnp.sum(q_taken * weight) / count,
     }
     if expert_action is not None:
-        supervised = large_margin(q_online[:-1], expert_action, margin)
+        supervised = large_margin(q_online[:-1], expert_action, hp.imitation_margin)
         aux["margin"] = jnp.sum(supervised * expert_weight * weight) / count
         loss = loss + aux["margin"]
     return loss, aux

@@ -19,10 +19,6 @@ from drqn_jax.env.state import NO_ACTION
 from drqn_jax.learners.hyperparams import WINDOW_STARTS
 from drqn_jax.pytree import pytree_dataclass
 
-#: ``observe(records, last_action) -> observations``: the network's inputs of
-#: records with leaves (T, B, …) and the actions before them (T, B) int32.
-Observe = Callable[[Any, jax.Array], Any]
-
 __all__ = [
     "EpisodeReplay",
     "Windows",
@@ -95,11 +91,8 @@ def init_replay(
     capacity: int, max_length: int, num_writers: int, record: Any, carry: Any = None
 ) -> EpisodeReplay:
     """An empty replay of ``capacity`` episodes of up to ``max_length`` transitions,
-    records shaped like ``record`` (and stored states like ``carry`` when given)."""
-    if num_writers < 1 or capacity < 2 * num_writers:
-        raise ValueError(  # each writer fills one slot while another holds an episode
-            f"replay capacity = {capacity} episodes: must be >= 2 × the writers ({num_writers})"
-        )
+    records shaped like ``record`` (and stored states like ``carry`` when given);
+    ``capacity`` >= 2 × ``num_writers`` (``TrainConfig.replay_episodes`` says it)."""
     m, n_obs = capacity, max_length + 1
 
     def buffer(example: Any) -> Any:
@@ -134,10 +127,8 @@ def _write(
     def write(buf: jax.Array, x: jax.Array) -> jax.Array:
         return _set(buf, where, index, x)
 
-    records = jax.tree.map(write, replay.records, record)
-    if replay.carry is None:
-        return replay.replace(records=records)
-    return replay.replace(records=records, carry=jax.tree.map(write, replay.carry, carry))
+    carry = None if replay.carry is None else jax.tree.map(write, replay.carry, carry)
+    return replay.replace(records=jax.tree.map(write, replay.records, record), carry=carry)
 
 
 def begin_episodes(
@@ -164,13 +155,11 @@ def add_transition(
     reward: jax.Array,
     terminated: jax.Array,
     next_record: Any,
-    active: jax.Array | None = None,
+    active: jax.Array,
     next_carry: Any = None,
 ) -> EpisodeReplay:
     """Append one transition per writer (N,) where ``active``; ``next_record`` is the
     pre-reset observation after the action. Nothing is stored past ``max_length``."""
-    n = replay.num_writers
-    active = jnp.ones((n,), bool) if active is None else active
     t = replay.length[replay.slot]
     active = active & (t < replay.max_length)
     t = jnp.minimum(t, replay.max_length - 1)
@@ -194,11 +183,12 @@ def sample_windows(
     key: jax.Array,
     batch: int,
     window: int,
-    observe: Observe,
+    observe: Callable[[Any, jax.Array], Any],
     window_start: int | jax.Array = WINDOW_INSIDE,
     burn_in: int = 0,
 ) -> Windows:
-    """Draw ``batch`` windows of ``window`` transitions from complete episodes.
+    """Draw ``batch`` windows of ``window`` transitions from complete episodes, their
+    observations ``observe(records (T, B, …), actions before them (T, B) int32)``.
 
     Episodes uniform with replacement; the start uniform in ``[0, max(n − W, 0)]``
     (``WINDOW_INSIDE``, SPEC §7) or ``[0, n − 1]`` (``WINDOW_ANYWHERE``, padded).

@@ -20,14 +20,16 @@ import jax.numpy as jnp
 
 from drqn_jax.env.state import BRAKE
 from drqn_jax.learners.common import (
+    SELECT_SAFE,
     LearnerState,
     Trainer,
     epsilon_of,
     init_fields,
     make_trainer,
-    optimizer_of,
     per_decision,
     record_episodes,
+    take_snapshot,
+    unvalidated,
 )
 from drqn_jax.learners.dqn.loss import CLIP_GRAD, sequence_loss
 from drqn_jax.learners.dqn.replay import (
@@ -45,8 +47,7 @@ from drqn_jax.learners.hyperparams import (
     annealed,
     step_share,
 )
-from drqn_jax.learners.optim import apply_updates, clip
-from drqn_jax.learners.selection import SELECT_SAFE, take_snapshot, unvalidated
+from drqn_jax.learners.optim import apply_updates, clip, optimizer_of
 from drqn_jax.learners.task import Step, Task, make_task
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
@@ -67,7 +68,7 @@ class TrainState(LearnerState):
     replay: EpisodeReplay
     epsilon: jax.Array  # (N,) float32 ε of each env's current episode
     snapshots: Any = None  # [K, ...] online parameters during training; None when K = 0
-    validation: Any = None  # {VALIDATION_METRICS: (K + 1,) float32}, NaN until validated
+    validation: Any = None  # {Task.validation_metrics: (K + 1,) float32}, NaN until validated
 
 
 class Learner(NamedTuple):
@@ -77,14 +78,6 @@ class Learner(NamedTuple):
     target: Any
     opt_state: Any
     grad_steps: jax.Array
-
-
-def _small_leaves(state: TrainState) -> TrainState:
-    """``state`` with its large buffers (replay, networks, optimiser, metrics) emptied,
-    for cheap leaf-wise selection of everything else."""
-    return state.replace(
-        replay=None, online=None, target=None, opt_state=None, metrics=None, snapshots=None
-    )
 
 
 def _check_task(config: TrainConfig, task: Task) -> None:
@@ -110,18 +103,10 @@ def make_dqn(config: TrainConfig) -> Trainer:
     _check_task(config, task)
     network = make_network(task.network(config.network))
     act = functools.partial(explore, task, network, config.num_episodes)
-
-    def run(state: TrainState, num_iterations: int) -> TrainState:
-        """``num_iterations`` iterations; those after the run finished change nothing."""
-
-        def body(state, _):
-            return _iteration(config, task, network, act, state), None
-
-        return jax.lax.scan(body, state, None, length=num_iterations)[0]
-
     init = functools.partial(_init_state, config, task, network)
+    iteration = functools.partial(_iteration, config, task, network, act)
     update = functools.partial(gradient_update, config, task, network)
-    return make_trainer(config, task, network, init, act, run, update)
+    return make_trainer(config, task, network, init, act, iteration, update)
 
 
 def explore(
@@ -233,20 +218,21 @@ def _iteration(
             state.epsilon,
         ),
     )
-    small = jax.tree.map(
-        lambda new, old: jnp.where(live, new, old), _small_leaves(moved), _small_leaves(state)
-    )
-    return small.replace(
-        replay=replay,
-        online=learner.online,
-        target=learner.target,
-        opt_state=learner.opt_state,
-        grad_steps=learner.grad_steps,
-        metrics=metrics,
-        snapshots=take_snapshot(
+    large = {  # written masked or gated above; the small leaves are selected by ``live``
+        "replay": replay,
+        "online": learner.online,
+        "target": learner.target,
+        "opt_state": learner.opt_state,
+        "metrics": metrics,
+        "snapshots": take_snapshot(
             config, state.snapshots, learner.online, state.recorded, moved.recorded
         ),
+    }
+    none = dict.fromkeys(large)
+    small = jax.tree.map(
+        lambda new, old: jnp.where(live, new, old), moved.replace(**none), state.replace(**none)
     )
+    return small.replace(**large, grad_steps=learner.grad_steps)
 
 
 def _imitation(task: Task, windows: Any, hp: Hyperparams, env_params: Any) -> tuple:
@@ -272,14 +258,12 @@ def gradient_update(
     """One Double-DQN gradient step on ``learner``; the new learner and the () loss."""
     learner = Learner(*learner)  # the Trainer's callers pass a plain 4-tuple
     opt = optimizer_of(config, hp)
+
+    def observe(records: Any, last_action: jax.Array) -> Any:
+        return task.observe(records, last_action, env_params)
+
     windows = sample_windows(
-        replay,
-        key,
-        config.batch_size,
-        config.window,
-        lambda records, last: task.observe(records, last, env_params),
-        hp.window_start,
-        config.burn_in,
+        replay, key, config.batch_size, config.window, observe, hp.window_start, config.burn_in
     )
     expert, weight = _imitation(task, windows, hp, env_params)
     (loss, _), grads = jax.value_and_grad(sequence_loss, has_aux=True)(
@@ -287,16 +271,13 @@ def gradient_update(
         learner.target,
         windows,
         network,
-        per_decision(hp, task).gamma,
-        hp.clip,
+        per_decision(hp, task),
         config.n_step,
         expert,
         weight,
-        hp.imitation_margin,
-        hp.value_rescale,
         config.burn_in,
     )
-    clamped, _ = clip(1.0).update(grads, ())
+    clamped = clip(grads, 1.0)
     grads = jax.tree.map(lambda c, g: jnp.where(hp.clip == CLIP_GRAD, c, g), clamped, grads)
     updates, opt_state = opt.update(grads, learner.opt_state, learner.online)
     online = apply_updates(learner.online, updates)

@@ -228,11 +228,6 @@ def test_last_action_and_terminal_flags():
     np.testing.assert_array_equal(np.asarray(w.mask[:, b]), [1, 1, 1, 1, 1, 0, 0, 0])
 
 
-def test_too_many_writers_is_refused():
-    with pytest.raises(ValueError, match="capacity"):
-        init_replay(5, MAX_LEN, 3, _empty(STATIC))
-
-
 def test_memory_of_the_paper_replay_fits_target():
     replay = jax.eval_shape(lambda: init_replay(50, 1000, 1, _empty(StaticEnvParams())))
     nbytes = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(replay))

@@ -147,7 +147,7 @@ def test_stored_state_is_the_acting_lstms_state():
         )
         first = jax.tree.map(lambda x: x[windows.slot, windows.start], state.replay.carry)
         loss = [
-            sequence_loss(state.online, state.target, w, net, hp.gamma)[0]
+            sequence_loss(state.online, state.target, w, net, hp)[0]
             for w in (windows.replace(carry=None), windows)
         ]
         return windows.carry, first, loss
@@ -217,10 +217,7 @@ def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked, update_
         static = trainer.env.static
         w = sample_windows(state.replay, key, 4, 4, _observe(state, static), hp.window_start)
         net = trainer.network
-        return [
-            sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, n)[0]
-            for n in (3, 1)
-        ]
+        return [sequence_loss(state.online, state.target, w, net, hp, n)[0] for n in (3, 1)]
 
     three, one = losses(state, key)
     assert float(loss) == pytest.approx(float(three), rel=1e-5)
@@ -242,8 +239,8 @@ def test_value_rescale_reaches_the_gradient_update(tiny_chunked, update_n3):
         w = sample_windows(state.replay, key, 4, 4, _observe(state, static), hp.window_start)
         net, n = trainer.network, TINY_N3.n_step
         return [
-            sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, n, **kw)[0]
-            for kw in ({"value_rescale": 1}, {})
+            sequence_loss(state.online, state.target, w, net, h, n)[0]
+            for h in (hp.replace(value_rescale=1), hp)
         ]
 
     rescaled, plain = losses(state, key)
@@ -274,9 +271,7 @@ def test_burn_in_reaches_the_gradient_update(tiny_chunked):
             state.replay, key, 4, 4, _observe(state, static), hp.window_start, burn_in=2
         )
         assert w.action.shape == (6, 4)
-        return sequence_loss(
-            state.online, state.target, w, trainer.network, hp.gamma, hp.clip, burn_in=2
-        )[0]
+        return sequence_loss(state.online, state.target, w, trainer.network, hp, burn_in=2)[0]
 
     assert float(loss) == pytest.approx(float(expected(state, key)), rel=1e-5)
 
@@ -314,10 +309,9 @@ def test_imitation_reaches_the_gradient_update(tiny_chunked, update_n3):
         expert = rule_based_labels(states, state.env_params, teacher, static)
         usual = rule_based_labels(states, state.env_params, RuleBasedParams(), static)
         where = everywhere | (expert == BRAKE)
-        args = (expert, weight * where.astype(jnp.float32), 0.5)
-        net = trainer.network
-        n = TINY_N3.n_step
-        loss = sequence_loss(state.online, state.target, w, net, hp.gamma, hp.clip, n, *args)[0]
+        args = (expert, weight * where.astype(jnp.float32))
+        net, n, hp = trainer.network, TINY_N3.n_step, hp.replace(imitation_margin=0.5)
+        loss = sequence_loss(state.online, state.target, w, net, hp, n, *args)[0]
         return loss, jnp.sum(expert != usual)
 
     losses = {}
