@@ -186,8 +186,6 @@ def _log_world(
     """Episode ``i``'s top view: ego, pedestrians, headings (``heading_s`` s of walking)."""
     root, n, states = _span(record, i)
     peds = jax.tree.map(lambda x: x[i, : n + 1], record.state.pedestrians)
-    num_peds = peds.position.shape[1]
-
     collided = np.concatenate([[False], np.cumsum(record.collision[i, :n]) > 0])
     ego_colours = np.where(collided[:, None], EGO_COLLISION_COLOUR, EGO_COLOUR).astype(np.uint8)
     rec.send_columns(
@@ -207,7 +205,7 @@ def _log_world(
     alpha = np.where(peds.visible.reshape(-1), 255, OCCLUDED_ALPHA).astype(np.uint8)
     colours = np.concatenate([palette[behaviour], alpha[:, None]], axis=1)
     positions = to_view(peds.position.reshape(-1, 2))
-    lengths = [num_peds] * (n + 1)
+    lengths = [peds.position.shape[1]] * (n + 1)  # P points per step
     rec.log(f"{root}/world/pedestrians", rr.Points2D.from_fields(show_labels=False), static=True)
     rec.send_columns(
         f"{root}/world/pedestrians",
