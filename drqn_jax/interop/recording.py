@@ -230,12 +230,10 @@ def _log_world(
     )
 
 
-def _log_grid(
-    rec: rr.RecordingStream, record: EpisodeRecord, i: int, grid_shape: tuple[int, int, int]
-) -> None:
+def _log_grid(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
     """Episode ``i``'s observation grid, one greyscale image per channel."""
     root, n, states = _span(record, i)
-    rows, cols, _ = grid_shape
+    rows, cols = record.grid.shape[2:4]
     image_format = rr.components.ImageFormat(
         width=cols, height=rows, color_model="L", channel_datatype="F32"
     )
@@ -388,7 +386,7 @@ def write_episodes(
         hud = np.asarray(_hud_program(env)(record.state, params))
         for i in range(record.num_episodes):
             _log_world(rec, record, i, hud[i], float(params.ped_radius), env.static.ttc_horizon)
-            _log_grid(rec, record, i, env.static.grid_shape)
+            _log_grid(rec, record, i)
             _log_series(rec, record, i)
             _log_events(rec, record, i)
 
@@ -415,7 +413,6 @@ def record_training(path: str | Path, metrics: Mapping[str, np.ndarray]) -> None
     if missing:
         raise ValueError(f"record_training: metrics lack {', '.join(missing)}")
     m = {name: np.asarray(v) for name, v in metrics.items()}
-    episodes = m["episode"].astype(np.int64)
     curves = {
         "return": m["episode_return"],
         "length": m["length"],
@@ -433,7 +430,7 @@ def record_training(path: str | Path, metrics: Mapping[str, np.ndarray]) -> None
     with recording_file(path, blueprint) as rec:
         for name, values in curves.items():
             style = rr.SeriesLines(names=name)
-            send_scalars(rec, f"training/{name}", episodes, values, style, EPISODE_TIMELINE)
+            send_scalars(rec, f"training/{name}", m["episode"], values, style, EPISODE_TIMELINE)
 
 
 def _series_blueprint(views: Mapping[str, str], timeline: str = EPISODE_TIMELINE) -> rrb.Blueprint:
