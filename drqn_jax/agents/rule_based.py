@@ -61,19 +61,18 @@ def _times_between(
 def must_brake(g: GridInputs, env_params: EnvParams, rb: RuleBasedParams, static) -> jax.Array:
     """() bool: a pedestrian (``g.position``, ``g.velocity`` (P, 2)) on the road is in the
     corridor ahead of the ego (``g.s``, ``g.v`` ()), or walks into it within ``rb.horizon``."""
-    position, velocity = g.position, g.velocity
-    cls = semantic_class(position, env_params, static)
+    cls = semantic_class(g.position, env_params, static)
     on_road = (cls == ROAD) | (cls == CROSSING_AREA)
     half_corridor = 0.5 * env_params.ego_width + env_params.ped_radius + rb.corridor_margin
-    offset = position[:, 1] - lane_centre_y(env_params)
-    ahead = position[:, 0] - (g.s + 0.5 * env_params.ego_length)
+    offset = g.position[:, 1] - lane_centre_y(env_params)
+    ahead = g.position[:, 0] - (g.s + 0.5 * env_params.ego_length)
     in_front = (ahead >= -env_params.ped_radius) & (ahead <= rb.lookahead)
     now = jnp.any(on_road & (jnp.abs(offset) <= half_corridor) & in_front)
     # Per pedestrian, the times in [0, horizon] when it is in the corridor, within the
     # look-ahead, and not yet passed by the bumper moving at v.
-    lat = _times_between(offset, velocity[:, 1], -half_corridor, half_corridor)
-    near = _times_between(ahead, velocity[:, 0], -jnp.inf, rb.lookahead)
-    unpassed = _times_between(ahead, velocity[:, 0] - g.v, -env_params.ped_radius, jnp.inf)
+    lat = _times_between(offset, g.velocity[:, 1], -half_corridor, half_corridor)
+    near = _times_between(ahead, g.velocity[:, 0], -jnp.inf, rb.lookahead)
+    unpassed = _times_between(ahead, g.velocity[:, 0] - g.v, -env_params.ped_radius, jnp.inf)
     start = jnp.maximum(jnp.maximum(lat[0], near[0]), jnp.maximum(unpassed[0], 0.0))
     end = jnp.minimum(jnp.minimum(lat[1], near[1]), jnp.minimum(unpassed[1], rb.horizon))
     soon = jnp.any(start <= end)
