@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.agents.base import Agent, no_carry
+from drqn_jax.agents.rule_based import track_speed
 from drqn_jax.env.params import KMH, EnvParams
 from drqn_jax.env.state import ACCELERATE, BRAKE, SLOW_DOWN, STEER, EnvState
 from drqn_jax.pytree import param, pytree_dataclass, validate
@@ -57,13 +58,9 @@ def avoids_collision(
 
 def planner_action(env, state: EnvState, params: EnvParams, planner: PlannerParams) -> jax.Array:
     """() int32: the fastest safe candidate the cap allows; ``brake`` if none."""
-    v = state.ego.v
-    fastest = jnp.where(
-        v < planner.v_cap - planner.speed_band,
-        0,
-        jnp.where(v > planner.v_cap + planner.speed_band, 2, 1),
-    )
     candidates = jnp.asarray(CANDIDATES, jnp.int32)
+    # the fastest the cap allows: the candidate that holds v within v_cap ± speed_band
+    fastest = jnp.argmax(candidates == track_speed(state.ego.v, planner.v_cap, planner.speed_band))
     safe = jax.vmap(lambda a: avoids_collision(env, state, a, params, planner.horizon_steps))(
         candidates
     )

@@ -24,6 +24,7 @@ __all__ = [
     "rule_based_action",
     "rule_based_agent",
     "rule_based_labels",
+    "track_speed",
 ]
 
 
@@ -57,44 +58,38 @@ def _times_between(
     return start, end
 
 
-def must_brake(
-    s: jax.Array,
-    position: jax.Array,
-    env_params: EnvParams,
-    rb: RuleBasedParams,
-    static,
-    velocity: jax.Array,
-    v: jax.Array,
-) -> jax.Array:
-    """() bool: a pedestrian (``position``, ``velocity`` (P, 2)) on the road is in the
-    corridor ahead of the ego (``s``, ``v`` ()), or walks into it within ``rb.horizon``."""
-    cls = semantic_class(position, env_params, static)
+def must_brake(g: GridInputs, env_params: EnvParams, rb: RuleBasedParams, static) -> jax.Array:
+    """() bool: a pedestrian (``g.position``, ``g.velocity`` (P, 2)) on the road is in the
+    corridor ahead of the ego (``g.s``, ``g.v`` ()), or walks into it within ``rb.horizon``."""
+    cls = semantic_class(g.position, env_params, static)
     on_road = (cls == ROAD) | (cls == CROSSING_AREA)
     half_corridor = 0.5 * env_params.ego_width + env_params.ped_radius + rb.corridor_margin
-    offset = position[:, 1] - lane_centre_y(env_params)
-    ahead = position[:, 0] - (s + 0.5 * env_params.ego_length)
+    offset = g.position[:, 1] - lane_centre_y(env_params)
+    ahead = g.position[:, 0] - (g.s + 0.5 * env_params.ego_length)
     in_front = (ahead >= -env_params.ped_radius) & (ahead <= rb.lookahead)
     now = jnp.any(on_road & (jnp.abs(offset) <= half_corridor) & in_front)
     # Per pedestrian, the times in [0, horizon] when it is in the corridor, within the
     # look-ahead, and not yet passed by the bumper moving at v.
-    lat = _times_between(offset, velocity[:, 1], -half_corridor, half_corridor)
-    near = _times_between(ahead, velocity[:, 0], -jnp.inf, rb.lookahead)
-    unpassed = _times_between(ahead, velocity[:, 0] - v, -env_params.ped_radius, jnp.inf)
+    lat = _times_between(offset, g.velocity[:, 1], -half_corridor, half_corridor)
+    near = _times_between(ahead, g.velocity[:, 0], -jnp.inf, rb.lookahead)
+    unpassed = _times_between(ahead, g.velocity[:, 0] - g.v, -env_params.ped_radius, jnp.inf)
     start = jnp.maximum(jnp.maximum(lat[0], near[0]), jnp.maximum(unpassed[0], 0.0))
     end = jnp.minimum(jnp.minimum(lat[1], near[1]), jnp.minimum(unpassed[1], rb.horizon))
     soon = jnp.any(start <= end)
     return now | ((rb.horizon > 0.0) & soon)
 
 
+def track_speed(v: jax.Array, target: jax.Array, band: jax.Array) -> jax.Array:
+    """() int32 action keeping ``v`` within ``target ± band``: accelerate, slow_down or steer."""
+    return jnp.where(
+        v < target - band, ACCELERATE, jnp.where(v > target + band, SLOW_DOWN, STEER)
+    ).astype(jnp.int32)
+
+
 def _action(g: GridInputs, env_params: EnvParams, rb: RuleBasedParams, static) -> jax.Array:
     """() int32: ``brake`` if :func:`must_brake`, else track ``v_max`` (``g``: one record)."""
-    track = jnp.where(
-        g.v < rb.v_max - rb.speed_band,
-        ACCELERATE,
-        jnp.where(g.v > rb.v_max + rb.speed_band, SLOW_DOWN, STEER),
-    )
-    brake = must_brake(g.s, g.position, env_params, rb, static, g.velocity, g.v)
-    return jnp.where(brake, BRAKE, track).astype(jnp.int32)
+    track = track_speed(g.v, rb.v_max, rb.speed_band)
+    return jnp.where(must_brake(g, env_params, rb, static), BRAKE, track).astype(jnp.int32)
 
 
 def rule_based_action(

@@ -13,12 +13,9 @@ from drqn_jax.env.state import EgoState, PedestrianState
 
 __all__ = [
     "box_disc_overlap",
-    "box_squared_distance",
     "classify_hits",
-    "collision_test",
     "ego_box",
     "reward",
-    "speed_reward",
     "squared_length",
     "time_to_collision",
 ]

@@ -18,16 +18,7 @@ NUM_CHANNELS = 4
 GRID_LOW = (0.0, -1.0, 0.0, 0.0)
 GRID_HIGH = (1.0, 1.0, float("inf"), 1.0)
 
-__all__ = [
-    "GRID_HIGH",
-    "GRID_LOW",
-    "NUM_CHANNELS",
-    "GridInputs",
-    "cell_centres",
-    "grid_cell_index",
-    "rasterize",
-    "rasterize_grid",
-]
+__all__ = ["GRID_HIGH", "GRID_LOW", "GridInputs", "rasterize", "rasterize_grid"]
 
 
 def cell_centres(

@@ -26,14 +26,7 @@ from drqn_jax.pytree import tree_where
 _FAR = 1e6  # stands in for ±infinity in segment bounds
 _EDGE = 1e-3  # m kept between a sidewalk pedestrian's end point and a cross street
 
-__all__ = [
-    "OCCLUSION_STREAM",
-    "despawn_mask",
-    "occlusion_mask",
-    "sidewalk_x",
-    "spawn_pedestrians",
-    "step_pedestrians",
-]
+__all__ = ["despawn_mask", "occlusion_mask", "spawn_pedestrians", "step_pedestrians"]
 
 
 def sidewalk_x(

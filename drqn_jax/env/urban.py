@@ -188,10 +188,10 @@ class UrbanPedestrians:
             return self._tick(key, state, action, params)
 
         def tick(carry, xs):
-            state, ended, total, terminated, truncated, info = carry
+            state, total, terminated, truncated, info = carry
             key_tick, later = xs
             ticked, r, term, trunc, now = self._tick(key_tick, state, action, params, later)
-            live = ~ended
+            live = ~(terminated | truncated)  # no tick has ended the episode yet
 
             def keep(a, b):
                 return jnp.where(live, a, b)
@@ -202,7 +202,6 @@ class UrbanPedestrians:
             merged["ttc"] = keep(jnp.minimum(info["ttc"], now["ttc"]), info["ttc"])
             carry = (
                 jax.tree.map(keep, ticked, state),
-                ended | term | trunc,
                 total + jnp.where(live, r, 0.0),
                 terminated | (live & term),
                 truncated | (live & trunc),
@@ -214,9 +213,9 @@ class UrbanPedestrians:
         info = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), info0)
         info["ttc"] = jnp.full((), jnp.inf, jnp.float32)
         false = jnp.zeros((), bool)
-        init = (state, false, jnp.zeros(r0.shape, r0.dtype), false, false, info)
+        init = (state, jnp.zeros(r0.shape, r0.dtype), false, false, info)
         xs = (jax.random.split(key, k), jnp.arange(k) > 0)
-        (state, _, reward, terminated, truncated, info), ticks = jax.lax.scan(tick, init, xs)
+        (state, reward, terminated, truncated, info), ticks = jax.lax.scan(tick, init, xs)
         return state, reward, terminated, truncated, dict(info, ticks=ticks)
 
     def step_env(

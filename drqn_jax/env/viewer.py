@@ -24,18 +24,10 @@ __all__ = [
     "BEHAVIOUR_COLOURS",
     "EGO_COLLISION_COLOUR",
     "EGO_COLOUR",
-    "FONT",
-    "GLYPHS",
     "GOAL_COLOUR",
-    "HUD_LINES",
-    "HUD_LINE_LENGTH",
-    "HUD_SCALE",
-    "HUD_TEXT_COLOUR",
     "LANE_MARK_COLOUR",
     "MAP_COLOURS",
-    "MIN_PED_RADIUS_PX",
     "OCCLUDED_ALPHA",
-    "PED_OUTLINE_COLOUR",
     "RENDER_AHEAD_M",
     "RENDER_BEHIND_M",
     "RENDER_HALF_WIDTH_M",
@@ -122,20 +114,14 @@ _GAP = -1  # an absent character: dropped from its line
 _SPACE, _DIGIT0, _DOT = (GLYPHS.index(c) for c in " 0.")
 
 
-def _codes(text: str) -> np.ndarray:
-    """(len(text),) int32 glyph indices of a static string."""
-    return np.array([GLYPHS.index(c) for c in text], np.int32)
+def _codes(text: str, width: int = 0) -> np.ndarray:
+    """(max(len(text), width),) int32 glyph indices of a static string, gap-padded."""
+    return np.array([GLYPHS.index(c) for c in text] + [_GAP] * (width - len(text)), np.int32)
 
 
 _ACTION_WIDTH = max(len(a) for a in ACTIONS)
-# Row a + 1: action a's name; row 0: "-" (no action yet, last_action = -1); gap-padded.
-_ACTION_CODES = np.array(
-    [
-        np.pad(_codes(name), (0, _ACTION_WIDTH - len(name)), constant_values=_GAP)
-        for name in ("-", *ACTIONS)
-    ],
-    np.int32,
-)
+# Row a + 1: action a's name; row 0: "-" (no action yet, last_action = -1).
+_ACTION_CODES = np.array([_codes(name, _ACTION_WIDTH) for name in ("-", *ACTIONS)])
 _STEP_DIGITS, _SPEED_DIGITS, _TTC_DIGITS = 5, 3, 3  # integer digits (larger values clip)
 _TTC_WIDTH = _TTC_DIGITS + 4  # "ddd.d s"
 #: Glyphs per HUD line: the longer line with its fields at their widest.
@@ -178,7 +164,7 @@ def _hud_layout(
 ) -> tuple[jax.Array, jax.Array]:
     """(HUD_LINES, HUD_LINE_LENGTH) int32 glyphs and colours (0: text, a + 1: action a)."""
     ttc = time_to_collision(state.ego, state.pedestrians, params, static)  # SPEC §5
-    no_ttc = np.pad(_codes("-"), (0, _TTC_WIDTH - 1), constant_values=_GAP)
+    no_ttc = _codes("-", _TTC_WIDTH)
     with_unit = jnp.concatenate([_one_decimal(ttc, _TTC_DIGITS), _codes(" s")])
     action = jnp.clip(state.last_action + 1, 0, NUM_ACTIONS)  # 0: none yet
     step = (_digits(state.time, _STEP_DIGITS), 0)

@@ -246,8 +246,7 @@ def batch_fns(env: UrbanPedestrians) -> BatchFns:
 
     def reset_masked(key_data, held, states, mask, params):
         obs = jax.vmap(env.observation, (0, None))(states, params)
-        held, obs, states = _restart_where(env, mask, key_data, held, obs, states, params)
-        return held, obs, states
+        return _restart_where(env, mask, key_data, held, obs, states, params)
 
     def step(same_step: bool) -> Any:
         def packed(*args: Any) -> tuple:
@@ -277,7 +276,8 @@ def batch_fns(env: UrbanPedestrians) -> BatchFns:
 
 
 class JaxBacked:
-    """What the single and vector envs share: the JAX env of ``env_id`` and its rendering."""
+    """What the single and vector envs share: the JAX env of ``env_id``, its compiled calls
+    (:func:`batch_fns`), the batched states (leaves (N, ...)) and their rendering."""
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}  # 1/dt
 
@@ -291,20 +291,23 @@ class JaxBacked:
         self.env_id = env_id
         self.jax_env, self.params = make_jax_env(env_id, **overrides)
         self._device_params = jax.device_put(self.params)
+        self._fns = batch_fns(self.jax_env)
+        self._states: EnvState | None = None
         self.render_mode = render_mode
         return gymnasium_observation_space(self.jax_env, self.params)
 
-    def _render(self, render: Any, state: EnvState | None) -> np.ndarray | None:
-        """``render(state, params)`` as NumPy, ``None`` (a warning) without a render mode."""
+    def _render(self) -> np.ndarray | None:
+        """(N, 240, 480, 3) uint8 frames of :func:`drqn_jax.env.viewer.render_frame`, ``None``
+        (a warning) without a render mode."""
         if self.render_mode is None:
             gymnasium.logger.warn(
                 "render() called without a render_mode; e.g. "
                 'gymnasium.make("drqn_jax/UrbanPedestrians-v0", render_mode="rgb_array")'
             )
             return None
-        if state is None:
+        if self._states is None:
             raise ResetNeeded(f"Cannot call {type(self).__name__}.render before reset")
-        return np.array(render(state, self._device_params))
+        return np.array(self._fns.render(self._states, self._device_params))
 
 
 def _first(tree: Any) -> Any:
@@ -320,10 +323,8 @@ class UrbanPedestriansGymEnv(JaxBacked, gymnasium.Env[dict[str, Any], Any]):
     ) -> None:
         self.observation_space = self._load(env_id, render_mode, overrides)
         self.action_space = spaces.Discrete(NUM_ACTIONS)
-        self._fns = batch_fns(self.jax_env)
         self._no_restart = jnp.zeros(1, bool)
         self._key_data: jax.Array | None = None  # (1, w)
-        self._states: EnvState | None = None  # leaves (1, ...)
 
     @property
     def state(self) -> EnvState | None:
@@ -359,8 +360,8 @@ class UrbanPedestriansGymEnv(JaxBacked, gymnasium.Env[dict[str, Any], Any]):
         return obs, float(s["reward"]), bool(s["terminated"]), bool(s["truncated"]), info
 
     def render(self) -> np.ndarray | None:
-        """(240, 480, 3) uint8 frame of :func:`drqn_jax.env.viewer.render_frame`."""
-        frames = self._render(self._fns.render, self._states)
+        """(240, 480, 3) uint8 frame, or ``None`` without a render mode."""
+        frames = self._render()
         return None if frames is None else frames[0]
 
 

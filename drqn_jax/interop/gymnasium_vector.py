@@ -16,7 +16,6 @@ from gymnasium.vector.utils import batch_space
 from drqn_jax.env.state import NUM_ACTIONS, EnvState, Observation
 from drqn_jax.interop.gymnasium_env import (
     JaxBacked,
-    batch_fns,
     draw_key_data,
     key_data_shape,
     numpy_observation,
@@ -60,12 +59,10 @@ class UrbanPedestriansVectorEnv(JaxBacked, VectorEnv[dict[str, Any], Any, np.nda
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.single_action_space = spaces.Discrete(NUM_ACTIONS)
         self.action_space = batch_space(self.single_action_space, num_envs)
-        self._fns = batch_fns(self.jax_env)
         self._rngs: list[np.random.Generator | None] = [None] * num_envs
         self._seeds: list[int | None] = [None] * num_envs
-        self._next_key_data: np.ndarray | None = None  # next reset keys, drawn ahead
+        self._next_key_data = np.zeros((num_envs, *key_data_shape()), np.uint32)  # next reset keys
         self._key_data: jax.Array | None = None  # (N, w) held keys
-        self._states: EnvState | None = None
         self._ended = np.zeros(num_envs, bool)  # NEXT_STEP: reset on the next step
 
     @property
@@ -85,8 +82,6 @@ class UrbanPedestriansVectorEnv(JaxBacked, VectorEnv[dict[str, Any], Any, np.nda
 
     def _take_reset_keys(self, seeds: list[int | None], which: np.ndarray) -> np.ndarray:
         """(N, w) uint32 reset keys for ``which``, as the single env would draw them."""
-        if self._next_key_data is None:
-            self._next_key_data = np.zeros((self.num_envs, *key_data_shape()), np.uint32)
         keys = np.zeros_like(self._next_key_data)
         following = self._next_key_data.copy()
         for i in np.flatnonzero(which):
@@ -182,15 +177,9 @@ class UrbanPedestriansVectorEnv(JaxBacked, VectorEnv[dict[str, Any], Any, np.nda
         if restarted.any():
             self._take_reset_keys([None] * self.num_envs, restarted)
         self._ended = done
-        return (
-            observations,
-            np.asarray(s["reward"], np.float64),
-            terminated,
-            truncated,
-            infos,
-        )
+        return observations, np.asarray(s["reward"], np.float64), terminated, truncated, infos
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         """N (240, 480, 3) uint8 frames for ``"rgb_array"``."""
-        frames = self._render(self._fns.render, self._states)
+        frames = self._render()
         return None if frames is None else tuple(frames)

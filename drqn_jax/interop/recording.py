@@ -45,16 +45,11 @@ from drqn_jax.interop.episode_record import EpisodeRecord
 from drqn_jax.programs import cached_program
 
 __all__ = [
-    "BEHAVIOUR_COLOURS",
     "GRID_CHANNELS",
-    "OCCLUDED_ALPHA",
-    "collapsed_blueprint",
     "episode_blueprint",
     "record_study_curves",
     "record_training",
-    "recording_file",
     "running_mean",
-    "send_scalars",
     "write_episodes",
 ]
 
@@ -123,22 +118,14 @@ def log_map(rec: rr.RecordingStream, env: UrbanPedestrians, params: EnvParams) -
             static=True,
         )
     x_min, x_max, _ = map_extent(env, params)
-    lane = float(params.lane_width)
-    rec.log(
-        "map/centre_line",
-        rr.LineStrips2D(
-            [to_view([[x_min, 0.0], [x_max, 0.0]])], colors=LANE_MARK_COLOUR, radii=0.1
-        ),
-        static=True,
-    )
-    goal = float(params.goal_x)
-    rec.log(
-        "map/goal",
-        rr.LineStrips2D(
-            [to_view([[goal, -lane], [goal, lane]])], colors=GOAL_COLOUR, radii=0.25, labels="goal"
-        ),
-        static=True,
-    )
+    lane, goal = float(params.lane_width), float(params.goal_x)
+    lines = {  # entity: (end points, colour, radius, label)
+        "centre_line": ([[x_min, 0.0], [x_max, 0.0]], LANE_MARK_COLOUR, 0.1, None),
+        "goal": ([[goal, -lane], [goal, lane]], GOAL_COLOUR, 0.25, "goal"),
+    }
+    for entity, (ends, colour, radius, label) in lines.items():
+        strip = rr.LineStrips2D([to_view(ends)], colors=colour, radii=radius, labels=label)
+        rec.log(f"map/{entity}", strip, static=True)
     rec.log(
         "/",
         rr.AnnotationContext(
@@ -160,13 +147,12 @@ def send_scalars(
     entity: str,
     steps: np.ndarray,
     values: np.ndarray,
+    style: Any,
     timeline: str = STEP_TIMELINE,
-    style: Any = None,
 ) -> None:
     """``values`` (E,) at the sequence ``steps`` (E,) of ``timeline``, as float64 scalars;
     ``style`` (e.g. ``rr.SeriesLines``) is logged static beside them."""
-    if style is not None:
-        rec.log(entity, style, static=True)
+    rec.log(entity, style, static=True)
     if len(steps):
         rec.send_columns(
             entity,
@@ -200,8 +186,6 @@ def _log_world(
     """Episode ``i``'s top view: ego, pedestrians, headings (``heading_s`` s of walking)."""
     root, n, states = _span(record, i)
     peds = jax.tree.map(lambda x: x[i, : n + 1], record.state.pedestrians)
-    num_peds = peds.position.shape[1]
-
     collided = np.concatenate([[False], np.cumsum(record.collision[i, :n]) > 0])
     ego_colours = np.where(collided[:, None], EGO_COLLISION_COLOUR, EGO_COLOUR).astype(np.uint8)
     rec.send_columns(
@@ -221,7 +205,7 @@ def _log_world(
     alpha = np.where(peds.visible.reshape(-1), 255, OCCLUDED_ALPHA).astype(np.uint8)
     colours = np.concatenate([palette[behaviour], alpha[:, None]], axis=1)
     positions = to_view(peds.position.reshape(-1, 2))
-    lengths = [num_peds] * (n + 1)
+    lengths = [peds.position.shape[1]] * (n + 1)  # P points per step
     rec.log(f"{root}/world/pedestrians", rr.Points2D.from_fields(show_labels=False), static=True)
     rec.send_columns(
         f"{root}/world/pedestrians",
@@ -246,12 +230,10 @@ def _log_world(
     )
 
 
-def _log_grid(
-    rec: rr.RecordingStream, record: EpisodeRecord, i: int, grid_shape: tuple[int, int, int]
-) -> None:
+def _log_grid(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
     """Episode ``i``'s observation grid, one greyscale image per channel."""
     root, n, states = _span(record, i)
-    rows, cols, _ = grid_shape
+    rows, cols = record.grid.shape[2:4]
     image_format = rr.components.ImageFormat(
         width=cols, height=rows, color_model="L", channel_datatype="F32"
     )
@@ -282,7 +264,7 @@ def _log_series(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
             style = rr.SeriesLines(names=name, colors=ACTION_COLOURS[a])
             series[f"q/{name}"] = (style, decisions, record.q_values[i, :n, a])
     for entity, (style, at, values) in series.items():
-        send_scalars(rec, f"{root}/{entity}", at, values, style=style)
+        send_scalars(rec, f"{root}/{entity}", at, values, style)
 
 
 def _log_events(rec: rr.RecordingStream, record: EpisodeRecord, i: int) -> None:
@@ -404,7 +386,7 @@ def write_episodes(
         hud = np.asarray(_hud_program(env)(record.state, params))
         for i in range(record.num_episodes):
             _log_world(rec, record, i, hud[i], float(params.ped_radius), env.static.ttc_horizon)
-            _log_grid(rec, record, i, env.static.grid_shape)
+            _log_grid(rec, record, i)
             _log_series(rec, record, i)
             _log_events(rec, record, i)
 
@@ -431,7 +413,6 @@ def record_training(path: str | Path, metrics: Mapping[str, np.ndarray]) -> None
     if missing:
         raise ValueError(f"record_training: metrics lack {', '.join(missing)}")
     m = {name: np.asarray(v) for name, v in metrics.items()}
-    episodes = m["episode"].astype(np.int64)
     curves = {
         "return": m["episode_return"],
         "length": m["length"],
@@ -449,7 +430,7 @@ def record_training(path: str | Path, metrics: Mapping[str, np.ndarray]) -> None
     with recording_file(path, blueprint) as rec:
         for name, values in curves.items():
             style = rr.SeriesLines(names=name)
-            send_scalars(rec, f"training/{name}", episodes, values, EPISODE_TIMELINE, style)
+            send_scalars(rec, f"training/{name}", m["episode"], values, style, EPISODE_TIMELINE)
 
 
 def _series_blueprint(views: Mapping[str, str], timeline: str = EPISODE_TIMELINE) -> rrb.Blueprint:
@@ -472,4 +453,4 @@ def record_study_curves(path: str | Path, curves: Mapping[str, Mapping[str, Any]
                 for part, (at, values) in series.items():
                     entity = f"curves/{metric}/{name}/{part}"
                     style = rr.SeriesLines(names=f"{name} {part}")
-                    send_scalars(rec, entity, at, values, ENV_STEPS_TIMELINE, style)
+                    send_scalars(rec, entity, at, values, style, ENV_STEPS_TIMELINE)

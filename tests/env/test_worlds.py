@@ -11,6 +11,7 @@ import pytest
 
 import drqn_jax
 from drqn_jax.agents.rule_based import RuleBasedParams, must_brake, rule_based_action
+from drqn_jax.env.grid import GridInputs
 from drqn_jax.env.params import EnvParams
 from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.registry import registered_envs
@@ -39,7 +40,8 @@ def longest_standoffs(
             standing = (peds.speed == 0.0) & ~peds.done
             # Only the standing pedestrians count: move the others out of every corridor.
             position = jnp.where(standing[:, None], peds.position, 1e6)
-            held = must_brake(state.ego.s, position, params, rb, env.static, peds.velocity, 0.0)
+            g = GridInputs.of(state.ego.replace(v=0.0), peds.replace(position=position))
+            held = must_brake(g, params, rb, env.static)
             stuck = ~done & (state.ego.v < params.stopped_speed) & held
             run = jnp.where(stuck, run + 1, 0)
             longest = jnp.maximum(longest, run)
