@@ -25,8 +25,6 @@ from drqn_jax.experiments.frontier import PLANNER_CAPS_KMH
 from drqn_jax.experiments.runner import EXIT_INTERRUPTED, EXIT_USAGE
 from drqn_jax.experiments.sweep import STRATEGIES
 
-__all__ = ["main"]
-
 Parser = argparse.ArgumentParser
 
 

@@ -33,19 +33,6 @@ from drqn_jax.learners.hyperparams import ON_POLICY
 from drqn_jax.networks import CELLS, NETWORK_KINDS, NetworkConfig
 from drqn_jax.registry import make, preset, registered_envs
 
-__all__ = [
-    "CONFIG_DIR",
-    "TRAIN_SIZES",
-    "UNHASHED",
-    "Config",
-    "ConfigError",
-    "config_hash",
-    "config_names",
-    "load_config",
-    "parse_override",
-    "toml_value",
-]
-
 #: ``configs/`` of the source tree (the project is installed editable).
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 

@@ -21,8 +21,6 @@ import warnings
 DETERMINISM_FLAG = "--xla_cpu_max_isa=AVX"
 OPT_OUT_VARIABLE = "DRQN_JAX_ALLOW_FMA"
 
-__all__ = ["DETERMINISM_FLAG", "configure_xla_flags", "cpu_thread_pool_size", "fma_disabled"]
-
 
 def _backend_started() -> bool:
     try:

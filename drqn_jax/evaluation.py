@@ -22,23 +22,6 @@ from drqn_jax.env.urban import UrbanPedestrians
 from drqn_jax.programs import jit_in_store
 from drqn_jax.pytree import pytree_dataclass
 
-__all__ = [
-    "MIN_BATCH",
-    "Decision",
-    "EpisodeMetrics",
-    "episode_keys",
-    "evaluate",
-    "map_episodes",
-    "metrics_table",
-    "padded_keys",
-    "play_episode",
-    "rollouts",
-    "run_episodes",
-    "summarize",
-    "summarize_outcomes",
-    "wilson_interval",
-]
-
 Z_95 = 1.959963984540054  # two-sided 95 % normal quantile
 
 #: Episodes per host call when :func:`evaluate` reports progress.

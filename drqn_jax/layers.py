@@ -15,23 +15,6 @@ import numpy as np
 Params = dict[str, Any]
 LSTMState = tuple[jax.Array, jax.Array]  # (h, c)
 
-__all__ = [
-    "affine",
-    "dense_init",
-    "dense_relu",
-    "gathered_patches",
-    "glorot",
-    "gru_cell",
-    "gru_init",
-    "kernel_matrix",
-    "lstm_cell",
-    "lstm_init",
-    "patches",
-    "recurrent_layer",
-    "stack_sequence",
-    "stacked",
-]
-
 
 def _rows_product(x: jax.Array, g: jax.Array) -> jax.Array:
     """``xᵀ g`` summed over every leading axis: (..., m), (..., n) -> (m, n). ``xᵀ`` is

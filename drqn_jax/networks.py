@@ -50,8 +50,6 @@ CELLS = ("lstm", "gru")
 #: What reads the observation: Table I's conv stack (grids) or an MLP (flat vectors).
 TORSOS = ("conv", "mlp")
 
-__all__ = ["CELLS", "NETWORK_KINDS", "Network", "NetworkConfig", "conv_torso", "make_network"]
-
 
 @dataclasses.dataclass(frozen=True)
 class NetworkConfig:

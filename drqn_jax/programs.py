@@ -17,17 +17,6 @@ from typing import Any, TypeVar
 
 import jax
 
-__all__ = [
-    "MAX_PROGRAMS",
-    "cached",
-    "cached_program",
-    "clear_programs",
-    "jit_in_store",
-    "map_budget",
-    "memory_maps",
-    "program_counts",
-]
-
 #: Entries kept before the least recently used is dropped.
 MAX_PROGRAMS = 64
 

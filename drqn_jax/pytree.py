@@ -18,17 +18,6 @@ import numpy as np
 
 T = TypeVar("T")
 
-__all__ = [
-    "check_counts",
-    "check_order",
-    "check_sums_to_one",
-    "is_concrete",
-    "param",
-    "pytree_dataclass",
-    "tree_where",
-    "validate",
-]
-
 
 def pytree_dataclass(cls: type[T] | None = None, *, meta_fields: Sequence[str] = ()) -> Any:
     """``cls`` as a frozen dataclass registered as a pytree; ``meta_fields`` are static

@@ -31,8 +31,6 @@ _PRESETS: dict[str, dict[str, Any]] = {
     },
 }
 
-__all__ = ["make", "preset", "registered_envs"]
-
 
 def registered_envs() -> tuple[str, ...]:
     """The ids ``make`` accepts."""

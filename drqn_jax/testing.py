@@ -21,8 +21,6 @@ import numpy as np
 
 from drqn_jax.programs import jit_in_store
 
-__all__ = ["ContractReport", "EnvContractError", "check_env_contract", "same_key"]
-
 
 class EnvContractError(AssertionError):
     """An environment broke the contract :func:`check_env_contract` checks."""

@@ -23,8 +23,6 @@ ActFn = Callable[
     [Any, jax.Array, Observation, Carry, EnvState, Any, EnvParams], tuple[jax.Array, Carry]
 ]
 
-__all__ = ["ActFn", "Agent", "InitFn", "constant_agent", "drqn_agent", "no_carry", "random_agent"]
-
 
 def no_carry(params: Any, key: jax.Array) -> tuple[()]:
     """``init_fn`` of a memoryless policy."""

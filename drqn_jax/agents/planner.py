@@ -17,8 +17,6 @@ from drqn_jax.env.params import KMH, EnvParams
 from drqn_jax.env.state import ACCELERATE, BRAKE, SLOW_DOWN, STEER, EnvState
 from drqn_jax.pytree import param, pytree_dataclass, validate
 
-__all__ = ["CANDIDATES", "PlannerParams", "avoids_collision", "planner_action", "planner_agent"]
-
 #: The candidate actions, the fastest first.
 CANDIDATES = (ACCELERATE, STEER, SLOW_DOWN)
 

@@ -18,15 +18,6 @@ from drqn_jax.env.road_map import CROSSING_AREA, ROAD, lane_centre_y, semantic_c
 from drqn_jax.env.state import ACCELERATE, BRAKE, SLOW_DOWN, STEER, EnvState
 from drqn_jax.pytree import param, pytree_dataclass, validate
 
-__all__ = [
-    "RuleBasedParams",
-    "must_brake",
-    "rule_based_action",
-    "rule_based_agent",
-    "rule_based_labels",
-    "track_speed",
-]
-
 
 @pytree_dataclass
 class RuleBasedParams:

@@ -6,8 +6,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["TRAINED_DIR", "shipped_agent_dir", "shipped_agents"]
-
 #: Where the shipped agents live (package data).
 TRAINED_DIR = Path(__file__).resolve().parent / "trained"
 

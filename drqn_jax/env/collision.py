@@ -11,15 +11,6 @@ from drqn_jax.env.params import COLLISION_AUTHORS, EnvParams, StaticEnvParams
 from drqn_jax.env.road_map import lane_centre_y
 from drqn_jax.env.state import EgoState, PedestrianState
 
-__all__ = [
-    "box_disc_overlap",
-    "classify_hits",
-    "ego_box",
-    "reward",
-    "squared_length",
-    "time_to_collision",
-]
-
 
 def ego_box(
     s: jax.Array, params: EnvParams, inflate: float | jax.Array = 0.0

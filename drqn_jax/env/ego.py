@@ -13,8 +13,6 @@ from drqn_jax.env.state import ACCELERATE, BRAKE, SLOW_DOWN, EgoState
 
 MS_TO_KMH = 3.6
 
-__all__ = ["desired_speed", "ego_step", "initial_ego", "pid_step", "plant_step", "throttle_brake"]
-
 
 def initial_ego(params: EnvParams, static: StaticEnvParams) -> EgoState:
     """The ego at rest at ``ego_start_s`` with setpoint 0 and an empty PID history."""

@@ -18,8 +18,6 @@ NUM_CHANNELS = 4
 GRID_LOW = (0.0, -1.0, 0.0, 0.0)
 GRID_HIGH = (1.0, 1.0, float("inf"), 1.0)
 
-__all__ = ["GRID_HIGH", "GRID_LOW", "GridInputs", "rasterize", "rasterize_grid"]
-
 
 def cell_centres(
     ego: EgoState | GridInputs, params: EnvParams, static: StaticEnvParams

@@ -38,8 +38,6 @@ PED_IGNORE, PED_YIELD = 0, 1
 COLLISION_CONTACT, COLLISION_AUTHORS = 0, 1
 CHANGE_PER_DECISION, CHANGE_PER_TICK = 0, 1
 
-__all__ = ["KMH", "EnvParams", "StaticEnvParams"]
-
 
 @dataclasses.dataclass(frozen=True)
 class StaticEnvParams:

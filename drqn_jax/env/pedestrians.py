@@ -26,8 +26,6 @@ from drqn_jax.pytree import tree_where
 _FAR = 1e6  # stands in for ±infinity in segment bounds
 _EDGE = 1e-3  # m kept between a sidewalk pedestrian's end point and a cross street
 
-__all__ = ["despawn_mask", "occlusion_mask", "spawn_pedestrians", "step_pedestrians"]
-
 
 def sidewalk_x(
     u: jax.Array, x_lo: jax.Array, x_hi: jax.Array, params: EnvParams, static: StaticEnvParams

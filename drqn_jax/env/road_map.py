@@ -14,8 +14,6 @@ from drqn_jax.env.params import EnvParams, StaticEnvParams
 
 OFF_ROAD, WALKWAY, CROSSING_AREA, ROAD = 0, 1, 2, 3
 
-__all__ = ["intersection_centres", "lane_centre_y", "semantic_class"]
-
 
 def intersection_centres(params: EnvParams, static: StaticEnvParams) -> jax.Array:
     """(I,) float32 x of each cross street's centre line (SPEC §1: 50, 100, 150 m)."""

@@ -9,8 +9,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Box", "Dict", "Discrete"]
-
 
 @dataclasses.dataclass(frozen=True)
 class Discrete:

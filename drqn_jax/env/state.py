@@ -21,8 +21,6 @@ ACTIONS = ("accelerate", "slow_down", "brake", "steer")
 NUM_ACTIONS = 4
 NO_ACTION = -1  # ``last_action`` at episode start (its one-hot is all zeros)
 
-__all__ = ["ACTIONS", "BEHAVIOURS", "EgoState", "EnvState", "Observation", "PedestrianState"]
-
 
 @pytree_dataclass
 class EgoState:

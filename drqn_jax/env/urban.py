@@ -30,8 +30,6 @@ from drqn_jax.env.pedestrians import (
 )
 from drqn_jax.env.state import NO_ACTION, NUM_ACTIONS, EnvState, Observation
 
-__all__ = ["UrbanPedestrians"]
-
 
 def _opaque(params: EnvParams) -> EnvParams:
     """Hide ``params`` from constant folding: closed over, XLA would rewrite ``x / v_ref``

@@ -19,24 +19,6 @@ from drqn_jax.env.road_map import (
 )
 from drqn_jax.env.state import ACTIONS, CROSSING, JAYWALKING, NUM_ACTIONS, SIDEWALK, EnvState
 
-__all__ = [
-    "ACTION_COLOURS",
-    "BEHAVIOUR_COLOURS",
-    "EGO_COLLISION_COLOUR",
-    "EGO_COLOUR",
-    "GOAL_COLOUR",
-    "LANE_MARK_COLOUR",
-    "MAP_COLOURS",
-    "OCCLUDED_ALPHA",
-    "RENDER_AHEAD_M",
-    "RENDER_BEHIND_M",
-    "RENDER_HALF_WIDTH_M",
-    "RENDER_PIXELS_PER_M",
-    "hud_glyphs",
-    "hud_text",
-    "render_frame",
-]
-
 RGB = tuple[int, int, int]
 
 #: RGB by semantic class (SPEC §1).

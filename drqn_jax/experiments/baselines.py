@@ -18,14 +18,6 @@ from drqn_jax.experiments.checkpoint import CheckpointError, atomic_write_text
 from drqn_jax.experiments.frontier import world_frontier
 from drqn_jax.learners.hyperparams import agent_name
 
-__all__ = [
-    "config_frontier",
-    "cross_results",
-    "frontier_key",
-    "frontier_results",
-    "rule_based_results",
-]
-
 
 def _digest(config: Config, **sections: Any) -> str:
     """A short digest of ``sections`` and ``config``'s evaluation episodes (count, seed)."""

@@ -27,21 +27,6 @@ import numpy as np
 import drqn_jax
 from drqn_jax.experiments.machine import git_commit
 
-__all__ = [
-    "AGENT",
-    "CHECKPOINT",
-    "CHECKPOINT_JSON",
-    "CHECKPOINT_NPZ",
-    "FORMAT",
-    "CheckpointError",
-    "atomic_write_bytes",
-    "atomic_write_text",
-    "load_checkpoint",
-    "read_manifest",
-    "save_checkpoint",
-    "writer",
-]
-
 CHECKPOINT = "checkpoint"  # the default file stem: checkpoint.npz and checkpoint.json
 CHECKPOINT_NPZ = f"{CHECKPOINT}.npz"
 CHECKPOINT_JSON = f"{CHECKPOINT}.json"

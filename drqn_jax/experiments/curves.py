@@ -27,16 +27,6 @@ from drqn_jax.interop.recording import running_mean
 from drqn_jax.learners import make_train
 from drqn_jax.learners.hyperparams import NOT_LEARNED, agent_name
 
-__all__ = [
-    "CURVES",
-    "GREEDY_KEYS",
-    "Curve",
-    "greedy_curve",
-    "load_curves",
-    "plot_curves",
-    "plot_safety_speed",
-]
-
 #: The curves of the paper's "Training performance" figure: metrics.csv column, label.
 CURVES = (
     ("episode_return", "average reward (return per episode)"),

@@ -32,26 +32,6 @@ from drqn_jax.evaluation import (
 )
 from drqn_jax.programs import jit_in_store
 
-__all__ = [
-    "PLANNER_CAPS_KMH",
-    "RULE_BASED_SETTINGS",
-    "T_975",
-    "WIDE_GRID",
-    "above_speed_limit",
-    "frontier_margin",
-    "frontier_rate",
-    "frontier_vertices",
-    "grid_settings",
-    "interquartile_mean",
-    "pareto_points",
-    "random_settings",
-    "reviewer_check",
-    "seed_margins",
-    "t_interval",
-    "with_margin",
-    "world_frontier",
-]
-
 # two-sided 95 % Student-t quantiles for 1..30 degrees of freedom, then the normal's
 T_975 = (
     12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228,

@@ -15,8 +15,6 @@ from typing import Any, TypeVar
 import jax
 import jax.numpy as jnp
 
-__all__ = ["StopRequest", "finite_training", "progress_bar", "run_chunks"]
-
 S = TypeVar("S")
 
 

@@ -15,8 +15,6 @@ import jaxlib
 import drqn_jax
 from drqn_jax.determinism import cpu_thread_pool_size, fma_disabled
 
-__all__ = ["machine_info", "machine_lines"]
-
 
 def _first_processor() -> dict[str, str]:
     """The first processor's /proc/cpuinfo fields (lower-case keys); empty if absent."""

@@ -21,28 +21,6 @@ import numpy as np
 from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.machine import NOT_RECORDED
 
-__all__ = [
-    "BRIEF",
-    "CLAIM",
-    "COLUMNS",
-    "GOAL",
-    "PAPER_DRQN_SPEED_KMH",
-    "PAPER_EPISODES",
-    "PAPER_TABLE_III",
-    "PAPER_WORLD",
-    "check_section",
-    "column_legend",
-    "load_results",
-    "margin_cell",
-    "note_progress",
-    "points_interval",
-    "render_section",
-    "strict_json",
-    "study_table",
-    "update_document",
-    "write_results",
-]
-
 #: A section's name: letters, digits, '_', '.' and '-'.
 SECTION_NAME = re.compile(r"[\w.-]+")
 #: The forms of a generated block (module docstring); "" is the default.

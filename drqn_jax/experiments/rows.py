@@ -18,8 +18,6 @@ from drqn_jax.experiments.machine import NOT_RECORDED
 from drqn_jax.experiments.report import PAPER_EPISODES, PAPER_TABLE_III, PAPER_WORLD
 from drqn_jax.learners.hyperparams import NOT_LEARNED, REWARD_ALONE, has_teacher, teachers_of
 
-__all__ = ["baseline_row", "frontier_rows", "paper_rows", "study_row"]
-
 
 def _mean(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
     values = [r[metric] for r in runs if r.get(metric) is not None]

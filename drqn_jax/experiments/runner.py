@@ -58,25 +58,6 @@ METRIC_COLUMNS = (
     "mean_loss",
 )
 
-__all__ = [
-    "RunResult",
-    "builtin_agent",
-    "compiled_run",
-    "evaluate_agents",
-    "export_agent",
-    "final_train_return",
-    "init_program",
-    "json_ready",
-    "load_run",
-    "load_trained_network",
-    "metrics_csv",
-    "recorded_metrics",
-    "save_agent",
-    "train_run",
-    "validated",
-    "write_evaluation",
-]
-
 #: Exit statuses of the command line.
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 

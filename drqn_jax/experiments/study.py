@@ -49,8 +49,6 @@ from drqn_jax.interop.recording import record_study_curves
 from drqn_jax.learners.hyperparams import agent_name
 from drqn_jax.registry import registered_envs
 
-__all__ = ["Arm", "StudyOutcome", "plan_study", "run_study"]
-
 
 @dataclasses.dataclass(frozen=True)
 class Arm:

@@ -38,18 +38,6 @@ from drqn_jax.config import (
 from drqn_jax.experiments.frontier import interquartile_mean, t_interval
 from drqn_jax.learners.hyperparams import teachers_of
 
-__all__ = [
-    "STRATEGIES",
-    "Sweep",
-    "SweepPoint",
-    "budget_warnings",
-    "build_sweep",
-    "load_sweep",
-    "summarize_sweep",
-    "sweep_csv",
-    "sweep_table",
-]
-
 MODES = ("product", "zip")
 #: How a device trains its runs: ``vmap`` (batched, for accelerators), ``map`` (``lax.map``,
 #: one after another, for CPUs), ``auto``: ``map`` on CPU, ``vmap`` elsewhere.

@@ -29,17 +29,6 @@ from drqn_jax.experiments.sweep import Sweep
 from drqn_jax.experiments.sweep_plan import Call, Distributed
 from drqn_jax.learners import TrainState
 
-__all__ = [
-    "agent_dir",
-    "finished_results",
-    "metrics_path",
-    "open_plan",
-    "run_record",
-    "run_timings",
-    "write_agents",
-    "write_call",
-]
-
 
 def _check_plan(path: Path, record: dict[str, Any]) -> None:
     """Check ``path`` holds this sweep or its first points (same training hashes)."""

@@ -24,19 +24,6 @@ from drqn_jax.config import Config, ConfigError
 from drqn_jax.experiments.sweep import Sweep, SweepPoint
 from drqn_jax.learners.hyperparams import ON_POLICY
 
-__all__ = [
-    "Call",
-    "Distributed",
-    "MemoryPlanError",
-    "RunMemory",
-    "call_size",
-    "describe_plan",
-    "init_distributed",
-    "plan_calls",
-    "resolve_strategy",
-    "run_memory",
-]
-
 
 @dataclasses.dataclass(frozen=True)
 class Distributed:

@@ -38,8 +38,6 @@ from drqn_jax.learners.common import selection, unvalidated
 from drqn_jax.learners.hyperparams import agent_name, teacher_label
 from drqn_jax.programs import cached
 
-__all__ = ["SweepOutcome", "call_inputs", "call_programs", "run_sweep", "train_call"]
-
 _GATHER_TIMEOUT_MS = 2**31 - 1  # process 0 waits for the others as long as they train
 
 

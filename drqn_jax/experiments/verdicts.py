@@ -28,18 +28,6 @@ from drqn_jax.experiments.report import (
     points_interval,
 )
 
-__all__ = [
-    "GOAL_CEILING_POINTS",
-    "RECURRENT_Q_NETWORKS",
-    "Paired",
-    "claim_verdict",
-    "compare_paired",
-    "frontier_comparison",
-    "goal_verdict",
-    "paired_margin",
-    "study_comparisons",
-]
-
 #: The agents that are recurrent Q-networks (a DRQN in the paper's sense).
 RECURRENT_Q_NETWORKS = ("drqn", "pqn")
 #: Goal: points the DRQN's collision-free rate may lie under the planner's ceiling.

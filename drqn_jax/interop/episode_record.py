@@ -18,8 +18,6 @@ from drqn_jax.networks import Network
 from drqn_jax.programs import cached_program, jit_in_store
 from drqn_jax.pytree import pytree_dataclass
 
-__all__ = ["EpisodeRecord", "collect_episodes"]
-
 
 @pytree_dataclass
 class EpisodeRecord:

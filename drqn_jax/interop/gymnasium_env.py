@@ -19,27 +19,9 @@ from drqn_jax.env import viewer
 from drqn_jax.env.params import SPEED_RELATIVE, EnvParams
 from drqn_jax.env.state import NO_ACTION, NUM_ACTIONS, EnvState, Observation
 from drqn_jax.env.urban import UrbanPedestrians
-from drqn_jax.env.viewer import (
-    RENDER_AHEAD_M,
-    RENDER_BEHIND_M,
-    RENDER_HALF_WIDTH_M,
-    RENDER_PIXELS_PER_M,
-)
 from drqn_jax.programs import cached_program
 from drqn_jax.registry import make as make_jax_env
 from drqn_jax.registry import registered_envs
-
-__all__ = [
-    "NO_ACTION_YET",
-    "RENDER_AHEAD_M",
-    "RENDER_BEHIND_M",
-    "RENDER_HALF_WIDTH_M",
-    "RENDER_PIXELS_PER_M",
-    "UrbanPedestriansGymEnv",
-    "gymnasium_ids",
-    "gymnasium_last_action",
-    "register_gymnasium_envs",
-]
 
 NAMESPACE = "drqn_jax"
 NO_ACTION_YET = NUM_ACTIONS  # Gymnasium's ``last_action`` at episode start

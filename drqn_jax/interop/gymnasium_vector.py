@@ -23,8 +23,6 @@ from drqn_jax.interop.gymnasium_env import (
     valid_action,
 )
 
-__all__ = ["UrbanPedestriansVectorEnv"]
-
 
 def _batched_info(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
     """Gymnasium's vector info layout: ``key`` (N,), zero where ``mask`` is not, and ``_key``."""

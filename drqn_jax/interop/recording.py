@@ -44,15 +44,6 @@ from drqn_jax.env.viewer import (
 from drqn_jax.interop.episode_record import EpisodeRecord
 from drqn_jax.programs import cached_program
 
-__all__ = [
-    "GRID_CHANNELS",
-    "episode_blueprint",
-    "record_study_curves",
-    "record_training",
-    "running_mean",
-    "write_episodes",
-]
-
 STEP_TIMELINE = "step"
 GRID_CHANNELS = ("occupancy", "heading", "speed", "semantics")  # SPEC §4 channel order
 _VIEW_FLIP = np.array([1.0, -1.0], np.float32)

@@ -24,28 +24,6 @@ from drqn_jax.learners.task import Step, Task
 from drqn_jax.networks import Network
 from drqn_jax.pytree import pytree_dataclass, tree_where
 
-__all__ = [
-    "VALIDATION_STREAM",
-    "LearnerState",
-    "Trainer",
-    "candidate_metrics",
-    "chosen_candidate",
-    "epsilon_of",
-    "init_fields",
-    "make_on_policy",
-    "make_trainer",
-    "minibatch_epochs",
-    "per_decision",
-    "record_episodes",
-    "restarted",
-    "rollout",
-    "run_agent",
-    "selection",
-    "snapshot_thresholds",
-    "take_snapshot",
-    "unvalidated",
-]
-
 
 class Trainer(NamedTuple):
     """The pure functions of one training configuration, all the host loop, sweeps,

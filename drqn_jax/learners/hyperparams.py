@@ -18,24 +18,6 @@ from drqn_jax.learners.optim import OPTIMIZERS
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.pytree import check_counts, check_sums_to_one, param, pytree_dataclass, validate
 
-__all__ = [
-    "CLIP_MODES",
-    "IMITATION_STATES",
-    "LEARNED_AGENTS",
-    "NOT_LEARNED",
-    "REWARD_ALONE",
-    "SELECT_BY",
-    "WINDOW_STARTS",
-    "Hyperparams",
-    "TrainConfig",
-    "agent_name",
-    "annealed",
-    "has_teacher",
-    "step_share",
-    "teacher_label",
-    "teachers_of",
-]
-
 #: The replay DQN's TD loss (``Hyperparams.clip``): Huber, or the squared error
 #: with its gradient clipped.
 CLIP_MODES = ("huber", "grad")

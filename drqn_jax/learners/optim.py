@@ -11,17 +11,6 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-__all__ = [
-    "OPTIMIZERS",
-    "GradientTransformation",
-    "adam",
-    "apply_updates",
-    "clip",
-    "clip_by_global_norm",
-    "optimizer_of",
-    "radam",
-]
-
 Params = Any
 
 #: The optimisers a learner may take (``TrainConfig.optimizer``).

@@ -28,8 +28,6 @@ from drqn_jax.learners.task import Task, make_task
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
 
-__all__ = ["Transition", "actor_critic", "gae", "make_ppo", "ppo_loss"]
-
 
 class Transition(NamedTuple):
     """One rollout step of N envs (leaves (N, …)); ``reset``: the carry was zeroed

@@ -30,8 +30,6 @@ from drqn_jax.learners.task import Task, make_task
 from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
 
-__all__ = ["QTransition", "make_pqn", "pqn_loss", "q_lambda_targets"]
-
 
 class QTransition(NamedTuple):
     """One rollout step of N envs (leaves (N, …)); ``q`` (N, A): the Q-values acted

@@ -25,8 +25,6 @@ from drqn_jax.evaluation import run_episodes
 from drqn_jax.networks import NetworkConfig
 from drqn_jax.registry import make
 
-__all__ = ["Step", "Task", "Teacher", "greedy_returns", "make_task", "observations"]
-
 #: Env ids with this prefix name a gymnax environment (``gymnax.make``).
 GYMNAX_PREFIX = "gymnax:"
 #: The rule-based agent that guides exploration (SPEC §6, its default thresholds).

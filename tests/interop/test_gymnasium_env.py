@@ -242,8 +242,8 @@ def test_render_rgb_array_follows_the_ego():
     assert second.shape == first.shape and second.dtype == np.uint8
     assert not np.array_equal(first, second)
     # The ego stays at the same pixels: column behind * ppm, the right lane's rows.
-    ego_row = round((ge.RENDER_HALF_WIDTH_M + 1.75) * ge.RENDER_PIXELS_PER_M)
-    ego_col = round(ge.RENDER_BEHIND_M * ge.RENDER_PIXELS_PER_M)
+    ego_row = round((viewer.RENDER_HALF_WIDTH_M + 1.75) * viewer.RENDER_PIXELS_PER_M)
+    ego_col = round(viewer.RENDER_BEHIND_M * viewer.RENDER_PIXELS_PER_M)
     for frame in (first, second):
         assert tuple(frame[ego_row, ego_col]) in (viewer.EGO_COLOUR, viewer.EGO_COLLISION_COLOUR)
         colours = {tuple(c) for c in frame.reshape(-1, 3)}

@@ -24,16 +24,6 @@ CLIP_HUBER, CLIP_GRAD = CLIP_MODES.index("huber"), CLIP_MODES.index("grad")
 #: ε of the value rescaling h (R2D2's 10⁻³).
 RESCALE_EPS = 1e-3
 
-__all__ = [
-    "double_dqn_targets",
-    "huber",
-    "large_margin",
-    "n_step_targets",
-    "rescale",
-    "sequence_loss",
-    "unrescale",
-]
-
 
 def huber(x: jax.Array, delta: float = 1.0) -> jax.Array:
     """Huber loss: ½x² for |x| ≤ δ, δ(|x| − ½δ) beyond (gradient clipped to ±δ)."""

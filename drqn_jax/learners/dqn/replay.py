@@ -19,16 +19,6 @@ from drqn_jax.env.state import NO_ACTION
 from drqn_jax.learners.hyperparams import WINDOW_STARTS
 from drqn_jax.pytree import pytree_dataclass
 
-__all__ = [
-    "EpisodeReplay",
-    "Windows",
-    "add_transition",
-    "begin_episodes",
-    "end_episodes",
-    "init_replay",
-    "sample_windows",
-]
-
 #: ``Hyperparams.window_start`` of a window inside the episode, and anywhere in it.
 WINDOW_INSIDE, WINDOW_ANYWHERE = WINDOW_STARTS.index("inside"), WINDOW_STARTS.index("anywhere")
 

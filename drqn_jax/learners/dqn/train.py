@@ -53,8 +53,6 @@ from drqn_jax.networks import Network, make_network
 from drqn_jax.programs import cached_program
 from drqn_jax.pytree import pytree_dataclass, tree_where
 
-__all__ = ["Learner", "TrainState", "gradient_update", "learn", "make_dqn"]
-
 #: ``fold_in`` index of the guided-action draw: its own stream, so that
 #: ``explore_guide = 0`` leaves every other draw as it was.
 GUIDE_STREAM = 1
