@@ -43,16 +43,26 @@ def test_gpu_script_dry_run_writes_the_throughput_and_the_curve(tmp_path):
     assert "learning curve:" in done.stdout
 
 
-def test_the_table_script_describes_the_whole_table_without_training(tmp_path):
+def test_the_table_script_describes_the_whole_table_without_training(tmp_path, monkeypatch):
     """``benchmarks/table3.sh`` with ``TABLE3_DRY_RUN=1``: the command that trains Table III
     at scale validates every arm's config at its real size and describes its 5 seeds,
-    on this device's budget (6M env steps per seed on a CPU), and trains nothing."""
+    on this device's budget (20M ticks per seed at k = 5 on a CPU), and trains nothing;
+    ``TABLE3_GROUP=occluded`` does the same for the occluded world's three arms."""
     out = tmp_path / "table3"
     done = _dry_run("table3.sh", out, "TABLE3_DRY_RUN", 300)
     assert done.returncode == 0, done.stderr[-3000:]
-    assert f"Table III at scale on cpu: 6000000 env steps per seed, into {out}" in done.stdout
+    expected = (
+        "Table III at scale on cpu (table3-cpu-k5): 20000000 ticks per seed, a decision every 5"
+    )
+    assert f"{expected}, into {out}" in done.stdout
     for arm in ("pqn", "pqn-dqn", "pqn-stack", "ppo"):
         assert f"{arm}: sweep over 5 runs from '{arm}': run.seed (5)" in done.stderr
+    assert not out.exists()
+    monkeypatch.setenv("TABLE3_GROUP", "occluded")
+    done = _dry_run("table3.sh", out, "TABLE3_DRY_RUN", 300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "(table3-cpu-k5-occluded)" in done.stdout
+    assert "ppo:" not in done.stderr and "pqn-stack: sweep over 5 runs" in done.stderr
     assert not out.exists()
 
 
