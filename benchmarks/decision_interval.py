@@ -92,8 +92,8 @@ def arm_row(
         {**last, "train_wall_s": last["train_s"], "teacher": teacher, "values": {"run.seed": s}}
         for s, last in sorted(seeds.items())
     ]
-    row = study_row(label, agent_name(config.train_config()), runs, world=config["env"]["id"])
-    row.update(decision_steps=k, ticks_per_seed=k * runs[0]["env_steps"])
+    agent = agent_name(config.train_config())
+    row = study_row(label, agent, runs, world=config["env"]["id"], decision_steps=k)
     return with_margin(row, frontier, config.speed_limit_kmh())
 
 

@@ -260,7 +260,9 @@ COLUMNS: dict[str, tuple[bool, Cell]] = {
     "distance, collision-free (m)": (True, _metric("avg_distance_collision_free_m", ".1f")),
     "goal %": (True, _metric("goal_rate", ".1f", 100.0)),
     "collisions / km": (True, _metric("collisions_per_km", ".2f")),
-    "env steps / seed": (True, _metric("env_steps_per_seed", ".2f", 1e-6, "M")),
+    "ticks / decision": (True, _metric("decision_steps", ".0f")),
+    "decisions / seed": (True, _metric("env_steps_per_seed", ".2f", 1e-6, "M")),
+    "ticks / seed": (True, _metric("ticks_per_seed", ".2f", 1e-6, "M")),
     "train wall / seed (min)": (True, _wall),
     "device": (False, _device),
 }
@@ -293,7 +295,11 @@ distance (m): the mean distance driven
 distance, collision-free (m): the mean distance of the collision-free episodes, pooled over seeds
 goal %: episodes that reach the goal
 collisions / km: all collisions over all distance driven, pooled over seeds
-env steps / seed: the mean of the env steps each seed trained on, in millions; – where not counted
+ticks / decision: how many 0.1 s ticks each action holds (env.decision_steps; the rule-based
+  agent and the planner decide every tick)
+decisions / seed: the mean of the decisions (env steps) each seed trained on, in millions; – where
+  not counted
+ticks / seed: decisions × ticks / decision, in millions: the simulated driving each seed trained on
 train wall / seed (min): the mean training wall time of a seed, compile and checkpoints included
   (seeds trained together share their call's); k of n: over the seeds that counted it
 device: how many seeds trained on each device, numbered as the line under the tables names them;
@@ -305,10 +311,10 @@ _KEYS = _HEADERS[:4]
 TABLES = (
     ("Safety and speed", _KEYS, _HEADERS[4:8]),
     ("Driving", _KEYS[:2], _HEADERS[8:13]),
-    ("Training", _KEYS, _HEADERS[13:]),
+    ("Training", (*_KEYS[:2], _KEYS[3]), _HEADERS[13:]),
 )
 #: The headline table's columns (a brief block's, :func:`render_section`).
-BRIEF = (*_KEYS, "env steps / seed", *_HEADERS[4:6], "avg speed (km/h)")
+BRIEF = (*_KEYS, "ticks / seed", *_HEADERS[4:6], "avg speed (km/h)")
 
 
 def _markdown_table(

@@ -36,9 +36,15 @@ def _devices(runs: Sequence[Mapping[str, Any]]) -> dict[str, int]:
 
 
 def study_row(
-    label: str, agent: str, runs: Sequence[Mapping[str, Any]], *, world: str
+    label: str,
+    agent: str,
+    runs: Sequence[Mapping[str, Any]],
+    *,
+    world: str,
+    decision_steps: int | None = None,
 ) -> dict[str, Any]:
-    """One table row from the JSON evaluations of an agent's runs (one per seed) in ``world``.
+    """One table row from the JSON evaluations of an agent's runs (one per seed) in ``world``;
+    a trained agent's ``decision_steps`` (ticks per decision) gives its ticks per seed.
 
     Collision-free interval: 95 % Student t across seeds, cut to [0, 1] (one run: Wilson);
     collisions per km pooled; ``per_seed``: seed, rate, speed for the frontier margin.
@@ -57,7 +63,7 @@ def study_row(
     free = [round(n * r) for n, r in zip(episodes, rates, strict=True)]
     free_distance = [r.get("avg_distance_collision_free_m") for r in runs]
     pooled_free = [(k, d) for k, d in zip(free, free_distance, strict=True) if k and d is not None]
-    return {
+    row = {
         "label": label,
         "agent": agent,
         "world": world,
@@ -94,6 +100,12 @@ def study_row(
             for r in runs
         ],
     }
+    if decision_steps is not None:
+        row.update(
+            decision_steps=decision_steps,
+            ticks_per_seed=decision_steps * row["env_steps_per_seed"],
+        )
+    return row
 
 
 def baseline_row(label: str, result: Mapping[str, Any], *, world: str) -> dict[str, Any]:

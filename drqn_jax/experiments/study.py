@@ -255,7 +255,13 @@ def _study_rows(
         }
         for name, config, results in evaluated:  # a cross row evaluates the arm's agents
             trained_runs = [{**r, **training[r["index"]]} for r in results]
-            row = study_row(f"drqn_jax: {name}", agent, trained_runs, world=config["env"]["id"])
+            row = study_row(
+                f"drqn_jax: {name}",
+                agent,
+                trained_runs,
+                world=config["env"]["id"],
+                decision_steps=config["env"]["decision_steps"],
+            )
             trained.append((judged(row, config), config))
     # configs that differ only in what the rule-based agent ignores (the reward) share its row
     shown = {json.dumps(strict_json(r), sort_keys=True): r for r in baselines}

@@ -49,10 +49,11 @@ def test_a_row_pools_seeds():
     runs = [_run(0.9, distance=100.0, free_distance=110.0), _run(0.8, distance=110.0)]
     runs.append(_run(0.7, distance=120.0, free_distance=130.0))
     runs = [{**run, "env_steps": steps} for run, steps in zip(runs, (1e6, 2e6, 4.5e6), strict=True)]
-    row = study_row("drqn_jax: x", "drqn", runs, world="W")
+    row = study_row("drqn_jax: x", "drqn", runs, world="W", decision_steps=2)
     assert row["seeds"] == 3 and row["episodes"] == 100
     assert row["env_steps_per_seed"] == pytest.approx(2.5e6)
-    assert "| drqn_jax: x | drqn | imitation | 3 × 100 | 2.50M |" in study_table([row])
+    assert row["decision_steps"] == 2 and row["ticks_per_seed"] == pytest.approx(5e6)
+    assert "| drqn_jax: x | drqn | 3 × 100 | 2 | 2.50M | 5.00M |" in study_table([row])
     assert row["collision_free_rate"] == pytest.approx(0.8)
     low, high = t_interval(np.array([0.9, 0.8, 0.7]))
     assert high > 1.0  # three seeds: a wide interval, cut at 100 %
@@ -81,12 +82,12 @@ def test_a_row_says_where_and_how_long_its_seeds_trained():
     assert row["devices"] == {"CPU A": 2, "GPU B": 1, NOT_RECORDED: 1}
     assert row["train_wall_s_per_seed"] == 120.0 and row["train_wall_seeds"] == 2
     table = study_table([row, baseline_row("rule-based", _run(0.5), world="W")])
-    assert "| 4 × 100 | 0.00M | 2.0 (2 of 4) | [1] ×2, [2] ×1, ? ×1 |" in table
+    assert "| 4 × 100 | – | 0.00M | – | 2.0 (2 of 4) | [1] ×2, [2] ×1, ? ×1 |" in table
     training = table[table.index("Training:") :]
     assert "| rule-based |" in table and "| rule-based |" not in training  # not trained here
     assert "Devices: [1] CPU A; [2] GPU B." in table
     every = [{**r, "train_wall_s": 60.0} for r in runs]
-    assert "| 0.00M | 1.0 | [1] ×2" in study_table([study_row("y", "drqn", every, world="W")])
+    assert "| 0.00M | – | 1.0 | [1] ×2" in study_table([study_row("y", "drqn", every, world="W")])
 
 
 def test_a_single_policy_keeps_its_wilson_interval():
@@ -244,11 +245,13 @@ def test_the_study_writes_the_table_and_the_curves(study):
     )
     assert not any("train_wall_s" in r for r in runs)  # results only: timings differ per training
     assert drqn["devices"] == {device_identity(): 2} and record["rows"][3]["devices"] == {}
+    assert drqn["decision_steps"] == 1 and drqn["ticks_per_seed"] == drqn["env_steps_per_seed"]
+    millions = f"{drqn['env_steps_per_seed'] / 1e6:.2f}M"
     steps_cell = (
-        f"| 2 × {EPISODES} | {drqn['env_steps_per_seed'] / 1e6:.2f}M "
+        f"| 2 × {EPISODES} | 1 | {millions} | {millions} "
         f"| {drqn['train_wall_s_per_seed'] / 60:.1f} | [1] ×2 |"
     )
-    assert f"| drqn_jax: smoke | drqn | none (reward alone) {steps_cell}" in table
+    assert f"| drqn_jax: smoke | drqn {steps_cell}" in table
     assert f"Devices: [1] {device_identity()}." in table
     assert "* drqn_jax: smoke (drqn) at " in table
     sentences = [line[2:] for line in table.splitlines() if line[:2] == "* " and line[2] != "*"]
