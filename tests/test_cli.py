@@ -377,8 +377,9 @@ def test_reproduce_prints_table_iii_beside_ours(tmp_path, capsys):
     assert "| paper (CARLA) | rule-based | – | 82.6 | – | – | – |" in out
     assert "| paper (CARLA) | DRQN | none (reward alone) | 1 × 10 | 70.0 (39.7–89.2) |" in out
     trained = runner.load_trained_network(runner.load_run(run_dir), run_dir)[2]
-    how = f"{trained['env_steps'] / 1e6:.2f}M | {trained['wall_time_s'] / 60:.1f} | [1] ×1 |"
-    assert f"| drqn_jax | drqn | none (reward alone) | 1 × 8 | {how}" in out
+    steps = f"{trained['env_steps'] / 1e6:.2f}M"
+    how = f"1 | {steps} | {steps} | {trained['wall_time_s'] / 60:.1f} | [1] ×1 |"
+    assert f"| drqn_jax | drqn | 1 × 8 | {how}" in out
     assert "| drqn_jax | rule-based | – (not learned) | 1 × 8 |" in out
     assert "| rule-based |" not in out[out.index("Training:") :]  # not trained here
     assert "* **margin to the rule-based frontier, points (95 %)**: " in out  # the legend
@@ -416,8 +417,11 @@ def test_reproduce_evaluates_the_shipped_agent_without_training(
     captured = capsys.readouterr()
     assert "the shipped agent 'headline': " in captured.err and f"`{command}`" in captured.err
     shipped = json.loads((tmp_path / "trained" / "headline" / "provenance.json").read_text())
-    how = f"{shipped['env_steps'] / 1e6:.2f}M | {shipped['wall_time_s'] / 60:.1f} | [1] ×1 |"
-    assert f"| drqn_jax | drqn | none (reward alone) | 1 × 8 | {how}" in captured.out
+    assert "one decision per 0.1 s (1 tick), " in captured.err
+    assert shipped["decision_steps"] == 1 and shipped["ticks"] == shipped["env_steps"]
+    steps = f"{shipped['env_steps'] / 1e6:.2f}M"
+    how = f"1 | {steps} | {steps} | {shipped['wall_time_s'] / 60:.1f} | [1] ×1 |"
+    assert f"| drqn_jax | drqn | 1 × 8 | {how}" in captured.out
     assert f"Devices: [1] {device_identity()}." in captured.out  # its machine block's
     assert "\nThe paper's claim" in captured.out
     evaluated = json.loads((run_dir / "evaluation.json").read_text())["agents"][0]

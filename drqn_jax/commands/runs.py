@@ -142,7 +142,10 @@ def _evaluated(
             swept = pool.submit(config_frontier, config, planner=False)
             results = evaluate_agents(config, agents, quiet=quiet)
             frontier = swept.result()
-        rows, table = paper_comparison([{**results[0], **training}, results[1]], frontier)
+        trained = {**results[0], **training}
+        rows, table = paper_comparison(
+            trained, results[1], frontier, config["env"]["decision_steps"]
+        )
         run_dir.mkdir(parents=True, exist_ok=True)
         plot_safety_speed(rows, frontier, run_dir / "safety_speed.png")
     wall = time.perf_counter() - start
@@ -212,10 +215,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def paper_comparison(
-    results: list[dict[str, Any]], frontier: dict[str, Any]
+    trained: dict[str, Any],
+    rule_based: dict[str, Any],
+    frontier: dict[str, Any],
+    decision_steps: int,
 ) -> tuple[list[dict[str, Any]], str]:
-    """The paper's Table III rows beside ours (the trained agent, then the rule-based one)
-    with margins to ``frontier`` and the verdict on the paper's claim: rows and text."""
+    """The paper's Table III rows beside ours (the trained agent, deciding every
+    ``decision_steps`` ticks, then the rule-based one) with margins to ``frontier`` and the
+    verdict on the paper's claim: rows and text."""
     from drqn_jax.experiments.frontier import with_margin
     from drqn_jax.experiments.report import column_legend, study_table
     from drqn_jax.experiments.rows import baseline_row, paper_rows
@@ -223,8 +230,10 @@ def paper_comparison(
 
     world, limit_kmh = frontier["world"], frontier["speed_limit_kmh"]
     ours = [
-        with_margin(baseline_row("drqn_jax", r, world=world), frontier, limit_kmh) for r in results
+        baseline_row("drqn_jax", trained, world=world, decision_steps=decision_steps),
+        baseline_row("drqn_jax", rule_based, world=world),
     ]
+    ours = [with_margin(row, frontier, limit_kmh) for row in ours]
     rows = paper_rows() + ours
     verdict = claim_verdict(ours[0]) + (
         " One training seed: its interval holds the episodes' variation, not the"
@@ -272,8 +281,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     config, agent, _, _ = _chosen_agent(shipped, list(args.overrides))
     provenance = json.loads((directory / "provenance.json").read_text())
     trained = provenance["trained"]
+    k, tick_s = config["env"]["decision_steps"], config["env"]["dt"]
     about = (
-        f"the shipped agent {HEADLINE!r}: {provenance['env_steps']:,} env steps, "
+        f"the shipped agent {HEADLINE!r}: one decision per {k * tick_s:g} s "
+        f"({k} tick{'s' * (k > 1)}), "
+        f"{provenance['env_steps']:,} decisions = {k * provenance['env_steps']:,} ticks, "
         f"trained by `{provenance['command']}` at commit {trained['commit']} "
         f"on {trained['device']}"
     )

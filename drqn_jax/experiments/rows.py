@@ -108,9 +108,12 @@ def study_row(
     return row
 
 
-def baseline_row(label: str, result: Mapping[str, Any], *, world: str) -> dict[str, Any]:
-    """A row for a single policy evaluated once (the rule-based agent): Wilson interval."""
-    return study_row(label, result["agent"], [result], world=world)
+def baseline_row(
+    label: str, result: Mapping[str, Any], *, world: str, decision_steps: int | None = None
+) -> dict[str, Any]:
+    """A row for a single policy evaluated once (the rule-based agent, one trained seed):
+    Wilson interval."""
+    return study_row(label, result["agent"], [result], world=world, decision_steps=decision_steps)
 
 
 def _setting_text(params: Mapping[str, float]) -> str:

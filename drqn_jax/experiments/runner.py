@@ -330,7 +330,12 @@ def export_agent(
     counts = {k: meta[k] for k in _TRAINING_COUNTS if k in meta}
     save_agent(out, config, params, {"finished": True, **counts})
     trained = dict(trained or {"commit": git_commit(), "device": device_identity()})
-    provenance = {"command": command, **counts, "trained": trained, "machine": machine_info()}
+    k = config["env"]["decision_steps"]  # env steps are decisions of k ticks each
+    driving = (
+        {"decision_steps": k, "ticks": k * counts["env_steps"]} if "env_steps" in counts else {}
+    )
+    provenance = {"command": command, **counts, **driving, "trained": trained}
+    provenance["machine"] = machine_info()
     atomic_write_text(Path(out) / "provenance.json", json.dumps(provenance, indent=1) + "\n")
     return provenance
 
