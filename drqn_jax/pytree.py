@@ -154,18 +154,14 @@ def check_counts(obj: Any, names: Sequence[str], *, low: int = 1) -> None:
             )
 
 
-def check_order(obj: Any, lower: str, upper: str, *, strict: bool = False) -> None:
-    """Raise unless ``obj.lower <= obj.upper`` (``<`` if ``strict``) for concrete values."""
+def check_order(obj: Any, lower: str, upper: str) -> None:
+    """Raise unless ``obj.lower <= obj.upper`` for concrete values."""
     a, b = getattr(obj, lower), getattr(obj, upper)
-    if not (is_concrete(a) and is_concrete(b)):
-        return
-    ok = np.all(np.asarray(a) < np.asarray(b)) if strict else np.all(np.asarray(a) <= np.asarray(b))
-    if not ok:
-        rel = "<" if strict else "<="
+    if is_concrete((a, b)) and not np.all(np.asarray(a) <= np.asarray(b)):
         name = type(obj).__name__
         raise ValueError(
             f"{name}.{lower} = {show_value(a)} and {name}.{upper} = {show_value(b)}: "
-            f"must satisfy {lower} {rel} {upper}"
+            f"must satisfy {lower} <= {upper}"
         )
 
 
