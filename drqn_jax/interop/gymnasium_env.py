@@ -117,8 +117,7 @@ def single_reset(
 ) -> tuple[jax.Array, Observation, EnvState]:
     """One env's reset from raw key data: ``(held key data, obs, state)``."""
     held, reset_key = _split(key_data)
-    obs, state = env.reset_env(reset_key, params)
-    return held, obs, state
+    return held, *env.reset_env(reset_key, params)
 
 
 def single_step(
