@@ -36,9 +36,7 @@ def pytree_dataclass(cls: type[T] | None = None, *, meta_fields: Sequence[str] =
 
         def unflatten(aux, children):
             obj = object.__new__(cls)
-            for n, v in zip(data, children, strict=True):
-                object.__setattr__(obj, n, v)
-            for n, v in zip(meta, aux, strict=True):
+            for n, v in zip((*data, *meta), (*children, *aux), strict=True):
                 object.__setattr__(obj, n, v)
             return obj
 
