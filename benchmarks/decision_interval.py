@@ -11,7 +11,7 @@ Each arm is one run of a config at ``env.decision_steps = k`` trained on
 ``train.num_env_steps = ticks // k`` decisions (a decision cut short by a collision or
 the goal plays fewer ticks), its greedy agent evaluated on the same ``--episodes``
 evaluation episodes at ``--points`` evenly spaced marks
-(:func:`drqn_jax.experiments.curves.greedy_curve`), once per seed of ``--seeds``. The
+(:func:`benchmarks.learning_curve.greedy_curve`), once per seed of ``--seeds``. The
 last mark of each seed is its trained agent: the arm's row over its stored seeds, with
 its margin over the rule-based frontier stored for the world (the yardstick decides
 every tick: SPEC §9), goes to ``--results`` as section ``--section`` with every seed's
@@ -31,10 +31,9 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.harness import base_parser, markdown_table, report
-from benchmarks.learning_curve import stored_frontier
+from benchmarks.learning_curve import greedy_curve, stored_frontier
 from drqn_jax.config import Config, load_config
 from drqn_jax.experiments.baselines import frontier_key
-from drqn_jax.experiments.curves import greedy_curve
 from drqn_jax.experiments.frontier import with_margin
 from drqn_jax.experiments.machine import machine_info
 from drqn_jax.experiments.report import load_results, margin_cell, write_results

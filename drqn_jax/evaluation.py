@@ -36,29 +36,20 @@ AUTHORS_MOVING_SPEED = 0.5 * KMH
 
 @pytree_dataclass
 class EpisodeMetrics:
-    """What one episode produced; every leaf gains a leading axis when batched.
+    """What one episode produced; every leaf gains a leading axis when batched."""
 
-    Attributes:
-        episode_return: () float32, sum of rewards; length: () int32, steps played.
-        collision, goal (route end reached), struck_while_stopped (a pedestrian met the
-            collision test while the ego stood; SPEC §5: not a collision): () bool.
-        distance: () float32, metres along the route; mean_speed: distance / duration.
-        min_ttc: () float32, smallest TTC (s, inf if never finite).
-        near_collision_steps: () int32, steps with ``TTC <= ttc_threshold``.
-        moving_steps: () int32, steps with ``v > AUTHORS_MOVING_SPEED``; authors_speed:
-            () float32, mean speed over them (carla-gym ``tester.py``; m/s, 0 if none).
-    """
-
-    episode_return: jax.Array
-    length: jax.Array
-    collision: jax.Array
-    goal: jax.Array
-    distance: jax.Array
-    mean_speed: jax.Array
-    min_ttc: jax.Array
-    near_collision_steps: jax.Array
+    episode_return: jax.Array  # () float32, sum of rewards
+    length: jax.Array  # () int32, steps played
+    collision: jax.Array  # () bool
+    goal: jax.Array  # () bool, route end reached
+    distance: jax.Array  # () float32, metres along the route
+    mean_speed: jax.Array  # () float32, distance / duration
+    min_ttc: jax.Array  # () float32, smallest TTC (s, inf if never finite)
+    near_collision_steps: jax.Array  # () int32, steps with TTC <= ttc_threshold
+    # () bool, a pedestrian met the collision test while the ego stood (SPEC §5: no collision)
     struck_while_stopped: jax.Array
-    moving_steps: jax.Array
+    moving_steps: jax.Array  # () int32, steps with v > AUTHORS_MOVING_SPEED
+    # () float32, mean speed over the moving steps (carla-gym tester.py; m/s, 0 if none)
     authors_speed: jax.Array
 
 
@@ -229,10 +220,8 @@ def padded_keys(keys: jax.Array, batch_size: int | None = None) -> jax.Array:
 
 def _pad(keys: jax.Array, size: int) -> jax.Array:
     """``keys`` (N,) and copies of its first key, to ``size`` >= N."""
-    n = keys.shape[0]
-    if size == n:
-        return keys
-    return jnp.concatenate([keys, jnp.broadcast_to(keys[:1], (size - n, *keys.shape[1:]))])
+    fill = jnp.broadcast_to(keys[:1], (size - keys.shape[0], *keys.shape[1:]))
+    return jnp.concatenate([keys, fill])
 
 
 def map_episodes(fn: Any, keys: jax.Array, batch_size: int | None = None) -> Any:

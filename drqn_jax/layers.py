@@ -36,10 +36,6 @@ def affine(x: jax.Array, w: jax.Array, b: jax.Array) -> jax.Array:
     return x @ w + b
 
 
-def _affine_fwd(x: jax.Array, w: jax.Array, b: jax.Array) -> tuple[jax.Array, tuple]:
-    return x @ w + b, (x, w)
-
-
 def _affine_bwd(res: tuple, g: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     x, w = res
     rows = _rows(x)  # the ones join the 2-D rows (fewer temporaries than before the reshape)
@@ -48,7 +44,7 @@ def _affine_bwd(res: tuple, g: jax.Array) -> tuple[jax.Array, jax.Array, jax.Arr
     return g @ w.T, grad_wb[:-1], grad_wb[-1]
 
 
-affine.defvjp(_affine_fwd, _affine_bwd)
+affine.defvjp(lambda x, w, b: (x @ w + b, (x, w)), _affine_bwd)  # forward: value, residuals
 
 
 @jax.custom_vjp
@@ -58,16 +54,12 @@ def matmul(x: jax.Array, w: jax.Array) -> jax.Array:
     return x @ w
 
 
-def _matmul_fwd(x: jax.Array, w: jax.Array) -> tuple[jax.Array, tuple]:
-    return x @ w, (x, w)
-
-
 def _matmul_bwd(res: tuple, g: jax.Array) -> tuple[jax.Array, jax.Array]:
     x, w = res
     return g @ w.T, _rows_product(x, g)
 
 
-matmul.defvjp(_matmul_fwd, _matmul_bwd)
+matmul.defvjp(lambda x, w: (x @ w, (x, w)), _matmul_bwd)
 
 
 def glorot(key: jax.Array, shape: tuple[int, ...], fan_in: int, fan_out: int) -> jax.Array:

@@ -100,13 +100,3 @@ def jit_in_store(*static_argnames: str) -> Callable[[F], F]:
         return call  # type: ignore[return-value]
 
     return decorate
-
-
-def program_counts() -> dict[str, int]:
-    """How many entries each builder (by qualified name) holds."""
-    return dict(collections.Counter(name for name, _ in _STORE))
-
-
-def clear_programs() -> None:
-    """Drop every built program (they are rebuilt, and recompiled, on next use)."""
-    _STORE.clear()

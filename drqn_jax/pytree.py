@@ -36,9 +36,7 @@ def pytree_dataclass(cls: type[T] | None = None, *, meta_fields: Sequence[str] =
 
         def unflatten(aux, children):
             obj = object.__new__(cls)
-            for n, v in zip(data, children, strict=True):
-                object.__setattr__(obj, n, v)
-            for n, v in zip(meta, aux, strict=True):
+            for n, v in zip((*data, *meta), (*children, *aux), strict=True):
                 object.__setattr__(obj, n, v)
             return obj
 
@@ -154,18 +152,14 @@ def check_counts(obj: Any, names: Sequence[str], *, low: int = 1) -> None:
             )
 
 
-def check_order(obj: Any, lower: str, upper: str, *, strict: bool = False) -> None:
-    """Raise unless ``obj.lower <= obj.upper`` (``<`` if ``strict``) for concrete values."""
+def check_order(obj: Any, lower: str, upper: str) -> None:
+    """Raise unless ``obj.lower <= obj.upper`` for concrete values."""
     a, b = getattr(obj, lower), getattr(obj, upper)
-    if not (is_concrete(a) and is_concrete(b)):
-        return
-    ok = np.all(np.asarray(a) < np.asarray(b)) if strict else np.all(np.asarray(a) <= np.asarray(b))
-    if not ok:
-        rel = "<" if strict else "<="
+    if is_concrete((a, b)) and not np.all(np.asarray(a) <= np.asarray(b)):
         name = type(obj).__name__
         raise ValueError(
             f"{name}.{lower} = {show_value(a)} and {name}.{upper} = {show_value(b)}: "
-            f"must satisfy {lower} {rel} {upper}"
+            f"must satisfy {lower} <= {upper}"
         )
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import re
 from pathlib import Path
 
@@ -11,9 +12,19 @@ import numpy as np
 from drqn_jax import programs
 from drqn_jax.agents import drqn_agent
 from drqn_jax.networks import NetworkConfig, make_network
-from drqn_jax.programs import cached_program, clear_programs, program_counts
+from drqn_jax.programs import cached_program
 
 PACKAGE = Path(programs.__file__).parent
+
+
+def program_counts() -> dict[str, int]:
+    """How many entries each builder (by qualified name) holds."""
+    return dict(collections.Counter(name for name, _ in programs._STORE))
+
+
+def clear_programs() -> None:
+    """Drop every built program (they are rebuilt, and recompiled, on next use)."""
+    programs._STORE.clear()
 
 
 def test_a_builder_builds_once_per_arguments_and_evicts_the_least_recent(monkeypatch):

@@ -10,15 +10,6 @@ from pathlib import Path
 from drqn_jax.config import Config, ConfigError
 from drqn_jax.experiments.report import check_section
 
-__all__ = [
-    "check_section_option",
-    "default_run_dir",
-    "duration_text",
-    "episodes_text",
-    "evaluation_overrides",
-    "say",
-]
-
 
 def say(text: str) -> None:
     """A status line on stderr (stdout holds the results)."""

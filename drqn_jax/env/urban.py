@@ -29,6 +29,7 @@ from drqn_jax.env.pedestrians import (
     step_pedestrians,
 )
 from drqn_jax.env.state import NO_ACTION, NUM_ACTIONS, EnvState, Observation
+from drqn_jax.pytree import tree_where
 
 
 def _opaque(params: EnvParams) -> EnvParams:
@@ -150,9 +151,7 @@ class UrbanPedestrians:
         """Finish a step: replace far or finished pedestrians and draw the occlusion; with
         ``reset`` (() bool) restart exactly as ``reset_state(key, …)`` does."""
         params = _opaque(params)
-        ego = jax.tree.map(
-            lambda a, b: jnp.where(reset, a, b), initial_ego(params, self.static), stepped.ego
-        )
+        ego = tree_where(reset, initial_ego(params, self.static), stepped.ego)
         gone = reset | despawn_mask(stepped.pedestrians, stepped.ego, params)
         lo, hi = self._spawn_range(ego.s, params, reset)
         peds = respawn_pedestrians(key, stepped.pedestrians, gone, lo, hi, params, self.static)
@@ -190,16 +189,12 @@ class UrbanPedestrians:
             key_tick, later = xs
             ticked, r, term, trunc, now = self._tick(key_tick, state, action, params, later)
             live = ~(terminated | truncated)  # no tick has ended the episode yet
-
-            def keep(a, b):
-                return jnp.where(live, a, b)
-
-            merged = jax.tree.map(keep, now, info)
+            merged = tree_where(live, now, info)
             for flag in ("collision", "goal", "struck_while_stopped"):
                 merged[flag] = info[flag] | (live & now[flag])
-            merged["ttc"] = keep(jnp.minimum(info["ttc"], now["ttc"]), info["ttc"])
+            merged["ttc"] = jnp.where(live, jnp.minimum(info["ttc"], now["ttc"]), info["ttc"])
             carry = (
-                jax.tree.map(keep, ticked, state),
+                tree_where(live, ticked, state),
                 total + jnp.where(live, r, 0.0),
                 terminated | (live & term),
                 truncated | (live & trunc),
@@ -239,7 +234,7 @@ class UrbanPedestrians:
             final, r, terminated, truncated, info = self.decide(key, state, action, params)
             fresh = self.reset_state(key, params)
             done = terminated | truncated
-            next_state = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh, final)
+            next_state = tree_where(done, fresh, final)
         info = dict(info, final_state=final, final_observation=self.observation(final, params))
         return self.observation(next_state, params), next_state, r, terminated, truncated, info
 

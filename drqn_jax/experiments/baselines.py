@@ -21,11 +21,7 @@ from drqn_jax.learners.hyperparams import agent_name
 
 def _digest(config: Config, **sections: Any) -> str:
     """A short digest of ``sections`` and ``config``'s evaluation episodes (count, seed)."""
-    record = {
-        **sections,
-        "episodes": config["evaluate"]["episodes"],
-        "seed": config["run"]["seed"],
-    }
+    record = {**sections, "episodes": config["evaluate"]["episodes"], "seed": config["run"]["seed"]}
     text = json.dumps(record, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 

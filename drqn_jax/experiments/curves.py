@@ -1,31 +1,23 @@
 """A study's figures: training curves against env steps (paper Fig. 4, :func:`load_curves`,
-:func:`plot_curves`), the safety/speed figure (SPEC §9, :func:`plot_safety_speed`), each drawn
-on a pyplot-free Figure, and one run's greedy agent evaluated at env-step marks while
-it trains (:func:`greedy_curve`).
+:func:`plot_curves`) and the safety/speed figure (SPEC §9, :func:`plot_safety_speed`), each
+drawn on a pyplot-free Figure.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
-import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from drqn_jax.agents import drqn_agent
-from drqn_jax.config import Config
-from drqn_jax.evaluation import evaluate
 from drqn_jax.experiments.frontier import frontier_vertices
-from drqn_jax.experiments.host_loop import StopRequest, finite_training, run_chunks
 from drqn_jax.experiments.report import PAPER_WORLD
-from drqn_jax.experiments.runner import compiled_run, init_program
 from drqn_jax.interop.recording import running_mean
-from drqn_jax.learners import make_train
-from drqn_jax.learners.hyperparams import NOT_LEARNED, agent_name
+from drqn_jax.learners.hyperparams import NOT_LEARNED
 
 #: The curves of the paper's "Training performance" figure: metrics.csv column, label.
 CURVES = (
@@ -174,82 +166,3 @@ def plot_safety_speed(
     )
     ax.legend(fontsize=7, loc="upper right")
     _save_png(fig, path)
-
-
-#: What a point of :func:`greedy_curve` keeps of its evaluation (SPEC §8 names).
-GREEDY_KEYS = (
-    "num_episodes",
-    "collision_free_rate",
-    "collision_free_ci",
-    "struck_while_stopped_rate",
-    "goal_rate",
-    "avg_speed_kmh",
-    "avg_speed_authors_kmh",
-    "avg_distance_m",
-    "avg_distance_collision_free_m",
-    "avg_return",
-)
-
-
-def greedy_curve(
-    config: Config,
-    points: int,
-    episodes: int,
-    on_point: Callable[[dict[str, Any]], None] | None = None,
-    first: int | None = None,
-) -> tuple[str, list[dict[str, Any]]]:
-    """Train one run of ``config`` and evaluate its greedy agent on the same ``episodes``
-    at ``points`` evenly spaced env-step marks (at the first chunk boundary past each).
-
-    Returns ``(status, points)``; each point has ``env_steps``, ``train_s``, ``eval_s`` and
-    :data:`GREEDY_KEYS`. ``on_point`` sees each; ``first`` stops after that many points.
-    """
-    total = config["train"]["num_env_steps"]
-    if total < 1:
-        raise ValueError("greedy_curve: set train.num_env_steps (the curve's env-step axis)")
-    if points < 1 or episodes < 1:
-        raise ValueError(f"greedy_curve: points = {points}, episodes = {episodes}: must be >= 1")
-    trainer = make_train(config.train_config())
-    env, env_params = config.make_env()
-    train_key, eval_key = config.keys()
-    marks = [total * (i + 1) // points for i in range(points)]
-    found: list[dict[str, Any]] = []
-    clock = {"train": 0.0, "since": time.perf_counter(), "passed": 0}
-
-    def at_chunk(state: Any) -> None:
-        passed = sum(int(state.env_steps) >= m for m in marks)
-        if passed == clock["passed"]:
-            return
-        clock["passed"] = passed
-        clock["train"] += time.perf_counter() - clock["since"]
-        start = time.perf_counter()
-        agent = drqn_agent(trainer.network, trainer.agent_params(state), agent_name(trainer.config))
-        result = evaluate(agent, eval_key, episodes, env, env_params)
-        point = {
-            "env_steps": int(state.env_steps),
-            "train_s": clock["train"],
-            "eval_s": time.perf_counter() - start,
-            **{k: result[k] for k in GREEDY_KEYS},
-        }
-        found.append(point)
-        if on_point is not None:
-            on_point(point)
-        if first is not None and len(found) >= first:
-            stop.request()
-        clock["since"] = time.perf_counter()
-
-    stop = StopRequest()
-    state = init_program(trainer)(train_key)
-    status, _, _ = run_chunks(
-        compiled_run(trainer, state),  # train's chunk program
-        state,
-        finished=lambda s: bool(s.finished),
-        stop=stop,
-        save=lambda s, n: None,
-        every_s=float("inf"),
-        healthy=lambda s: bool(finite_training(s)),
-        on_chunk=at_chunk,
-    )
-    if first is not None and len(found) >= first:
-        status = f"first {len(found)} of {points} marks"
-    return status, found

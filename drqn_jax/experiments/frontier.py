@@ -24,12 +24,7 @@ from drqn_jax.agents.planner import PlannerParams, planner_agent
 from drqn_jax.agents.rule_based import RuleBasedParams, rule_based_agent
 from drqn_jax.env.params import KMH, EnvParams
 from drqn_jax.env.urban import UrbanPedestrians
-from drqn_jax.evaluation import (
-    EpisodeMetrics,
-    episode_keys,
-    rollouts,
-    summarize_outcomes,
-)
+from drqn_jax.evaluation import EpisodeMetrics, episode_keys, rollouts, summarize_outcomes
 from drqn_jax.programs import jit_in_store
 
 # two-sided 95 % Student-t quantiles for 1..30 degrees of freedom, then the normal's

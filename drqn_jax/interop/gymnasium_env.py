@@ -67,14 +67,11 @@ def gymnasium_observation_space(env: UrbanPedestrians, params: EnvParams) -> spa
     )
 
 
-def gymnasium_last_action(last_action: np.ndarray) -> np.ndarray:
-    """The JAX ``last_action`` (any shape) in ``Discrete(5)``: −1 becomes :data:`NO_ACTION_YET`."""
-    return np.where(last_action == NO_ACTION, NO_ACTION_YET, last_action)
-
-
 def numpy_observation(obs: Observation) -> dict[str, Any]:
-    """Fresh NumPy observation dict, batch axes kept (``speed`` (..., 1))."""
-    last_action = gymnasium_last_action(np.array(obs.last_action, np.int64))
+    """Fresh NumPy observation dict, batch axes kept (``speed`` (..., 1)), ``last_action`` in
+    ``Discrete(5)`` (−1 becomes :data:`NO_ACTION_YET`)."""
+    last_action = np.array(obs.last_action, np.int64)
+    last_action = np.where(last_action == NO_ACTION, NO_ACTION_YET, last_action)
     return {
         "grid": np.array(obs.grid, np.float32),
         "speed": np.array(obs.speed, np.float32)[..., None],
@@ -120,8 +117,7 @@ def single_reset(
 ) -> tuple[jax.Array, Observation, EnvState]:
     """One env's reset from raw key data: ``(held key data, obs, state)``."""
     held, reset_key = _split(key_data)
-    obs, state = env.reset_env(reset_key, params)
-    return held, obs, state
+    return held, *env.reset_env(reset_key, params)
 
 
 def single_step(

@@ -117,16 +117,9 @@ def log_map(rec: rr.RecordingStream, env: UrbanPedestrians, params: EnvParams) -
     for entity, (ends, colour, radius, label) in lines.items():
         strip = rr.LineStrips2D([to_view(ends)], colors=colour, radii=radius, labels=label)
         rec.log(f"map/{entity}", strip, static=True)
-    rec.log(
-        "/",
-        rr.AnnotationContext(
-            [
-                rr.AnnotationInfo(id=code, label=BEHAVIOURS[code], color=colour)
-                for code, colour in BEHAVIOUR_COLOURS.items()
-            ]
-        ),
-        static=True,
-    )
+    behaviours = BEHAVIOUR_COLOURS.items()
+    labels = [rr.AnnotationInfo(id=b, label=BEHAVIOURS[b], color=c) for b, c in behaviours]
+    rec.log("/", rr.AnnotationContext(labels), static=True)
 
 
 def _steps(values: np.ndarray | range, timeline: str = STEP_TIMELINE) -> list[rr.TimeColumn]:
