@@ -281,11 +281,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     config, agent, _, _ = _chosen_agent(shipped, list(args.overrides))
     provenance = json.loads((directory / "provenance.json").read_text())
     trained = provenance["trained"]
-    k, tick_s = config["env"]["decision_steps"], config["env"]["dt"]
+    k = provenance["decision_steps"]
     about = (
-        f"the shipped agent {HEADLINE!r}: one decision per {k * tick_s:g} s "
+        f"the shipped agent {HEADLINE!r}: one decision per {k * config['env']['dt']:g} s "
         f"({k} tick{'s' * (k > 1)}), "
-        f"{provenance['env_steps']:,} decisions = {k * provenance['env_steps']:,} ticks, "
+        f"{provenance['env_steps']:,} decisions = {provenance['ticks']:,} ticks, "
         f"trained by `{provenance['command']}` at commit {trained['commit']} "
         f"on {trained['device']}"
     )

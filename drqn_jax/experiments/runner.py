@@ -331,11 +331,8 @@ def export_agent(
     save_agent(out, config, params, {"finished": True, **counts})
     trained = dict(trained or {"commit": git_commit(), "device": device_identity()})
     k = config["env"]["decision_steps"]  # env steps are decisions of k ticks each
-    driving = (
-        {"decision_steps": k, "ticks": k * counts["env_steps"]} if "env_steps" in counts else {}
-    )
-    provenance = {"command": command, **counts, **driving, "trained": trained}
-    provenance["machine"] = machine_info()
+    provenance = {"command": command, **counts, "decision_steps": k}
+    provenance.update(ticks=k * counts["env_steps"], trained=trained, machine=machine_info())
     atomic_write_text(Path(out) / "provenance.json", json.dumps(provenance, indent=1) + "\n")
     return provenance
 
