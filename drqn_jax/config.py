@@ -27,7 +27,6 @@ from drqn_jax.agents.planner import PlannerParams
 from drqn_jax.agents.rule_based import RuleBasedParams
 from drqn_jax.env.params import KMH, EnvParams, StaticEnvParams
 from drqn_jax.env.urban import UrbanPedestrians
-from drqn_jax.evaluation import MIN_BATCH
 from drqn_jax.learners import Hyperparams, TrainConfig
 from drqn_jax.learners.hyperparams import ON_POLICY
 from drqn_jax.networks import CELLS, NETWORK_KINDS, NetworkConfig
@@ -79,8 +78,8 @@ def _schema() -> tuple[dict[str, dict[str, Any]], dict[tuple[str, str], tuple[st
             elif isinstance(f.default, bool | int | float | str):
                 table[f.name] = f.default
     choices["network", "kind"], choices["network", "cell"] = NETWORK_KINDS, CELLS
-    # episodes per agent, and per jitted batch (0: all at once)
-    schema["evaluate"] = {"episodes": 1000, "batch_size": 0}
+    # episodes per agent (run in batches of evaluation.EVAL_BATCH)
+    schema["evaluate"] = {"episodes": 1000}
     return schema, choices
 
 
@@ -315,11 +314,6 @@ class Config:
             raise ConfigError(f"run.checkpoint_every_s = {every}: must be a number > 0")
         if evaluate["episodes"] < 1:
             raise ConfigError(f"evaluate.episodes = {evaluate['episodes']}: must be >= 1")
-        if evaluate["batch_size"] < 0 or 0 < evaluate["batch_size"] < MIN_BATCH:
-            size = evaluate["batch_size"]  # smaller batches round the products differently
-            raise ConfigError(
-                f"evaluate.batch_size = {size}: must be 0 (all at once) or >= {MIN_BATCH}"
-            )
         try:
             env, _ = self.make_env()
             self.train_config()

@@ -8,8 +8,8 @@ results would change by an ulp with the batch size. ``import drqn_jax`` appends
 Other shape-independence rules: divide by a scalar parameter as a reciprocal product;
 ``EnvParams`` behind ``lax.optimization_barrier``; weight gradients from a materialised
 transpose (:func:`drqn_jax.layers._rows_product`; Eigen splits ``x.T @ g`` by
-:func:`cpu_thread_pool_size`); no ``vmap`` over one run; evaluation batches of at
-least :data:`drqn_jax.evaluation.MIN_BATCH` (YNNPACK picks its kernel by rows).
+:func:`cpu_thread_pool_size`); no ``vmap`` over one run; evaluation batches of
+exactly :data:`drqn_jax.evaluation.EVAL_BATCH` rows (kernels are picked by rows).
 """
 
 from __future__ import annotations

@@ -24,11 +24,11 @@ from drqn_jax.pytree import pytree_dataclass
 
 Z_95 = 1.959963984540054  # two-sided 95 % normal quantile
 
-#: Episodes per host call when :func:`evaluate` reports progress.
-PROGRESS_EPISODES = 200
-
-#: The fewest rows a batch of episodes runs with (:func:`padded_keys` pads to it).
-MIN_BATCH = 128
+#: Rows of every batch of episodes (:func:`padded_keys` pads to a multiple of it).
+#: XLA:CPU rounds the same episode differently with the rows beside it (YNNPACK's matrix
+#: kernels below 61–81 rows, another switch near 470 rows), so every program of episodes
+#: runs exactly this many: episode i has the same bits whatever N or the caller.
+EVAL_BATCH = 512
 
 #: m/s: the authors' average speed counts the steps faster than 0.5 km/h (``tester.py``).
 AUTHORS_MOVING_SPEED = 0.5 * KMH
@@ -169,69 +169,42 @@ def play_episode(
 
 
 def run_episodes(
-    agent: Agent,
-    keys: jax.Array,
-    env: UrbanPedestrians,
-    params: EnvParams,
-    batch_size: int | None = None,
+    agent: Agent, keys: jax.Array, env: UrbanPedestrians, params: EnvParams
 ) -> EpisodeMetrics:
-    """EpisodeMetrics (N, ...) of one episode per key (N,), in parallel under one ``jit``.
-
-    ``batch_size`` (>= :data:`MIN_BATCH`) runs the episodes that many at a time to bound
-    memory; ``None`` all at once; results do not depend on it. The keys are padded
-    (:func:`padded_keys`) before the program, so every N up to :data:`MIN_BATCH` runs one.
-    """
+    """EpisodeMetrics (N, ...) of one episode per key (N,), under one ``jit``, in batches of
+    :data:`EVAL_BATCH` (the keys padded by :func:`padded_keys`, the padding dropped)."""
     n = keys.shape[0]
-    out = _run_padded(agent, padded_keys(keys, batch_size), env, params, batch_size)
+    out = _run_padded(agent, padded_keys(keys), env, params)
     return jax.tree.map(lambda x: x[:n], out)
 
 
 def rollouts(
-    agent: Agent,
-    keys: jax.Array,
-    env: UrbanPedestrians,
-    params: EnvParams,
-    batch_size: int | None = None,
+    agent: Agent, keys: jax.Array, env: UrbanPedestrians, params: EnvParams
 ) -> EpisodeMetrics:
     """:func:`map_episodes` of :func:`play_episode`'s metrics, not jitted."""
-    return map_episodes(lambda key: play_episode(agent, key, env, params)[0], keys, batch_size)
+    return map_episodes(lambda key: play_episode(agent, key, env, params)[0], keys)
 
 
-_run_padded = jit_in_store("env", "batch_size")(rollouts)
+_run_padded = jit_in_store("env")(rollouts)
 
 
-def padded_keys(keys: jax.Array, batch_size: int | None = None) -> jax.Array:
-    """``keys`` (N,) and copies of its first key, to a multiple of the batch
-    (``batch_size``, all N for None, at least :data:`MIN_BATCH`); ValueError below it.
-
-    XLA:CPU's matrix kernels (YNNPACK) round the network's products differently with
-    fewer than 61–81 rows, so without the padding episode i's bits would depend on the
-    episodes beside it. Rows are independent: padding changes nothing else.
-    """
-    if batch_size is not None and (not isinstance(batch_size, int) or batch_size < MIN_BATCH):
-        raise ValueError(
-            f"batch_size = {batch_size!r}: must be >= {MIN_BATCH}, an integer (smaller batches "
-            "round the network's products differently), or None (all at once)"
-        )
+def padded_keys(keys: jax.Array) -> jax.Array:
+    """``keys`` (N,) and copies of its first key, to a multiple of :data:`EVAL_BATCH`."""
     n = keys.shape[0]
-    size = max(MIN_BATCH, n if batch_size is None else batch_size)
-    return _pad(keys, -(-n // size) * size)
-
-
-def _pad(keys: jax.Array, size: int) -> jax.Array:
-    """``keys`` (N,) and copies of its first key, to ``size`` >= N."""
-    fill = jnp.broadcast_to(keys[:1], (size - keys.shape[0], *keys.shape[1:]))
+    fill = jnp.broadcast_to(keys[:1], (-n % EVAL_BATCH, *keys.shape[1:]))
     return jnp.concatenate([keys, fill])
 
 
-def map_episodes(fn: Any, keys: jax.Array, batch_size: int | None = None) -> Any:
-    """``vmap(fn)(keys)`` in batches of ``batch_size`` (all at once for None), every
-    batch of at least :data:`MIN_BATCH` rows (:func:`padded_keys`; the padding is
-    dropped), so that episode i has the same bits whatever the episodes beside it."""
+def map_episodes(fn: Any, keys: jax.Array) -> Any:
+    """``vmap(fn)(keys)`` in batches of exactly :data:`EVAL_BATCH` rows (the keys padded,
+    the padding dropped), so that episode i has the same bits whatever the episodes beside
+    it."""
     n = keys.shape[0]
-    keys = padded_keys(keys, batch_size)
-    size = keys.shape[0] if batch_size is None else batch_size
-    out = jax.vmap(fn)(keys) if keys.shape[0] == size else jax.lax.map(fn, keys, batch_size=size)
+    keys = padded_keys(keys)
+    if keys.shape[0] == EVAL_BATCH:
+        out = jax.vmap(fn)(keys)
+    else:
+        out = jax.lax.map(fn, keys, batch_size=EVAL_BATCH)
     return jax.tree.map(lambda x: x[:n], out)
 
 
@@ -315,27 +288,22 @@ def evaluate(
     env: UrbanPedestrians,
     params: EnvParams | None = None,
     *,
-    batch_size: int | None = None,
     on_episodes: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
     """Evaluate ``agent`` on ``num_episodes`` episodes (SPEC §8), episode *i* from
-    ``fold_in(key, i)``, in parallel under one ``jit``.
-
-    With ``on_episodes`` (a progress bar) they run in host calls of
-    :data:`PROGRESS_EPISODES` (one program, the last call padded; the same results) and
-    ``on_episodes(done)`` follows each. Returns :func:`summarize`'s dict plus ``agent``
-    and ``episodes`` (the per-episode :class:`EpisodeMetrics`, NumPy leaves (N, ...)).
-    """
+    ``fold_in(key, i)``, in host calls of :data:`EVAL_BATCH` episodes (one program, the
+    last call padded), ``on_episodes(done)`` after each (a progress bar). Returns
+    :func:`summarize`'s dict plus ``agent`` and ``episodes`` (the per-episode
+    :class:`EpisodeMetrics`, NumPy leaves (N, ...))."""
     if not isinstance(num_episodes, int) or num_episodes < 1:
         raise ValueError(f"evaluate: num_episodes = {num_episodes!r}, must be an integer >= 1")
     params = env.default_params if params is None else env.check_params(params)
     keys = episode_keys(key, num_episodes)
-    size = num_episodes if on_episodes is None else min(PROGRESS_EPISODES, num_episodes)
     parts = []
-    for start in range(0, num_episodes, size):
-        real = min(size, num_episodes - start)
-        out = run_episodes(agent, _pad(keys[start : start + real], size), env, params, batch_size)
-        parts.append(jax.tree.map(lambda x, real=real: np.asarray(x)[:real], out))
+    for start in range(0, num_episodes, EVAL_BATCH):
+        real = min(EVAL_BATCH, num_episodes - start)
+        out = run_episodes(agent, keys[start : start + real], env, params)
+        parts.append(jax.tree.map(np.asarray, out))
         if on_episodes is not None:
             on_episodes(start + real)
     episodes = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)

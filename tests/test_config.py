@@ -169,14 +169,6 @@ def test_set_overrides_and_parsing():
         ("run.seed=-1", r"run\.seed = -1"),
         ("run.checkpoint_every_s=0", r"run\.checkpoint_every_s = 0\.0: must be a number > 0"),
         ("evaluate.episodes=0", r"evaluate\.episodes = 0: must be >= 1"),
-        (
-            "evaluate.batch_size=64",
-            r"evaluate\.batch_size = 64: must be 0 \(all at once\) or >= 128",
-        ),
-        (
-            "evaluate.batch_size=-1",
-            r"evaluate\.batch_size = -1: must be 0 \(all at once\) or >= 128",
-        ),
         ("train.explore_brake=0.3", r"explore_brake \(0\.3\).*must sum to 1"),
         ("env.ped_speed_min=2", r"env\.ped_speed_min = 2 and env\.ped_speed_max"),
         ("train.algorithm=sac", r"train\.algorithm = 'sac': must be one of 'dqn', 'ppo'"),

@@ -140,6 +140,5 @@ def config_frontier(config: Config, *, planner: bool = True, **options: Any) -> 
         world=config["env"]["id"],
         seed=config["run"]["seed"],
         planner=config.planner_params() if planner else None,
-        batch_size=config["evaluate"]["batch_size"] or None,
         **options,
     )

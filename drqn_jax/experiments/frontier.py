@@ -112,14 +112,13 @@ RULE_BASED_SETTINGS: tuple[dict[str, float], ...] = tuple(
 )
 
 
-@jit_in_store("make_agent", "env", "batch_size")
+@jit_in_store("make_agent", "env")
 def sweep_family(
     make_agent: Callable[[Any], Agent],
     settings: Any,
     keys: jax.Array,
     env: UrbanPedestrians,
     params: EnvParams,
-    batch_size: int | None = None,
 ) -> EpisodeMetrics:
     """EpisodeMetrics (S, N) of every setting (leaves (S,)) on the (N,) episode ``keys``.
 
@@ -131,7 +130,7 @@ def sweep_family(
         # the rollout inline, not run_episodes' jitted call: XLA drops the unused TTC
         # only within one computation
         agent = make_agent(setting)
-        m = rollouts(agent, keys, env, params, batch_size)
+        m = rollouts(agent, keys, env, params)
         return m.replace(  # the reward's near-collision term reads the TTC too
             min_ttc=jnp.full_like(m.min_ttc, jnp.nan),
             near_collision_steps=jnp.zeros_like(m.near_collision_steps),
@@ -224,14 +223,13 @@ def _sweep_points(
     num_episodes: int,
     env: UrbanPedestrians,
     params: EnvParams,
-    batch_size: int | None,
 ) -> tuple[list[dict[str, Any]], float]:
     """One point per setting (``each``: its agent's params) on episodes ``fold_in(key, i)``,
     i < N: ``summarize_outcomes`` of its episodes and its ``params``; and the wall time."""
     start = time.perf_counter()
     keys = episode_keys(key, num_episodes)
     batched = jax.tree.map(lambda *xs: jnp.stack(xs), *each)
-    metrics = sweep_family(make_agent, batched, keys, env, params, batch_size)
+    metrics = sweep_family(make_agent, batched, keys, env, params)
     host = jax.tree.map(np.asarray, metrics)
     points = [
         {"params": dict(s), **summarize_outcomes(jax.tree.map(lambda x, i=i: x[i], host))}
@@ -306,7 +304,6 @@ def world_frontier(
     planner: PlannerParams | None = None,
     settings: Sequence[Mapping[str, float]] | None = None,
     caps_kmh: Sequence[float] = PLANNER_CAPS_KMH,
-    batch_size: int | None = None,
     keep_all: bool = False,
 ) -> dict[str, Any]:
     """A world's frontiers on episodes ``fold_in(key, i)``, i < N, as JSON-ready
@@ -320,7 +317,7 @@ def world_frontier(
     too_fast = [v for v in speeds if v > limit_kmh * (1 + 1e-6)]
     if too_fast:
         raise ValueError(f"speed {too_fast[0]} km/h: above the speed limit {limit_kmh:g} km/h")
-    sweep = (key, num_episodes, env, params, batch_size)
+    sweep = (key, num_episodes, env, params)
     each = [
         RuleBasedParams(
             v_max=s["v_max_kmh"] * KMH,

@@ -357,16 +357,13 @@ def evaluate_agents(
     (:func:`teacher_label`, or :data:`NOT_LEARNED` for a built-in agent)."""
     env, env_params = config.make_env()
     _, eval_key = config.keys()
-    batch = config["evaluate"]["batch_size"] or None
     episodes = config["evaluate"]["episodes"]
     learned = teacher_label(config.hyperparams())
     results = []
     for a in agents:
         with progress_bar(episodes, 0, quiet, "episode", f"evaluating {a.name}") as bar:
             show = None if quiet else (lambda done, bar=bar: bar.update(done - bar.n))
-            result = evaluate(
-                a, eval_key, episodes, env, env_params, batch_size=batch, on_episodes=show
-            )
+            result = evaluate(a, eval_key, episodes, env, env_params, on_episodes=show)
         teacher = learned if a.name in LEARNED_AGENTS else NOT_LEARNED
         results.append({**result, "teacher": teacher})
     return results

@@ -212,11 +212,8 @@ def call_results(
         env, env_params = point.config.make_env()
         name = agent_name(point.config.train_config())
         agent = drqn_agent(outcome.trainer.network, run_params, name)
-        settings = point.config["evaluate"]
-        batch = settings["batch_size"] or None
-        evaluation = evaluate(
-            agent, eval_key, settings["episodes"], env, env_params, batch_size=batch
-        )
+        episodes = point.config["evaluate"]["episodes"]
+        evaluation = evaluate(agent, eval_key, episodes, env, env_params)
         evaluation["teacher"] = teacher_label(point.config.hyperparams())
         results.append(
             {

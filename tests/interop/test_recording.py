@@ -344,8 +344,7 @@ def test_drqn_episode_is_bit_identical_alone_or_in_a_batch(env_params, key):
     the recorded episodes are the evaluated ones.
 
     The recording's decisions run in the evaluation's batches
-    (``evaluation.map_episodes``: at least ``MIN_BATCH`` rows, as YNNPACK rounds
-    fewer rows differently; see tests/test_evaluation.py for the real widths).
+    (``evaluation.map_episodes``: ``EVAL_BATCH`` rows; see tests/test_evaluation.py).
     """
     env, params = env_params
     network = make_network(SMALL_NET)
