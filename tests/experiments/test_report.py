@@ -169,7 +169,7 @@ def test_the_documents_quote_the_results_file():
     docs = [ROOT / "README.md", ROOT / "docs" / "results.md"]
     assert all("<!-- results:" in d.read_text() for d in docs)
     assert all(update_document(d.read_text(), record) == d.read_text() for d in docs)
-    assert "<!-- results:table3-cpu brief -->" in docs[0].read_text()  # the headline
+    assert "<!-- results:table3-cpu-k5 brief -->" in docs[0].read_text()  # the headline
     report = docs[1].read_text()
     assert report.count("* **collision-free % (95 % interval)**: ") == 1  # one legend
     for doc in docs:
