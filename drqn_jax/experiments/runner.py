@@ -41,6 +41,7 @@ from drqn_jax.experiments.checkpoint import (
 )
 from drqn_jax.experiments.host_loop import StopRequest, finite_training, progress_bar, run_chunks
 from drqn_jax.experiments.machine import device_identity, git_commit, machine_info
+from drqn_jax.experiments.report import strict_json
 from drqn_jax.learners import Trainer, TrainState, make_train
 from drqn_jax.learners.hyperparams import LEARNED_AGENTS, NOT_LEARNED, teacher_label
 from drqn_jax.networks import Network
@@ -371,15 +372,7 @@ def evaluate_agents(
 
 def json_ready(result: dict[str, Any]) -> dict[str, Any]:
     """An :func:`evaluate` result without per-episode arrays; non-finite numbers as null."""
-
-    def clean(v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, tuple | list):
-            return [clean(x) for x in v]
-        return v
-
-    return {k: clean(v) for k, v in result.items() if k != "episodes"}
+    return strict_json({k: v for k, v in result.items() if k != "episodes"})
 
 
 def write_evaluation(
