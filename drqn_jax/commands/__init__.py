@@ -7,8 +7,7 @@ import datetime
 import sys
 from pathlib import Path
 
-from drqn_jax.config import Config, ConfigError
-from drqn_jax.experiments.report import check_section
+from drqn_jax.config import Config
 
 
 def say(text: str) -> None:
@@ -28,14 +27,6 @@ def duration_text(seconds: float) -> str:
         return f"{seconds:.0f} s"
     minutes = round(seconds / 60)
     return f"{minutes // 60} h {minutes % 60:02d} min" if minutes >= 60 else f"{minutes} min"
-
-
-def check_section_option(section: str) -> None:
-    """A usage error (:class:`ConfigError`) for a --section name results files refuse."""
-    try:
-        check_section(section)
-    except ValueError as err:
-        raise ConfigError(str(err)) from None
 
 
 def evaluation_overrides(

@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Any
 
 from drqn_jax.commands import (
-    check_section_option,
     default_run_dir,
     duration_text,
     episodes_text,
@@ -20,6 +19,7 @@ from drqn_jax.commands import (
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.env.params import KMH
 from drqn_jax.experiments.checkpoint import atomic_write_text
+from drqn_jax.experiments.report import check_section
 from drqn_jax.experiments.runner import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 
 
@@ -45,7 +45,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     out = Path(args.out or Path("runs") / f"study-{'-'.join(a.name for a in arms)}")
     section = args.section or out.name
     if args.results:
-        check_section_option(section)
+        check_section(section)
     store = Path(args.runs_store) if args.runs_store else None
     if store is None and args.results:  # the default store beside the results file
         store = Path(args.results).parent / "finished-runs" / f"{section}.json"
@@ -216,7 +216,7 @@ def cmd_frontier(args: argparse.Namespace) -> int:
     if args.check < 0:
         raise ConfigError(f"--check {args.check}: must be an integer >= 0")
     if args.results:
-        check_section_option(args.section)
+        check_section(args.section)
     settings = grid_settings(WIDE_GRID) if args.wide else None
     if not args.quiet:
         say(

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from drqn_jax.config import ConfigError
 from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.machine import NOT_RECORDED
 
@@ -50,9 +51,9 @@ def strict_json(value: Any) -> Any:
 
 
 def check_section(section: str) -> None:
-    """ValueError unless ``section`` is a valid section name (:data:`SECTION_NAME`)."""
+    """ConfigError unless ``section`` is a valid section name (:data:`SECTION_NAME`)."""
     if not SECTION_NAME.fullmatch(section):
-        raise ValueError(f"--section {section!r}: must be letters, digits, '_', '.' or '-'")
+        raise ConfigError(f"--section {section!r}: must be letters, digits, '_', '.' or '-'")
 
 
 def load_results(path: str | Path) -> dict[str, Any]:
