@@ -224,7 +224,8 @@ def _chunks(
     elapsed: Callable[[], float],
 ) -> tuple[str, TrainState, int]:
     """``run_chunks`` for one run: progress bar, periodic checkpoints, stop on non-finite loss."""
-    total, unit = training_budget(config)
+    steps = config["train"]["num_env_steps"]  # the bar counts env steps if set, else episodes
+    total, unit = (steps, "step") if steps else (config["train"]["num_episodes"], "ep")
     with progress_bar(total, budget_used(state, total, unit), quiet, unit) as bar:
         clock = {"t": time.perf_counter(), "steps": int(state.env_steps)}
 
@@ -253,14 +254,8 @@ def _chunks(
         )
 
 
-def training_budget(config: Config) -> tuple[int, str]:
-    """``(total, unit)`` for progress bars: env steps (``"step"``) if set, else episodes."""
-    steps = config["train"]["num_env_steps"]
-    return (steps, "step") if steps else (config["train"]["num_episodes"], "ep")
-
-
 def budget_used(state: TrainState, total: int, unit: str, runs: int | None = None) -> int:
-    """How much of its :func:`training_budget` a state (its first ``runs`` runs) has used."""
+    """How much of its budget (``total`` in ``unit``) a state (its first ``runs`` runs) has used."""
     used = np.asarray(state.env_steps if unit == "step" else state.recorded)
     return int(np.minimum(used if runs is None else used[:runs], total).sum())
 

@@ -88,10 +88,6 @@ class Paired:
     too_fast: str | None = None
 
 
-def _by_seed(runs: Sequence[Mapping[str, Any]]) -> dict[Any, Mapping[str, Any]]:
-    return {r["values"].get("run.seed"): r for r in runs}
-
-
 def paired_margin(
     names: tuple[str, str],
     runs: Sequence[Mapping[str, Any]],
@@ -101,7 +97,7 @@ def paired_margin(
 ) -> Paired | None:
     """``runs``' frontier margins (SPEC §9) against ``others``', seed i against seed i; None
     with fewer than 2 common seeds."""
-    mine, theirs = _by_seed(runs), _by_seed(others)
+    mine, theirs = ({r["values"].get("run.seed"): r for r in rs} for rs in (runs, others))
     common = sorted(set(mine) & set(theirs))
     if len(common) < 2:
         return None
