@@ -197,10 +197,8 @@ def training_estimate(config: Config, runs: int, batched: bool = False) -> dict[
     longest = -(-env["max_steps"] // env["decision_steps"])  # decisions of an episode
     steps = train["num_env_steps"] or train["num_episodes"] * longest
     return {
-        "runs": runs,
         "env_steps_per_run": steps,
         "upper_bound": not train["num_env_steps"],
         "env_steps_per_s": steps_per_s,
-        "compile_s": figures["compile_s"],
         "seconds": runs * steps / steps_per_s,
     }

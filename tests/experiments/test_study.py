@@ -492,11 +492,9 @@ def test_the_study_prints_its_estimate_and_trains_nothing(tmp_path, monkeypatch,
             return "the run finished before learning started; raise train.num_episodes"
         seconds = 3 * 3600.0 + 25 * 60.0
         return {
-            "runs": runs,
             "env_steps_per_run": 180,
             "upper_bound": True,
             "env_steps_per_s": 2.5,
-            "compile_s": 1.0,
             "seconds": seconds,
         }
 
