@@ -17,7 +17,6 @@ from drqn_jax.commands import (
     say,
 )
 from drqn_jax.config import Config, ConfigError, load_config
-from drqn_jax.env.params import KMH
 from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.report import check_section
 from drqn_jax.experiments.runner import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
@@ -285,9 +284,7 @@ def _reviewer_check(config: Config, record: dict[str, Any], n: int) -> str:
     from drqn_jax.experiments.frontier import frontier_vertices, random_settings, reviewer_check
 
     seed = config["run"]["seed"]
-    limit = config["env"]["v_ref"] / KMH
-    tried = config_frontier(
-        config, planner=False, settings=random_settings(n, seed, limit), keep_all=True
-    )
+    settings = random_settings(n, seed, config.speed_limit_kmh())
+    tried = config_frontier(config, planner=False, settings=settings, keep_all=True)
     vertices = frontier_vertices(record["rule_based"]["points"])
     return reviewer_check(tried["rule_based"]["swept_points"], vertices, seed)
