@@ -41,14 +41,13 @@ def fma_disabled() -> bool:
 
 def cpu_thread_pool_size() -> int:
     """Threads of XLA:CPU's pool, sized as the PJRT CPU client does."""
-    nproc = None
     for name in ("PJRT_NPROC", "NPROC"):
         try:
             nproc = max(0, int(os.environ[name]))
             break
         except (KeyError, ValueError):
             continue
-    if nproc is None:
+    else:  # neither variable holds a number
         try:
             nproc = len(os.sched_getaffinity(0))
         except AttributeError:  # not on Linux
