@@ -114,8 +114,7 @@ def agent_name(config: TrainConfig) -> str:
     """The name of the agent ``config`` trains in results tables: the network kind of the
     paper's learner, or ``"ppo"``/``"pqn"``, ``-ff`` when feed-forward (kind ``"dqn"``)."""
     if config.algorithm in ON_POLICY:
-        name = config.algorithm
-        return name if config.network.kind == "drqn" else f"{name}-ff"
+        return config.algorithm + ("" if config.network.kind == "drqn" else "-ff")
     return config.network.kind
 
 
@@ -214,8 +213,7 @@ class TrainConfig:
                 "num_episodes, which a run with num_env_steps > 0 may not reach; use 0"
             )
         for name, choices in (("optimizer", OPTIMIZERS), ("algorithm", ALGORITHMS)):
-            if getattr(self, name) not in choices:
-                value = getattr(self, name)
+            if (value := getattr(self, name)) not in choices:
                 raise ValueError(f"TrainConfig.{name} = {value!r}: must be one of {choices}")
         if self.stored_state not in (0, 1) or isinstance(self.stored_state, bool):
             raise ValueError(f"TrainConfig.stored_state = {self.stored_state!r}: must be 0 or 1")
@@ -269,15 +267,15 @@ class TrainConfig:
                 f"({self.num_envs}); a minibatch holds whole env sequences"
             )
         for field in ("stored_state", "burn_in", "snapshots"):
-            if getattr(self, field):
+            if value := getattr(self, field):
                 raise ValueError(
-                    f"TrainConfig.{field} = {getattr(self, field)}: algorithm {name!r} has no "
+                    f"TrainConfig.{field} = {value}: algorithm {name!r} has no "
                     "replay and no snapshot selection; use 0"
                 )
         for field in ("explore_guide", "imitation_weight", "value_rescale"):
-            if float(getattr(self.hyperparams, field)) > 0.0:
+            if (value := float(getattr(self.hyperparams, field))) > 0.0:
                 raise ValueError(
-                    f"Hyperparams.{field} = {float(getattr(self.hyperparams, field))}: "
+                    f"Hyperparams.{field} = {value}: "
                     f"algorithm {name!r} learns from the reward alone, without it; use 0"
                 )
 
