@@ -300,8 +300,7 @@ class Config:
 
     def keys(self) -> tuple[jax.Array, jax.Array]:
         """(training key, evaluation key): the two halves of ``split(key(seed))``."""
-        train_key, eval_key = jax.random.split(jax.random.key(self["run"]["seed"]))
-        return train_key, eval_key
+        return tuple(jax.random.split(jax.random.key(self["run"]["seed"])))
 
     # -- validation -----------------------------------------------------------
     def validate(self) -> None:
