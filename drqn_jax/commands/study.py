@@ -116,7 +116,9 @@ def _store_rows(
         "machine": machine_info(),
     }
     earlier = load_results(args.results)["sections"].get(section)
-    if args.report_only and earlier:  # the runs' provenance stays the command that made them
+    # The runs' provenance stays the command that trained them; an earlier report's command
+    # is replaced, since this report may hold arms that one did not.
+    if args.report_only and earlier and "--report-only" not in earlier["command"].split():
         about = {**earlier, "report_command": args.command_line}
     about["frontiers"] = outcome.frontiers
     write_results(args.results, section, outcome.rows, outcome.comparisons, about)

@@ -127,6 +127,14 @@ def test_a_report_only_run_keeps_the_provenance_of_the_runs(study):
     after = json.loads(path.read_text())["sections"]["table"]
     assert (after["command"], after["wall_time_s"]) == (before["command"], before["wall_time_s"])
     assert "--report-only" in after["report_command"]
+    # a section an earlier report wrote takes the later report's command
+    fresh = study.parent / "fresh.json"
+    assert cli.main([*argv, "--results", str(fresh), "--section", "table"]) == 0
+    first = json.loads(fresh.read_text())["sections"]["table"]["command"]
+    assert cli.main([*argv, "--smooth", "3", "--results", str(fresh), "--section", "table"]) == 0
+    later = json.loads(fresh.read_text())["sections"]["table"]
+    assert "--smooth 3" in later["command"] and "--smooth 3" not in first
+    assert "report_command" not in later
 
 
 def test_a_study_that_goes_on_from_earlier_runs_says_so_beside_its_wall_time(study):
