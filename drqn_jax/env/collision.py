@@ -98,6 +98,8 @@ def reward(collided: jax.Array, ttc: jax.Array, v: jax.Array, params: EnvParams)
     """() float32 reward of one step, from the post-step collision flag, TTC (s) and speed."""
     near = ttc <= params.ttc_threshold
     # ttc is inf when there is no near collision: keep inf out of the arithmetic.
-    r_nc = jnp.where(near, ttc, params.ttc_threshold) - params.ttc_threshold
+    r_nc = params.reward_near_collision_weight * (
+        jnp.where(near, ttc, params.ttc_threshold) - params.ttc_threshold
+    )
     r = jnp.where(near, r_nc, speed_reward(v, params))
     return jnp.where(collided, params.reward_collision, r).astype(jnp.float32)

@@ -158,6 +158,9 @@ class EnvParams:
     v_ref: float = param(15.0 * KMH, low=0.0, low_open=True, doc="m/s; speed limit")
     stopped_speed: float = param(0.1, low=0.0, doc="m/s; below it the ego counts as stopped")
     ttc_threshold: float = param(3.0, low=0.0, doc="s; near-collision when TTC <= it")
+    reward_near_collision_weight: float = param(
+        1.0, low=0.0, doc="w in r_nc = w (TTC - 3) (paper: 1)"
+    )
     # "contact": box and disc overlap; "authors": a pedestrian on the ego's lane within
     # -2.2..3.5 m along and 2.2 m across the ego's centre (carla-gym; SPEC §5)
     collision_model: int = param("authors", choices=COLLISION_MODELS)

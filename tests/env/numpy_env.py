@@ -412,7 +412,7 @@ def reward(collided: bool, ttc: np.float32, v: np.float32, params: EnvParams) ->
     if collided:
         return F32(params.reward_collision)
     if ttc <= params.ttc_threshold:
-        return F32(ttc - params.ttc_threshold)
+        return F32(params.reward_near_collision_weight * (ttc - params.ttc_threshold))
     return speed_reward(v, params)
 
 

@@ -92,6 +92,27 @@ def test_reward_reads_its_parameters(params):
     assert float(reward(jnp.asarray(False), jnp.float32(2.5), jnp.float32(V_REF), p)) == 1.0
 
 
+@pytest.mark.parametrize(
+    ("weight", "ttc", "want"), [(0.1, 0.0, -0.3), (0.1, 1.2, -0.18), (0.0, 1.2, 0.0)]
+)
+def test_reward_near_collision_weight_scales_r_nc_only(params, weight, ttc, want):
+    """r_nc = w (TTC - 3); r_c and r_v do not read w, and w = 1 is today's r_nc bit for bit."""
+    p = params.replace(reward_near_collision_weight=weight)
+    assert float(reward(jnp.asarray(False), jnp.float32(ttc), jnp.float32(V_REF), p)) == (
+        pytest.approx(want, abs=1e-6)
+    )
+    assert float(reward(jnp.asarray(True), jnp.float32(ttc), jnp.float32(V_REF), p)) == -10.0
+    assert float(reward(jnp.asarray(False), jnp.float32(INF), jnp.float32(V_REF), p)) == 1.0
+    ttc = jnp.linspace(0.0, 3.0, 31, dtype=jnp.float32)
+    one = reward(
+        jnp.asarray(False),
+        ttc,
+        jnp.float32(V_REF),
+        params.replace(reward_near_collision_weight=1.0),
+    )
+    np.testing.assert_array_equal(np.asarray(one), np.asarray(ttc - jnp.float32(3.0)))
+
+
 def test_reward_batched_and_bounded(params):
     """Elementwise over a batch (vmap ≡ broadcasting), and in [-10, 1] with the defaults."""
     v = jnp.append(jnp.linspace(0.0, 20.0, 201, dtype=jnp.float32), jnp.float32(V_REF))
