@@ -7,7 +7,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from drqn_jax.env.params import COLLISION_AUTHORS, EnvParams, StaticEnvParams
+from drqn_jax.env.params import COLLISION_AUTHORS, TTC_COLLISION, EnvParams, StaticEnvParams
 from drqn_jax.env.road_map import lane_centre_y
 from drqn_jax.env.state import EgoState, PedestrianState
 
@@ -41,22 +41,29 @@ def box_disc_overlap(
     return box_squared_distance(box_centre, box_half, disc_centre) < radius * radius
 
 
-def collision_test(ego: EgoState, peds: PedestrianState, params: EnvParams) -> jax.Array:
-    """(P,) bool ``collision_model`` test (SPEC §5): ``contact``, box overlaps disc;
-    ``authors`` (carla-gym ``is_collision``), centre in the ``authors_zone_*`` box, edges in."""
-    authors = params.collision_model == COLLISION_AUTHORS
-    foot_centre, foot_half = ego_box(ego.s, params)
+def collision_region(
+    s: jax.Array, params: EnvParams, zone: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """Centre (2,) and half extents (2,) of the collision test's box at arc length ``s``:
+    the ``authors_zone_*`` box (clipped to the lane) where ``zone``, else the footprint."""
+    foot_centre, foot_half = ego_box(s, params)
     lane_y = lane_centre_y(params)
     y_lo = jnp.maximum(-params.lane_width, lane_y - params.authors_zone_half_width)
     y_hi = jnp.minimum(0.0, lane_y + params.authors_zone_half_width)
     zone_centre = jnp.stack(
-        [ego.s + 0.5 * (params.authors_zone_front - params.authors_zone_back), 0.5 * (y_lo + y_hi)]
+        [s + 0.5 * (params.authors_zone_front - params.authors_zone_back), 0.5 * (y_lo + y_hi)]
     )
     zone_half = jnp.stack(
         [0.5 * (params.authors_zone_front + params.authors_zone_back), 0.5 * (y_hi - y_lo)]
     )
-    centre = jnp.where(authors, zone_centre, foot_centre)
-    half = jnp.where(authors, zone_half, foot_half)
+    return jnp.where(zone, zone_centre, foot_centre), jnp.where(zone, zone_half, foot_half)
+
+
+def collision_test(ego: EgoState, peds: PedestrianState, params: EnvParams) -> jax.Array:
+    """(P,) bool ``collision_model`` test (SPEC §5): ``contact``, box overlaps disc;
+    ``authors`` (carla-gym ``is_collision``), centre in the ``authors_zone_*`` box, edges in."""
+    authors = params.collision_model == COLLISION_AUTHORS
+    centre, half = collision_region(ego.s, params, authors)
     d2 = box_squared_distance(centre, half, peds.position)
     return jnp.where(authors, d2 <= 0.0, d2 < params.ped_radius * params.ped_radius)
 
@@ -74,15 +81,16 @@ def time_to_collision(
     ego: EgoState, peds: PedestrianState, params: EnvParams, static: StaticEnvParams
 ) -> jax.Array:
     """() float32 TTC (s, SPEC §5): the first sampled t <= ``ttc_horizon`` at which ego and
-    pedestrians, at constant velocity, overlap; ``inf`` if none or the ego is stopped."""
+    pedestrians, at constant velocity, meet ``reward_ttc_test``'s test (the footprint
+    overlapping a disc, or the collision test); ``inf`` if none or the ego is stopped."""
     t = jnp.arange(static.ttc_samples, dtype=jnp.float32)[:, None] * static.ttc_step  # (K, 1)
-    # Pedestrians relative to the ego's box centre, in the ego's moving frame: (K, P).
-    _, half = ego_box(ego.s, params)
-    rel_x = peds.position[:, 0] - ego.s + (peds.velocity[:, 0] - ego.v) * t
-    rel_y = peds.position[:, 1] - lane_centre_y(params) + peds.velocity[:, 1] * t
-    hit = box_disc_overlap(
-        jnp.zeros(2, jnp.float32), half, jnp.stack([rel_x, rel_y], -1), params.ped_radius
-    )
+    zone = (params.reward_ttc_test == TTC_COLLISION) & (params.collision_model == COLLISION_AUTHORS)
+    centre, half = collision_region(ego.s, params, zone)
+    # Pedestrians relative to the test box's centre, in the ego's moving frame: (K, P).
+    rel_x = peds.position[:, 0] - centre[0] + (peds.velocity[:, 0] - ego.v) * t
+    rel_y = peds.position[:, 1] - centre[1] + peds.velocity[:, 1] * t
+    d2 = box_squared_distance(jnp.zeros(2, jnp.float32), half, jnp.stack([rel_x, rel_y], -1))
+    hit = jnp.where(zone, d2 <= 0.0, d2 < params.ped_radius * params.ped_radius)
     ttc = jnp.min(jnp.where(hit, t, jnp.inf))
     return jnp.where(ego.v < params.stopped_speed, jnp.inf, ttc).astype(jnp.float32)
 

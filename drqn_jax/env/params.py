@@ -30,12 +30,14 @@ SPEED_CHANNELS = ("pedestrian", "relative")
 SEMANTIC_CHANNELS = ("pedestrian", "map")
 PED_BEHAVIOURS_TO_CAR = ("ignore", "yield")
 COLLISION_MODELS = ("contact", "authors")
+TTC_TESTS = ("contact", "collision")
 SETPOINT_CHANGES = ("decision", "tick")
 SETPOINT_MEASURED, SETPOINT_PREVIOUS = 0, 1
 SPEED_PEDESTRIAN, SPEED_RELATIVE = 0, 1
 SEMANTIC_PEDESTRIAN, SEMANTIC_MAP = 0, 1
 PED_IGNORE, PED_YIELD = 0, 1
 COLLISION_CONTACT, COLLISION_AUTHORS = 0, 1
+TTC_CONTACT, TTC_COLLISION = 0, 1
 CHANGE_PER_DECISION, CHANGE_PER_TICK = 0, 1
 
 
@@ -158,6 +160,9 @@ class EnvParams:
     v_ref: float = param(15.0 * KMH, low=0.0, low_open=True, doc="m/s; speed limit")
     stopped_speed: float = param(0.1, low=0.0, doc="m/s; below it the ego counts as stopped")
     ttc_threshold: float = param(3.0, low=0.0, doc="s; near-collision when TTC <= it")
+    # what TTC projects (SPEC §5): "contact", the footprint overlapping a disc; "collision",
+    # collision_model's test (under "authors" its zone, which spans the lane)
+    reward_ttc_test: int = param("contact", choices=TTC_TESTS)
     reward_near_collision_weight: float = param(
         1.0, low=0.0, doc="w in r_nc = w (TTC - 3) (paper: 1)"
     )

@@ -88,6 +88,7 @@ from drqn_jax.env.params import (
     SEMANTIC_MAP,
     SETPOINT_PREVIOUS,
     SPEED_RELATIVE,
+    TTC_COLLISION,
     EnvParams,
     StaticEnvParams,
 )
@@ -388,6 +389,17 @@ def time_to_collision(
     if ego.v < params.stopped_speed:
         return F32(np.inf)
     t = np.arange(static.ttc_samples, dtype=F32)[:, None] * F32(static.ttc_step)  # (K, 1)
+    if params.reward_ttc_test == TTC_COLLISION and params.collision_model == COLLISION_AUTHORS:
+        x = peds.position[:, 0] - ego.s + (peds.velocity[:, 0] - ego.v) * t  # (K, P)
+        y = peds.position[:, 1] + peds.velocity[:, 1] * t
+        hit = (
+            (y >= -params.lane_width)
+            & (y <= 0.0)
+            & (x >= -params.authors_zone_back)
+            & (x <= params.authors_zone_front)
+            & (np.abs(y - lane_centre_y(params)) <= params.authors_zone_half_width)
+        ).any(axis=1)
+        return F32(t[np.argmax(hit), 0]) if hit.any() else F32(np.inf)
     _, half = ego_box(ego.s, params)
     rel_x = peds.position[:, 0] - ego.s + (peds.velocity[:, 0] - ego.v) * t
     rel_y = peds.position[:, 1] - lane_centre_y(params) + peds.velocity[:, 1] * t

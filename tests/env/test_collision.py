@@ -167,6 +167,28 @@ def test_ttc_moving_pedestrian_and_minimum(params, static, ttc_fn):
     assert float(ttc_fn(ego, both, params, static)) == pytest.approx(0.9, abs=1e-6)
 
 
+def test_ttc_of_the_collision_test(params, static, ttc_fn):
+    """``reward_ttc_test = "collision"`` projects the collision test: under the authors'
+    model its zone (3.5 m ahead of the centre, the whole lane across), so a pedestrian at
+    the lane's edge, which the footprint never meets, has a TTC, and a crossing one an
+    earlier one; under the contact model it is the footprint's TTC."""
+    s, v = 20.0, 4.0
+    ego = make_ego(params, static, s=s, v=v)
+    zone = params.replace(reward_ttc_test=1)
+    # Standing at the lane's edge 10 m ahead: in the zone once 10 - 4t <= 3.5, t >= 1.625.
+    edge = make_peds(static, [(s + 10.0, -0.2)], park_x=s + 60.0)
+    assert math.isinf(float(ttc_fn(ego, edge, params, static)))
+    assert float(ttc_fn(ego, edge, zone, static)) == pytest.approx(1.7, abs=1e-6)
+    # Crossing from the left lane at 1 m/s: in the lane from t = 1.25 s, in reach from
+    # t = 1.625 s; the footprint meets it at 1.9 s.
+    crossing = make_peds(
+        static, [(s + 10.0, 1.25)], velocities=[(0.0, -1.0)], speeds=[1.0], park_x=s + 60.0
+    )
+    assert float(ttc_fn(ego, crossing, zone, static)) == pytest.approx(1.7, abs=1e-6)
+    contact = zone.replace(collision_model=0)
+    assert float(ttc_fn(ego, crossing, contact, static)) == pytest.approx(1.9, abs=1e-6)
+
+
 # --- the geometry and the tests, by hand --------------------------------------------
 
 

@@ -57,6 +57,8 @@ SWITCHED = {
     "speed_channel": "relative",
     "semantic_channel": "map",
     "gap_acceptance": 1,
+    "reward_ttc_test": "collision",
+    "reward_near_collision_weight": 0.5,
 }
 
 
