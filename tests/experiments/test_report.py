@@ -126,7 +126,8 @@ def test_a_block_s_form_chooses_the_tables_the_legend_or_the_headline(tmp_path):
     assert f"* {claim}\n* {goal}\n" in brief and other not in brief
     assert "drqn-jax study" not in brief and "[docs/results.md](docs/results.md)" in brief
     safety = render_section(record, "t", "safety")
-    assert "Safety and speed:" in safety and "Driving:" not in safety and "Training:" not in safety
+    assert safety.startswith("| source |")  # one table: no caption
+    assert "Safety and speed:" not in safety and "Driving:" not in safety
     assert f"* {claim}" in safety and "drqn-jax study --configs x" in safety
     table = render_section(record, "t", "table")
     assert table == safety.replace(f"* {claim}\n* {goal}\n* {other}\n\n", "")
