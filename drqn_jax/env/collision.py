@@ -1,6 +1,6 @@
 """Collision, TTC and the reward (paper §IV-B; SPEC §5): the ego an axis-aligned box,
-pedestrians discs; the reward is ``r_c`` on a collision, else ``TTC − 3`` for ``TTC ≤ 3 s``,
-else the speed reward ``r_v``, in [−10, 1] by default."""
+pedestrians discs; the reward is ``r_c`` on a collision, else ``w (TTC − 3)`` for
+``TTC ≤ 3 s``, else the speed reward ``r_v``, in [−10, 1] by default."""
 
 from __future__ import annotations
 

@@ -25,6 +25,7 @@ from drqn_jax.env.collision import (
     squared_length,
     time_to_collision,
 )
+from drqn_jax.env.params import COLLISION_CONTACT, TTC_COLLISION
 from drqn_jax.env.state import ACCELERATE, STEER
 from tests import scenes
 from tests.scenes import LANE_Y, first_index, make_ego, make_peds, make_state
@@ -174,7 +175,7 @@ def test_ttc_of_the_collision_test(params, static, ttc_fn):
     earlier one; under the contact model it is the footprint's TTC."""
     s, v = 20.0, 4.0
     ego = make_ego(params, static, s=s, v=v)
-    zone = params.replace(reward_ttc_test=1)
+    zone = params.replace(reward_ttc_test=TTC_COLLISION)
     # Standing at the lane's edge 10 m ahead: in the zone once 10 - 4t <= 3.5, t >= 1.625.
     edge = make_peds(static, [(s + 10.0, -0.2)], park_x=s + 60.0)
     assert math.isinf(float(ttc_fn(ego, edge, params, static)))
@@ -185,7 +186,7 @@ def test_ttc_of_the_collision_test(params, static, ttc_fn):
         static, [(s + 10.0, 1.25)], velocities=[(0.0, -1.0)], speeds=[1.0], park_x=s + 60.0
     )
     assert float(ttc_fn(ego, crossing, zone, static)) == pytest.approx(1.7, abs=1e-6)
-    contact = zone.replace(collision_model=0)
+    contact = zone.replace(collision_model=COLLISION_CONTACT)
     assert float(ttc_fn(ego, crossing, contact, static)) == pytest.approx(1.9, abs=1e-6)
 
 

@@ -96,7 +96,7 @@ def test_reward_reads_its_parameters(params):
     ("weight", "ttc", "want"), [(0.1, 0.0, -0.3), (0.1, 1.2, -0.18), (0.0, 1.2, 0.0)]
 )
 def test_reward_near_collision_weight_scales_r_nc_only(params, weight, ttc, want):
-    """r_nc = w (TTC - 3); r_c and r_v do not read w, and w = 1 is today's r_nc bit for bit."""
+    """r_nc = w (TTC - 3); r_c and r_v do not read w, and w = 1 gives TTC - 3 bit for bit."""
     p = params.replace(reward_near_collision_weight=weight)
     assert float(reward(jnp.asarray(False), jnp.float32(ttc), jnp.float32(V_REF), p)) == (
         pytest.approx(want, abs=1e-6)
