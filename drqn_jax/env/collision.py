@@ -59,13 +59,18 @@ def collision_region(
     return jnp.where(zone, zone_centre, foot_centre), jnp.where(zone, zone_half, foot_half)
 
 
+def region_hit(d2: jax.Array, zone: jax.Array, params: EnvParams) -> jax.Array:
+    """(...,) bool from squared distances to :func:`collision_region`'s box: inside the zone
+    (edges in), or a disc overlapping the footprint strictly."""
+    return jnp.where(zone, d2 <= 0.0, d2 < params.ped_radius * params.ped_radius)
+
+
 def collision_test(ego: EgoState, peds: PedestrianState, params: EnvParams) -> jax.Array:
     """(P,) bool ``collision_model`` test (SPEC §5): ``contact``, box overlaps disc;
     ``authors`` (carla-gym ``is_collision``), centre in the ``authors_zone_*`` box, edges in."""
     authors = params.collision_model == COLLISION_AUTHORS
     centre, half = collision_region(ego.s, params, authors)
-    d2 = box_squared_distance(centre, half, peds.position)
-    return jnp.where(authors, d2 <= 0.0, d2 < params.ped_radius * params.ped_radius)
+    return region_hit(box_squared_distance(centre, half, peds.position), authors, params)
 
 
 def classify_hits(
@@ -90,7 +95,7 @@ def time_to_collision(
     rel_x = peds.position[:, 0] - centre[0] + (peds.velocity[:, 0] - ego.v) * t
     rel_y = peds.position[:, 1] - centre[1] + peds.velocity[:, 1] * t
     d2 = box_squared_distance(jnp.zeros(2, jnp.float32), half, jnp.stack([rel_x, rel_y], -1))
-    hit = jnp.where(zone, d2 <= 0.0, d2 < params.ped_radius * params.ped_radius)
+    hit = region_hit(d2, zone, params)
     ttc = jnp.min(jnp.where(hit, t, jnp.inf))
     return jnp.where(ego.v < params.stopped_speed, jnp.inf, ttc).astype(jnp.float32)
 

@@ -361,20 +361,24 @@ def box_disc_overlap(box_centre: Array, box_half: Array, disc_centre: Array, rad
     return dx * dx + dy * dy < radius * radius
 
 
+def in_authors_zone(rel_x: Array, y: Array, params: EnvParams) -> Array:
+    """The authors' test: in the ego's lane, ``rel_x`` (along, from the ego centre) within
+    −back … front and ``y`` within the half width of the lane centre."""
+    return (
+        (y >= -params.lane_width)
+        & (y <= 0.0)
+        & (rel_x >= -params.authors_zone_back)
+        & (rel_x <= params.authors_zone_front)
+        & (np.abs(y - lane_centre_y(params)) <= params.authors_zone_half_width)
+    )
+
+
 def classify_hits(ego: EgoState, peds: PedestrianState, params: EnvParams) -> tuple[bool, bool]:
     """``(collision, struck_while_stopped)``: a pedestrian meets the ``collision_model``
     test (box-disc contact, or the authors' zone in the ego's lane) while the ego
     moves, or while it stands."""
     if params.collision_model == COLLISION_AUTHORS:
-        rel_x = peds.position[:, 0] - ego.s
-        y = peds.position[:, 1]
-        hit = (
-            (y >= -params.lane_width)
-            & (y <= 0.0)
-            & (rel_x >= -params.authors_zone_back)
-            & (rel_x <= params.authors_zone_front)
-            & (np.abs(y - lane_centre_y(params)) <= params.authors_zone_half_width)
-        )
+        hit = in_authors_zone(peds.position[:, 0] - ego.s, peds.position[:, 1], params)
     else:
         centre, half = ego_box(ego.s, params)
         hit = box_disc_overlap(centre, half, peds.position, params.ped_radius)
@@ -385,20 +389,15 @@ def classify_hits(ego: EgoState, peds: PedestrianState, params: EnvParams) -> tu
 def time_to_collision(
     ego: EgoState, peds: PedestrianState, params: EnvParams, static: StaticEnvParams
 ) -> np.float32:
-    """First sample time in {0, step, …, horizon} of a box–disc overlap; inf if none or stopped."""
+    """First sample time in {0, step, …, horizon} at which ``reward_ttc_test``'s test holds (a
+    box–disc overlap, or the authors' zone); inf if none or stopped."""
     if ego.v < params.stopped_speed:
         return F32(np.inf)
     t = np.arange(static.ttc_samples, dtype=F32)[:, None] * F32(static.ttc_step)  # (K, 1)
     if params.reward_ttc_test == TTC_COLLISION and params.collision_model == COLLISION_AUTHORS:
         x = peds.position[:, 0] - ego.s + (peds.velocity[:, 0] - ego.v) * t  # (K, P)
         y = peds.position[:, 1] + peds.velocity[:, 1] * t
-        hit = (
-            (y >= -params.lane_width)
-            & (y <= 0.0)
-            & (x >= -params.authors_zone_back)
-            & (x <= params.authors_zone_front)
-            & (np.abs(y - lane_centre_y(params)) <= params.authors_zone_half_width)
-        ).any(axis=1)
+        hit = in_authors_zone(x, y, params).any(axis=1)
         return F32(t[np.argmax(hit), 0]) if hit.any() else F32(np.inf)
     _, half = ego_box(ego.s, params)
     rel_x = peds.position[:, 0] - ego.s + (peds.velocity[:, 0] - ego.v) * t

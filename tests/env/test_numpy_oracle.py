@@ -90,7 +90,9 @@ SCENARIOS = {
     "mixed": Scenario(
         "UrbanPedestriansMixed-v0", {}, "driving", 0, 250, ("collision", "near_miss")
     ),
-    "switches": Scenario("UrbanPedestrians-v0", SWITCHED, "driving", 0, 300, ("collision",)),
+    "switches": Scenario(
+        "UrbanPedestrians-v0", SWITCHED, "driving", 0, 300, ("collision", "near_miss")
+    ),
     "occlusion": Scenario(
         "UrbanPedestrians-v0", {"occlusion_prob": 0.3}, "driving", 1, 250, ("occluded",)
     ),

@@ -27,6 +27,8 @@ from drqn_jax.env.params import EnvParams, StaticEnvParams
         ({"gap_acceptance": 0.5}, "gap_acceptance"),
         ({"ped_behaviour_to_car": "wave"}, "ped_behaviour_to_car"),
         ({"collision_model": 2}, "collision_model"),
+        ({"reward_ttc_test": 2}, "reward_ttc_test"),
+        ({"reward_near_collision_weight": -0.1}, "reward_near_collision_weight"),
         ({"ped_wait_max_s": -1.0}, "ped_wait_max_s"),
         ({"intersection_spacing": 5.0}, r"intersection_spacing = 5: must be >= .* \(13\)"),
         ({"ttc_threshold": 4.0}, "ttc_threshold"),

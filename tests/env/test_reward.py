@@ -96,21 +96,20 @@ def test_reward_reads_its_parameters(params):
     ("weight", "ttc", "want"), [(0.1, 0.0, -0.3), (0.1, 1.2, -0.18), (0.0, 1.2, 0.0)]
 )
 def test_reward_near_collision_weight_scales_r_nc_only(params, weight, ttc, want):
-    """r_nc = w (TTC - 3); r_c and r_v do not read w, and w = 1 gives TTC - 3 bit for bit."""
+    """r_nc = w (TTC - 3); r_c and r_v do not read w."""
     p = params.replace(reward_near_collision_weight=weight)
     assert float(reward(jnp.asarray(False), jnp.float32(ttc), jnp.float32(V_REF), p)) == (
         pytest.approx(want, abs=1e-6)
     )
     assert float(reward(jnp.asarray(True), jnp.float32(ttc), jnp.float32(V_REF), p)) == -10.0
     assert float(reward(jnp.asarray(False), jnp.float32(INF), jnp.float32(V_REF), p)) == 1.0
+
+
+def test_near_collision_weight_one_is_ttc_minus_3_bit_for_bit(params):
     ttc = jnp.linspace(0.0, 3.0, 31, dtype=jnp.float32)
-    one = reward(
-        jnp.asarray(False),
-        ttc,
-        jnp.float32(V_REF),
-        params.replace(reward_near_collision_weight=1.0),
-    )
-    np.testing.assert_array_equal(np.asarray(one), np.asarray(ttc - jnp.float32(3.0)))
+    one = params.replace(reward_near_collision_weight=1.0)
+    got = reward(jnp.asarray(False), ttc, jnp.float32(V_REF), one)
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(ttc - jnp.float32(3.0)))
 
 
 def test_reward_batched_and_bounded(params):
