@@ -79,3 +79,6 @@ def test_more_seeds_train_only_the_new_seeds_and_make_one_row(tmp_path, capsys):
     (row,) = [r for r in json.loads(results.read_text())["rows"] if r.get("decision_steps")]
     assert row["seeds"] == 2 and row["interval"] == "t over seeds"
     assert [s["seed"] for s in row["per_seed"]] == [0, 1]
+    # the frontier stays keyed by the episodes it was played on (the config's run.seed)
+    section = json.loads(results.read_text())["sections"]["decision-interval"]
+    assert list(section["frontiers"]) == [frontier_key(config)]
