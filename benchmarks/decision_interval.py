@@ -127,8 +127,8 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     # every seed is judged on the frontier of the configs' own run.seed's episodes, as in a study
     base_seed = load_config(names[0], args.set)["run"]["seed"]
     bases = [arm(n, k, base_seed, args)[1] for n in names for k in ks]
-    frontier = stored_frontier(bases[0], Path(args.results))
-    if frontier is None or any(frontier_key(c) != frontier_key(bases[0]) for c in bases):
+    frontier, key = stored_frontier(bases[0], Path(args.results)), frontier_key(bases[0])
+    if frontier is None or any(frontier_key(c) != key for c in bases):
         parser.error("the arms need one world and episodes with a frontier in --results")
     rows, about = _stored(args.results, args.section)
     curves = dict(about.get("curves", {}))
@@ -163,7 +163,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
                 "wall_time_s": time.perf_counter() - start,  # this invocation's, as a study records
                 "continued": True,
                 "machine": machine_info(),
-                "frontiers": {**about.get("frontiers", {}), frontier_key(bases[0]): frontier},
+                "frontiers": {**about.get("frontiers", {}), key: frontier},
                 "curves": curves,
             },
         )

@@ -33,7 +33,9 @@ def test_each_arm_trains_ticks_over_k_decisions_and_is_stored_once(tmp_path, cap
     config = load_config("smoke", [*TINY, "evaluate.episodes=4"])
     results = tmp_path / "results.json"
     frontiers = {frontier_key(config): HAND_FRONTIER}
-    results.write_text(json.dumps({"rows": [], "sections": {"f": {"frontiers": frontiers}}}))
+    earlier = {"frontiers": {"earlier": HAND_FRONTIER}}  # a frontier an earlier row used
+    sections = {"f": {"frontiers": frontiers}, "decision-interval": earlier}
+    results.write_text(json.dumps({"rows": [], "sections": sections}))
 
     decision_interval.main(_args(results, "--k", "1,2"))
     record = json.loads(results.read_text())
@@ -42,7 +44,9 @@ def test_each_arm_trains_ticks_over_k_decisions_and_is_stored_once(tmp_path, cap
         (1, "drqn_jax: smoke, k = 1, " + ", ".join(TINY)),
         (2, "drqn_jax: smoke, k = 2, " + ", ".join(TINY)),
     ]
-    curves = record["sections"]["decision-interval"]["curves"]
+    section = record["sections"]["decision-interval"]
+    assert set(section["frontiers"]) == {"earlier", frontier_key(config)}
+    curves = section["curves"]
     for row in rows:
         (point,) = curves[row["label"] + ", seed 0"]
         k = row["decision_steps"]
