@@ -338,14 +338,13 @@ def study_table(
     """Markdown of ``rows`` as ``tables`` (default :data:`TABLES`; captioned when more than
     one is shown), device legend, ``notes`` and, with ``legend``, every column's definition."""
     devices = _device_legend(rows)
-    shown_tables = []
+    parts = []
     for caption, keys, shown in tables:
         kept = [r for r in rows if any(COLUMNS[h][1](r, devices) != "–" for h in shown)]
         if kept:
-            shown_tables.append((f"{caption}:", _markdown_table((*keys, *shown), kept, devices)))
-    parts = []
-    for caption, table in shown_tables:
-        parts += [caption, table] if len(shown_tables) > 1 else [table]
+            parts += [f"{caption}:", _markdown_table((*keys, *shown), kept, devices)]
+    if len(parts) == 2:  # one table: no caption
+        parts = parts[1:]
     if devices and any(caption == "Training" for caption, _, _ in tables):
         parts.append("Devices: " + "; ".join(f"{k} {d}" for d, k in devices.items()) + ".")
     if notes:
