@@ -5,8 +5,6 @@ kept); 2 a configuration, usage or checkpoint problem; 130 interrupted (after a
 checkpoint).
 """
 
-from __future__ import annotations
-
 import argparse
 import inspect
 import shlex

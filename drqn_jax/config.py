@@ -9,8 +9,6 @@ Seven sections, every field defaulted: ``[run]`` (seed: training key
 one-line :class:`ConfigError` naming field, value and rule.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import hashlib
 import json
@@ -207,7 +205,7 @@ def _resolve_extends(raw: dict[str, Any], origin: str, depth: int = 0) -> dict[s
 
 def load_config(
     source: str | Path | dict[str, Any] | None = None, overrides: Sequence[str] = ()
-) -> Config:
+) -> "Config":
     """Read ``source`` (a TOML path, a name in ``configs/``, a nested dict, or None for
     the defaults), apply ``section.field=value`` overrides, validate (ConfigError)."""
     if source is None:

@@ -12,8 +12,6 @@ transpose (:func:`drqn_jax.layers._rows_product`; Eigen splits ``x.T @ g`` by
 exactly :data:`drqn_jax.evaluation.EVAL_BATCH` rows (kernels are picked by rows).
 """
 
-from __future__ import annotations
-
 import os
 import re
 import warnings

@@ -5,8 +5,6 @@
 does both. Episode *i* uses ``fold_in(key, i)``, whatever episodes run beside it.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import math
 from collections.abc import Callable

@@ -3,8 +3,6 @@ convolutions as patch products, LSTM/GRU cells and frame stacks, written so that
 same key gives the same bits alone, batched by ``vmap`` and on any number of devices.
 """
 
-from __future__ import annotations
-
 import math
 from typing import Any
 

@@ -10,8 +10,6 @@ ReLU → 4 Q-values. Flat-vector envs get an MLP torso (``torso = "mlp"``) and n
 ``unroll(params, obs_seq, carry, resets)`` over time-major (T, B, …) sequences.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import functools
 import math

@@ -6,8 +6,6 @@ description goes through :func:`cached_program` or :func:`cached`. Over
 JAX's caches and then the older half of the store are dropped; rebuilt, same bits.
 """
 
-from __future__ import annotations
-
 import collections
 import functools
 import gc

@@ -6,8 +6,6 @@ Switch fields (``choices=``) take names and store ``int`` codes, so a switch can
 be swept under ``vmap`` like any number.
 """
 
-from __future__ import annotations
-
 import dataclasses
 from collections.abc import Sequence
 from typing import Any, TypeVar

@@ -1,7 +1,5 @@
 """``make(env_id)``: the registered environments and their parameter presets."""
 
-from __future__ import annotations
-
 import dataclasses
 from typing import Any
 

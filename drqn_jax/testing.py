@@ -10,8 +10,6 @@ the episode goes on); same keys, same bits; ``jit`` ≡ op by op for the first
 small ``max_steps``, e.g. ``drqn_jax.make(env_id, max_steps=16)``.
 """
 
-from __future__ import annotations
-
 from collections.abc import Callable
 from typing import Any, NamedTuple
 

@@ -3,8 +3,6 @@ functions static, so ``jit`` compiles one program per kind of agent, reused for 
 and the policies without rules of their own: uniform random, a constant action, and the
 trained network's greedy policy (paper §V-E; SPEC §8)."""
 
-from __future__ import annotations
-
 from collections.abc import Callable
 from typing import Any
 

@@ -6,8 +6,6 @@ fastest first, the candidate once then ``brake``; it takes the fastest after whi
 braking still avoids every collision within the horizon, under its speed cap.
 """
 
-from __future__ import annotations
-
 import jax
 import jax.numpy as jnp
 

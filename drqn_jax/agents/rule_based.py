@@ -6,8 +6,6 @@ brakes for one that, walking on at its velocity, enters that corridor within
 ``horizon`` seconds before the bumper has passed it.
 """
 
-from __future__ import annotations
-
 import jax
 import jax.numpy as jnp
 

@@ -2,8 +2,6 @@
 --agent NAME``): each a directory ``trained/<NAME>/`` as ``drqn-jax export`` writes it
 (``config.toml``, ``agent.npz``/``agent.json``, ``provenance.json``)."""
 
-from __future__ import annotations
-
 from pathlib import Path
 
 #: Where the shipped agents live (package data).

@@ -1,8 +1,6 @@
 """The ``drqn-jax`` commands: :mod:`drqn_jax.cli` parses, ``cmd_<name>(args)`` returns
 the exit status."""
 
-from __future__ import annotations
-
 import datetime
 import sys
 from pathlib import Path

@@ -4,8 +4,6 @@ env steps/s (:func:`bench_env`), training throughput (:func:`bench_train`) and t
 after a warm-up; compile time is reported apart.
 """
 
-from __future__ import annotations
-
 import argparse
 import os
 import subprocess

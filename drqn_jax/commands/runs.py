@@ -1,7 +1,5 @@
 """``drqn-jax train``, ``evaluate``, ``reproduce``, ``replay``, ``export``: one run."""
 
-from __future__ import annotations
-
 import argparse
 import json
 import sys

@@ -1,7 +1,5 @@
 """``drqn-jax study`` (Table III over configs × seeds), ``report`` and ``frontier`` (SPEC §9)."""
 
-from __future__ import annotations
-
 import argparse
 import functools
 import json

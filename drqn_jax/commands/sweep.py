@@ -1,7 +1,5 @@
 """``drqn-jax sweep``: a sweep file's points as compiled programs, and its results."""
 
-from __future__ import annotations
-
 import argparse
 import json
 import time

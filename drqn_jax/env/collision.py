@@ -2,8 +2,6 @@
 pedestrians discs; the reward is ``r_c`` on a collision, else ``w (TTC − 3)`` for
 ``TTC ≤ 3 s``, else the speed reward ``r_v``, in [−10, 1] by default."""
 
-from __future__ import annotations
-
 import jax
 import jax.numpy as jnp
 

@@ -3,8 +3,6 @@
 One environment per call; ``vmap`` batches.
 """
 
-from __future__ import annotations
-
 import jax
 import jax.numpy as jnp
 

@@ -2,8 +2,6 @@
 occupancy, heading / π, speed, semantic class / 3. The nearest pedestrian wins a cell, so
 the grid does not depend on XLA's scatter order."""
 
-from __future__ import annotations
-
 import jax
 import jax.numpy as jnp
 
@@ -17,6 +15,38 @@ NUM_CHANNELS = 4
 # Per-channel bounds of the grid values (occupancy, heading, speed, semantics).
 GRID_LOW = (0.0, -1.0, 0.0, 0.0)
 GRID_HIGH = (1.0, 1.0, float("inf"), 1.0)
+
+
+@pytree_dataclass
+class GridInputs:
+    """The ego's ``s``, ``v`` () and the pedestrians' fields the grid is rasterised from:
+    6P + 2 floats and P flags a replay stores instead of 5400 grid floats."""
+
+    s: jax.Array
+    v: jax.Array
+    position: jax.Array
+    velocity: jax.Array
+    heading: jax.Array
+    speed: jax.Array
+    visible: jax.Array
+
+    @classmethod
+    def of(cls, ego: EgoState, peds: PedestrianState) -> "GridInputs":
+        fields = ("position", "velocity", "heading", "speed", "visible")
+        return cls(s=ego.s, v=ego.v, **{name: getattr(peds, name) for name in fields})
+
+    @classmethod
+    def empty(cls, num_pedestrians: int) -> "GridInputs":
+        p, f32 = num_pedestrians, jnp.float32
+        return cls(
+            s=jnp.zeros((), f32),
+            v=jnp.zeros((), f32),
+            position=jnp.zeros((p, 2), f32),
+            velocity=jnp.zeros((p, 2), f32),
+            heading=jnp.zeros((p,), f32),
+            speed=jnp.zeros((p,), f32),
+            visible=jnp.zeros((p,), bool),
+        )
 
 
 def cell_centres(
@@ -58,38 +88,6 @@ def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
     for j in range(1, num):
         loses = loses | beats[j]
     return jnp.where(loses, size, flat)
-
-
-@pytree_dataclass
-class GridInputs:
-    """The ego's ``s``, ``v`` () and the pedestrians' fields the grid is rasterised from:
-    6P + 2 floats and P flags a replay stores instead of 5400 grid floats."""
-
-    s: jax.Array
-    v: jax.Array
-    position: jax.Array
-    velocity: jax.Array
-    heading: jax.Array
-    speed: jax.Array
-    visible: jax.Array
-
-    @classmethod
-    def of(cls, ego: EgoState, peds: PedestrianState) -> GridInputs:
-        fields = ("position", "velocity", "heading", "speed", "visible")
-        return cls(s=ego.s, v=ego.v, **{name: getattr(peds, name) for name in fields})
-
-    @classmethod
-    def empty(cls, num_pedestrians: int) -> GridInputs:
-        p, f32 = num_pedestrians, jnp.float32
-        return cls(
-            s=jnp.zeros((), f32),
-            v=jnp.zeros((), f32),
-            position=jnp.zeros((p, 2), f32),
-            velocity=jnp.zeros((p, 2), f32),
-            heading=jnp.zeros((p,), f32),
-            speed=jnp.zeros((p,), f32),
-            visible=jnp.zeros((p,), bool),
-        )
 
 
 def rasterize_grid(

@@ -4,8 +4,6 @@ sweeps them in one program). Both validate on construction. Units are SI (m, s,
 m/s, rad); the PID's error is in km/h as in CARLA's local planner.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import math
 

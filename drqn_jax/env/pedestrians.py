@@ -1,8 +1,6 @@
 """Pedestrians (paper §V-D; SPEC §3): spawned on a main sidewalk with a behaviour and
 ``NUM_WAYPOINTS`` waypoints, walked straight to the next, replaced when far or done."""
 
-from __future__ import annotations
-
 from collections.abc import Callable
 
 import jax

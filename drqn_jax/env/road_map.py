@@ -5,8 +5,6 @@ rasters alike. x runs along the ego's road, y to its left; a point on a boundary
 belongs to the outer (walkway) side.
 """
 
-from __future__ import annotations
-
 import jax
 import jax.numpy as jnp
 

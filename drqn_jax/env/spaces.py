@@ -1,7 +1,5 @@
 """Minimal gymnax-style spaces: ``Discrete``, ``Box``, ``Dict`` with ``sample`` and ``contains``."""
 
-from __future__ import annotations
-
 import dataclasses
 from typing import Any
 

@@ -3,8 +3,6 @@
 P = ``num_pedestrians``, W = ``NUM_WAYPOINTS``, K = ``pid_window``.
 """
 
-from __future__ import annotations
-
 import jax
 
 from drqn_jax.pytree import pytree_dataclass

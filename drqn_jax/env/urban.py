@@ -6,8 +6,6 @@ The gymnax contract: the env holds only its hashable :class:`StaticEnvParams`
 info)`` with same-step auto-reset, ``step_env`` the same without the reset.
 """
 
-from __future__ import annotations
-
 import dataclasses
 from typing import Any
 

@@ -1,8 +1,6 @@
 """How the env is drawn (SPEC §1–5): palette, raster (:func:`render_frame`, pure JAX) and
 HUD (step, km/h, last action, TTC as :data:`GLYPHS` indices) shared with rerun recordings."""
 
-from __future__ import annotations
-
 import jax
 import jax.numpy as jnp
 import numpy as np

@@ -4,8 +4,6 @@ replays. Worlds are keyed by digests of what each result reads (:func:`env_key`,
 :func:`frontier_key`), so configs differing elsewhere share one sweep.
 """
 
-from __future__ import annotations
-
 import hashlib
 import json
 import sys

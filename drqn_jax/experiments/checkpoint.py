@@ -6,8 +6,6 @@ their width). Crash safety: the npz is written to a temp file, fsynced and renam
 point), then the json; zip CRC-32s detect truncation or corruption.
 """
 
-from __future__ import annotations
-
 import contextlib
 import hashlib
 import io

@@ -3,8 +3,6 @@
 drawn on a pyplot-free Figure.
 """
 
-from __future__ import annotations
-
 import csv
 import dataclasses
 from collections.abc import Mapping, Sequence

@@ -7,8 +7,6 @@ a ``vmap`` over episodes). The privileged planner's frontier is a ceiling. Also 
 statistics across seeds: Student-t interval and interquartile mean (Agarwal et al. 2021).
 """
 
-from __future__ import annotations
-
 import itertools
 import math
 import time

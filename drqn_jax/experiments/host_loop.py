@@ -3,8 +3,6 @@ a stop request or non-finite loss, show progress and checkpoint; what differs co
 functions.
 """
 
-from __future__ import annotations
-
 import contextlib
 import signal
 import sys
@@ -40,7 +38,7 @@ class StopRequest:
         self.signal = 0
 
     @contextlib.contextmanager
-    def installed(self) -> Iterator[StopRequest]:
+    def installed(self) -> Iterator["StopRequest"]:
         """Catch SIGINT and SIGTERM while the block runs; the old handlers return after."""
         previous = {s: signal.signal(s, self._handler) for s in (signal.SIGINT, signal.SIGTERM)}
         try:

@@ -1,7 +1,5 @@
 """The machine block every benchmark prints beside its figures."""
 
-from __future__ import annotations
-
 import datetime
 import os
 import platform

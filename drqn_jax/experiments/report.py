@@ -7,8 +7,6 @@ column definitions), ``safety`` (safety-and-speed table only), ``table`` (that t
 its verdict lines: each row's margin interval says it), ``brief`` (headline table).
 """
 
-from __future__ import annotations
-
 import json
 import math
 import re

@@ -3,8 +3,6 @@ policy (:func:`baseline_row`), the paper's Table III (:func:`paper_rows`) and a 
 frontier points (:func:`frontier_rows`); ``per_seed`` feeds the frontier margin (SPEC §9).
 """
 
-from __future__ import annotations
-
 import math
 from collections import Counter
 from collections.abc import Mapping, Sequence

@@ -6,8 +6,6 @@ directory holds ``config.toml``, ``metrics.csv``, ``checkpoint.npz``/``.json`` a
 ``evaluation.json``/``results.md`` (SPEC §8).
 """
 
-from __future__ import annotations
-
 import csv
 import dataclasses
 import functools

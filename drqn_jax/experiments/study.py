@@ -12,8 +12,6 @@ A runs store (``study --runs-store FILE``, ``{"command": ..., "finished_runs": {
 outlives its directory: restored runs give the same table bit for bit, but have no agent.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import json
 import sys

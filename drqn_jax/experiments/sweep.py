@@ -14,8 +14,6 @@ Points whose shapes agree form one program (``jit(vmap(train))``); every run is 
 the first point's evaluation episodes. Running: :mod:`drqn_jax.experiments.sweep_runner`.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import functools
 import itertools

@@ -8,8 +8,6 @@ OUT/results.md, results.csv        per setting: mean, std, 95 % interval, IQM
 OUT/runs.json                      every run's evaluation and training summary
 """
 
-from __future__ import annotations
-
 import json
 from collections.abc import Sequence
 from pathlib import Path

@@ -7,8 +7,6 @@ The memory plan, made before anything compiles: a run holds its ``TrainState`` (
 within 1-2× of XLA's ``memory_analysis()``).
 """
 
-from __future__ import annotations
-
 import dataclasses
 import hashlib
 import itertools

@@ -7,8 +7,6 @@ each trains its slice and process 0 gathers results via ``jax.distributed``'s ke
 Output layout: :mod:`drqn_jax.experiments.sweep_outputs`.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import functools
 import json

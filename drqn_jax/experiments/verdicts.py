@@ -4,8 +4,6 @@ at its own speed, the paper's claim, arms paired seed by seed, and Table III at 
 "Above" means the 95 % interval lies above; every number comes from the rows.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence

@@ -1,7 +1,5 @@
 """Recorded episodes (paper §V-E; SPEC §8): episode i is :func:`drqn_jax.evaluate`'s i."""
 
-from __future__ import annotations
-
 from typing import Any
 
 import jax

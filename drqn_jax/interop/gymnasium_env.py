@@ -3,8 +3,6 @@
 −1): SB3-style libraries need Box shapes and spaces from 0. Resets draw a JAX key from
 ``np_random``; steps split the held key."""
 
-from __future__ import annotations
-
 import functools
 from typing import Any, ClassVar, NamedTuple, SupportsFloat
 

@@ -1,8 +1,6 @@
 """Gymnasium vector env over the JAX simulator (SPEC §1–5), one jitted vmapped call per
 step; sub-env ``i`` behaves exactly like ``gymnasium.make(id)`` reset with ``seed + i``."""
 
-from __future__ import annotations
-
 from typing import Any
 
 import jax

@@ -5,8 +5,6 @@ before decision t; ``reward``/``ttc`` at t come from the step into state t. Trai
 one run's per-episode metrics (timeline ``"episode"``) and a study's curves over seeds
 (timeline ``"env_steps"``)."""
 
-from __future__ import annotations
-
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from functools import partial

@@ -3,8 +3,6 @@ hyperparams, common) and one per algorithm (``dqn``, ``ppo``, ``pqn``; none impo
 another). :func:`make_train` picks by ``TrainConfig.algorithm``.
 """
 
-from __future__ import annotations
-
 from drqn_jax.learners.common import Trainer
 from drqn_jax.learners.dqn.train import TrainState, make_dqn
 from drqn_jax.learners.hyperparams import Hyperparams, TrainConfig

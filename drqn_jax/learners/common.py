@@ -7,8 +7,6 @@ paper's), the K snapshots and the final parameters play greedy validation episod
 and ``select_by`` picks one.
 """
 
-from __future__ import annotations
-
 import dataclasses
 import functools
 from collections.abc import Callable

@@ -4,8 +4,6 @@
 named in results tables (:func:`teacher_label`, :func:`agent_name`).
 """
 
-from __future__ import annotations
-
 import dataclasses
 from typing import Any
 
@@ -110,7 +108,7 @@ def teacher_label(hp: Hyperparams) -> str:
 LEARNED_AGENTS = ("drqn", "dqn", "ppo", "ppo-ff", "pqn", "pqn-ff")
 
 
-def agent_name(config: TrainConfig) -> str:
+def agent_name(config: "TrainConfig") -> str:
     """The name of the agent ``config`` trains in results tables: the network kind of the
     paper's learner, or ``"ppo"``/``"pqn"``, ``-ff`` when feed-forward (kind ``"dqn"``)."""
     if config.algorithm in ON_POLICY:
@@ -130,7 +128,7 @@ def teachers_of(results: Any) -> str:
     return " / ".join(sorted({r.get("teacher") or "–" for r in results}))
 
 
-def step_share(config: TrainConfig, env_steps: jax.Array) -> jax.Array | None:
+def step_share(config: "TrainConfig", env_steps: jax.Array) -> jax.Array | None:
     """() float32 share of ``num_env_steps`` taken, or None without a step budget."""
     if not config.num_env_steps:
         return None

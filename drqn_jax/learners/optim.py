@@ -3,8 +3,6 @@ hand (paper §V-B; SPEC §7); no optax at run time. Hyperparameters may be trace
 a sweep can ``vmap`` over the learning rate.
 """
 
-from __future__ import annotations
-
 from collections.abc import Callable
 from typing import Any, NamedTuple
 

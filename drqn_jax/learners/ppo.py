@@ -7,8 +7,6 @@ The network has A + 1 outputs (logits, value); the carry is zeroed at every epis
 start, and a time limit ends the advantage's sum as a termination does (PureJaxRL).
 """
 
-from __future__ import annotations
-
 import dataclasses
 import functools
 from typing import Any, NamedTuple

@@ -9,8 +9,6 @@ sequence, unrolled from the state they were acted from, and are trained again
 (purejaxql's ``MEMORY_WINDOW``; before the first update they are padding, weighted 0).
 """
 
-from __future__ import annotations
-
 import functools
 from typing import Any, NamedTuple
 

@@ -6,8 +6,6 @@ episode metrics, greedy validation and an optional teacher (SPEC §6).
 (gymnax >= 1.0, which tells truncation from termination).
 """
 
-from __future__ import annotations
-
 import dataclasses
 import math
 from collections.abc import Callable

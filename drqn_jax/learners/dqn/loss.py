@@ -8,8 +8,6 @@ Not in the paper: R2D2's value rescaling h (Kapturowski et al. 2019) and DQfD's
 large-margin imitation term J_E (Hester et al. 2018). Padding is masked out.
 """
 
-from __future__ import annotations
-
 from typing import Any
 
 import jax

@@ -7,8 +7,6 @@ transition the action, reward and ``terminated``. Each of N writers fills its ow
 never cross an episode start (shorter episodes padded and masked).
 """
 
-from __future__ import annotations
-
 from collections.abc import Callable
 from typing import Any
 

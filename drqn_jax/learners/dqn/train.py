@@ -9,8 +9,6 @@ step samples windows, takes the sequence loss's gradient (clamped with ``clip =
 replayed records.
 """
 
-from __future__ import annotations
-
 import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
