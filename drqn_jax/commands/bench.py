@@ -200,3 +200,32 @@ def training_estimate(config: Config, runs: int, batched: bool = False) -> dict[
         "env_steps_per_s": steps_per_s,
         "seconds": runs * steps / steps_per_s,
     }
+
+
+def estimate_lines(arms: Sequence[tuple[str, Config, int, str]]) -> str:
+    """Lines of the training wall time here of each ``(name, config, runs, sweep strategy)``
+    and in all (``study --estimate``, ``reproduce --train``)."""
+    from drqn_jax.commands import duration_text
+    from drqn_jax.experiments.sweep_plan import resolve_strategy
+
+    lines, total, bounded = [], 0.0, False
+    for name, config, runs, strategy in arms:
+        strategy = resolve_strategy(strategy, jax.local_devices())
+        figures = training_estimate(config, runs, batched=strategy == "vmap")
+        if isinstance(figures, str):
+            lines.append(f"{name}: no estimate: {figures}")
+            continue
+        total += figures["seconds"]
+        bounded |= figures["upper_bound"]
+        most = "at most " if figures["upper_bound"] else ""
+        lines.append(
+            f"{name}: {runs} runs ({strategy}) × {most}{figures['env_steps_per_run']:,} env "
+            f"steps at {figures['env_steps_per_s']:,.0f} env steps/s: "
+            f"{most}{duration_text(figures['seconds'])}"
+        )
+    most = "at most " if bounded else ""
+    lines.append(
+        f"training in all, on this {jax.devices()[0].device_kind}: {most}{duration_text(total)} "
+        "(one chunk of each config timed once learning runs; evaluation and compiles not included)"
+    )
+    return "\n".join(lines)

@@ -12,7 +12,6 @@ from drqn_jax.agents import drqn_agent
 from drqn_jax.agents.shipped import shipped_agent_dir, shipped_agents
 from drqn_jax.commands import (
     default_run_dir,
-    duration_text,
     episodes_text,
     evaluation_overrides,
     say,
@@ -270,7 +269,9 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         name = Path(str(args.config)).stem if args.config else HEADLINE
         run_dir = Path(args.run_dir or default_run_dir("reproduce", name))
         if not args.quiet:
-            say(_training_estimate(config))
+            from drqn_jax.commands.bench import estimate_lines
+
+            say(estimate_lines([(name, config, 1, "map")]))
         return _train_and_evaluate(args, config, run_dir, start, reproduce=True)
     if args.config is not None or args.rrd is not None:
         raise ConfigError("--config and --rrd are for --train: reproduce alone trains nothing")
@@ -297,23 +298,6 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         "train_wall_s": provenance.get("wall_time_s"),
     }
     return _evaluated(config, agent, run_dir, args.quiet, start, summary, about, training)
-
-
-def _training_estimate(config: Config) -> str:
-    """One line: how long training ``config`` takes on this device (one chunk timed)."""
-    import jax
-
-    from drqn_jax.commands.bench import training_estimate
-
-    figures = training_estimate(config, 1)
-    if isinstance(figures, str):
-        return f"training: no estimate ({figures})"
-    most = "at most " if figures["upper_bound"] else "about "
-    return (
-        f"training: {most}{duration_text(figures['seconds'])} on this "
-        f"{jax.devices()[0].device_kind} ({most}{figures['env_steps_per_run']:,} env steps "
-        f"at {figures['env_steps_per_s']:,.0f} env steps/s, one chunk timed)"
-    )
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

@@ -9,7 +9,6 @@ from typing import Any
 
 from drqn_jax.commands import (
     default_run_dir,
-    duration_text,
     episodes_text,
     evaluation_overrides,
     say,
@@ -49,7 +48,13 @@ def cmd_study(args: argparse.Namespace) -> int:
     for arm in arms:
         say(f"{arm.name}: {arm.sweep.describe()}")
     if args.estimate:
-        print(_estimate(arms))
+        from drqn_jax.commands.bench import estimate_lines
+
+        print(
+            estimate_lines(
+                [(a.name, a.config, len(a.sweep.points), a.sweep.strategy) for a in arms]
+            )
+        )
     if args.estimate or args.dry_run:
         return EXIT_OK
     start = time.perf_counter()
@@ -126,38 +131,6 @@ def _store_rows(
         figure.parent.mkdir(parents=True, exist_ok=True)
         figure.write_bytes((out / "safety_speed.png").read_bytes())
         say(f"safety/speed figure: {figure}")
-
-
-def _estimate(arms) -> str:
-    """Lines of the study's training wall time on this device, per arm and in all."""
-    import jax
-
-    from drqn_jax.commands.bench import training_estimate
-    from drqn_jax.experiments.sweep_plan import resolve_strategy
-
-    lines, total, bounded = [], 0.0, False
-    for arm in arms:
-        strategy = resolve_strategy(arm.sweep.strategy, jax.local_devices())
-        runs = len(arm.sweep.points)
-        figures = training_estimate(arm.config, runs, batched=strategy == "vmap")
-        if isinstance(figures, str):
-            lines.append(f"{arm.name}: no estimate: {figures}")
-            continue
-        total += figures["seconds"]
-        bounded |= figures["upper_bound"]
-        most = "at most " if figures["upper_bound"] else ""
-        lines.append(
-            f"{arm.name}: {runs} runs ({strategy}) × {most}{figures['env_steps_per_run']:,} env "
-            f"steps at {figures['env_steps_per_s']:,.0f} env steps/s: "
-            f"{most}{duration_text(figures['seconds'])}"
-        )
-    most = "at most " if bounded else ""
-    device = jax.devices()[0].device_kind
-    lines.append(
-        f"training in all, on this {device}: {most}{duration_text(total)} (one chunk of each "
-        "config timed once learning runs; evaluation and compiles not included)"
-    )
-    return "\n".join(lines)
 
 
 def cmd_report(args: argparse.Namespace) -> int:
