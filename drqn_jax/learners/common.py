@@ -25,22 +25,18 @@ from drqn_jax.pytree import pytree_dataclass, tree_where
 
 class Trainer(NamedTuple):
     """The pure functions of one training configuration, all the host loop, sweeps,
-    checkpoints and evaluation use: ``init``, ``act`` (actions (N,), carry),
-    ``run(state, n)`` (no-ops once finished, so any chunking ends bit-identical),
-    ``train`` -> (agent params, metrics), ``gradient_update`` (DQN only),
+    checkpoints and evaluation use: ``init``, ``run(state, n)`` (no-ops once finished, so
+    any chunking ends bit-identical), ``train`` -> (agent params, metrics),
     ``validation_metrics`` and ``agent_params``; every state is a :class:`LearnerState`.
     """
 
     config: Any
     task: Any
-    env: Any
     env_params: Any
     network: Any
     init: Callable[..., Any]
-    act: Callable[[Any, jax.Array], tuple[jax.Array, Any]]
     run: Callable[[Any, int], Any]
     train: Callable[..., tuple[Any, dict[str, jax.Array]]]
-    gradient_update: Callable[..., tuple[tuple, jax.Array]] | None
     validation_metrics: Callable[[Any], dict[str, jax.Array]]
     agent_params: Callable[[Any], Any]
 
@@ -50,11 +46,9 @@ def make_trainer(
     task: Any,
     network: Any,
     init: Callable[..., Any],
-    act: Callable[[Any, jax.Array], tuple[jax.Array, Any]],
     iteration: Callable[[Any], Any],
-    gradient_update: Callable[..., tuple[tuple, jax.Array]] | None = None,
 ) -> Trainer:
-    """A learner's :class:`Trainer` from its ``act``, ``iteration(state)`` (a no-op
+    """A learner's :class:`Trainer` from its ``iteration(state)`` (a no-op
     once finished) and ``init(key, hp, env_params)``, whose last two default to the
     config's and the task's."""
 
@@ -82,14 +76,11 @@ def make_trainer(
     return Trainer(
         config=config,
         task=task,
-        env=task.env,
         env_params=task.env_params,
         network=network,
         init=init_state,
-        act=act,
         run=run,
         train=train,
-        gradient_update=gradient_update,
         validation_metrics=validation_metrics,
         agent_params=agent_params,
     )
@@ -358,10 +349,6 @@ def make_on_policy(
         done = jnp.zeros((config.num_envs,), bool)
         return OnPolicyState(**fields, done=done, memory=None if memory is None else memory(fields))
 
-    def act(state: OnPolicyState, key: jax.Array) -> tuple[jax.Array, Any]:
-        action, carry, _, _ = policy(state, key)
-        return action, carry
-
     def update(state: OnPolicyState) -> OnPolicyState:
         carry0 = state.carry
         state, traj = rollout(config, task, policy, transition, state)
@@ -370,7 +357,7 @@ def make_on_policy(
     def iteration(state: OnPolicyState) -> OnPolicyState:
         return jax.lax.cond(state.finished, lambda s: s, update, state)
 
-    return make_trainer(config, task, agent, init, act, iteration)
+    return make_trainer(config, task, agent, init, iteration)
 
 
 #: ``fold_in`` index of the validation episodes' key (from the finished state's key).

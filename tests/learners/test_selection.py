@@ -120,7 +120,7 @@ def test_validation_metrics_are_an_evaluation_of_each_candidate(stepped):
     candidates = [accelerate, take(state.snapshots, 1), state.online]
     evaluations = [
         drqn_jax.evaluate(
-            drqn_jax.drqn_agent(trainer.network, params), key, 2, trainer.env, state.env_params
+            drqn_jax.drqn_agent(trainer.network, params), key, 2, trainer.task.env, state.env_params
         )
         for params in candidates
     ]

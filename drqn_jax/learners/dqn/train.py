@@ -101,8 +101,7 @@ def make_dqn(config: TrainConfig) -> Trainer:
     act = functools.partial(explore, task, network, config.num_episodes)
     init = functools.partial(_init_state, config, task, network)
     iteration = functools.partial(_iteration, config, task, network, act)
-    update = functools.partial(gradient_update, config, task, network)
-    return make_trainer(config, task, network, init, act, iteration, update)
+    return make_trainer(config, task, network, init, iteration)
 
 
 def explore(
@@ -252,7 +251,6 @@ def gradient_update(
     env_params: Any,
 ) -> tuple[Learner, jax.Array]:
     """One Double-DQN gradient step on ``learner``; the new learner and the () loss."""
-    learner = Learner(*learner)  # the Trainer's callers pass a plain 4-tuple
     opt = optimizer_of(config, hp)
 
     def observe(records: Any, last_action: jax.Array) -> Any:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -18,6 +19,7 @@ from drqn_jax.learners import Hyperparams, TrainConfig, make_train
 from drqn_jax.learners.common import epsilon_of
 from drqn_jax.learners.dqn.loss import sequence_loss
 from drqn_jax.learners.dqn.replay import WINDOW_ANYWHERE, sample_windows
+from drqn_jax.learners.dqn.train import Learner, explore, gradient_update
 from drqn_jax.learners.hyperparams import IMITATION_STATES, annealed, step_share, teacher_label
 from drqn_jax.learners.task import observations
 from tests.helpers import SMALL_NET, assert_tree_equal, fast_jit, take, tiny_train_config
@@ -123,7 +125,7 @@ def test_stored_state_is_the_acting_lstms_state():
     replay = state.replay
     slot = int(np.flatnonzero(np.asarray(replay.complete))[0])
     n = int(replay.length[slot])
-    net, static = trainer.network, trainer.env.static
+    net, static = trainer.network, trainer.task.env.static
 
     @fast_jit
     def entered(state):  # the LSTM state each observation of the episode was entered with
@@ -191,12 +193,19 @@ def test_chunked_equals_one_shot(tiny_chunked, tiny_run):
 TINY_N3 = dataclasses.replace(TINY, n_step=3)
 
 
+def _gradient_update(trainer):
+    """The Double-DQN gradient step, jitted: ``(learner, key, replay, hp, env_params)``."""
+    return fast_jit(
+        functools.partial(gradient_update, trainer.config, trainer.task, trainer.network)
+    )
+
+
 @pytest.fixture(scope="module")
 def update_n3():
     """``(trainer, fast_jit(gradient_update))`` of ``TINY_N3``: the tests compare its
     loss with ``sequence_loss``'s within ``rel=1e-5`` (``tests.helpers.FAST_COMPILE``)."""
     trainer = make_train(TINY_N3)
-    return trainer, fast_jit(trainer.gradient_update)
+    return trainer, _gradient_update(trainer)
 
 
 def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked, update_n3):
@@ -206,7 +215,7 @@ def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked, update_
     state, _ = tiny_chunked
     state = state.replace(hparams=state.hparams.replace(window_start=WINDOW_ANYWHERE))
     trainer, update = update_n3
-    learner = (state.online, state.target, state.opt_state, state.grad_steps)
+    learner = Learner(state.online, state.target, state.opt_state, state.grad_steps)
     key = jax.random.key(11)
     args = (learner, key, state.replay, state.hparams, state.env_params)
     _, loss = update(*args)
@@ -214,7 +223,7 @@ def test_n_step_and_window_start_reach_the_gradient_update(tiny_chunked, update_
     @fast_jit
     def losses(state, key):  # n = 3 and n = 1 on the windows the update samples
         hp = state.hparams
-        static = trainer.env.static
+        static = trainer.task.env.static
         w = sample_windows(state.replay, key, 4, 4, _observe(state, static), hp.window_start)
         net = trainer.network
         return [sequence_loss(state.online, state.target, w, net, hp, n)[0] for n in (3, 1)]
@@ -229,13 +238,13 @@ def test_value_rescale_reaches_the_gradient_update(tiny_chunked, update_n3):
     rescaling on the windows it samples; 0 (the default) is the loss without it."""
     state, _ = tiny_chunked
     trainer, update = update_n3
-    learner = (state.online, state.target, state.opt_state, state.grad_steps)
+    learner = Learner(state.online, state.target, state.opt_state, state.grad_steps)
     key = jax.random.key(13)
 
     @fast_jit
     def losses(state, key):
         hp = state.hparams
-        static = trainer.env.static
+        static = trainer.task.env.static
         w = sample_windows(state.replay, key, 4, 4, _observe(state, static), hp.window_start)
         net, n = trainer.network, TINY_N3.n_step
         return [
@@ -257,16 +266,14 @@ def test_burn_in_reaches_the_gradient_update(tiny_chunked):
     state, _ = tiny_chunked
     config = dataclasses.replace(TINY, burn_in=2)
     trainer = make_train(config)
-    learner = (state.online, state.target, state.opt_state, state.grad_steps)
+    learner = Learner(state.online, state.target, state.opt_state, state.grad_steps)
     key = jax.random.key(14)
-    _, loss = fast_jit(trainer.gradient_update)(
-        learner, key, state.replay, state.hparams, state.env_params
-    )
+    _, loss = _gradient_update(trainer)(learner, key, state.replay, state.hparams, state.env_params)
 
     @fast_jit
     def expected(state, key):
         hp = state.hparams
-        static = trainer.env.static
+        static = trainer.task.env.static
         w = sample_windows(
             state.replay, key, 4, 4, _observe(state, static), hp.window_start, burn_in=2
         )
@@ -296,16 +303,16 @@ def test_imitation_reaches_the_gradient_update(tiny_chunked, update_n3):
     records = records.replace(position=records.position.at[..., 0, :].set(ahead))
     state = state.replace(replay=state.replay.replace(records=records))
     key = jax.random.key(12)
-    learner = (state.online, state.target, state.opt_state, state.grad_steps)
+    learner = Learner(state.online, state.target, state.opt_state, state.grad_steps)
 
     @fast_jit
     def expected(state, key, weight, everywhere, teacher):
         hp = state.hparams
         w = sample_windows(
-            state.replay, key, 4, 4, _observe(state, trainer.env.static), hp.window_start
+            state.replay, key, 4, 4, _observe(state, trainer.task.env.static), hp.window_start
         )
         states = jax.tree.map(lambda x: x[:-1], w.records)
-        static = trainer.env.static
+        static = trainer.task.env.static
         expert = rule_based_labels(states, state.env_params, teacher, static)
         usual = rule_based_labels(states, state.env_params, RuleBasedParams(), static)
         where = everywhere | (expert == BRAKE)
@@ -388,7 +395,7 @@ def test_guided_exploration_takes_the_rule_based_action(tiny):
     true state; explore_guide = 0: the random actions of the paper's exploration."""
     trainer, _ = tiny
     run = jax.jit(trainer.run, static_argnums=1)
-    act = jax.jit(trainer.act)
+    act = jax.jit(functools.partial(explore, trainer.task, trainer.network, TINY.num_episodes))
     rule_based = jax.jit(jax.vmap(rule_based_action, (0, None, None, None)), static_argnums=3)
     always = dict(epsilon_start=1.0, epsilon_end=1.0)
     guided_hp = TINY.hyperparams.replace(explore_guide=1.0, **always)
@@ -406,7 +413,9 @@ def test_guided_exploration_takes_the_rule_based_action(tiny):
             guided.append(act(state, key)[0])
             random.append(act(state.replace(hparams=random_hp), key)[0])
         expected += [
-            rule_based(state.env_state, state.env_params, RuleBasedParams(), trainer.env.static)
+            rule_based(
+                state.env_state, state.env_params, RuleBasedParams(), trainer.task.env.static
+            )
         ] * 4
     guided, random, expected = (np.concatenate(a) for a in (guided, random, expected))
     np.testing.assert_array_equal(guided, expected)
@@ -514,7 +523,7 @@ def test_trained_agent_plugs_into_evaluate(tiny, tiny_run):
     trainer, _ = tiny
     params, _ = tiny_run
     agent = drqn_jax.drqn_agent(trainer.network, params)
-    env, env_params = trainer.env, trainer.env_params
+    env, env_params = trainer.task.env, trainer.env_params
     a = drqn_jax.evaluate(agent, jax.random.key(9), 4, env, env_params)
     b = drqn_jax.evaluate(agent, jax.random.key(9), 4, env, env_params)
     assert_tree_equal(a["episodes"], b["episodes"])
@@ -572,7 +581,7 @@ def test_learns_to_drive_near_the_speed_limit():
         ),
     )
     trainer = make_train(config)
-    env, env_params = trainer.env, trainer.env_params
+    env, env_params = trainer.task.env, trainer.env_params
 
     def drive(params, key):
         """Speeds (km/h) of the greedy agent over one 200-step episode."""
