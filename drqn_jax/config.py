@@ -1,13 +1,7 @@
-"""Run configurations: TOML files in ``configs/``, ``--set`` overrides, validation.
-
-Seven sections, every field defaulted: ``[run]`` (seed: training key
-``split(key(seed))[0]``, evaluation ``[1]``, SPEC §8), ``[env]`` (``id`` and any
-``StaticEnvParams``/``EnvParams`` field on top of the id's preset), ``[network]``
-(Table I), ``[train]`` (``TrainConfig`` sizes and ``Hyperparams``, Table II),
-``[rule_based]`` (SPEC §6), ``[planner]`` (SPEC §9) and ``[evaluate]``.
-:func:`load_config` validates everything before anything compiles; a problem is a
-one-line :class:`ConfigError` naming field, value and rule.
-"""
+"""Run configurations: TOML files in ``configs/`` and ``--set`` overrides, sections ``[run]``
+(seed: training key ``split(key(seed))[0]``, evaluation ``[1]``), ``[env]``, ``[network]``,
+``[train]``, ``[rule_based]``, ``[planner]``, ``[evaluate]``. :func:`load_config` validates
+all before anything compiles; a problem is a one-line :class:`ConfigError`."""
 
 import dataclasses
 import hashlib

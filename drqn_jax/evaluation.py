@@ -1,9 +1,6 @@
-"""Evaluation of an agent over many episodes (paper §V-E, Table III; SPEC §8).
-
-:func:`run_episodes` plays one episode per key in parallel under one ``jit``;
-:func:`summarize` turns the per-episode metrics into the §8 metrics; :func:`evaluate`
-does both. Episode *i* uses ``fold_in(key, i)``, whatever episodes run beside it.
-"""
+"""Evaluation over many episodes (paper §V-E, Table III; SPEC §8): :func:`run_episodes` under
+one ``jit``, :func:`summarize` to the §8 metrics, :func:`evaluate` both. Episode *i* uses
+``fold_in(key, i)``, whatever episodes run beside it."""
 
 import dataclasses
 import math
@@ -125,17 +122,10 @@ def play_episode(
     params: EnvParams,
     trace: Callable[[Decision], Any] | None = None,
 ) -> tuple[EpisodeMetrics, Any, Any, Any]:
-    """Play one episode (at most ``max_steps`` ticks) and measure it: the one rollout of
-    evaluation and recording (``drqn_jax.interop.recording``).
-
-    The scan runs T = ceil(max_steps / decision_steps) decisions (branch-free under
-    ``vmap``); those after the episode ended count nothing. ``key`` splits into the
-    reset's, the carry's and the run's; each decision's into the action's and the env's.
-    An ``every_tick`` agent plays at one decision per tick.
-
-    Returns ``(metrics, traced, obs, state)``: the :class:`EpisodeMetrics`, ``trace``'s
-    output per :class:`Decision` (leaves (T, ...); None without ``trace``), and the
-    Observation and EnvState after the T-th decision.
+    """Play and measure one episode, the one rollout of evaluation and recording: T =
+    ceil(max_steps / decision_steps) decisions, branch-free (those after the end count
+    nothing; an ``every_tick`` agent decides every tick). Returns ``(metrics, traced, obs,
+    state)``: ``trace`` per :class:`Decision` (leaves (T, ...) or None), then the last obs/state.
     """
     if agent.every_tick and env.static.decision_steps > 1:
         env = dataclasses.replace(env, static=dataclasses.replace(env.static, decision_steps=1))
@@ -254,13 +244,9 @@ def summarize_outcomes(episodes: EpisodeMetrics) -> dict[str, Any]:
 
 
 def summarize(episodes: EpisodeMetrics, ttc_threshold: float = 3.0) -> dict[str, Any]:
-    """The §8 metrics of per-episode results, as Python numbers (host-side, float64).
-
-    ``collision_free_ci`` is the 95 % Wilson interval; ``avg_speed_authors_kmh`` the mean
-    speed over every step faster than 0.5 km/h of all episodes pooled (carla-gym
-    ``tester.py``); ``min_ttc_median_s`` is inf when most episodes never have a finite
-    TTC; ``near_collision_episode_rate`` counts min TTC <= ``ttc_threshold``.
-    """
+    """The §8 metrics of per-episode results as Python floats: ``collision_free_ci`` the 95 %
+    Wilson interval; ``avg_speed_authors_kmh`` over steps faster than 0.5 km/h, pooled
+    (carla-gym ``tester.py``); ``near_collision_episode_rate``: min TTC <= ``ttc_threshold``."""
     ep = jax.tree.map(np.asarray, episodes)
     min_ttc = ep.min_ttc.astype(np.float64)
 

@@ -4,10 +4,6 @@ Conv 8×6/4 (32) → 4×3/3 (64) → 2×2/2 (64), ReLU, VALID (45×30 → 1×1, 
 ``drqn``: LSTM1 (256) → LSTM2 (256) fed ``[h1, speed, one-hot last action]``; ``dqn``:
 two dense ReLU layers instead (``frames`` = k > 1: the last k grids stacked); FC 256
 ReLU → 4 Q-values. Flat-vector envs get an MLP torso (``torso = "mlp"``) and no extras.
-
-:func:`make_network` gives pure ``init(key)``, ``initial_carry(batch_shape)``,
-``step(params, obs, carry) -> (q, carry)`` (acting, any batch shape) and
-``unroll(params, obs_seq, carry, resets)`` over time-major (T, B, …) sequences.
 """
 
 import dataclasses

@@ -1,10 +1,6 @@
-"""A privileged planner: the ceiling of every results table (SPEC §9), never a learner.
-
-It reads the true state and plays the env's deterministic step
-(:meth:`~drqn_jax.env.urban.UrbanPedestrians.advance`) forward: per candidate,
-fastest first, the candidate once then ``brake``; it takes the fastest after which
-braking still avoids every collision within the horizon, under its speed cap.
-"""
+"""A privileged planner, the ceiling of every results table (SPEC §9): on the true state it
+plays the env's step forward (each candidate once, then ``brake``) and takes the fastest
+after which braking avoids every collision within the horizon, under its speed cap."""
 
 import jax
 import jax.numpy as jnp

@@ -1,10 +1,6 @@
-"""The rule-based agent of paper §V-E (SPEC §6), a pure policy over the true state.
-
-``brake`` for a pedestrian on the road in the ego's corridor within ``lookahead``
-of the front bumper, else track ``v_max``. ``horizon`` > 0 (not the paper's) also
-brakes for one that, walking on at its velocity, enters that corridor within
-``horizon`` seconds before the bumper has passed it.
-"""
+"""The rule-based agent of paper §V-E (SPEC §6) on the true state: ``brake`` for a pedestrian
+on the road in the ego's corridor within ``lookahead``, else track ``v_max``; ``horizon`` > 0
+(not the paper's) also brakes for one walking into that corridor within ``horizon`` s."""
 
 import jax
 import jax.numpy as jnp

@@ -40,12 +40,9 @@ def desired_speed(action: jax.Array, ego: EgoState, params: EnvParams) -> jax.Ar
 def pid_step(
     v_d: jax.Array, ego: EgoState, params: EnvParams
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """CARLA's longitudinal PID on the speed error in km/h (SPEC §2).
-
-    ``u = clip(Kp·e + Ki·Σe·dt + Kd·Δe/dt, -1, 1)`` over the last K errors; the
-    integral and derivative are 0 until two errors are stored. Returns u () float32,
-    the new (K,) error buffer and count.
-    """
+    """CARLA's longitudinal PID on the speed error in km/h (SPEC §2): ``u = clip(Kp·e +
+    Ki·Σe·dt + Kd·Δe/dt, -1, 1)`` over the last K errors (I and D 0 until two are stored).
+    Returns u () float32, the new (K,) error buffer and count."""
     e = (v_d - ego.v) * MS_TO_KMH
     errors = jnp.concatenate([ego.pid_errors[1:], e[None]])
     count = jnp.minimum(ego.pid_count + 1, errors.shape[0])
@@ -64,11 +61,8 @@ def throttle_brake(u: jax.Array, params: EnvParams) -> tuple[jax.Array, jax.Arra
 
 
 def plant_step(ego: EgoState, throttle: jax.Array, brake: jax.Array, params: EnvParams) -> EgoState:
-    """One step of the first-order-lag longitudinal plant (SPEC §2).
-
-    A vehicle at rest carries no deceleration (a ≥ 0 at v = 0), so it starts again
-    without first undoing a lagged braking force.
-    """
+    """One step of the first-order-lag longitudinal plant (SPEC §2); at rest no deceleration
+    (a ≥ 0 at v = 0), so it starts again without undoing a lagged braking force."""
     moving = ego.v > 0.0
     a_cmd = (
         throttle * params.accel_throttle

@@ -1,8 +1,6 @@
-"""Environment parameters (SPEC §1–6): static (shape-setting, hashable, a ``jit``
-static argument) and traced (a pytree of scalars, so ``vmap`` over ``EnvParams``
-sweeps them in one program). Both validate on construction. Units are SI (m, s,
-m/s, rad); the PID's error is in km/h as in CARLA's local planner.
-"""
+"""Environment parameters (SPEC §1–6): static (hashable, a ``jit`` static argument) and
+traced (scalars: ``vmap`` over ``EnvParams`` sweeps them), validated on construction. SI
+units; the PID's error is in km/h as in CARLA's local planner."""
 
 import dataclasses
 import math

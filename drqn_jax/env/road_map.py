@@ -1,9 +1,6 @@
-"""The map: main road, sidewalks, unsignalized intersections, crosswalks (SPEC §1).
-
-:func:`semantic_class` is the one definition of the map, for point queries and
-rasters alike. x runs along the ego's road, y to its left; a point on a boundary
-belongs to the outer (walkway) side.
-"""
+"""The map (SPEC §1): main road, sidewalks, unsignalized intersections, crosswalks, defined
+once by :func:`semantic_class`. x runs along the ego's road, y to its left; a boundary
+point belongs to the walkway side."""
 
 import jax
 import jax.numpy as jnp

@@ -1,10 +1,6 @@
-"""``UrbanPedestrians``: the environment wiring the pure modules (SPEC §1–5).
-
-The gymnax contract: the env holds only its hashable :class:`StaticEnvParams`
-(a static ``jit`` argument); ``reset(key, params) -> (obs, state)``,
-``step(key, state, action, params) -> (obs, state, reward, terminated, truncated,
-info)`` with same-step auto-reset, ``step_env`` the same without the reset.
-"""
+"""``UrbanPedestrians`` (SPEC §1–5) in the gymnax contract: the env holds only its hashable
+:class:`StaticEnvParams`; ``reset(key, params)``, ``step(key, state, action, params) -> (obs,
+state, reward, terminated, truncated, info)`` with same-step auto-reset (``step_env`` without)."""
 
 import dataclasses
 from typing import Any

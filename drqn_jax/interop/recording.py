@@ -1,9 +1,6 @@
-"""Rerun recordings (paper §V-E; SPEC §1–5, §8). Evaluated episodes: a static ``map/``;
-per episode ``episode/<i>/`` holds ``world/`` (ego, pedestrians, headings), ``grid/<channel>``
-images, scalars and an ``events`` log on the ``"step"`` timeline. Step t shows the state
-before decision t; ``reward``/``ttc`` at t come from the step into state t. Training curves:
-one run's per-episode metrics (timeline ``"episode"``) and a study's curves over seeds
-(timeline ``"env_steps"``)."""
+"""Rerun recordings (SPEC §8): a static ``map/``; per episode ``episode/<i>/`` ``world/``,
+``grid/<channel>`` images, scalars and ``events`` on timeline ``"step"`` (step t: the state
+before decision t). Training curves on ``"episode"`` (a run) or ``"env_steps"`` (a study)."""
 
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager

@@ -1,11 +1,7 @@
-"""What the learners share (paper §V-B; SPEC §7): the :class:`Trainer` protocol every
-learner serves, the state's start, per-episode bookkeeping of N envs whose episodes
-end out of order (metrics written at each episode's index of (num_episodes,)
-buffers), the ε schedule, the on-policy learners' state, rollout and minibatch
-epochs, and the run's agent: with ``snapshots`` = K > 0 (the project's, not the
-paper's), the K snapshots and the final parameters play greedy validation episodes
-and ``select_by`` picks one.
-"""
+"""What the learners share (paper §V-B; SPEC §7): the :class:`Trainer`, the state's start,
+per-episode bookkeeping of N envs (metrics at each episode's index of (num_episodes,)
+buffers), the ε schedule, the on-policy rollout and minibatch epochs, and the run's agent
+among ``snapshots`` (K snapshots and the final parameters, chosen by ``select_by``)."""
 
 import dataclasses
 import functools
@@ -366,11 +362,9 @@ SELECT_SAFE = SELECT_BY.index("safe")
 
 
 def chosen_candidate(validation: dict[str, jax.Array], hp: Hyperparams) -> jax.Array:
-    """() int32 index of the run's agent among K + 1 candidates (metrics (K + 1,)):
-    the best return, or with ``"safe"`` the most collision-free at
-    ``select_speed_floor`` or faster, then the best return. Ties: the latest; any
-    NaN, or none fast enough: the final parameters (K).
-    """
+    """() int32 index of the run's agent among K + 1 candidates (metrics (K + 1,)): the best
+    return, or with ``"safe"`` the most collision-free at ``select_speed_floor`` or faster.
+    Ties: the latest; any NaN, or none fast enough: the final parameters (K)."""
     returns = validation["return"]
     last = returns.shape[-1] - 1
     unusable = jnp.any(jnp.isnan(jnp.stack(list(validation.values()))))

@@ -1,8 +1,5 @@
-"""What a training run is configured with (paper Table II; SPEC §7): the traced
-:class:`Hyperparams` (a sweep ``vmap``s over them), the shape-setting
-:class:`TrainConfig` (hashable; a change recompiles), and how a trained agent is
-named in results tables (:func:`teacher_label`, :func:`agent_name`).
-"""
+"""Training settings (paper Table II; SPEC §7): the traced :class:`Hyperparams` (a sweep
+``vmap``s over them), the shape-setting :class:`TrainConfig`, and an agent's name in tables."""
 
 import dataclasses
 from typing import Any
@@ -150,13 +147,9 @@ def annealed(
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class TrainConfig:
-    """Shape-setting training settings (hashable; a change recompiles); the defaults
-    are the paper's protocol (SPEC §7), "0 = the paper" an extension off.
-
-    ``hyperparams`` is only the default a run starts from: ``init`` copies it (or the
-    ``hparams`` it is given) into the state, which everything traced reads. Equality
-    and hashing compare it; the compiled programs depend on :meth:`program_key` alone.
-    """
+    """Shape-setting training settings (hashable); defaults are the paper's protocol (SPEC §7),
+    "0 = the paper" an extension off. ``hyperparams`` is the default ``init`` copies into the
+    state, which everything traced reads; compiled programs depend on :meth:`program_key`."""
 
     env_id: str = "UrbanPedestrians-v0"
     env_overrides: tuple[tuple[str, Any], ...] = ()

@@ -1,11 +1,7 @@
-"""Recurrent PPO (Schulman et al. 2017; not the paper's), laid out like PureJaxRL's
-``ppo_rnn.py`` behind the same :class:`~drqn_jax.learners.common.Trainer` as the DQN.
-
-One update: a rollout of ``rollout_steps`` on ``num_envs`` envs, GAE, then
-``update_epochs`` of clipped-surrogate steps over minibatches of whole env sequences.
-The network has A + 1 outputs (logits, value); the carry is zeroed at every episode
-start, and a time limit ends the advantage's sum as a termination does (PureJaxRL).
-"""
+"""Recurrent PPO (Schulman et al. 2017; not the paper's), as PureJaxRL's ``ppo_rnn.py``: a
+rollout of ``rollout_steps`` on ``num_envs`` envs, GAE, ``update_epochs`` of clipped-surrogate
+steps over minibatches of whole env sequences. A + 1 outputs (logits, value); a time limit
+ends the advantage's sum as a termination does (PureJaxRL)."""
 
 import dataclasses
 import functools

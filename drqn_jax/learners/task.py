@@ -1,10 +1,6 @@
-"""What the learner needs of an environment beyond the gymnax contract (SPEC §7).
-
-A :class:`Task` adds the replay's record and ``observe``, the network torso, extra
-episode metrics, greedy validation and an optional teacher (SPEC §6).
-:func:`urban_task` is the paper's env; :func:`gymnax_task` any ``"gymnax:<name>"``
-(gymnax >= 1.0, which tells truncation from termination).
-"""
+"""What a learner needs of an env beyond the gymnax contract (SPEC §7), a :class:`Task`:
+:func:`urban_task` for the paper's env, :func:`gymnax_task` for any ``"gymnax:<name>"``
+(gymnax >= 1.0, which tells truncation from termination)."""
 
 import dataclasses
 import math

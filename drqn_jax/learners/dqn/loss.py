@@ -134,14 +134,10 @@ def sequence_loss(
     expert_weight: jax.Array | None = None,
     burn_in: int = 0,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Mean masked TD loss of a window batch (W + 1 obs, B) at ``hp``'s ``gamma`` (of
-    one decision), ``clip`` and ``value_rescale``, plus the imitation term (margin
-    ``imitation_margin``) where ``expert_action``/``expert_weight`` (W, B) are given
-    (None: the paper).
-
-    Gradients flow to ``online`` only; ``burn_in`` L steps only warm the LSTM. Returns
-    () loss and ``{"td_abs", "q_mean"[, "margin"]}``.
-    """
+    """Mean masked TD loss of a window batch (W + 1 obs, B) with ``hp``'s per-decision
+    ``gamma``, plus the imitation term where ``expert_action``/``expert_weight`` (W, B) are
+    given (None: the paper). Gradients reach ``online`` only; ``burn_in`` steps only warm the
+    LSTM. Returns () loss and ``{"td_abs", "q_mean"[, "margin"]}``."""
     batch = windows.action.shape[1]
     carry = network.initial_carry((batch,))
     if windows.carry is not None:  # R2D2's stored state: data, not a path for gradients

@@ -1,11 +1,7 @@
-"""Replay of whole episodes (paper §V-B, Table II: M = 50; SPEC §7).
-
-Per observation it stores the task's *record* (:mod:`drqn_jax.learners.task`; for the
-paper's env compact ``GridInputs``, re-rasterised by ``observe`` at sample time), per
-transition the action, reward and ``terminated``. Each of N writers fills its own
-``M // N`` slots, oldest first; only complete episodes are sampled, in windows that
-never cross an episode start (shorter episodes padded and masked).
-"""
+"""Replay of whole episodes (paper §V-B, Table II: M = 50; SPEC §7): per observation the
+task's *record* (the paper's env: ``GridInputs``, rasterised at sample time), per transition
+action, reward, ``terminated``. Each of N writers fills its own ``M // N`` slots, oldest
+first; complete episodes are sampled in windows that never cross an episode start."""
 
 from collections.abc import Callable
 from typing import Any
@@ -23,12 +19,9 @@ WINDOW_INSIDE, WINDOW_ANYWHERE = WINDOW_STARTS.index("inside"), WINDOW_STARTS.in
 
 @pytree_dataclass
 class EpisodeReplay:
-    """Ring of M episode slots of up to L transitions, written by N environments.
-
-    ``records`` (M, L + 1, …); ``action``/``reward``/``terminated`` (M, L); ``length``,
-    ``complete`` (M,); ``slot``, ``episodes`` (N,) per writer; ``carry``: R2D2's
-    stored recurrent state (M, L + 1, …) or None.
-    """
+    """Ring of M episode slots of up to L transitions written by N envs: ``records`` (M, L + 1,
+    …); ``action``/``reward``/``terminated`` (M, L); ``length``, ``complete`` (M,); ``slot``,
+    ``episodes`` (N,); ``carry``: R2D2's stored recurrent state (M, L + 1, …) or None."""
 
     records: Any
     action: jax.Array
@@ -55,13 +48,9 @@ class EpisodeReplay:
 
 @pytree_dataclass
 class Windows:
-    """A sampled minibatch, time-major.
-
-    ``obs``, ``records`` (W + 1, B, …); ``action``/``reward``/``terminated``/``mask``
-    (W, B), mask false on padding and burn-in; ``slot``, ``start`` (B,); ``resets``
-    (W + 1, B): LSTM restarts (burn-in past the episode start); ``carry``: stored
-    state (B, …) at each window's first observation, or None (zeros).
-    """
+    """A sampled minibatch, time-major: ``obs``, ``records``, ``resets`` (W + 1, B, …);
+    ``action``/``reward``/``terminated``/``mask`` (W, B) (mask false on padding and burn-in);
+    ``slot``, ``start`` (B,); ``carry``: stored state at each window's start, or None."""
 
     obs: Any
     records: Any
@@ -175,13 +164,10 @@ def sample_windows(
     window_start: int | jax.Array = WINDOW_INSIDE,
     burn_in: int = 0,
 ) -> Windows:
-    """Draw ``batch`` windows of ``window`` transitions from complete episodes, their
-    observations ``observe(records (T, B, …), actions before them (T, B) int32)``.
-
-    Episodes uniform with replacement; the start uniform in ``[0, max(n − W, 0)]``
-    (``WINDOW_INSIDE``, SPEC §7) or ``[0, n − 1]`` (``WINDOW_ANYWHERE``, padded).
-    ``burn_in`` = L > 0 prepends L masked steps that only warm the LSTM (R2D2).
-    """
+    """``batch`` windows of ``window`` transitions from complete episodes (uniform, with
+    replacement), observed by ``observe(records (T, B, …), last actions (T, B))``; the start
+    uniform in ``[0, max(n − W, 0)]`` (``WINDOW_INSIDE``, SPEC §7) or ``[0, n − 1]``
+    (``WINDOW_ANYWHERE``); ``burn_in`` = L prepends L masked steps (R2D2)."""
     key_slot, key_start = jax.random.split(key)
     logits = jnp.where(replay.complete, 0.0, -jnp.inf)
     slot = jax.random.categorical(key_slot, logits, shape=(batch,)).astype(jnp.int32)

@@ -1,13 +1,7 @@
-"""Training a (D)RQN end to end inside one jitted program (paper §V-B, Table II; SPEC §7).
-
-An iteration acts ε-greedily on N envs, stores the step in the episode replay, takes
-``updates_per_step`` Double-DQN steps once ``learning_starts`` episodes are complete,
-copies the target every ``target_period`` steps and records ended episodes. Iterations
-after the run finished change nothing, so any chunking ends bit-identical. A gradient
-step samples windows, takes the sequence loss's gradient (clamped with ``clip =
-"grad"``) and Adam's step; imitation labels (not the paper's) are recomputed from the
-replayed records.
-"""
+"""Training a (D)RQN in one jitted program (paper §V-B, Table II; SPEC §7). An iteration
+acts ε-greedily on N envs, stores the step in the episode replay, takes ``updates_per_step``
+Double-DQN steps once ``learning_starts`` episodes are complete and copies the target every
+``target_period`` steps; after the run finished it changes nothing (any chunking, same bits)."""
 
 import functools
 from collections.abc import Callable
@@ -291,11 +285,8 @@ def learn(
     env_params: Any,
     key: jax.Array,
 ) -> tuple[Learner, jax.Array]:
-    """``updates_per_step`` gradient steps: the new learner and the summed loss.
-
-    The replay is a read-only operand of the gating ``lax.cond`` (carrying it would
-    make XLA copy it every step).
-    """
+    """``updates_per_step`` gradient steps: the new learner and the summed loss (the replay a
+    read-only operand of the gating ``lax.cond``: carried, XLA would copy it every step)."""
 
     def update(learner, k):
         return gradient_update(config, task, network, learner, k, replay, hp, env_params)
