@@ -1,16 +1,13 @@
-"""Bit-for-bit reproducibility on CPU: no fused multiply-add in generated code.
+"""Bit-for-bit reproducibility on CPU: no fused multiply-add in generated code (XLA:CPU contracts
+``a + b*c`` into an FMA depending on fusion, i.e. on shapes, so results would change by an ulp
+with the batch size). ``import drqn_jax`` appends ``--xla_cpu_max_isa=AVX`` to ``XLA_FLAGS``
+unless ``--xla_cpu_max_isa`` is set or ``DRQN_JAX_ALLOW_FMA=1``; only before any JAX computation.
 
-XLA:CPU contracts ``a + b*c`` into an FMA depending on fusion, i.e. on shapes, so
-results would change by an ulp with the batch size. ``import drqn_jax`` appends
-``--xla_cpu_max_isa=AVX`` to ``XLA_FLAGS`` unless ``--xla_cpu_max_isa`` is set or
-``DRQN_JAX_ALLOW_FMA=1``; it only works if no JAX computation ran before.
-
-Other shape-independence rules: divide by a scalar parameter as a reciprocal product;
-``EnvParams`` behind ``lax.optimization_barrier``; weight gradients from a materialised
-transpose (:func:`drqn_jax.layers._rows_product`; Eigen splits ``x.T @ g`` by
-:func:`cpu_thread_pool_size`); no ``vmap`` over one run; evaluation batches of
-exactly :data:`drqn_jax.evaluation.EVAL_BATCH` rows (kernels are picked by rows).
-"""
+Other shape-independence rules: divide by a scalar parameter as a reciprocal product; ``EnvParams``
+behind ``lax.optimization_barrier``; weight gradients from a materialised transpose
+(:func:`drqn_jax.layers._rows_product`; Eigen splits ``x.T @ g`` by :func:`cpu_thread_pool_size`);
+no ``vmap`` over one run; evaluation batches of exactly :data:`drqn_jax.evaluation.EVAL_BATCH` rows
+(kernels are picked by rows)."""
 
 import os
 import re
@@ -18,15 +15,6 @@ import warnings
 
 DETERMINISM_FLAG = "--xla_cpu_max_isa=AVX"
 OPT_OUT_VARIABLE = "DRQN_JAX_ALLOW_FMA"
-
-
-def _backend_started() -> bool:
-    try:
-        from jax._src import xla_bridge
-
-        return bool(getattr(xla_bridge, "_backends", {}))
-    except Exception:  # private API moved: assume the worst case cannot be detected
-        return False
 
 
 def fma_disabled() -> bool:
@@ -63,7 +51,12 @@ def configure_xla_flags() -> None:
     flags = os.environ.get("XLA_FLAGS", "")
     if "--xla_cpu_max_isa" in flags:
         return
-    started = _backend_started()
+    try:  # whether JAX has started its backend
+        from jax._src import xla_bridge
+
+        started = bool(getattr(xla_bridge, "_backends", {}))
+    except Exception:  # private API moved: assume the worst case cannot be detected
+        started = False
     os.environ["XLA_FLAGS"] = f"{flags} {DETERMINISM_FLAG}".strip()
     if started:
         warnings.warn(

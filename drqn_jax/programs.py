@@ -1,10 +1,8 @@
-"""The one LRU cache of built programs (trainers, jitted env and agent functions).
-
-``jit`` compiles once per function object, so everything built from a hashable
-description goes through :func:`cached_program` or :func:`cached`. Over
-:func:`map_budget` memory maps (Linux kills a process at ``vm.max_map_count``),
-JAX's caches and then the older half of the store are dropped; rebuilt, same bits.
-"""
+"""The one LRU cache of built programs (trainers, jitted env and agent functions): ``jit`` compiles
+once per function object, so everything built from a hashable description goes through
+:func:`cached_program` or :func:`cached`. Over :func:`map_budget` memory maps (Linux kills a process
+at ``vm.max_map_count``), JAX's caches and then the older half of the store are dropped; rebuilt,
+same bits."""
 
 import collections
 import functools

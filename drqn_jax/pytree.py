@@ -1,10 +1,7 @@
-"""Frozen dataclasses as JAX pytrees, and parameter fields with allowed ranges.
-
-Unflattening bypasses ``__init__``, so JAX rebuilds objects from tracers, ``None``
-or ``in_axes`` integers without the validation that guards user construction.
-Switch fields (``choices=``) take names and store ``int`` codes, so a switch can
-be swept under ``vmap`` like any number.
-"""
+"""Frozen dataclasses as JAX pytrees, and parameter fields with allowed ranges. Unflattening
+bypasses ``__init__``, so JAX rebuilds objects from tracers, ``None`` or ``in_axes`` integers
+without the validation that guards user construction. Switch fields (``choices=``) take names and
+store ``int`` codes, so a switch can be swept under ``vmap`` like any number."""
 
 import dataclasses
 from collections.abc import Sequence
@@ -77,10 +74,9 @@ def _allowed(meta: dict) -> str:
 
 
 def validate(obj: Any) -> None:
-    """Check every concrete field against its :func:`param` range (``ValueError("Class.field
-    = value: ...")``) and store it as float32 (int32 for switches and integer fields),
-    so eager arithmetic is ``jit``'s; from ``__post_init__`` only (it sets frozen fields).
-    """
+    """Check every concrete field against its :func:`param` range (else a ValueError naming
+    ``Class.field = value``) and store it as float32 (int32 for switches and integer fields), so
+    eager arithmetic is ``jit``'s; from ``__post_init__`` only (it sets frozen fields)."""
     cls_name = type(obj).__name__
     for f in dataclasses.fields(obj):
         meta = f.metadata

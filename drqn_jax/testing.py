@@ -1,14 +1,11 @@
 """Check that an environment keeps the gymnax 1.0 contract (ours, or a user's).
 
-:func:`check_env_contract` runs a short random rollout of a few envs (``jit`` and
-``vmap``) and raises :class:`EnvContractError` naming the first broken rule: the
-gymnax 1.0 ``reset``/``step`` signatures, shapes and dtypes; observations inside
-``observation_space`` and finite, finite rewards; same-step auto-reset to
-``reset(reset_key(step_key))`` (and ``info["final_observation"]`` is ``obs`` while
-the episode goes on); same keys, same bits; ``jit`` ≡ op by op for the first
-``eager_steps`` steps. Auto-reset is only checked where an episode ends: use a
-small ``max_steps``, e.g. ``drqn_jax.make(env_id, max_steps=16)``.
-"""
+:func:`check_env_contract` runs a short random rollout of a few envs (``jit`` and ``vmap``) and
+raises :class:`EnvContractError` naming the first broken rule: gymnax 1.0 ``reset``/``step``
+signatures, shapes and dtypes; finite observations inside ``observation_space``, finite rewards;
+same-step auto-reset to ``reset(reset_key(step_key))`` (``info["final_observation"]`` is ``obs``
+while the episode goes on); same keys, same bits; ``jit`` ≡ op by op for the first ``eager_steps``
+steps. Auto-reset is only checked where an episode ends: use a small ``max_steps`` (e.g. 16)."""
 
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -188,13 +185,11 @@ def check_env_contract(
     rtol: float = 0.0,
     atol: float = 0.0,
 ) -> ContractReport:
-    """Check ``env`` (hashable: a static ``jit`` argument) against the gymnax 1.0 contract
-    (module docstring) on a random rollout; raises :class:`EnvContractError`.
-
-    ``reset_key``: ``step_key -> key`` the auto-reset draws from (:func:`same_key` for
-    ``drqn_jax``; ``lambda k: jax.random.split(k)[1]`` for gymnax). ``rtol``/``atol``:
-    jit ≡ no-jit tolerance for float leaves (default bitwise).
-    """
+    """Check ``env`` (hashable: a static ``jit`` argument) against the gymnax 1.0 contract (module
+    docstring) on a random rollout; raises :class:`EnvContractError`. ``reset_key``: the
+    ``step_key -> key`` the auto-reset draws from (:func:`same_key` for ``drqn_jax``,
+    ``lambda k: jax.random.split(k)[1]`` for gymnax); ``rtol``/``atol``: jit ≡ no-jit tolerance for
+    float leaves (default bitwise)."""
     if num_envs < 1 or num_steps < 1 or not 0 <= eager_steps <= num_steps:
         raise ValueError(
             f"need num_envs >= 1, num_steps >= 1 and 0 <= eager_steps <= num_steps; got "

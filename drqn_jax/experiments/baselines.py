@@ -1,8 +1,7 @@
-"""What every arm of a study is judged against (SPEC §9), per world, cached in
-``OUT/baselines/``: the rule-based agent, its frontier, the planner's, and cross-env
-replays. Worlds are keyed by digests of what each result reads (:func:`env_key`,
-:func:`frontier_key`), so configs differing elsewhere share one sweep.
-"""
+"""What every arm of a study is judged against (SPEC §9), per world, cached in ``OUT/baselines/``:
+the rule-based agent, its frontier, the planner's, and cross-env replays. Worlds are keyed by
+digests of what each result reads (:func:`env_key`, :func:`frontier_key`), so configs differing
+elsewhere share one sweep."""
 
 import hashlib
 import json

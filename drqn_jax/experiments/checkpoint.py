@@ -1,10 +1,9 @@
-"""Checkpoints of a pytree: a deterministic ``NAME.npz`` (one ``.npy`` per leaf + manifest.json)
-and a human-readable ``NAME.json`` copy of the manifest (never read back).
-
-Restoration is bit-exact (dtype, shape, bits; PRNG keys as key_data; exotic dtypes as uint of
-their width). Crash safety: the npz is written to a temp file, fsynced and renamed (the commit
-point), then the json; zip CRC-32s detect truncation or corruption.
-"""
+"""Checkpoints of a pytree: a deterministic ``NAME.npz`` (one ``.npy`` per leaf + ``manifest.json``:
+``format``, ``drqn_jax_version``, ``drqn_jax_commit``, the caller's meta, ``leaves``) and
+``NAME.json``, the manifest plus ``npz_sha256`` for humans (never read back). Restoration is
+bit-exact (dtype, shape, bits; PRNG keys as key_data; exotic dtypes as uint of their width). Crash
+safety: the npz is written to a temp file, fsynced and renamed (the commit point), then the json;
+zip CRC-32s detect truncation or corruption."""
 
 import contextlib
 import hashlib
@@ -133,10 +132,8 @@ def _encode(state: Any) -> tuple[list[dict[str, Any]], list[np.ndarray]]:
 def save_checkpoint(
     run_dir: str | os.PathLike, state: Any, meta: dict[str, Any], *, name: str = CHECKPOINT
 ) -> None:
-    """Save the pytree ``state`` and JSON ``meta`` as ``run_dir/NAME.npz`` (+ ``NAME.json``).
-
-    Raises ValueError if ``meta`` uses a ``_RESERVED`` key, TypeError if it is not JSON.
-    """
+    """Save the pytree ``state`` and JSON ``meta`` as ``run_dir/NAME.npz`` (+ ``NAME.json``);
+    ValueError if ``meta`` uses a ``_RESERVED`` key, TypeError if it is not JSON."""
     clash = [k for k in _RESERVED if k in meta]
     if clash:
         raise ValueError(f"checkpoint meta may not use the reserved key(s) {', '.join(clash)}")
@@ -171,11 +168,9 @@ def load_checkpoint(
     *,
     name: str = CHECKPOINT,
 ) -> tuple[Any, dict[str, Any]]:
-    """``(state, meta)`` from ``run_dir/NAME.npz``, bit-identical, in ``template``'s structure.
-
-    Leaves must match ``template`` in key path, shape and dtype; ``config_hash`` must equal
-    ``expected_meta``'s when both have one. Raises CheckpointError naming what is wrong.
-    """
+    """``(state, meta)`` from ``run_dir/NAME.npz``, bit-identical, in ``template``'s structure:
+    leaves must match ``template`` in key path, shape and dtype, ``config_hash`` must equal
+    ``expected_meta``'s when both have one; else CheckpointError naming what is wrong."""
     run_dir = Path(run_dir)
     with _open(run_dir, name) as (read, manifest):
         if expected_meta is not None:

@@ -1,7 +1,6 @@
-"""A study's figures: training curves against env steps (paper Fig. 4, :func:`load_curves`,
-:func:`plot_curves`) and the safety/speed figure (SPEC §9, :func:`plot_safety_speed`), each
-drawn on a pyplot-free Figure.
-"""
+"""A study's figures, each on a pyplot-free Figure: training curves against env steps (paper
+Fig. 4, :func:`load_curves`, :func:`plot_curves`) and the safety/speed figure (SPEC §9,
+:func:`plot_safety_speed`)."""
 
 import csv
 import dataclasses
@@ -28,13 +27,10 @@ CURVE_POINTS = 200
 
 @dataclasses.dataclass(frozen=True)
 class Curve:
-    """A training curve over seeds against env steps (not episodes, which favour learners
-    that end episodes early).
-
-    ``env_steps`` (G,): grid up to the fewest steps any seed's first E episodes took;
-    ``mean``, ``low``, ``high`` (G,): mean and min–max over seeds of the ``smooth``-episode
-    running mean; ``seeds``, ``seed_steps`` (S, E): raw values and cumulative env steps.
-    """
+    """A training curve over seeds against env steps (not episodes, which favour learners that end
+    episodes early). ``env_steps`` (G,): grid up to the fewest steps any seed's first E episodes
+    took; ``mean``, ``low``, ``high`` (G,): mean and min–max over seeds of the ``smooth``-episode
+    running mean; ``seeds``, ``seed_steps`` (S, E): raw values and cumulative env steps."""
 
     env_steps: np.ndarray
     mean: np.ndarray

@@ -1,11 +1,9 @@
 """The yardstick (SPEC §9): the rule-based family's frontier, the planner's ceiling, margins.
 
-An agent is judged against the best collision-free rate the rule-based agent (paper §V-E)
-reaches *at the agent's own average speed*: the upper concave hull of the family's Pareto
-points over :data:`RULE_BASED_SETTINGS`, swept as one program (``lax.map`` over settings of
-a ``vmap`` over episodes). The privileged planner's frontier is a ceiling. Also the
-statistics across seeds: Student-t interval and interquartile mean (Agarwal et al. 2021).
-"""
+An agent is judged against the best collision-free rate the rule-based agent (paper §V-E) reaches
+*at the agent's own average speed*: the upper concave hull of the family's Pareto points over
+:data:`RULE_BASED_SETTINGS`, swept as one program (``lax.map`` over settings of a ``vmap`` over
+episodes). Also Student-t intervals and interquartile means across seeds (Agarwal et al. 2021)."""
 
 import itertools
 import math
@@ -118,11 +116,9 @@ def sweep_family(
     env: UrbanPedestrians,
     params: EnvParams,
 ) -> EpisodeMetrics:
-    """EpisodeMetrics (S, N) of every setting (leaves (S,)) on the (N,) episode ``keys``.
-
-    TTC and return are not measured (NaN; near-collision steps 0) so XLA drops them, halving
-    the cost; every other leaf is what :func:`~drqn_jax.evaluation.evaluate` measures.
-    """
+    """EpisodeMetrics (S, N) of every setting (leaves (S,)) on the (N,) episode ``keys``, as
+    :func:`~drqn_jax.evaluation.evaluate` measures them except TTC and return (NaN; near-collision
+    steps 0), which XLA then drops, halving the cost."""
 
     def one(setting: Any) -> EpisodeMetrics:
         # the rollout inline, not run_episodes' jitted call: XLA drops the unused TTC
@@ -153,10 +149,8 @@ def pareto_points(points: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]
 
 
 def frontier_vertices(points: Sequence[Mapping[str, Any]]) -> list[tuple[float, float]]:
-    """The vertices ``(speed km/h, rate)`` of the upper concave hull of the Pareto points.
-
-    Linear between vertices: mixing two settings per episode reaches the whole segment.
-    """
+    """The vertices ``(speed km/h, rate)`` of the upper concave hull of the Pareto points; linear
+    between vertices, as mixing two settings per episode reaches the whole segment."""
     xy = sorted({(p["avg_speed_kmh"], p["collision_free_rate"]) for p in pareto_points(points)})
     hull: list[tuple[float, float]] = []
     for x, y in xy:  # Andrew's monotone chain, the upper part
@@ -195,12 +189,9 @@ def seed_margins(
 def frontier_margin(
     row: Mapping[str, Any], vertices: Sequence[Sequence[float]], limit_kmh: float
 ) -> tuple[float, tuple[float, float]] | None:
-    """``(margin, (low, high))``: a row's collision-free rate minus the frontier at its own
-    speed, 95 % interval (SPEC §9); None if any seed exceeds ``limit_kmh``.
-
-    Several seeds (``per_seed``): mean of per-seed margins, Student t; a single policy: its
-    Wilson interval shifted by the frontier.
-    """
+    """``(margin, (low, high))``: a row's collision-free rate minus the frontier at its own speed,
+    95 % interval (SPEC §9); None if any seed exceeds ``limit_kmh``. Several seeds (``per_seed``):
+    mean of per-seed margins, Student t; one policy: its Wilson interval minus the frontier."""
     seeds = row.get("per_seed") or []
     speeds = [s["avg_speed_kmh"] for s in seeds] if len(seeds) > 1 else [row["avg_speed_kmh"]]
     if above_speed_limit(speeds, limit_kmh):
@@ -304,11 +295,9 @@ def world_frontier(
     caps_kmh: Sequence[float] = PLANNER_CAPS_KMH,
     keep_all: bool = False,
 ) -> dict[str, Any]:
-    """A world's frontiers on episodes ``fold_in(key, i)``, i < N, as JSON-ready
-    ``{"world", "episodes", "seed", "speed_limit_kmh", "rule_based", ["planner"]}``.
-
-    Settings above ``params.v_ref`` raise ValueError; ``keep_all`` adds ``"swept_points"``.
-    """
+    """A world's frontiers on episodes ``fold_in(key, i)``, i < N, as JSON-ready ``{"world",
+    "episodes", "seed", "speed_limit_kmh", "rule_based", ["planner"]}`` (``keep_all`` adds
+    ``"swept_points"``); settings above ``params.v_ref`` raise ValueError."""
     limit_kmh = float(params.v_ref) / KMH
     chosen = list(RULE_BASED_SETTINGS if settings is None else settings)
     speeds = [s["v_max_kmh"] for s in chosen] + list(caps_kmh if planner is not None else ())

@@ -1,7 +1,5 @@
-"""The one host loop of training (``train`` and sweeps): between compiled chunks, check for
-a stop request or non-finite loss, show progress and checkpoint; what differs comes in as
-functions.
-"""
+"""The one host loop of training (``train`` and sweeps): between compiled chunks, check for a stop
+request or non-finite loss, show progress and checkpoint; what differs comes in as functions."""
 
 import contextlib
 import signal
@@ -67,12 +65,10 @@ def run_chunks(
     on_chunk: Callable[[S], None] | None = None,
     chunks: int = 0,
 ) -> tuple[str, S, int]:
-    """Run chunks until the state is ``finished``, ``stop`` is set or it turns unhealthy.
-
-    ``save(state, chunks)`` runs every ``every_s`` s between chunks (not after the last).
-    Returns ``(status, state, chunks)``: ``"finished"``, ``"interrupted"`` or ``"diverged"``
-    (``state`` then the last healthy one).
-    """
+    """Run chunks until the state is ``finished``, ``stop`` is set or it turns unhealthy;
+    ``save(state, chunks)`` runs every ``every_s`` s between chunks (not after the last). Returns
+    ``(status, state, chunks)``: ``"finished"``, ``"interrupted"`` or ``"diverged"`` (``state`` then
+    the last healthy one)."""
     last_save = time.perf_counter()
     while not finished(state):
         if stop.signal is not None:

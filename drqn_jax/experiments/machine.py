@@ -85,13 +85,11 @@ def machine_info() -> dict[str, Any]:
         "platform": devices[0].platform,
         "devices": [str(d) for d in devices],
         "device": device_identity(),
-        # As in effect: ``import drqn_jax`` appends --xla_cpu_max_isa=AVX (no FMA, for
-        # batch-independent results) unless DRQN_JAX_ALLOW_FMA=1 or the user set an ISA.
+        # as in effect: import drqn_jax disables FMA unless opted out (drqn_jax.determinism)
         "xla_flags": os.environ.get("XLA_FLAGS", "(unset)"),
         "fma_disabled": fma_disabled(),
         "xla_cpu_threads": cpu_thread_pool_size(),
         "drqn_jax_allow_fma": os.environ.get("DRQN_JAX_ALLOW_FMA", "(unset)"),
-        # When set, the compile time of a program compiled before may be a cache load.
         "compilation_cache_dir": jax.config.jax_compilation_cache_dir or "(off)",
         "drqn_jax_version": drqn_jax.__version__,
         "git_commit": git_commit(),

@@ -1,11 +1,8 @@
-"""One machine-readable results file, and the documents that quote it.
-
-``study --results FILE --section NAME`` stores a table's rows (:func:`write_results`);
-``drqn-jax report FILE.md`` fills each ``<!-- results:NAME FORM -->…<!-- /results -->`` block
-from it and ``--check`` fails where they disagree. FORM: none (all tables), ``legend`` (plus
-column definitions), ``safety`` (safety-and-speed table only), ``table`` (that table without
-its verdict lines: each row's margin interval says it), ``brief`` (headline table).
-"""
+"""One machine-readable results file, and the documents that quote it: ``study --results FILE
+--section NAME`` stores a table's rows (:func:`write_results`); ``drqn-jax report FILE.md`` fills
+each ``<!-- results:NAME FORM -->…<!-- /results -->`` block from it (``--check``: fail where they
+disagree). FORM: none (all tables), ``legend`` (plus column definitions), ``safety`` (the safety
+and speed table), ``table`` (it without verdicts: margins say them), ``brief`` (headline table)."""
 
 import json
 import math
@@ -197,12 +194,6 @@ def points_interval(low: float | None, high: float | None) -> str:
     return f"({low:+.1f} to {high:+.1f})"
 
 
-def _device_legend(rows: Sequence[Mapping[str, Any]]) -> dict[str, str]:
-    """Each device the rows trained on → ``[k]``, numbered in order first seen."""
-    names = dict.fromkeys(d for r in rows for d in r.get("devices") or {} if d != NOT_RECORDED)
-    return {d: f"[{k}]" for k, d in enumerate(names, 1)}
-
-
 Cell = Callable[[Mapping[str, Any], Mapping[str, str]], str]
 
 
@@ -335,7 +326,8 @@ def study_table(
 ) -> str:
     """Markdown of ``rows`` as ``tables`` (default :data:`TABLES`; captioned when more than
     one is shown), device legend, ``notes`` and, with ``legend``, every column's definition."""
-    devices = _device_legend(rows)
+    names = dict.fromkeys(d for r in rows for d in r.get("devices") or {} if d != NOT_RECORDED)
+    devices = {d: f"[{k}]" for k, d in enumerate(names, 1)}  # device → [k], in order first seen
     parts = []
     for caption, keys, shown in tables:
         kept = [r for r in rows if any(COLUMNS[h][1](r, devices) != "–" for h in shown)]

@@ -27,12 +27,6 @@ def _std(runs: Sequence[Mapping[str, Any]], metric: str) -> float:
     return float(np.std(values, ddof=1)) if len(values) > 1 else math.nan
 
 
-def _devices(runs: Sequence[Mapping[str, Any]]) -> dict[str, int]:
-    """Runs per device, in order first seen (:data:`NOT_RECORDED` where a record names none)."""
-    trained = [r for r in runs if "env_steps" in r or "trained_on" in r]
-    return dict(Counter(r.get("trained_on", NOT_RECORDED) for r in trained))
-
-
 def study_row(
     label: str,
     agent: str,
@@ -43,10 +37,8 @@ def study_row(
 ) -> dict[str, Any]:
     """One table row from the JSON evaluations of an agent's runs (one per seed) in ``world``;
     a trained agent's ``decision_steps`` (ticks per decision) gives its ticks per seed.
-
     Collision-free interval: 95 % Student t across seeds, cut to [0, 1] (one run: Wilson);
-    collisions per km pooled; ``per_seed``: seed, rate, speed for the frontier margin.
-    """
+    collisions per km pooled; ``per_seed``: seed, rate, speed for the frontier margin."""
     if not runs:
         raise ValueError(f"study_row {label!r}: no runs")
     rates = np.array([r["collision_free_rate"] for r in runs], np.float64)
@@ -61,6 +53,7 @@ def study_row(
     free = [round(n * r) for n, r in zip(episodes, rates, strict=True)]
     free_distance = [r.get("avg_distance_collision_free_m") for r in runs]
     pooled_free = [(k, d) for k, d in zip(free, free_distance, strict=True) if k and d is not None]
+    trained = [r for r in runs if "env_steps" in r or "trained_on" in r]  # counted by device
     row = {
         "label": label,
         "agent": agent,
@@ -85,7 +78,7 @@ def study_row(
         ),
         "goal_rate": _mean(runs, "goal_rate"),
         "env_steps_per_seed": _mean(runs, "env_steps"),
-        "devices": _devices(runs),
+        "devices": dict(Counter(r.get("trained_on", NOT_RECORDED) for r in trained)),
         "train_wall_s_per_seed": _mean(runs, "train_wall_s"),
         "train_wall_seeds": sum(r.get("train_wall_s") is not None for r in runs),
         "collisions_per_km": collisions / km if km > 0 else math.nan,
@@ -109,8 +102,7 @@ def study_row(
 def baseline_row(
     label: str, result: Mapping[str, Any], *, world: str, decision_steps: int | None = None
 ) -> dict[str, Any]:
-    """A row for a single policy evaluated once (the rule-based agent, one trained seed):
-    Wilson interval."""
+    """A row of a single policy evaluated once (rule-based agent, one trained seed): Wilson."""
     return study_row(label, result["agent"], [result], world=world, decision_steps=decision_steps)
 
 

@@ -1,10 +1,8 @@
-"""Host-side driver of a training run: chunks, progress, checkpoints, signals, evaluation.
-
-Calls the pure :func:`drqn_jax.learners.make_train` ``run(state, chunk_iterations)`` in chunks;
-a chunked (or interrupted and resumed) run ends bit-identical to a one-shot run. A run
-directory holds ``config.toml``, ``metrics.csv``, ``checkpoint.npz``/``.json`` and
-``evaluation.json``/``results.md`` (SPEC §8).
-"""
+"""Host-side driver of a training run: chunks, progress, checkpoints, signals, evaluation. It calls
+the pure :func:`drqn_jax.learners.make_train` ``run(state, chunk_iterations)`` in chunks; a chunked
+(or interrupted and resumed) run ends bit-identical to a one-shot run. A run directory (SPEC §8)
+holds ``config.toml``, ``metrics.csv``, ``checkpoint.npz``/``.json``, ``evaluation.json``,
+``results.md``."""
 
 import csv
 import dataclasses
@@ -96,10 +94,8 @@ def compiled_run(trainer: Trainer, state: TrainState, iterations: int | None = N
 
 
 def recorded_metrics(state: TrainState | Mapping[str, Any]) -> dict[str, np.ndarray]:
-    """Host copies of the ended episodes' metrics (``length`` >= 1), plus ``episode``.
-
-    ``state``: a run's ``TrainState`` or its ``metrics`` dict (leaves ``(num_episodes,)``).
-    """
+    """Host copies of the ended episodes' metrics (``length`` >= 1), plus ``episode``, from a run's
+    ``TrainState`` or its ``metrics`` dict (leaves ``(num_episodes,)``)."""
     source = state if isinstance(state, Mapping) else state.metrics
     metrics = {name: np.asarray(v) for name, v in source.items()}
     done = metrics["length"] > 0
@@ -148,10 +144,8 @@ def _save(run_dir: Path, config: Config, state: TrainState, wall: float, chunks:
 def train_run(
     config: Config, run_dir: str | Path, *, resume: bool = False, quiet: bool = False
 ) -> RunResult:
-    """Train (or, with ``resume``, continue) the run in ``run_dir`` until done or stopped.
-
-    Raises CheckpointError for a fresh run in a used directory or a bad checkpoint on resume.
-    """
+    """Train (or, with ``resume``, continue) the run in ``run_dir`` until done or stopped;
+    CheckpointError for a fresh run in a used directory or a bad checkpoint on resume."""
     run_dir = Path(run_dir)
     trainer = make_train(config.train_config())
     train_key, _ = config.keys()
@@ -259,10 +253,8 @@ def budget_used(state: TrainState, total: int, unit: str, runs: int | None = Non
 
 
 def load_run(run_dir: str | Path, overrides: tuple[str, ...] = ()) -> Config:
-    """The configuration stored in a run (or agent) directory, with ``overrides``.
-
-    Raises CheckpointError: not a run directory, or another format/version wrote it.
-    """
+    """The configuration stored in a run (or agent) directory, with ``overrides``; CheckpointError
+    if it is not a run directory or another format/version wrote it."""
     run_dir = Path(run_dir)
     path = run_dir / "config.toml"
     if not path.is_file():
@@ -313,10 +305,8 @@ def export_agent(
     run_dir: str | Path, out: str | Path, command: str, trained: Mapping[str, str] | None = None
 ) -> dict[str, Any]:
     """Write a finished run's agent to ``out`` (:func:`save_agent`) with ``provenance.json``
-    (command, counters, wall time, the commit/device that trained it, this machine).
-
-    Returns the provenance; raises CheckpointError if the run is missing or unfinished.
-    """
+    (command, counters, wall time, the commit/device that trained it, this machine) and return the
+    provenance; CheckpointError if the run is missing or unfinished."""
     config = load_run(run_dir)
     _, params, meta = load_trained_network(config, run_dir)
     if not meta["finished"]:

@@ -1,16 +1,10 @@
-"""A study: configs × seeds, each evaluated greedily on the same episodes, beside the
-rule-based agent and its frontier (paper Table III, §V-F; SPEC §9)::
-
-    drqn-jax study --configs paper,default,dqn --seeds 5 --episodes 1000 --out studies/table3
-
-Each config is a resumable sweep over ``run.seed`` in ``OUT/<config>/``. Writes
-``OUT/study.md`` (rows with 95 % intervals, frontier margins, verdicts), ``study.json``,
-``safety_speed.png`` and ``curves.png``/``.rrd``; ``--eval-envs`` adds cross-env rows.
-
-A runs store (``study --runs-store FILE``, ``{"command": ..., "finished_runs": {arm: [run,
-...]}}``: :func:`_portable_runs`) keeps the finished runs apart from ``OUT``, so a study
-outlives its directory: restored runs give the same table bit for bit, but have no agent.
-"""
+"""A study (paper Table III, §V-F; SPEC §9; usage: docs/guide.md, "The reproduction study"):
+configs × seeds, each config a resumable sweep over ``run.seed`` in ``OUT/<config>/``, evaluated
+greedily on the same episodes beside the rule-based agent and its frontier. Writes ``OUT/study.md``
+(rows, 95 % intervals, frontier margins, verdicts), ``study.json``, ``safety_speed.png``,
+``curves.png``/``.rrd``. A runs store (:func:`_portable_runs`: ``{"command": ..., "finished_runs":
+{arm: [run, ...]}}``) keeps the finished runs apart from ``OUT``, so a study outlives its directory:
+restored runs give the same table bit for bit, but have no agent."""
 
 import dataclasses
 import json
@@ -69,11 +63,9 @@ def plan_study(
     overrides: Sequence[str] = (),
     eval_envs: Sequence[str] = (),
 ) -> list[Arm]:
-    """Validate the study before anything compiles: one :class:`Arm` per config.
-
-    ``configs``: names or TOML paths; ``seeds``: 0 … seeds − 1; ``eval_envs``: env ids the
-    agents are also evaluated on. Raises ConfigError.
-    """
+    """Validate the study before anything compiles: one :class:`Arm` per config (``configs``:
+    names or TOML paths; ``seeds``: 0 … seeds − 1; ``eval_envs``: env ids the agents are also
+    evaluated on). Raises ConfigError."""
     unknown = [e for e in eval_envs if e not in registered_envs()]
     if unknown:
         raise ConfigError(
@@ -123,12 +115,9 @@ def run_study(
     carried: Mapping[str, Sequence[Mapping[str, Any]]] | None = None,
     keep: Callable[[dict[str, list[dict[str, Any]]]], None] | None = None,
 ) -> StudyOutcome:
-    """Train and evaluate every arm (continuing ``out``), the rule-based agent, and write
-    the table and curves.
-
-    ``train=False``: report the finished runs only. ``carried``: arm → runs restored from a
-    runs store. ``keep``: called with all finished runs after each run finishes.
-    """
+    """Train and evaluate every arm (continuing ``out``) and the rule-based agent; write the
+    table and curves. ``train=False``: report the finished runs only; ``carried``: arm → runs
+    restored from a runs store; ``keep``: called with all finished runs after each run finishes."""
     out = Path(out)
     trained_runs = _train_arms(arms, out, quiet, train, carried, keep)
     if isinstance(trained_runs, StudyOutcome):

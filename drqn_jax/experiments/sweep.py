@@ -1,18 +1,9 @@
 """Hyperparameter sweeps: the sweep file, its points, their programs, the results table.
 
-A sweep file (TOML) names a base config and axes::
-
-    base = "smoke"                      # a config name or path
-    mode = "product"                    # or "zip": the i-th values of every axis
-    [set]                               # overrides shared by every point
-    "train.num_episodes" = 12
-    [axes]                              # "section.field" = list, or a range table
-    "run.seed" = { start = 0, stop = 4 }                    # 0, 1, 2, 3
-    "train.gamma" = { start = 0.9, stop = 0.99, num = 3 }   # linspace, ends included
-
-Points whose shapes agree form one program (``jit(vmap(train))``); every run is evaluated on
-the first point's evaluation episodes. Running: :mod:`drqn_jax.experiments.sweep_runner`.
-"""
+The sweep file (TOML: ``base``, ``mode``, ``strategy``, ``[set]``, ``[axes]``) is described in
+docs/guide.md, "Sweeps". Points whose shapes agree form one program (``jit(vmap(train))``);
+every run is evaluated on the first point's evaluation episodes. Running:
+:mod:`drqn_jax.experiments.sweep_runner`."""
 
 import dataclasses
 import functools
@@ -106,7 +97,7 @@ def _hashable(value: Any) -> Any:
 
 
 def _axis_values(name: str, spec: Any) -> list[Any]:
-    """An axis's values from a list or a range table (module docstring)."""
+    """An axis's values from a list or a range table ``{start, stop[, step | num]}``."""
     values = spec
     if isinstance(spec, dict):
         start, stop, num, step = (spec.get(k) for k in ("start", "stop", "num", "step"))

@@ -1,11 +1,8 @@
-"""A sweep's plan (SPEC §7): which points train together in which compiled **call**, on
-which devices and processes. Points are grouped into programs by shape; each process takes
-a contiguous slice of every program, cut by the memory plan into padded calls.
-
-The memory plan, made before anything compiles: a run holds its ``TrainState`` (exact, via
-``jax.eval_shape``) plus one gradient update's temporaries (estimated from layer sizes,
-within 1-2× of XLA's ``memory_analysis()``).
-"""
+"""A sweep's plan (SPEC §7): which points train together in which compiled **call**, on which
+devices and processes. Points are grouped into programs by shape; each process takes a contiguous
+slice of every program, cut into padded calls by the memory plan, made before anything compiles:
+a run's ``TrainState`` (exact, via ``jax.eval_shape``) plus one gradient update's temporaries
+(estimated from layer sizes, within 1-2× of XLA's ``memory_analysis()``)."""
 
 import dataclasses
 import hashlib
@@ -226,13 +223,6 @@ class Call:
         return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _process_slice(points: Sequence[SweepPoint], dist: Distributed) -> list[SweepPoint]:
-    """Contiguous, near-equal slices of ``points``, one per process."""
-    n, p = len(points), dist.processes
-    bounds = [n * i // p for i in range(p + 1)]
-    return list(points[bounds[dist.process] : bounds[dist.process + 1]])
-
-
 def resolve_strategy(strategy: str, devices: Sequence[Any]) -> str:
     """``vmap`` or ``map`` for ``strategy`` (one of STRATEGIES) on ``devices``."""
     if strategy == "auto":
@@ -248,18 +238,17 @@ def plan_calls(
     memory_source: str = "",
     strategy: str | None = None,
 ) -> list[Call]:
-    """This process's calls, in order: its slice of every program, cut to fit ``budget``.
-
-    With ``map`` a call holds one run per device, so runs finish (and are saved) one by one.
-    Raises MemoryPlanError if one run per device does not fit.
-    """
+    """This process's calls, in order: its slice of every program, cut to fit ``budget`` (with
+    ``map`` one run per device, so runs finish and are saved one by one); MemoryPlanError if one
+    run per device does not fit."""
     local = jax.local_devices()[:devices]
     strategy = resolve_strategy(sweep.strategy if strategy is None else strategy, local)
     if budget is None:
         budget, memory_source = available_memory(local)
     calls = []
     for k, program in enumerate(sweep.programs()):
-        mine = _process_slice(program, dist)
+        bounds = [len(program) * i // dist.processes for i in range(dist.processes + 1)]
+        mine = program[bounds[dist.process] : bounds[dist.process + 1]]  # contiguous, near-equal
         if not mine:
             continue
         memory = run_memory(mine[0].config)

@@ -1,11 +1,8 @@
-"""Running a sweep: compiled calls, checkpoints, progress, several processes.
-
-A **call** trains several runs of one program together (``jit(vmap(run))``, the run axis
-sharded over the devices, padded to their count) chunk by chunk, checkpointing like
-``drqn-jax train``. Each run is bit-identical to the same run alone. With several processes
-each trains its slice and process 0 gathers results via ``jax.distributed``'s key-value store.
-Output layout: :mod:`drqn_jax.experiments.sweep_outputs`.
-"""
+"""Running a sweep: a **call** trains several runs of one program together (``jit(vmap(run))``,
+the run axis sharded over the devices, padded to their count) chunk by chunk, checkpointing like
+``drqn-jax train``; each run is bit-identical to the same run alone. With several processes each
+trains its slice and process 0 gathers results via ``jax.distributed``'s key-value store.
+Output layout: :mod:`drqn_jax.experiments.sweep_outputs`."""
 
 import dataclasses
 import functools
@@ -95,13 +92,10 @@ def _over_runs(
 def call_programs(
     trainer: Trainer, size: int, devices: Sequence[Any], strategy: str
 ) -> tuple[Callable, Callable, Callable]:
-    """``(init, run, validate)`` of a call, jitted once per process and shape
-    (hyperparameters are arguments/state, so calls differing only in values share them).
-
-    ``init(keys, hparams, env_params)`` -> the batched state; ``run(state, real)`` advances
-    each real, unfinished run by one chunk; ``validate(state, real) -> {metric: (size, K + 1)}``
-    for ``train.snapshots`` = K > 0.
-    """
+    """``(init, run, validate)`` of a call, jitted once per process and shape (hyperparameters
+    are arguments/state, so calls differing only in values share them): ``init(keys, hparams,
+    env_params)`` -> the batched state; ``run(state, real)`` advances each real, unfinished run
+    a chunk; ``validate(state, real) -> {metric: (size, K + 1)}``, ``train.snapshots`` = K > 0."""
     chunk = trainer.config.chunk_iterations
 
     def build() -> tuple[Callable, Callable, Callable]:
@@ -144,11 +138,9 @@ def train_call(
     stop: StopRequest | None = None,
     on_chunk: Callable[[TrainState], None] | None = None,
 ) -> CallOutcome:
-    """Train the call's runs to the end, chunk by chunk, sharded over ``devices``.
-
-    With ``directory``: resume from its checkpoint, save every ``checkpoint_every_s`` and
-    on ``stop`` (outcome ``interrupted``).
-    """
+    """Train the call's runs to the end, chunk by chunk, sharded over ``devices``; with
+    ``directory``, resume from its checkpoint and save every ``checkpoint_every_s`` and on
+    ``stop`` (outcome ``interrupted``)."""
     start = time.perf_counter()
     trainer = make_train(call.points[0].config.train_config())
     init, run, validate = call_programs(trainer, call.size, devices, call.strategy)
@@ -253,11 +245,9 @@ def run_sweep(
     keep_agents: bool = True,
     on_call_finished: Callable[[], None] | None = None,
 ) -> SweepOutcome:
-    """Train and evaluate this process's runs call by call; gather on process 0.
-
-    ``resume`` keeps ended calls the plan still has (points may grow, e.g. more seeds);
-    ``on_call_finished`` is called as each call's results reach disk.
-    """
+    """Train and evaluate this process's runs call by call; gather on process 0. ``resume``
+    keeps ended calls the plan still has (points may grow, e.g. more seeds);
+    ``on_call_finished`` is called as each call's results reach disk."""
     out = Path(out)
     devices, commit = jax.local_devices(), git_commit()  # HEAD may move while runs train
     if calls is None:
@@ -314,8 +304,7 @@ def _finish_call(
     commit: str,
     keep_agents: bool,
 ) -> list[dict[str, Any]]:
-    """Evaluate a trained call and write its agents and :func:`write_call`; returns the
-    runs' results."""
+    """Evaluate a trained call, write its agents and :func:`write_call`; the runs' results."""
     params = real_agent_params(call, outcome)
     results = call_results(call, outcome, eval_key, params, commit)
     for line in budget_warnings(call.points, results):

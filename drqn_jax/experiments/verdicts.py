@@ -1,8 +1,6 @@
-"""The sentences under a results table (SPEC §9): each row against the rule-based frontier
-at its own speed, the paper's claim, arms paired seed by seed, and Table III at scale's goal.
-
-"Above" means the 95 % interval lies above; every number comes from the rows.
-"""
+"""The sentences under a results table (SPEC §9): each row against the rule-based frontier at its
+own speed, the paper's claim, arms paired seed by seed, and Table III at scale's goal. "Above" means
+the 95 % interval lies above; every number comes from the rows."""
 
 import dataclasses
 import math
