@@ -2,7 +2,6 @@
 ``a + b*c`` into an FMA depending on fusion, i.e. on shapes, so results would change by an ulp
 with the batch size). ``import drqn_jax`` appends ``--xla_cpu_max_isa=AVX`` to ``XLA_FLAGS``
 unless ``--xla_cpu_max_isa`` is set or ``DRQN_JAX_ALLOW_FMA=1``; only before any JAX computation.
-
 Other shape-independence rules: divide by a scalar parameter as a reciprocal product; ``EnvParams``
 behind ``lax.optimization_barrier``; weight gradients from a materialised transpose
 (:func:`drqn_jax.layers._rows_product`; Eigen splits ``x.T @ g`` by :func:`cpu_thread_pool_size`);

@@ -274,11 +274,9 @@ def evaluate(
     *,
     on_episodes: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
-    """Evaluate ``agent`` on ``num_episodes`` episodes (SPEC §8), episode *i* from
-    ``fold_in(key, i)``, in host calls of :data:`EVAL_BATCH` episodes (one program, the
-    last call padded), ``on_episodes(done)`` after each (a progress bar). Returns
-    :func:`summarize`'s dict plus ``agent`` and ``episodes`` (the per-episode
-    :class:`EpisodeMetrics`, NumPy leaves (N, ...))."""
+    """Evaluate ``agent`` on ``num_episodes`` episodes (SPEC §8) in calls of :data:`EVAL_BATCH`
+    (one program, the last padded), ``on_episodes(done)`` after each: :func:`summarize`'s
+    dict plus ``agent`` and ``episodes`` (:class:`EpisodeMetrics`, NumPy leaves (N, ...))."""
     if not isinstance(num_episodes, int) or num_episodes < 1:
         raise ValueError(f"evaluate: num_episodes = {num_episodes!r}, must be an integer >= 1")
     params = env.default_params if params is None else env.check_params(params)

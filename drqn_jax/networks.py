@@ -47,14 +47,10 @@ TORSOS = ("conv", "mlp")
 
 @dataclasses.dataclass(frozen=True)
 class NetworkConfig:
-    """Shape-setting settings of the Q-network (hashable: a static argument).
-
-    ``conv``: (kernel_h, kernel_w, stride, filters) per layer; ``recurrent``: core
-    width; ``hidden``: FC width; ``frames``: grids stacked (``dqn``); ``torso``:
-    ``"conv"`` or ``"mlp"`` (widths ``mlp`` on ``obs_size`` floats); ``layer_norm``:
-    before the MLP's and FC's ReLUs (PQN's); ``cell``: ``"lstm"`` (Table I) or
-    ``"gru"``; ``scan_unroll``: steps written out per scan iteration (same bits).
-    """
+    """Shape-setting settings of the Q-network (hashable): ``conv`` (kernel_h, kernel_w, stride,
+    filters) per layer; ``recurrent`` core and ``hidden`` FC widths; ``frames`` stacked (``dqn``);
+    ``torso`` ``"conv"`` or ``"mlp"``; ``layer_norm`` before the MLP's and FC's ReLUs (PQN's);
+    ``cell`` ``"lstm"`` (Table I) or ``"gru"``; ``scan_unroll`` (same bits)."""
 
     kind: str = "drqn"
     conv: tuple[tuple[int, int, int, int], ...] = ((8, 6, 4, 32), (4, 3, 3, 64), (2, 2, 2, 64))

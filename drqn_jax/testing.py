@@ -1,5 +1,4 @@
 """Check that an environment keeps the gymnax 1.0 contract (ours, or a user's).
-
 :func:`check_env_contract` runs a short random rollout of a few envs (``jit`` and ``vmap``) and
 raises :class:`EnvContractError` naming the first broken rule: gymnax 1.0 ``reset``/``step``
 signatures, shapes and dtypes; finite observations inside ``observation_space``, finite rewards;

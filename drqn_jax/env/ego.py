@@ -1,5 +1,4 @@
 """The ego vehicle: action -> setpoint -> PID -> plant (paper §IV-B, Alg. 1; SPEC §2).
-
 One environment per call; ``vmap`` batches.
 """
 

@@ -1,5 +1,4 @@
 """Environment state and observation pytrees of one env (SPEC §2–4).
-
 P = ``num_pedestrians``, W = ``NUM_WAYPOINTS``, K = ``pid_window``.
 """
 

@@ -168,12 +168,10 @@ class UrbanPedestrians:
     def decide(
         self, key: jax.Array, state: EnvState, action: jax.Array, params: EnvParams
     ) -> tuple[EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
-        """One decision without auto-reset: ``action`` held for k = ``decision_steps``
-        ticks (SPEC §2), ``(state, reward summed over the ticks played, terminated,
-        truncated, info)``; no tick after a collision or the goal. With k > 1 the tick
-        keys are ``split(key, k)``; ``info`` is the last played tick's, with
-        ``collision``, ``goal``, ``struck_while_stopped`` over all played ticks, ``ttc``
-        their least, and ``info["ticks"]`` every tick's: leaves (k,), ``played`` (k,)."""
+        """``action`` held for k = ``decision_steps`` ticks, no auto-reset (SPEC §2): ``(state,
+        summed reward, terminated, truncated, info)``, no tick after a collision or the goal;
+        tick keys ``split(key, k)``; ``info``: the last tick's, events over all played ticks,
+        ``ttc`` their least, ``info["ticks"]`` every tick's (leaves (k,), ``played``)."""
         k = self.static.decision_steps
         if k == 1:
             return self._tick(key, state, action, params)

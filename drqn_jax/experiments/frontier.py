@@ -1,5 +1,4 @@
 """The yardstick (SPEC §9): the rule-based family's frontier, the planner's ceiling, margins.
-
 An agent is judged against the best collision-free rate the rule-based agent (paper §V-E) reaches
 *at the agent's own average speed*: the upper concave hull of the family's Pareto points over
 :data:`RULE_BASED_SETTINGS`, swept as one program (``lax.map`` over settings of a ``vmap`` over

@@ -1,9 +1,6 @@
-"""Hyperparameter sweeps: the sweep file, its points, their programs, the results table.
-
-The sweep file (TOML: ``base``, ``mode``, ``strategy``, ``[set]``, ``[axes]``) is described in
-docs/guide.md, "Sweeps". Points whose shapes agree form one program (``jit(vmap(train))``);
-every run is evaluated on the first point's evaluation episodes. Running:
-:mod:`drqn_jax.experiments.sweep_runner`."""
+"""Hyperparameter sweeps (the sweep file: docs/guide.md, "Sweeps"): points whose shapes agree
+form one program (``jit(vmap(train))``), every run evaluated on the first point's evaluation
+episodes, and the results table. Running: :mod:`drqn_jax.experiments.sweep_runner`."""
 
 import dataclasses
 import functools

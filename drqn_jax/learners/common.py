@@ -20,11 +20,9 @@ from drqn_jax.pytree import pytree_dataclass, tree_where
 
 
 class Trainer(NamedTuple):
-    """The pure functions of one training configuration, all the host loop, sweeps,
-    checkpoints and evaluation use: ``init``, ``run(state, n)`` (no-ops once finished, so
-    any chunking ends bit-identical), ``train`` -> (agent params, metrics),
-    ``validation_metrics`` and ``agent_params``; every state is a :class:`LearnerState`.
-    """
+    """The pure functions of one training configuration: ``init``, ``run(state, n)`` (no-ops
+    once finished: any chunking ends bit-identical), ``train`` -> (agent params, metrics),
+    ``validation_metrics``, ``agent_params``; every state is a :class:`LearnerState`."""
 
     config: Any
     task: Any

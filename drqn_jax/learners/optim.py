@@ -36,11 +36,8 @@ def adam(
     b2: float | jax.Array = 0.999,
     eps: float | jax.Array = 1e-8,
 ) -> GradientTransformation:
-    """Adam (Kingma & Ba 2015) with bias correction, as ``optax.adam``.
-
-    ``m ← b1·m + (1−b1)·g``; ``v ← b2·v + (1−b2)·g²``;
-    ``update = −lr · (m / (1−b1ᵗ)) / (sqrt(v / (1−b2ᵗ)) + eps)``.
-    """
+    """Adam (Kingma & Ba 2015) as ``optax.adam``: ``m ← b1·m + (1−b1)·g``; ``v ← b2·v +
+    (1−b2)·g²``; ``update = −lr · (m / (1−b1ᵗ)) / (sqrt(v / (1−b2ᵗ)) + eps)``."""
 
     def update(grads: Params, state: AdamState, params: Params | None = None):
         count, mu, nu = _moments(grads, state, b1, b2)
@@ -77,13 +74,10 @@ def radam(
     eps: float | jax.Array = 1e-8,
     threshold: float = 5.0,
 ) -> GradientTransformation:
-    """Rectified Adam (Liu et al. 2020), as ``optax.radam`` (purejaxql's PQN).
-
-    Adam's moments; with ρ∞ = 2 / (1 − b2) − 1 and ρₜ = ρ∞ − 2t·b2ᵗ / (1 − b2ᵗ),
-    the update is −lr · r·m̂ / (sqrt(v̂) + eps), r = sqrt((ρₜ − 4)(ρₜ − 2)ρ∞ /
-    ((ρ∞ − 4)(ρ∞ − 2)ρₜ)), once ρₜ ≥ ``threshold``, and −lr · m̂ before (the
-    variance of v̂ is not yet tractable).
-    """
+    """Rectified Adam (Liu et al. 2020) as ``optax.radam`` (purejaxql's PQN): Adam's moments;
+    with ρ∞ = 2 / (1 − b2) − 1, ρₜ = ρ∞ − 2t·b2ᵗ / (1 − b2ᵗ) and r = sqrt((ρₜ − 4)(ρₜ − 2)ρ∞ /
+    ((ρ∞ − 4)(ρ∞ − 2)ρₜ)), the update is −lr · r·m̂ / (sqrt(v̂) + eps) once ρₜ ≥ ``threshold``,
+    else −lr · m̂ (the variance of v̂ not yet tractable)."""
     ro_inf = 2.0 / (1.0 - b2) - 1.0
 
     def update(grads: Params, state: AdamState, params: Params | None = None):

@@ -1,12 +1,10 @@
 """Recurrent PQN (Gallici et al. 2024; purejaxql's ``pqn_rnn_gymnax.py``): the paper's
-recurrent Q-network (Table I; paper §V-B) without replay or target network.
-
-One update: an ε-greedy rollout (the DQN's ε schedule), Q(λ) targets from the trained
-network (no gradient), then minibatch epochs of the squared TD error. Targets also
-bootstrap from the observation after the rollout (purejaxql drops the last step). With
-``memory_window`` = W > 0 the previous rollout's last W steps come first in every
-sequence, unrolled from the state they were acted from, and are trained again
-(purejaxql's ``MEMORY_WINDOW``; before the first update they are padding, weighted 0).
+recurrent Q-network (Table I; paper §V-B) without replay or target network. One update: an
+ε-greedy rollout (the DQN's ε schedule), Q(λ) targets from the trained network (no gradient),
+then minibatch epochs of the squared TD error. Targets also bootstrap from the observation
+after the rollout (purejaxql drops the last step). With ``memory_window`` = W > 0 the previous
+rollout's last W steps come first in every sequence, unrolled from the state they were acted
+from, and are trained again (purejaxql's ``MEMORY_WINDOW``; padding, weighted 0, at first).
 """
 
 import functools

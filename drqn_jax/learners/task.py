@@ -47,14 +47,10 @@ class Teacher(NamedTuple):
 
 
 class Task(NamedTuple):
-    """An environment of the gymnax contract with what the learner needs of it.
-
-    ``max_steps``: the replay's slot length; ``decision_steps``: ticks one action holds
-    (1 for gymnax); ``record``: zeros of one record; ``step`` -> :class:`Step`, resetting
-    at the end; ``observe(records, last_action, params)`` on (T, B, …); ``network``:
-    completes the config for this observation; ``explore_bias(hp)`` (A,); ``validate``
-    -> {metric: ()} for snapshot selection.
-    """
+    """A gymnax env with what a learner needs: ``max_steps`` (a replay slot), ``decision_steps``
+    (1 for gymnax), ``record`` (zeros of one), ``step`` -> :class:`Step` (auto-reset),
+    ``observe(records, last_action, params)`` on (T, B, …), ``network`` (completes the config),
+    ``explore_bias(hp)`` (A,), ``validate`` -> {metric: ()} for snapshot selection."""
 
     env: Any
     env_params: Any

@@ -2,11 +2,9 @@
 
     y_t = Σ_{k<m} γ^k r_{t+k} + γ^m (1 − terminated) Q_target(s_{t+m}, argmax_a Q_online)
 
-with m ≤ ``n_step`` (1 = the paper), bootstrapping through truncation only. The TD
-error is clipped (paper: "[−1, 1]"): Huber δ = 1 or MSE with a clamped gradient.
-Not in the paper: R2D2's value rescaling h (Kapturowski et al. 2019) and DQfD's
-large-margin imitation term J_E (Hester et al. 2018). Padding is masked out.
-"""
+with m ≤ ``n_step`` (1 = the paper), bootstrapping through truncation only; the TD error
+clipped (paper: "[−1, 1]"): Huber δ = 1 or a clamped gradient. Not in the paper: R2D2's value
+rescaling h and DQfD's large-margin imitation term J_E. Padding is masked out."""
 
 from typing import Any
 

@@ -34,10 +34,6 @@ class EpisodeReplay:
     carry: Any = None
 
     @property
-    def capacity(self) -> int:
-        return self.length.shape[0]
-
-    @property
     def max_length(self) -> int:
         return self.action.shape[1]
 
@@ -114,7 +110,7 @@ def begin_episodes(
     """Writers flagged in ``starting`` (N,) start an episode at ``first`` (and
     ``first_carry``) in the oldest of their slots, which stops being sampleable."""
     n = replay.num_writers
-    per_writer = replay.capacity // n
+    per_writer = replay.length.shape[0] // n  # M // N slots
     writer = jnp.arange(n, dtype=jnp.int32)
     slot = jnp.where(starting, writer * per_writer + replay.episodes % per_writer, replay.slot)
     zero = jnp.zeros((n,), jnp.int32)
