@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.agents.base import Agent, no_carry
-from drqn_jax.env.grid import GridInputs
+from drqn_jax.env.grid import GridInputs, times_between
 from drqn_jax.env.params import KMH, EnvParams
 from drqn_jax.env.road_map import CROSSING_AREA, ROAD, lane_centre_y, semantic_class
 from drqn_jax.env.state import ACCELERATE, BRAKE, SLOW_DOWN, STEER, EnvState
@@ -29,20 +29,6 @@ class RuleBasedParams:
         validate(self)
 
 
-def _times_between(
-    a: jax.Array, b: jax.Array, low: jax.Array | float, high: jax.Array | float
-) -> tuple[jax.Array, jax.Array]:
-    """Elementwise (start, end) of the times t with low ≤ a + b·t ≤ high (maybe empty)."""
-    moving = b != 0.0
-    rate = jnp.where(moving, b, 1.0)
-    t_low, t_high = (low - a) / rate, (high - a) / rate
-    inside = (a >= low) & (a <= high)
-    always = jnp.where(inside, -jnp.inf, jnp.inf)
-    start = jnp.where(moving, jnp.minimum(t_low, t_high), always)
-    end = jnp.where(moving, jnp.maximum(t_low, t_high), -always)
-    return start, end
-
-
 def must_brake(g: GridInputs, env_params: EnvParams, rb: RuleBasedParams, static) -> jax.Array:
     """() bool: a pedestrian (``g.position``, ``g.velocity`` (P, 2)) on the road is in the
     corridor ahead of the ego (``g.s``, ``g.v`` ()), or walks into it within ``rb.horizon``."""
@@ -55,9 +41,9 @@ def must_brake(g: GridInputs, env_params: EnvParams, rb: RuleBasedParams, static
     now = jnp.any(on_road & (jnp.abs(offset) <= half_corridor) & in_front)
     # Per pedestrian, the times in [0, horizon] when it is in the corridor, within the
     # look-ahead, and not yet passed by the bumper moving at v.
-    lat = _times_between(offset, g.velocity[:, 1], -half_corridor, half_corridor)
-    near = _times_between(ahead, g.velocity[:, 0], -jnp.inf, rb.lookahead)
-    unpassed = _times_between(ahead, g.velocity[:, 0] - g.v, -env_params.ped_radius, jnp.inf)
+    lat = times_between(offset, g.velocity[:, 1], -half_corridor, half_corridor)
+    near = times_between(ahead, g.velocity[:, 0], -jnp.inf, rb.lookahead)
+    unpassed = times_between(ahead, g.velocity[:, 0] - g.v, -env_params.ped_radius, jnp.inf)
     start = jnp.maximum(jnp.maximum(lat[0], near[0]), jnp.maximum(unpassed[0], 0.0))
     end = jnp.minimum(jnp.minimum(lat[1], near[1]), jnp.minimum(unpassed[1], rb.horizon))
     soon = jnp.any(start <= end)

@@ -6,12 +6,21 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.env.collision import squared_length
-from drqn_jax.env.params import SEMANTIC_MAP, SPEED_RELATIVE, EnvParams, StaticEnvParams
+from drqn_jax.env.params import (
+    SEMANTIC_MAP,
+    SEMANTIC_THREAT,
+    SPEED_RELATIVE,
+    EnvParams,
+    StaticEnvParams,
+)
 from drqn_jax.env.road_map import lane_centre_y, semantic_class
 from drqn_jax.env.state import EgoState, PedestrianState
 from drqn_jax.pytree import pytree_dataclass
 
 NUM_CHANNELS = 4
+#: m added to the ego's half width and a pedestrian's radius: the rule-based agent's default
+#: corridor (SPEC §6), for ``semantic_channel = "threat"``.
+THREAT_MARGIN = 0.5
 # Per-channel bounds of the grid values (occupancy, heading, speed, semantics).
 GRID_LOW = (0.0, -1.0, 0.0, 0.0)
 GRID_HIGH = (1.0, 1.0, float("inf"), 1.0)
@@ -90,6 +99,34 @@ def _nearest_wins(flat: jax.Array, dist2: jax.Array, size: int) -> jax.Array:
     return jnp.where(loses, size, flat)
 
 
+def times_between(
+    a: jax.Array, b: jax.Array, low: jax.Array | float, high: jax.Array | float
+) -> tuple[jax.Array, jax.Array]:
+    """Elementwise (start, end) of the times t with low ≤ a + b·t ≤ high (maybe empty)."""
+    moving = b != 0.0
+    rate = jnp.where(moving, b, 1.0)
+    t_low, t_high = (low - a) / rate, (high - a) / rate
+    inside = (a >= low) & (a <= high)
+    always = jnp.where(inside, -jnp.inf, jnp.inf)
+    start = jnp.where(moving, jnp.minimum(t_low, t_high), always)
+    end = jnp.where(moving, jnp.maximum(t_low, t_high), -always)
+    return start, end
+
+
+def threat(g: GridInputs, params: EnvParams, static: StaticEnvParams) -> jax.Array:
+    """(P,) float32 1 − t / ``ttc_horizon`` (0 beyond it), t the first time each pedestrian,
+    walking on at its velocity, is in the ego's corridor ahead of its bumper at speed v: a
+    feature of what one frame shows (``semantic_channel = "threat"``, not the paper's)."""
+    half = 0.5 * params.ego_width + params.ped_radius + THREAT_MARGIN
+    offset = g.position[:, 1] - lane_centre_y(params)
+    ahead = g.position[:, 0] - (g.s + 0.5 * params.ego_length)
+    lat = times_between(offset, g.velocity[:, 1], -half, half)
+    unpassed = times_between(ahead, g.velocity[:, 0] - g.v, -params.ped_radius, jnp.inf)
+    start = jnp.maximum(jnp.maximum(lat[0], unpassed[0]), 0.0)
+    t = jnp.where(start <= jnp.minimum(lat[1], unpassed[1]), start, jnp.inf)
+    return jnp.clip(1.0 - t * (1.0 / static.ttc_horizon), 0.0, 1.0)
+
+
 def rasterize_grid(
     ego: EgoState, peds: PedestrianState, params: EnvParams, static: StaticEnvParams
 ) -> jax.Array:
@@ -113,6 +150,8 @@ def rasterize(g: GridInputs, params: EnvParams, static: StaticEnvParams) -> jax.
     speed = jnp.where(params.speed_channel == SPEED_RELATIVE, speed_rel, speed_ped)
     use_map = params.semantic_channel == SEMANTIC_MAP
     semantic = semantic_class(g.position, params, static).astype(jnp.float32) / 3.0
+    is_threat = params.semantic_channel == SEMANTIC_THREAT
+    semantic = jnp.where(is_threat, threat(g, params, static), semantic)
     values = jnp.stack([jnp.ones_like(heading), heading / jnp.pi, speed, semantic], axis=-1)
 
     def with_map(values):

@@ -23,14 +23,14 @@ KMH = 1.0 / 3.6  # one km/h in m/s
 # Switch codes (the values stored in EnvParams' switch fields).
 SETPOINT_MODES = ("measured", "setpoint")
 SPEED_CHANNELS = ("pedestrian", "relative")
-SEMANTIC_CHANNELS = ("pedestrian", "map")
+SEMANTIC_CHANNELS = ("pedestrian", "map", "threat")
 PED_BEHAVIOURS_TO_CAR = ("ignore", "yield")
 COLLISION_MODELS = ("contact", "authors")
 TTC_TESTS = ("contact", "collision")
 SETPOINT_CHANGES = ("decision", "tick")
 SETPOINT_MEASURED, SETPOINT_PREVIOUS = 0, 1
 SPEED_PEDESTRIAN, SPEED_RELATIVE = 0, 1
-SEMANTIC_PEDESTRIAN, SEMANTIC_MAP = 0, 1
+SEMANTIC_PEDESTRIAN, SEMANTIC_MAP, SEMANTIC_THREAT = 0, 1, 2
 PED_IGNORE, PED_YIELD = 0, 1
 COLLISION_CONTACT, COLLISION_AUTHORS = 0, 1
 TTC_CONTACT, TTC_COLLISION = 0, 1

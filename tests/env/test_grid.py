@@ -183,6 +183,23 @@ def test_grid_relative_speed_channel(params, static, raster):
     assert np.asarray(raster(ego, peds, params, static))[6, 15, 2] == pytest.approx(1.5)
 
 
+def test_grid_threat_channel(params, static, raster):
+    """``semantic_channel = "threat"``: 1 - t / ttc_horizon (3 s), t when the pedestrian,
+    walking on, is in the corridor (half width 0.9 + 0.3 + 0.5 m) ahead of the bumper
+    (x = 22.25, the ego at 4 m/s): in it now 1; 3 m off at 1.5 m/s 1/3; the same beside
+    the bumper, passed before it arrives, 0; walking away 0."""
+    p = params.replace(semantic_channel="threat")
+    ego = make_ego(p, static, s=20.0, v=4.0)
+    positions = [(30.0, LANE_Y + 0.5), (35.0, LANE_Y + 4.7), (24.0, LANE_Y + 4.7)]
+    velocities = [(0.0, 0.0), (0.0, -1.5), (0.0, -1.5), (0.0, 1.0)]
+    peds = make_peds(static, [*positions, (30.0, LANE_Y + 5.0)], velocities=velocities)
+    grid = np.asarray(raster(ego, peds, p, static))
+    cells = [(15, 15), (20, 19), (9, 19), (15, 20)]
+    assert [grid[r, c, 0] for r, c in cells] == [1.0, 1.0, 1.0, 1.0]
+    np.testing.assert_allclose([grid[r, c, 3] for r, c in cells], [1.0, 1 / 3, 0.0, 0.0], atol=1e-6)
+    assert np.asarray(raster(ego, peds, params, static))[15, 15, 3] == 1.0  # class: road
+
+
 def test_grid_cell_index_by_hand(params, static):
     """Ego at s = 20 on the lane centre y = -1.75: row ``floor(x - s + 5)``, column
     ``floor(y + 1.75 + 15)``, flat ``row * 30 + col``; outside the window ``45 * 30``."""
