@@ -1,7 +1,6 @@
 """drqn_jax: a JAX urban-pedestrian simulator and DRQN trainer (after Deshpande et al.).
 
-Importing it caps XLA:CPU code generation at AVX (:mod:`drqn_jax.determinism`).
-"""
+Importing it caps XLA:CPU code generation at AVX (:mod:`drqn_jax.determinism`)."""
 
 from drqn_jax.determinism import configure_xla_flags
 

@@ -125,8 +125,7 @@ def play_episode(
     """Play and measure one episode, the one rollout of evaluation and recording: T =
     ceil(max_steps / decision_steps) decisions, branch-free (those after the end count
     nothing; an ``every_tick`` agent decides every tick). Returns ``(metrics, traced, obs,
-    state)``: ``trace`` per :class:`Decision` (leaves (T, ...) or None), then the last obs/state.
-    """
+    state)``: ``trace`` per :class:`Decision` (leaves (T, ...) or None), then the last obs/state."""
     if agent.every_tick and env.static.decision_steps > 1:
         env = dataclasses.replace(env, static=dataclasses.replace(env.static, decision_steps=1))
     key_reset, key_carry, key_run = jax.random.split(key, 3)

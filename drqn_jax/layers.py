@@ -1,7 +1,6 @@
 """The numerics under Table I's layers (paper §V-A; SPEC §7): products, initialisers,
 convolutions as patch products, LSTM/GRU cells and frame stacks, written so that the
-same key gives the same bits alone, batched by ``vmap`` and on any number of devices.
-"""
+same key gives the same bits alone, batched by ``vmap`` and on any number of devices."""
 
 import math
 from typing import Any

@@ -3,8 +3,7 @@
 Conv 8×6/4 (32) → 4×3/3 (64) → 2×2/2 (64), ReLU, VALID (45×30 → 1×1, 64 features);
 ``drqn``: LSTM1 (256) → LSTM2 (256) fed ``[h1, speed, one-hot last action]``; ``dqn``:
 two dense ReLU layers instead (``frames`` = k > 1: the last k grids stacked); FC 256
-ReLU → 4 Q-values. Flat-vector envs get an MLP torso (``torso = "mlp"``) and no extras.
-"""
+ReLU → 4 Q-values. Flat-vector envs get an MLP torso (``torso = "mlp"``) and no extras."""
 
 import dataclasses
 import functools

@@ -1,6 +1,5 @@
 """The ego vehicle: action -> setpoint -> PID -> plant (paper §IV-B, Alg. 1; SPEC §2).
-One environment per call; ``vmap`` batches.
-"""
+One environment per call; ``vmap`` batches."""
 
 import jax
 import jax.numpy as jnp

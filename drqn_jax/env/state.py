@@ -1,6 +1,5 @@
 """Environment state and observation pytrees of one env (SPEC §2–4).
-P = ``num_pedestrians``, W = ``NUM_WAYPOINTS``, K = ``pid_window``.
-"""
+P = ``num_pedestrians``, W = ``NUM_WAYPOINTS``, K = ``pid_window``."""
 
 import jax
 

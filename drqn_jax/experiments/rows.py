@@ -1,7 +1,6 @@
 """A results table's rows: an agent's runs pooled over seeds (:func:`study_row`), a single
 policy (:func:`baseline_row`), the paper's Table III (:func:`paper_rows`) and a world's
-frontier points (:func:`frontier_rows`); ``per_seed`` feeds the frontier margin (SPEC §9).
-"""
+frontier points (:func:`frontier_rows`); ``per_seed`` feeds the frontier margin (SPEC §9)."""
 
 import math
 from collections import Counter

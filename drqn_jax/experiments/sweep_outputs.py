@@ -5,8 +5,7 @@ OUT/calls/runs-<first>-<last>/     checkpoint.npz/.json while a call runs, then 
 OUT/metrics/run-<index>.csv        each run's training metrics, one row per episode
 OUT/agents/run-<index>/            each run's agent (config.toml, agent.npz)
 OUT/results.md, results.csv        per setting: mean, std, 95 % interval, IQM
-OUT/runs.json                      every run's evaluation and training summary
-"""
+OUT/runs.json                      every run's evaluation and training summary"""
 
 import json
 from collections.abc import Sequence

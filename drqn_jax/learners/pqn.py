@@ -4,8 +4,7 @@ recurrent Q-network (Table I; paper §V-B) without replay or target network. One
 then minibatch epochs of the squared TD error. Targets also bootstrap from the observation
 after the rollout (purejaxql drops the last step). With ``memory_window`` = W > 0 the previous
 rollout's last W steps come first in every sequence, unrolled from the state they were acted
-from, and are trained again (purejaxql's ``MEMORY_WINDOW``; padding, weighted 0, at first).
-"""
+from, and are trained again (purejaxql's ``MEMORY_WINDOW``; padding, weighted 0, at first)."""
 
 import functools
 from typing import Any, NamedTuple
