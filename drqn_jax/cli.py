@@ -1,9 +1,6 @@
-"""The ``drqn-jax`` command line (it only parses; :mod:`drqn_jax.commands` runs).
-
-Exit statuses: 0 done; 1 the run failed (non-finite loss; last good checkpoint
-kept); 2 a configuration, usage or checkpoint problem; 130 interrupted (after a
-checkpoint).
-"""
+"""The ``drqn-jax`` command line (it only parses; :mod:`drqn_jax.commands` runs). Exit
+statuses: 0 done; 1 the run failed (non-finite loss; last good checkpoint kept); 2 a
+configuration, usage or checkpoint problem; 130 interrupted (after a checkpoint)."""
 
 import argparse
 import inspect

@@ -1,8 +1,6 @@
-"""``drqn-jax bench``: the suite of ``benchmarks/`` in a child process, or quick figures:
-env steps/s (:func:`bench_env`), training throughput (:func:`bench_train`) and the
-``study --estimate`` (:func:`training_estimate`). Each figure is the best of 3 timed calls
-after a warm-up; compile time is reported apart.
-"""
+"""``drqn-jax bench``: the suite of ``benchmarks/`` in a child process, or quick figures (env
+steps/s, training throughput, ``study --estimate``), each the best of 3 timed calls after a
+warm-up; compile time is reported apart."""
 
 import argparse
 import os
@@ -166,9 +164,8 @@ def train_figures(
 
 
 def bench_train(config: Config, iterations: int) -> str:
-    """One line: :func:`train_figures` as iterations/s, decisions/s (the learner's env
-    steps), ticks/s (k = ``env.decision_steps`` ticks of simulated driving per decision;
-    an episode's last decision may play fewer) and updates/s."""
+    """One line: :func:`train_figures` as iterations/s, decisions/s (the learner's env steps),
+    ticks/s (k = ``env.decision_steps`` a decision; an episode's last may play fewer), updates/s."""
     figures = train_figures(config, iterations)
     if isinstance(figures, str):
         return f"train: {figures}"

@@ -116,13 +116,9 @@ def _evaluated(
     about: str,
     training: dict[str, Any] | None = None,
 ) -> int:
-    """Evaluate ``agent``, write the evaluation to ``run_dir`` and print its table and the
-    wall time. With ``training`` (to reproduce Table III): beside the rule-based agent and
-    the rule-based frontier swept on the same episodes, the table beside the paper's.
-
-    The frontier sweeps in a second thread while the agents play, to fill idle cores;
-    each program's output is what it gives alone.
-    """
+    """Evaluate ``agent``, write it to ``run_dir``, print its table and the wall time; with
+    ``training`` (Table III) beside the rule-based agent and its frontier on the same episodes
+    (swept in a second thread to fill idle cores; each program gives what it gives alone)."""
     agents = [agent] if training is None else [agent, builtin_agent("rule-based", config)]
     if not quiet:
         if training is not None:

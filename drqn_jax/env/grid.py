@@ -18,9 +18,6 @@ from drqn_jax.env.state import EgoState, PedestrianState
 from drqn_jax.pytree import pytree_dataclass
 
 NUM_CHANNELS = 4
-#: m added to the ego's half width and a pedestrian's radius: the rule-based agent's default
-#: corridor (SPEC §6), for ``semantic_channel = "threat"``.
-THREAT_MARGIN = 0.5
 # Per-channel bounds of the grid values (occupancy, heading, speed, semantics).
 GRID_LOW = (0.0, -1.0, 0.0, 0.0)
 GRID_HIGH = (1.0, 1.0, float("inf"), 1.0)
@@ -117,7 +114,7 @@ def threat(g: GridInputs, params: EnvParams, static: StaticEnvParams) -> jax.Arr
     """(P,) float32 1 − t / ``ttc_horizon`` (0 beyond it), t the first time each pedestrian,
     walking on at its velocity, is in the ego's corridor ahead of its bumper at speed v: a
     feature of what one frame shows (``semantic_channel = "threat"``, not the paper's)."""
-    half = 0.5 * params.ego_width + params.ped_radius + THREAT_MARGIN
+    half = 0.5 * params.ego_width + params.ped_radius + 0.5  # rule-based corridor (SPEC §6)
     offset = g.position[:, 1] - lane_centre_y(params)
     ahead = g.position[:, 0] - (g.s + 0.5 * params.ego_length)
     lat = times_between(offset, g.velocity[:, 1], -half, half)
