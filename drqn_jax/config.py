@@ -253,7 +253,6 @@ class Config:
     def __getitem__(self, section: str) -> dict[str, Any]:
         return self.values[section]
 
-    # -- building the objects -------------------------------------------------
     def env_overrides(self) -> dict[str, Any]:
         """``make`` keyword arguments: every env field that differs from the preset."""
         base = _env_base(self["env"]["id"])
@@ -294,7 +293,6 @@ class Config:
         """(training key, evaluation key): the two halves of ``split(key(seed))``."""
         return tuple(jax.random.split(jax.random.key(self["run"]["seed"])))
 
-    # -- validation -----------------------------------------------------------
     def validate(self) -> None:
         """Ranges (through the objects' own checks) and cross-field rules."""
         run, train, evaluate = self["run"], self["train"], self["evaluate"]
@@ -326,7 +324,6 @@ class Config:
                 f"train.batch_size = {batch}: must be <= train.replay_episodes ({replay})"
             )
 
-    # -- output ---------------------------------------------------------------
     def to_toml(self) -> str:
         """The resolved configuration as TOML (every field; reads back equal)."""
         lines = []

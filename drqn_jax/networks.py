@@ -1,5 +1,4 @@
 """The DRQN of paper §V-A (Table I, Fig. 3) and a DQN ablation, as plain pytrees (SPEC §7).
-
 Conv 8×6/4 (32) → 4×3/3 (64) → 2×2/2 (64), ReLU, VALID (45×30 → 1×1, 64 features);
 ``drqn``: LSTM1 (256) → LSTM2 (256) fed ``[h1, speed, one-hot last action]``; ``dqn``:
 two dense ReLU layers instead (``frames`` = k > 1: the last k grids stacked); FC 256
@@ -49,7 +48,7 @@ class NetworkConfig:
     """Shape-setting settings of the Q-network (hashable): ``conv`` (kernel_h, kernel_w, stride,
     filters) per layer; ``recurrent`` core and ``hidden`` FC widths; ``frames`` stacked (``dqn``);
     ``torso`` ``"conv"`` or ``"mlp"``; ``layer_norm`` before the MLP's and FC's ReLUs (PQN's);
-    ``cell`` ``"lstm"`` (Table I) or ``"gru"``; ``scan_unroll`` (same bits)."""
+    ``cell`` ``"lstm"`` (Table I) or ``"gru"``; ``scan_unroll``: ``lax.scan``'s (same bits)."""
 
     kind: str = "drqn"
     conv: tuple[tuple[int, int, int, int], ...] = ((8, 6, 4, 32), (4, 3, 3, 64), (2, 2, 2, 64))
@@ -121,7 +120,9 @@ class NetworkConfig:
 
 
 class Network(NamedTuple):
-    """Pure functions of one Q-network architecture (see the module docstring)."""
+    """Pure functions of one Q-network: ``init(key)``, ``initial_carry(batch_shape)``,
+    ``step(params, obs, carry) -> (q, carry)`` (acting, any batch shape) and
+    ``unroll(params, obs_seq, carry, resets)`` over time-major (T, B, …) sequences."""
 
     config: NetworkConfig
     init: Callable[[jax.Array], Params]

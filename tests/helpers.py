@@ -219,7 +219,7 @@ def train_alone(point: Any) -> tuple[Any, dict[str, jax.Array]]:
     carries them in the state), so every point of a shape shares one program
     (compiled once per process, then loaded from the persistent cache)."""
     trainer = make_train(point.config.train_config())
-    hp, env_params = trainer.config.hyperparams, trainer.env_params
+    hp, env_params = trainer.config.hyperparams, trainer.task.env_params
     return jax.jit(trainer.train)(point.config.keys()[0], hp, env_params)
 
 

@@ -6,9 +6,9 @@ import jax
 import jax.numpy as jnp
 
 from drqn_jax.agents.base import Agent, no_carry
-from drqn_jax.env.grid import GridInputs, times_between
+from drqn_jax.env.grid import CORRIDOR_MARGIN, GridInputs, corridor_times, times_between
 from drqn_jax.env.params import KMH, EnvParams
-from drqn_jax.env.road_map import CROSSING_AREA, ROAD, lane_centre_y, semantic_class
+from drqn_jax.env.road_map import CROSSING_AREA, ROAD, semantic_class
 from drqn_jax.env.state import ACCELERATE, BRAKE, SLOW_DOWN, STEER, EnvState
 from drqn_jax.pytree import param, pytree_dataclass, validate
 
@@ -20,10 +20,8 @@ class RuleBasedParams:
     v_max: float = param(15.0 * KMH, low=0.0, low_open=True, doc="m/s; tracked speed")
     speed_band: float = param(1.0 * KMH, low=0.0, doc="m/s; steer within ±band of v_max")
     lookahead: float = param(7.0, low=0.0, doc="m ahead of the front bumper")
-    corridor_margin: float = param(0.5, low=0.0, doc="m added to half width + ped radius")
-    # s; also brake for a pedestrian entering the corridor ahead within this time at its
-    # current velocity (0: the paper's rule, only pedestrians already in it)
-    horizon: float = param(0.0, low=0.0)
+    corridor_margin: float = param(CORRIDOR_MARGIN, low=0.0, doc="m added to half width + radius")
+    horizon: float = param(0.0, low=0.0, doc="s; brake for one entering within it (0: paper)")
 
     def __post_init__(self) -> None:
         validate(self)
@@ -34,18 +32,13 @@ def must_brake(g: GridInputs, env_params: EnvParams, rb: RuleBasedParams, static
     corridor ahead of the ego (``g.s``, ``g.v`` ()), or walks into it within ``rb.horizon``."""
     cls = semantic_class(g.position, env_params, static)
     on_road = (cls == ROAD) | (cls == CROSSING_AREA)
-    half_corridor = 0.5 * env_params.ego_width + env_params.ped_radius + rb.corridor_margin
-    offset = g.position[:, 1] - lane_centre_y(env_params)
-    ahead = g.position[:, 0] - (g.s + 0.5 * env_params.ego_length)
+    ahead, in_lane, start, end = corridor_times(g, env_params, rb.corridor_margin)
     in_front = (ahead >= -env_params.ped_radius) & (ahead <= rb.lookahead)
-    now = jnp.any(on_road & (jnp.abs(offset) <= half_corridor) & in_front)
-    # Per pedestrian, the times in [0, horizon] when it is in the corridor, within the
-    # look-ahead, and not yet passed by the bumper moving at v.
-    lat = times_between(offset, g.velocity[:, 1], -half_corridor, half_corridor)
+    now = jnp.any(on_road & in_lane & in_front)
+    # in the corridor within [0, horizon], and within the look-ahead then
     near = times_between(ahead, g.velocity[:, 0], -jnp.inf, rb.lookahead)
-    unpassed = times_between(ahead, g.velocity[:, 0] - g.v, -env_params.ped_radius, jnp.inf)
-    start = jnp.maximum(jnp.maximum(lat[0], near[0]), jnp.maximum(unpassed[0], 0.0))
-    end = jnp.minimum(jnp.minimum(lat[1], near[1]), jnp.minimum(unpassed[1], rb.horizon))
+    start = jnp.maximum(jnp.maximum(start, near[0]), 0.0)
+    end = jnp.minimum(jnp.minimum(end, near[1]), rb.horizon)
     soon = jnp.any(start <= end)
     return now | ((rb.horizon > 0.0) & soon)
 

@@ -200,29 +200,31 @@ def training_estimate(config: Config, runs: int, batched: bool = False) -> dict[
 
 
 def estimate_lines(arms: Sequence[tuple[str, Config, int, str]]) -> str:
-    """Lines of the training wall time here of each ``(name, config, runs, sweep strategy)``
-    and in all (``study --estimate``, ``reproduce --train``)."""
+    """Lines of the training wall time on this device of each ``(name, config, runs, sweep
+    strategy)`` and, for several, in all (``study --estimate``, ``reproduce --train``): one
+    chunk of each timed once learning runs; evaluation and compiles not included."""
     from drqn_jax.commands import duration_text
     from drqn_jax.experiments.sweep_plan import resolve_strategy
 
-    lines, total, bounded = [], 0.0, False
+    lines, total, bounded, missing = [], 0.0, False, 0
     for name, config, runs, strategy in arms:
         strategy = resolve_strategy(strategy, jax.local_devices())
         figures = training_estimate(config, runs, batched=strategy == "vmap")
         if isinstance(figures, str):
             lines.append(f"{name}: no estimate: {figures}")
+            missing += 1
             continue
-        total += figures["seconds"]
-        bounded |= figures["upper_bound"]
-        most = "at most " if figures["upper_bound"] else ""
+        total, bounded = total + figures["seconds"], bounded or figures["upper_bound"]
+        most = "at most " if figures["upper_bound"] else "about "
+        sweep = f"{runs} runs ({strategy}) × " if runs > 1 else ""
         lines.append(
-            f"{name}: {runs} runs ({strategy}) × {most}{figures['env_steps_per_run']:,} env "
-            f"steps at {figures['env_steps_per_s']:,.0f} env steps/s: "
-            f"{most}{duration_text(figures['seconds'])}"
+            f"{name} on this {jax.devices()[0].device_kind}: {sweep}{most}"
+            f"{figures['env_steps_per_run']:,} env steps at {figures['env_steps_per_s']:,.0f} "
+            f"env steps/s: {most}{duration_text(figures['seconds'])}"
         )
-    most = "at most " if bounded else ""
-    lines.append(
-        f"training in all, on this {jax.devices()[0].device_kind}: {most}{duration_text(total)} "
-        "(one chunk of each config timed once learning runs; evaluation and compiles not included)"
-    )
+    if len(arms) > 1:
+        left = f" ({missing} not estimated)" if missing else ""
+        lines.append(
+            f"training in all: {'at most' if bounded else 'about'} {duration_text(total)}{left}"
+        )
     return "\n".join(lines)

@@ -118,7 +118,7 @@ def _evaluated(
 ) -> int:
     """Evaluate ``agent``, write it to ``run_dir``, print its table and the wall time; with
     ``training`` (Table III) beside the rule-based agent and its frontier on the same episodes
-    (swept in a second thread to fill idle cores; each program gives what it gives alone)."""
+    (swept in a second thread to fill idle cores; each program's output is what it gives alone)."""
     agents = [agent] if training is None else [agent, builtin_agent("rule-based", config)]
     if not quiet:
         if training is not None:

@@ -1,6 +1,6 @@
 """The ego-centred observation grid (paper §IV-B, §V-A; SPEC §4), (45, 30, 4) float32:
-occupancy, heading / π, speed, semantic class / 3. The nearest pedestrian wins a cell, so
-the grid does not depend on XLA's scatter order."""
+occupancy, heading / π, speed, semantic class / 3 (or threat). The nearest pedestrian wins a
+cell, so the grid does not depend on XLA's scatter order."""
 
 import jax
 import jax.numpy as jnp
@@ -18,6 +18,7 @@ from drqn_jax.env.state import EgoState, PedestrianState
 from drqn_jax.pytree import pytree_dataclass
 
 NUM_CHANNELS = 4
+CORRIDOR_MARGIN = 0.5  # m; the rule-based agent's default (SPEC §6)
 # Per-channel bounds of the grid values (occupancy, heading, speed, semantics).
 GRID_LOW = (0.0, -1.0, 0.0, 0.0)
 GRID_HIGH = (1.0, 1.0, float("inf"), 1.0)
@@ -110,17 +111,26 @@ def times_between(
     return start, end
 
 
-def threat(g: GridInputs, params: EnvParams, static: StaticEnvParams) -> jax.Array:
-    """(P,) float32 1 − t / ``ttc_horizon`` (0 beyond it), t the first time each pedestrian,
-    walking on at its velocity, is in the ego's corridor ahead of its bumper at speed v: a
-    feature of what one frame shows (``semantic_channel = "threat"``, not the paper's)."""
-    half = 0.5 * params.ego_width + params.ped_radius + 0.5  # rule-based corridor (SPEC §6)
+def corridor_times(g: GridInputs, params: EnvParams, margin: float) -> tuple[jax.Array, ...]:
+    """(P,) each pedestrian's distance ``ahead`` of the ego's bumper (m), whether it is in the
+    ego's corridor (half width + its radius + ``margin``) across the lane now, and (start, end)
+    of the times it is in the corridor, walking on, not yet passed by the bumper at speed v."""
+    half = 0.5 * params.ego_width + params.ped_radius + margin
     offset = g.position[:, 1] - lane_centre_y(params)
     ahead = g.position[:, 0] - (g.s + 0.5 * params.ego_length)
     lat = times_between(offset, g.velocity[:, 1], -half, half)
     unpassed = times_between(ahead, g.velocity[:, 0] - g.v, -params.ped_radius, jnp.inf)
-    start = jnp.maximum(jnp.maximum(lat[0], unpassed[0]), 0.0)
-    t = jnp.where(start <= jnp.minimum(lat[1], unpassed[1]), start, jnp.inf)
+    start, end = jnp.maximum(lat[0], unpassed[0]), jnp.minimum(lat[1], unpassed[1])
+    return ahead, jnp.abs(offset) <= half, start, end
+
+
+def threat(g: GridInputs, params: EnvParams, static: StaticEnvParams) -> jax.Array:
+    """(P,) float32 1 − t / ``ttc_horizon``, 0 beyond it or never: t ≥ 0 the first time each
+    pedestrian is in the rule-based agent's default corridor (:func:`corridor_times`), a feature
+    of what one frame shows (``semantic_channel = "threat"``, not the paper's)."""
+    _, _, start, end = corridor_times(g, params, CORRIDOR_MARGIN)
+    start = jnp.maximum(start, 0.0)
+    t = jnp.where(start <= end, start, jnp.inf)
     return jnp.clip(1.0 - t * (1.0 / static.ttc_horizon), 0.0, 1.0)
 
 

@@ -1,2 +1,1 @@
-"""Running experiments: single runs, sweeps, the frontier yardstick, studies and their
-reports, and the benchmarks' front door."""
+"""Running experiments: runs, sweeps, the frontier yardstick, studies and their reports."""

@@ -52,7 +52,7 @@ def study_row(
     free = [round(n * r) for n, r in zip(episodes, rates, strict=True)]
     free_distance = [r.get("avg_distance_collision_free_m") for r in runs]
     pooled_free = [(k, d) for k, d in zip(free, free_distance, strict=True) if k and d is not None]
-    trained = [r for r in runs if "env_steps" in r or "trained_on" in r]  # counted by device
+    trained = [r for r in runs if "env_steps" in r or "trained_on" in r]  # runs per device below
     row = {
         "label": label,
         "agent": agent,

@@ -79,7 +79,9 @@ def init_program(trainer: Trainer) -> Callable[[jax.Array], TrainState]:
     """``init(key) -> TrainState``, jitted with hyperparameters and env params as arguments
     (not constants) so one cached program serves every value of a shape."""
     return functools.partial(
-        jax.jit(trainer.init), hparams=trainer.config.hyperparams, env_params=trainer.env_params
+        jax.jit(trainer.init),
+        hparams=trainer.config.hyperparams,
+        env_params=trainer.task.env_params,
     )
 
 

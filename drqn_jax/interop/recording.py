@@ -1,6 +1,7 @@
 """Rerun recordings (SPEC §8): a static ``map/``; per episode ``episode/<i>/`` ``world/``,
 ``grid/<channel>`` images, scalars and ``events`` on timeline ``"step"`` (step t: the state
-before decision t). Training curves on ``"episode"`` (a run) or ``"env_steps"`` (a study)."""
+before decision t; ``reward``/``ttc`` at t from the step into it). Training curves on
+``"episode"`` (a run) or ``"env_steps"`` (a study)."""
 
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager

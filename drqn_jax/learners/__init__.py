@@ -1,6 +1,5 @@
-"""The learners (paper §V-B, Tables I–II; SPEC §7): shared modules (optim, task,
-hyperparams, common) and one per algorithm (``dqn``, ``ppo``, ``pqn``; none imports
-another). :func:`make_train` picks by ``TrainConfig.algorithm``."""
+"""The learners (paper §V-B; SPEC §7): shared modules and one per algorithm (``dqn``, ``ppo``,
+``pqn``; none imports another); :func:`make_train` picks by ``TrainConfig.algorithm``."""
 
 from drqn_jax.learners.common import Trainer
 from drqn_jax.learners.dqn.train import TrainState, make_dqn

@@ -26,7 +26,6 @@ class Trainer(NamedTuple):
 
     config: Any
     task: Any
-    env_params: Any
     network: Any
     init: Callable[..., Any]
     run: Callable[[Any, int], Any]
@@ -70,7 +69,6 @@ def make_trainer(
     return Trainer(
         config=config,
         task=task,
-        env_params=task.env_params,
         network=network,
         init=init_state,
         run=run,

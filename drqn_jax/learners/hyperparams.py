@@ -149,7 +149,8 @@ def annealed(
 class TrainConfig:
     """Shape-setting training settings (hashable); defaults are the paper's protocol (SPEC §7),
     "0 = the paper" an extension off. ``hyperparams`` is the default ``init`` copies into the
-    state, which everything traced reads; compiled programs depend on :meth:`program_key`."""
+    state, which everything traced reads; equality and hashing compare it, compiled programs
+    depend on :meth:`program_key` alone."""
 
     env_id: str = "UrbanPedestrians-v0"
     env_overrides: tuple[tuple[str, Any], ...] = ()

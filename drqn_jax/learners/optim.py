@@ -1,6 +1,5 @@
-"""Adam, RAdam (with optax's ``init``/``update`` shape) and the gradient clamps by
-hand (paper §V-B; SPEC §7); no optax at run time. Hyperparameters may be traced arrays, so
-a sweep can ``vmap`` over the learning rate."""
+"""Adam, RAdam (optax's ``init``/``update`` shape) and gradient clamps by hand (paper §V-B;
+SPEC §7); hyperparameters may be traced arrays, so a sweep can ``vmap`` over them."""
 
 from collections.abc import Callable
 from typing import Any, NamedTuple

@@ -86,6 +86,7 @@ from drqn_jax.env.params import (
     COLLISION_AUTHORS,
     PED_YIELD,
     SEMANTIC_MAP,
+    SEMANTIC_PEDESTRIAN,
     SETPOINT_PREVIOUS,
     SPEED_RELATIVE,
     TTC_COLLISION,
@@ -675,6 +676,8 @@ def rasterize_grid(
     else:
         speed = peds.speed[keep] * F32(1.0 / params.speed_norm_pedestrian)
 
+    if params.semantic_channel not in (SEMANTIC_PEDESTRIAN, SEMANTIC_MAP):
+        raise NotImplementedError("the oracle has the pedestrian and map semantic channels")
     grid = np.zeros((size, NUM_CHANNELS), F32)
     if params.semantic_channel == SEMANTIC_MAP:
         dense = semantic_class(cell_centres(ego.s, params, static), params, static)

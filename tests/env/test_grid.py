@@ -2,8 +2,8 @@
 
 Hand-built scenes (``tests/scenes.py``) rasterised: the window's edges, the
 cell and the four channels of each pedestrian, the nearest pedestrian winning
-a shared cell (also when the nearer one is occluded), the dense map channel
-and the relative speed channel; then the cell index, the cell centres and the
+a shared cell (also when the nearer one is occluded), the dense map, relative
+speed and threat channels; then the cell index, the cell centres and the
 replay's record (``GridInputs``) directly.
 """
 
@@ -186,18 +186,24 @@ def test_grid_relative_speed_channel(params, static, raster):
 def test_grid_threat_channel(params, static, raster):
     """``semantic_channel = "threat"``: 1 - t / ttc_horizon (3 s), t when the pedestrian,
     walking on, is in the corridor (half width 0.9 + 0.3 + 0.5 m) ahead of the bumper
-    (x = 22.25, the ego at 4 m/s): in it now 1; 3 m off at 1.5 m/s 1/3; the same beside
-    the bumper, passed before it arrives, 0; walking away 0."""
+    (x = 22.25, the ego at 4 m/s): in it now 1; 3 m off at 1.5 m/s, t = 2 s: 1/3; the same
+    1.75 m ahead of the bumper, passed before it enters, 0; walking away 0; 5.7 m off at
+    1.5 m/s, t = 3.8 s beyond the horizon, 0; walking along the lane, t = 1 s, 2/3."""
     p = params.replace(semantic_channel="threat")
     ego = make_ego(p, static, s=20.0, v=4.0)
     positions = [(30.0, LANE_Y + 0.5), (35.0, LANE_Y + 4.7), (24.0, LANE_Y + 4.7)]
-    velocities = [(0.0, 0.0), (0.0, -1.5), (0.0, -1.5), (0.0, 1.0)]
-    peds = make_peds(static, [*positions, (30.0, LANE_Y + 5.0)], velocities=velocities)
+    positions += [(30.0, LANE_Y + 5.0), (38.0, LANE_Y - 7.4), (28.0, LANE_Y + 3.2)]
+    velocities = [(0.0, 0.0), (0.0, -1.5), (0.0, -1.5), (0.0, 1.0), (0.0, 1.5), (1.0, -1.5)]
+    peds = make_peds(static, positions, velocities=velocities, park_x=FAR_X)
     grid = np.asarray(raster(ego, peds, p, static))
-    cells = [(15, 15), (20, 19), (9, 19), (15, 20)]
-    assert [grid[r, c, 0] for r, c in cells] == [1.0, 1.0, 1.0, 1.0]
-    np.testing.assert_allclose([grid[r, c, 3] for r, c in cells], [1.0, 1 / 3, 0.0, 0.0], atol=1e-6)
+    cells = [(15, 15), (20, 19), (9, 19), (15, 20), (23, 7), (13, 18)]
+    assert [grid[r, c, 0] for r, c in cells] == [1.0] * 6
+    expected = [1.0, 1 / 3, 0.0, 0.0, 0.0, 2 / 3]
+    np.testing.assert_allclose([grid[r, c, 3] for r, c in cells], expected, atol=1e-6)
     assert np.asarray(raster(ego, peds, params, static))[15, 15, 3] == 1.0  # class: road
+    # a standing ego: every pedestrian ahead in the lane is in its path for good
+    grid = np.asarray(raster(make_ego(p, static, s=20.0, v=0.0), peds, p, static))
+    assert grid[15, 15, 3] == 1.0 and grid[9, 19, 3] == pytest.approx(1 / 3, abs=1e-6)
 
 
 def test_grid_cell_index_by_hand(params, static):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from drqn_jax import cli
-from drqn_jax.config import ConfigError
+from drqn_jax.config import ConfigError, load_config
 from drqn_jax.experiments.curves import CURVES, load_curves
 from drqn_jax.experiments.frontier import t_interval
 from drqn_jax.experiments.machine import NOT_RECORDED, device_identity, git_commit
@@ -473,7 +473,6 @@ def test_the_estimate_is_the_runs_env_steps_over_the_timed_rate(monkeypatch):
     steps (its step budget, or at most episodes × max_steps) over the env steps per
     second of one timed chunk, times the runs."""
     from drqn_jax.commands import bench
-    from drqn_jax.config import load_config
 
     timed = []
 
@@ -513,13 +512,14 @@ def test_the_study_prints_its_estimate_and_trains_nothing(tmp_path, monkeypatch,
     argv = ["study", "--configs", f"smoke,{ppo}", "--seeds", "3", "--estimate", "--out", str(out)]
     assert cli.main(argv) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert (
-        lines[0]
-        == "smoke: 3 runs (map) × at most 180 env steps at 2 env steps/s: at most 3 h 25 min"
-    )
+    each = "at most 180 env steps at 2 env steps/s: at most 3 h 25 min"
+    assert lines[0] == f"smoke on this cpu: 3 runs (map) × {each}"
     assert lines[1].startswith("smoke-ppo: no estimate: the run finished before learning")
-    assert lines[2].startswith("training in all, on this cpu: at most 3 h 25 min")
+    assert lines[2] == "training in all: at most 3 h 25 min (1 not estimated)"
     assert not out.exists()
+    # one run (reproduce --train): no sweep and no total
+    one = bench.estimate_lines([("smoke", load_config("smoke"), 1, "auto")])
+    assert one == f"smoke on this cpu: {each}"
 
 
 def test_eval_envs_evaluate_the_trained_agents_among_other_pedestrians(

@@ -1,2 +1,1 @@
-"""The replay DQN family (paper §V-B; SPEC §7): the paper's DRQN and its DQN and
-frame-stacked ablations, trained by Double DQN on a whole-episode replay."""
+"""The paper's DRQN and its ablations by Double DQN on a whole-episode replay (§V-B; SPEC §7)."""

@@ -44,9 +44,9 @@ class EpisodeReplay:
 
 @pytree_dataclass
 class Windows:
-    """A sampled minibatch, time-major: ``obs``, ``records``, ``resets`` (W + 1, B, …);
-    ``action``/``reward``/``terminated``/``mask`` (W, B) (mask false on padding and burn-in);
-    ``slot``, ``start`` (B,); ``carry``: stored state at each window's start, or None."""
+    """A sampled minibatch, time-major: ``obs``, ``records`` (W + 1, B, …), ``resets`` (W + 1, B)
+    LSTM restarts (burn-in past the episode start); ``action``/``reward``/``terminated``/``mask``
+    (W, B), mask false on padding and burn-in; ``slot``/``start`` (B,); ``carry`` (B, …) or None."""
 
     obs: Any
     records: Any

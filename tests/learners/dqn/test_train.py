@@ -523,7 +523,7 @@ def test_trained_agent_plugs_into_evaluate(tiny, tiny_run):
     trainer, _ = tiny
     params, _ = tiny_run
     agent = drqn_jax.drqn_agent(trainer.network, params)
-    env, env_params = trainer.task.env, trainer.env_params
+    env, env_params = trainer.task.env, trainer.task.env_params
     a = drqn_jax.evaluate(agent, jax.random.key(9), 4, env, env_params)
     b = drqn_jax.evaluate(agent, jax.random.key(9), 4, env, env_params)
     assert_tree_equal(a["episodes"], b["episodes"])
@@ -581,7 +581,7 @@ def test_learns_to_drive_near_the_speed_limit():
         ),
     )
     trainer = make_train(config)
-    env, env_params = trainer.task.env, trainer.env_params
+    env, env_params = trainer.task.env, trainer.task.env_params
 
     def drive(params, key):
         """Speeds (km/h) of the greedy agent over one 200-step episode."""
