@@ -19,8 +19,6 @@ command) and renders the table into ``docs/spec.md`` between its
 from the file and never retypes them.
 """
 
-from __future__ import annotations
-
 import argparse
 import json
 import math

@@ -20,8 +20,6 @@ interrupted study, and a later one with more seeds confirms an arm, on this mach
 another clone.
 """
 
-from __future__ import annotations
-
 import argparse
 import shlex
 import sys

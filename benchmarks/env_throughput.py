@@ -15,8 +15,6 @@ continuing the episodes from the last (the carry is donated); ``--stat`` picks t
 median (default) or the best. A step includes same-step auto-reset.
 """
 
-from __future__ import annotations
-
 import argparse
 import sys
 from collections.abc import Callable, Sequence
@@ -229,22 +227,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         f"{summ['best_batch_size']} (compile {summ['compile_s_at_best']:.2f} s; float32 grid "
         f"written at {summ['grid_gb_per_s_at_best']:.2f} GB/s, {grid_bytes(env):,} B per step)",
     ]
-    result = {
-        "env_id": ENV_ID,
-        "config": {
-            k: getattr(args, k) for k in ("batch_sizes", "steps", "repeats", "stat", "seed")
-        },
-        "rows": rows,
-        "summary": summ,
-    }
-    return report(
-        "env_throughput",
-        f"{ENV_ID} env throughput (full observation)",
-        result,
-        lines,
-        args.out,
-        argv,
-    )
+    config = {k: getattr(args, k) for k in ("batch_sizes", "steps", "repeats", "stat", "seed")}
+    result = {"env_id": ENV_ID, "config": config, "rows": rows, "summary": summ}
+    title = f"{ENV_ID} env throughput (full observation)"
+    return report("env_throughput", title, result, lines, args.out, argv)
 
 
 if __name__ == "__main__":

@@ -17,8 +17,6 @@ steps/s (N × 1000 scanned steps per call, finished episodes included: the scan
 runs them masked) and µs per agent step.
 """
 
-from __future__ import annotations
-
 from collections.abc import Sequence
 from typing import Any
 

@@ -16,8 +16,6 @@ largest gap left between the thinned and the full Pareto curve, and whether the
 two envelopes are the same.
 """
 
-from __future__ import annotations
-
 import argparse
 import json
 from collections.abc import Mapping, Sequence

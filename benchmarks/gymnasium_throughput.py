@@ -16,8 +16,6 @@ after a warm-up loop. Targets: the single env ≥ 5,000 steps/s; the
 vector env ≥ 50 % of ``jit(vmap(step_env))``'s env steps/s at 256 envs.
 """
 
-from __future__ import annotations
-
 from collections.abc import Sequence
 from typing import Any
 

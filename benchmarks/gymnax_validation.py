@@ -35,8 +35,6 @@ Each recipe trains ``--seeds`` seeds in one ``vmap`` and plays
     python -m benchmarks.gymnax_validation [--seeds 3] [--episodes 100] [--out DIR]
 """
 
-from __future__ import annotations
-
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -50,17 +48,6 @@ from drqn_jax.evaluation import episode_keys
 from drqn_jax.learners import Hyperparams, TrainConfig, make_train
 from drqn_jax.learners.task import greedy_returns
 from drqn_jax.networks import NetworkConfig
-
-__all__ = [
-    "RECIPES",
-    "cartpole_config",
-    "main",
-    "memory_config",
-    "ppo_config",
-    "pqn_config",
-    "pqn_memory_config",
-    "run_recipe",
-]
 
 #: Small dense networks for flat observations: MLP torso 64 → core 64 → FC 64, their
 #: scans one step per loop iteration (on the CPU PPO's updates ran faster so, and every

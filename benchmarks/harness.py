@@ -9,8 +9,6 @@ the command) and, with ``--out DIR``, writes ``DIR/NAME.json`` and
 ``DIR/NAME.md``.
 """
 
-from __future__ import annotations
-
 import argparse
 import json
 import os
@@ -25,15 +23,6 @@ from typing import Any
 import jax
 
 from drqn_jax.experiments.machine import machine_info, machine_lines
-
-__all__ = [
-    "base_parser",
-    "compile_timed",
-    "markdown_table",
-    "report",
-    "time_calls",
-    "write_json",
-]
 
 
 def base_parser(name: str, doc: str | None) -> argparse.ArgumentParser:
@@ -91,9 +80,7 @@ def time_calls(
 
 def write_json(path: str | Path, result: dict[str, Any]) -> None:
     """``result`` as indented JSON at ``path`` (non-JSON values as ``str``), and say so."""
-    with open(path, "w", encoding="utf-8") as fh:
-        json.dump(result, fh, indent=2, default=str)
-        fh.write("\n")
+    Path(path).write_text(json.dumps(result, indent=2, default=str) + "\n", encoding="utf-8")
     print(f"wrote {path}", file=sys.stderr)
 
 
@@ -111,13 +98,8 @@ def _cell(value: Any) -> str:
 
 def markdown_table(rows: Sequence[dict[str, Any]], columns: dict[str, str]) -> list[str]:
     """A Markdown table: one line per row, ``columns`` maps row keys to headers."""
-    lines = [
-        "| " + " | ".join(columns.values()) + " |",
-        "|" + "---|" * len(columns),
-    ]
-    for row in rows:
-        lines.append("| " + " | ".join(_cell(row.get(k, "")) for k in columns) + " |")
-    return lines
+    lines = ["| " + " | ".join(columns.values()) + " |", "|" + "---|" * len(columns)]
+    return lines + ["| " + " | ".join(_cell(r.get(k, "")) for k in columns) + " |" for r in rows]
 
 
 def report(
@@ -133,16 +115,8 @@ def report(
     argv = list(sys.argv[1:] if argv is None else argv)
     command = " ".join(["python -m", f"benchmarks.{name}", *map(shlex.quote, argv)])
     result = {"benchmark": name, "command": command, "machine": machine_info(), **result}
-    md = [
-        f"## {title}",
-        "",
-        *lines,
-        "",
-        f"Command: `{command}`",
-        "",
-        *machine_lines(result["machine"]),
-        "",
-    ]
+    md = [f"## {title}", "", *lines, "", f"Command: `{command}`", ""]
+    md += [*machine_lines(result["machine"]), ""]
     print("\n".join(md))
     if out is not None:
         out = Path(out)

@@ -21,8 +21,6 @@ whole budget); it says where the gains end. With ``--out DIR`` every point is
 written to ``DIR/learning_curve.json`` as it lands.
 """
 
-from __future__ import annotations
-
 import json
 import time
 from collections.abc import Callable, Sequence

@@ -20,8 +20,6 @@ Reported: steps/s, simulated seconds per wall second, and ours over it per step 
 per simulated second.
 """
 
-from __future__ import annotations
-
 import importlib
 import importlib.metadata
 import math
@@ -324,28 +322,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     else:
         lines.append(f"- highway-env: unavailable: {hw['reason']}")
 
-    result = {
-        "config": {
-            "env_id": ENV_ID,
-            "num_envs": args.num_envs,
-            "steps": args.steps,
-            "highway_steps": args.highway_steps,
-            "repeats": args.repeats,
-            "seed": args.seed,
-            "quick": args.quick,
-        },
-        "implementations": results,
-        "ratios": ratio,
-        "targets": goals,
-    }
-    return harness.report(
-        name="peers",
-        title=f"Peers: {ENV_ID} (JAX) vs highway-env {HIGHWAY_ENV_ID}",
-        result=result,
-        lines=lines,
-        out=args.out,
-        argv=None if argv is None else list(argv),
-    )
+    config = {"env_id": ENV_ID, **{k: v for k, v in vars(args).items() if k != "out"}}
+    result = {"config": config, "implementations": results, "ratios": ratio, "targets": goals}
+    title = f"Peers: {ENV_ID} (JAX) vs highway-env {HIGHWAY_ENV_ID}"
+    return harness.report("peers", title, result, lines, args.out, argv)
 
 
 if __name__ == "__main__":

@@ -25,8 +25,6 @@ Needs the test extra's flax and optax and ``chex`` (``pip install chex``). Usage
     python -m benchmarks.purejaxql_reference --repo ../purejaxql [--seeds 3] [--cell lstm]
 """
 
-from __future__ import annotations
-
 import functools
 import importlib
 import sys

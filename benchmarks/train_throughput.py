@@ -21,8 +21,6 @@ learner's config (e.g. ``--set network.recurrent=64``). A figure is the best of
 smoke check of the script, not a measurement.
 """
 
-from __future__ import annotations
-
 import argparse
 import sys
 import time
