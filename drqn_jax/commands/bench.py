@@ -23,7 +23,7 @@ from drqn_jax.learners.hyperparams import ON_POLICY
 SUITE = ("env_throughput", "peers", "train_throughput", "evaluation", "gymnasium_throughput")
 
 #: Benchmarks run by name only, not by ``all`` (long, not throughput figures).
-TOOLS = ("gymnax_validation", "learning_curve", "decision_interval")
+TOOLS = ("gymnax_validation", "learning_curve", "decision_interval", "reward_ranking")
 
 
 def _run_benchmark(name: str, args: Sequence[str]) -> int:

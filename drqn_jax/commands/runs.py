@@ -10,12 +10,7 @@ from typing import Any
 
 from drqn_jax.agents import drqn_agent
 from drqn_jax.agents.shipped import shipped_agent_dir, shipped_agents
-from drqn_jax.commands import (
-    default_run_dir,
-    episodes_text,
-    evaluation_overrides,
-    say,
-)
+from drqn_jax.commands import default_run_dir, episodes_text, evaluation_overrides, say
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.evaluation import metrics_table
 from drqn_jax.experiments.machine import device_identity

@@ -7,12 +7,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from drqn_jax.commands import (
-    default_run_dir,
-    episodes_text,
-    evaluation_overrides,
-    say,
-)
+from drqn_jax.commands import default_run_dir, episodes_text, evaluation_overrides, say
 from drqn_jax.config import Config, ConfigError, load_config
 from drqn_jax.experiments.checkpoint import atomic_write_text
 from drqn_jax.experiments.report import check_section

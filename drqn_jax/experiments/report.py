@@ -2,7 +2,8 @@
 --section NAME`` stores a table's rows (:func:`write_results`); ``drqn-jax report FILE.md`` fills
 each ``<!-- results:NAME FORM -->…<!-- /results -->`` block from it (``--check``: fail where they
 disagree). FORM: none (all tables), ``legend`` (plus column definitions), ``safety`` (the safety
-and speed table), ``table`` (it without verdicts: margins say them), ``brief`` (headline table)."""
+and speed table), ``table`` (it without verdicts: margins say them), ``brief`` (headline table),
+``return`` (safety, speed and return)."""
 
 import json
 import math
@@ -20,7 +21,7 @@ from drqn_jax.experiments.machine import NOT_RECORDED
 #: A section's name: letters, digits, '_', '.' and '-'.
 SECTION_NAME = re.compile(r"[\w.-]+")
 #: The forms of a generated block (module docstring); "" is the default.
-FORMS = ("", "legend", "safety", "table", "brief")
+FORMS = ("", "legend", "safety", "table", "brief", "return")
 #: A generated block of a document: its section name, its form and its current body.
 BLOCK = re.compile(
     rf"(?P<open><!-- results:(?P<section>{SECTION_NAME.pattern})(?: (?P<form>\w+))? -->\n)"
@@ -121,8 +122,10 @@ def render_section(record: Mapping[str, Any], section: str, form: str = "") -> s
     rows = [r for r in record["rows"] if r.get("section") == section]
     if form == "brief":
         return _brief(rows, about["comparisons"])
-    tables = TABLES[:1] if form in ("safety", "table") else TABLES
-    comparisons = [] if form == "table" else about["comparisons"]
+    tables = {"safety": TABLES[:1], "table": TABLES[:1], "return": (RETURN_TABLE,)}.get(
+        form, TABLES
+    )
+    comparisons = [] if form in ("table", "return") else about["comparisons"]
     lines = [study_table(rows, comparisons, legend=False, tables=tables)]
     machine = about["machine"]
     went_on = "; earlier invocations trained its runs, the wall time is the last one's"
@@ -159,10 +162,7 @@ def update_document(text: str, record: Mapping[str, Any]) -> str:
 
 
 #: The paper's Table III: agent, collision-free episodes of 10, avg speed (km/h), distance (m).
-PAPER_TABLE_III = (
-    ("rule-based", 4, 7.79, 82.6),
-    ("DRQN", 7, 6.09, 123.1),
-)
+PAPER_TABLE_III = (("rule-based", 4, 7.79, 82.6), ("DRQN", 7, 6.09, 123.1))
 PAPER_EPISODES = 10
 #: The world column of the paper's rows.
 PAPER_WORLD = "CARLA (paper)"
@@ -255,13 +255,14 @@ COLUMNS: dict[str, tuple[bool, Cell]] = {
     "ticks / seed": (True, _metric("ticks_per_seed", ".2f", 1e-6, "M")),
     "train wall / seed (min)": (True, _wall),
     "device": (False, _device),
+    "return / episode": (True, _metric("avg_return", ".0f")),
 }
 #: What each column means (:func:`column_legend`): ``header: definition``, continued on
 #: indented lines, in the order of :data:`COLUMNS`.
 LEGEND = """\
 source: the paper's Table III (CARLA, 10 episodes), or `drqn_jax:` a config trained here (`on ENV`:
   its agents evaluated among another env's pedestrians), a world's rule-based agent (its env id),
-  or a setting of the rule-based frontier or the privileged planner
+  or a setting of the rule-based frontier or the privileged planner; after `;`: the reward scored
 agent: the learner and its network (`drqn`, `dqn`, `pqn` and `ppo` recurrent, `pqn-ff` and `ppo-ff`
   feed-forward) or a policy not learned (`rule-based`, `planner`)
 teacher: what the agent learned from besides the reward: none, guided exploration or imitation of
@@ -294,6 +295,8 @@ train wall / seed (min): the mean training wall time of a seed, compile and chec
   (seeds trained together share their call's); k of n: over the seeds that counted it
 device: how many seeds trained on each device, numbered as the line under the tables names them;
   ? where a run's device was not recorded
+return / episode: the mean sum of an episode's rewards under the row's reward, what a learner of it
+  maximizes
 """
 _HEADERS = tuple(COLUMNS)
 _KEYS = _HEADERS[:4]
@@ -301,8 +304,10 @@ _KEYS = _HEADERS[:4]
 TABLES = (
     ("Safety and speed", _KEYS, _HEADERS[4:8]),
     ("Driving", _KEYS[:2], _HEADERS[8:13]),
-    ("Training", (*_KEYS[:2], _KEYS[3]), _HEADERS[13:]),
+    ("Training", (*_KEYS[:2], _KEYS[3]), _HEADERS[13:18]),
 )
+#: The ``return`` form's table: safety, speed and the return under the row's reward.
+RETURN_TABLE = ("Return", _KEYS[:2], (*_HEADERS[4:6], _HEADERS[7], _HEADERS[18]))
 #: The headline table's columns (a brief block's, :func:`render_section`).
 BRIEF = (*_KEYS, "ticks / seed", *_HEADERS[4:6], "avg speed (km/h)")
 

@@ -76,6 +76,7 @@ def study_row(
             else math.nan
         ),
         "goal_rate": _mean(runs, "goal_rate"),
+        "avg_return": _mean(runs, "avg_return"),
         "env_steps_per_seed": _mean(runs, "env_steps"),
         "devices": dict(Counter(r.get("trained_on", NOT_RECORDED) for r in trained)),
         "train_wall_s_per_seed": _mean(runs, "train_wall_s"),
