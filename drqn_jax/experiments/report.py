@@ -122,9 +122,8 @@ def render_section(record: Mapping[str, Any], section: str, form: str = "") -> s
     rows = [r for r in record["rows"] if r.get("section") == section]
     if form == "brief":
         return _brief(rows, about["comparisons"])
-    tables = {"safety": TABLES[:1], "table": TABLES[:1], "return": (RETURN_TABLE,)}.get(
-        form, TABLES
-    )
+    forms = {"safety": TABLES[:1], "table": TABLES[:1], "return": (RETURN_TABLE,)}
+    tables = forms.get(form, TABLES)
     comparisons = [] if form in ("table", "return") else about["comparisons"]
     lines = [study_table(rows, comparisons, legend=False, tables=tables)]
     machine = about["machine"]
@@ -304,10 +303,10 @@ _KEYS = _HEADERS[:4]
 TABLES = (
     ("Safety and speed", _KEYS, _HEADERS[4:8]),
     ("Driving", _KEYS[:2], _HEADERS[8:13]),
-    ("Training", (*_KEYS[:2], _KEYS[3]), _HEADERS[13:18]),
+    ("Training", (*_KEYS[:2], _KEYS[3]), _HEADERS[13:-1]),
 )
 #: The ``return`` form's table: safety, speed and the return under the row's reward.
-RETURN_TABLE = ("Return", _KEYS[:2], (*_HEADERS[4:6], _HEADERS[7], _HEADERS[18]))
+RETURN_TABLE = ("Return", _KEYS[:2], (*_HEADERS[4:6], "avg speed (km/h)", "return / episode"))
 #: The headline table's columns (a brief block's, :func:`render_section`).
 BRIEF = (*_KEYS, "ticks / seed", *_HEADERS[4:6], "avg speed (km/h)")
 
